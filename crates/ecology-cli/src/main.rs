@@ -1,0 +1,3 @@
+//! The `ecology` command-line tool.
+
+fn main() {}
