@@ -1,1 +1,135 @@
-//! placeholder
+//! The `.eco` domain language of Ecology: functionalities, tasks, methods,
+//! actions and problems, plus `.facts` files describing an ecology state.
+//!
+//! Every entry point takes bytes and returns either the validated model or
+//! every [`Diagnostic`] found, each with a byte span; [`render`] shows them as
+//! `file:line:col` with a caret excerpt. Nothing here does IO, and no input
+//! makes it panic.
+//!
+//! ```
+//! let src = b"(define (domain tiny)
+//!   (:functionality camera :parameters (?p ?c) :component (?p ?c)
+//!     :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 5))";
+//! let domain = ecology_domain::parse_domain(src).unwrap();
+//! assert_eq!(domain.functionalities[0].cost, 5);
+//! ```
+
+mod diagnostic;
+mod model;
+mod parse;
+mod state;
+pub mod syntax;
+mod validate;
+
+#[cfg(test)]
+mod tests;
+
+pub use diagnostic::{Diagnostic, Diagnostics, Span, line_col, render};
+pub use model::{
+    Action, Atom, Call, ChannelSpec, Domain, Effect, Functionality, Info, Literal, Method, Metric,
+    Name, NumExpr, Param, PredicateDecl, Problem, Redirect, Subtask, Task, Term, TypeDecl,
+};
+pub use parse::SUPPORTED_REQUIREMENTS;
+pub use state::{ComponentCost, EcologyState, Fact, Power};
+pub use validate::ECOLOGY_PREDICATES;
+
+use parse::Parser;
+
+fn finish<T>(value: T, mut diags: Vec<Diagnostic>) -> Result<T, Diagnostics> {
+    if diags.is_empty() {
+        Ok(value)
+    } else {
+        diags.sort_by_key(|d| (d.span.start, d.span.end));
+        Err(Diagnostics(diags))
+    }
+}
+
+fn read(source: &[u8]) -> Result<(Vec<syntax::Sexp>, Parser, Span), Diagnostics> {
+    let text = syntax::decode(source).map_err(|d| Diagnostics(vec![d]))?;
+    let mut parser = Parser::default();
+    let forms = syntax::read(text, &mut parser.diags);
+    Ok((forms, parser, Span::new(0, text.len())))
+}
+
+/// Parses and validates a domain file.
+pub fn parse_domain(source: &[u8]) -> Result<Domain, Diagnostics> {
+    let (forms, mut parser, whole) = read(source)?;
+    let Some((name, items)) = parser.define(&forms, "domain", whole) else {
+        return Err(Diagnostics(parser.diags));
+    };
+    let mut domain = parser.domain_body(name, items);
+    let mut diags = parser.diags;
+    diags.extend(validate::validate(&mut domain));
+    finish(domain, diags)
+}
+
+/// Parses a problem file. Checking it against its domain is the action planner's job.
+pub fn parse_problem(source: &[u8]) -> Result<Problem, Diagnostics> {
+    let (forms, mut parser, whole) = read(source)?;
+    let Some((name, items)) = parser.define(&forms, "problem", whole) else {
+        return Err(Diagnostics(parser.diags));
+    };
+    let problem = parser.problem_body(name, items);
+    finish(problem, parser.diags)
+}
+
+/// Parses a `.facts` file: ground facts, one S-expression each.
+pub fn parse_facts(source: &[u8]) -> Result<EcologyState, Diagnostics> {
+    let (forms, mut parser, _) = read(source)?;
+    let mut state = EcologyState::new();
+    for form in &forms {
+        let Some(call) = parser.call(form, "a fact like `(peis astrid)`") else {
+            continue;
+        };
+        let mut args = Vec::with_capacity(call.args.len());
+        for arg in call.args {
+            match arg {
+                Term::Const(name) => args.push(name),
+                Term::Var(var) => parser.diags.push(
+                    Diagnostic::error(call.span, format!("facts are ground, but `?{var}` is a variable")),
+                ),
+            }
+        }
+        if args.len() != form.list().map_or(0, |l| l.len() - 1) {
+            continue;
+        }
+        let fact = Fact {
+            predicate: call.name,
+            args,
+        };
+        match state::check_fact(&fact, call.span) {
+            Some(diag) => parser.diags.push(diag),
+            None => {
+                state.insert(fact);
+            }
+        }
+    }
+    finish(state, parser.diags)
+}
+
+/// Parses a ground goal such as `(navigate astrid bedroom)`.
+pub fn parse_goal(source: &str) -> Result<Call, Diagnostics> {
+    let (forms, mut parser, whole) = read(source.as_bytes())?;
+    let call = match &forms[..] {
+        [form] => parser.call(form, "a goal like `(navigate astrid bedroom)`"),
+        _ => {
+            parser.diags.push(Diagnostic::error(
+                whole,
+                "expected one goal like `(navigate astrid bedroom)`",
+            ));
+            None
+        }
+    };
+    if let Some(call) = &call
+        && let Some(var) = call.args.iter().find_map(Term::var)
+    {
+        parser.diags.push(Diagnostic::error(
+            call.span,
+            format!("a goal is ground, but `?{var}` is a variable"),
+        ));
+    }
+    match call {
+        Some(call) => finish(call, parser.diags),
+        None => Err(Diagnostics(parser.diags)),
+    }
+}

@@ -1,0 +1,172 @@
+//! Diagnostics: byte spans, error messages, and their rendering for people.
+//!
+//! Parsers collect every [`Diagnostic`] and keep going; [`render`] turns them
+//! into `file:line:col` headers with a caret excerpt (through
+//! `codespan-reporting`), and [`line_col`] gives the position for tools.
+
+use std::fmt;
+
+use codespan_reporting::diagnostic as cs;
+use codespan_reporting::files::SimpleFile;
+use codespan_reporting::term;
+
+/// A half-open byte range `start..end` in a source file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct Span {
+    /// First byte.
+    pub start: usize,
+    /// One past the last byte.
+    pub end: usize,
+}
+
+impl Span {
+    /// The span `start..end`.
+    pub fn new(start: usize, end: usize) -> Span {
+        Span { start, end }
+    }
+
+    /// An empty span at `at`.
+    pub fn empty(at: usize) -> Span {
+        Span { start: at, end: at }
+    }
+
+    /// The smallest span covering both.
+    pub fn to(self, other: Span) -> Span {
+        Span::new(self.start.min(other.start), self.end.max(other.end))
+    }
+}
+
+/// One problem found in a source file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostic {
+    /// Where the problem is.
+    pub span: Span,
+    /// A plain, lowercase sentence saying what is wrong.
+    pub message: String,
+    /// A short note under the caret, if any.
+    pub label: Option<String>,
+    /// Other places that explain this one (for example "first defined here").
+    pub secondary: Vec<(Span, String)>,
+    /// Hints printed after the excerpt.
+    pub notes: Vec<String>,
+}
+
+impl Diagnostic {
+    /// An error at `span` with `message`.
+    pub fn error(span: Span, message: impl Into<String>) -> Diagnostic {
+        Diagnostic {
+            span,
+            message: message.into(),
+            label: None,
+            secondary: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Adds the note under the caret.
+    pub fn with_label(mut self, label: impl Into<String>) -> Diagnostic {
+        self.label = Some(label.into());
+        self
+    }
+
+    /// Adds another place that explains this one.
+    pub fn with_secondary(mut self, span: Span, label: impl Into<String>) -> Diagnostic {
+        self.secondary.push((span, label.into()));
+        self
+    }
+
+    /// Adds a hint printed after the excerpt.
+    pub fn with_note(mut self, note: impl Into<String>) -> Diagnostic {
+        self.notes.push(note.into());
+        self
+    }
+}
+
+/// Every diagnostic of one failed parse, in source order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostics(pub Vec<Diagnostic>);
+
+impl Diagnostics {
+    /// Renders all of them for people; see [`render`].
+    pub fn render(&self, file_name: &str, source: &[u8]) -> String {
+        render(file_name, source, &self.0)
+    }
+}
+
+impl fmt::Display for Diagnostics {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, diag) in self.0.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{}..{}: {}", diag.span.start, diag.span.end, diag.message)?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Diagnostics {}
+
+/// The 1-based line and column (in characters) of byte `offset` in `source`.
+///
+/// Bytes that are not UTF-8 count as one column each, so positions stay
+/// meaningful for the invalid-UTF-8 diagnostic.
+pub fn line_col(source: &[u8], offset: usize) -> (usize, usize) {
+    let offset = offset.min(source.len());
+    let before = &source[..offset];
+    let line_start = before.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let column = String::from_utf8_lossy(&before[line_start..]).chars().count() + 1;
+    (line, column)
+}
+
+/// Renders diagnostics as `error: message` followed by `┌─ file:line:col` and a
+/// caret excerpt, one after the other, without colour.
+pub fn render(file_name: &str, source: &[u8], diags: &[Diagnostic]) -> String {
+    // Offsets stay exact up to the first invalid byte, which is all a UTF-8
+    // diagnostic needs; valid sources are unchanged.
+    let text = String::from_utf8_lossy(source);
+    let files = SimpleFile::new(file_name, text.as_ref());
+    let config = term::Config::default();
+    let mut out = String::new();
+    for diag in diags {
+        // Spans are clamped to the file and widened to character boundaries, so
+        // a span over an invalid byte (replaced by U+FFFD above) still renders.
+        let clamp = |span: Span| {
+            let mut end = span.end.min(text.len());
+            while !text.is_char_boundary(end) {
+                end += 1;
+            }
+            let mut start = span.start.min(end);
+            while !text.is_char_boundary(start) {
+                start -= 1;
+            }
+            start..end
+        };
+        let mut primary = cs::Label::primary((), clamp(diag.span));
+        if let Some(label) = &diag.label {
+            primary = primary.with_message(label);
+        }
+        let mut labels = vec![primary];
+        for (span, label) in &diag.secondary {
+            labels.push(cs::Label::secondary((), clamp(*span)).with_message(label));
+        }
+        let rendered = cs::Diagnostic::error()
+            .with_message(&diag.message)
+            .with_labels(labels)
+            .with_notes(diag.notes.clone());
+        match term::emit_into_string(&config, &files, &rendered) {
+            Ok(piece) => out.push_str(&piece),
+            Err(_) => {
+                // Only reachable if a span falls outside the file, which clamping
+                // prevents; still, never lose the message.
+                let (line, col) = line_col(source, diag.span.start);
+                out.push_str(&format!(
+                    "error: {}\n  --> {file_name}:{line}:{col}\n",
+                    diag.message
+                ));
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,436 @@
+//! The validated domain model: functionalities, tasks, methods, actions, problems.
+//!
+//! These types are plain data produced by the parser (`crate::parse_domain`,
+//! `crate::parse_problem`). Every item keeps the span of its source text so later
+//! stages (the planners, the CLI) can point at it.
+
+use std::collections::HashMap;
+use std::fmt;
+
+use crate::diagnostic::Span;
+
+/// A name: a symbol of the language, lowercased.
+pub type Name = Box<str>;
+
+/// An argument: a variable (`?r`, stored without the `?`) or a constant (`astrid`, `25`).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum Term {
+    /// `?name`
+    Var(Name),
+    /// A symbol or number.
+    Const(Name),
+}
+
+impl Term {
+    /// The variable's name, if this is a variable.
+    pub fn var(&self) -> Option<&str> {
+        match self {
+            Term::Var(name) => Some(name),
+            Term::Const(_) => None,
+        }
+    }
+}
+
+impl fmt::Display for Term {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Term::Var(name) => write!(f, "?{name}"),
+            Term::Const(name) => f.write_str(name),
+        }
+    }
+}
+
+/// Writes `(head a b c)`.
+pub(crate) fn write_call(
+    f: &mut fmt::Formatter<'_>,
+    head: &str,
+    args: &[impl fmt::Display],
+) -> fmt::Result {
+    write!(f, "({head}")?;
+    for arg in args {
+        write!(f, " {arg}")?;
+    }
+    f.write_str(")")
+}
+
+/// A predicate applied to arguments: `(pc ?p tr-sys ?t)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Atom {
+    /// The predicate's name.
+    pub predicate: Name,
+    /// Its arguments.
+    pub args: Vec<Term>,
+    /// The whole atom in the source.
+    pub span: Span,
+}
+
+impl fmt::Display for Atom {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write_call(f, &self.predicate, &self.args)
+    }
+}
+
+/// One conjunct of a condition.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Literal {
+    /// The atom holds.
+    Pos(Atom),
+    /// The atom does not hold (closed world).
+    Neg(Atom),
+    /// `(= a b)`
+    Eq(Term, Term, Span),
+    /// `(not (= a b))`
+    Neq(Term, Term, Span),
+}
+
+impl Literal {
+    /// Where the literal stands in the source.
+    pub fn span(&self) -> Span {
+        match self {
+            Literal::Pos(atom) | Literal::Neg(atom) => atom.span,
+            Literal::Eq(_, _, span) | Literal::Neq(_, _, span) => *span,
+        }
+    }
+
+    /// Every term the literal mentions.
+    pub fn terms(&self) -> impl Iterator<Item = &Term> {
+        let (slice, pair): (&[Term], Option<[&Term; 2]>) = match self {
+            Literal::Pos(atom) | Literal::Neg(atom) => (&atom.args, None),
+            Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => (&[], Some([a, b])),
+        };
+        slice.iter().chain(pair.into_iter().flatten())
+    }
+}
+
+impl fmt::Display for Literal {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Literal::Pos(atom) => write!(f, "{atom}"),
+            Literal::Neg(atom) => write!(f, "(not {atom})"),
+            Literal::Eq(a, b, _) => write!(f, "(= {a} {b})"),
+            Literal::Neq(a, b, _) => write!(f, "(not (= {a} {b}))"),
+        }
+    }
+}
+
+/// A schema parameter: `?r`, or `?r - robot` with `:typing`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Param {
+    /// The name without `?` (or the object's name, for `:objects` and `:constants`).
+    pub name: Name,
+    /// Its type, when typed.
+    pub ty: Option<Name>,
+    /// Where it is declared.
+    pub span: Span,
+}
+
+/// A named thing applied to arguments: a subtask `(cameras ?p ?c)`, a goal
+/// `(navigate astrid bedroom)`, a `:configure` goal, a numeric function term.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Call {
+    /// What is called.
+    pub name: Name,
+    /// The arguments.
+    pub args: Vec<Term>,
+    /// The whole call in the source.
+    pub span: Span,
+}
+
+impl fmt::Display for Call {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write_call(f, &self.name, &self.args)
+    }
+}
+
+/// An information type on an input or output: `(image ?p)`, optionally with a
+/// rate `(image ?p :hz 25)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Info {
+    /// The kind of information.
+    pub name: Name,
+    /// Whose or what it is about.
+    pub args: Vec<Term>,
+    /// For an output, the rate offered; for an input, the rate required.
+    pub hz: Option<f64>,
+    /// Where it is written.
+    pub span: Span,
+}
+
+impl fmt::Display for Info {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "({}", self.name)?;
+        for arg in &self.args {
+            write!(f, " {arg}")?;
+        }
+        if let Some(hz) = self.hz {
+            write!(f, " :hz {hz}")?;
+        }
+        f.write_str(")")
+    }
+}
+
+/// A functionality (the paper's operator schema), implemented by a PEIS-component.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Functionality {
+    /// Its name, also how subtasks call it.
+    pub name: Name,
+    /// Its parameters, all bound by the caller.
+    pub params: Vec<Param>,
+    /// The parameters naming the PEIS and the component that implement it.
+    pub component: (Name, Name),
+    /// Conditions on the ecology state.
+    pub precondition: Vec<Literal>,
+    /// Information it reads.
+    pub inputs: Vec<Info>,
+    /// Information it produces.
+    pub outputs: Vec<Info>,
+    /// Conditions it achieves in the world (`done` once they hold).
+    pub postcondition: Vec<Literal>,
+    /// Its default cost, used when the state has no cost fact for the component.
+    pub cost: u64,
+    /// The whole `(:functionality ...)` form.
+    pub span: Span,
+    /// The name in the source.
+    pub name_span: Span,
+}
+
+/// A task: something methods decompose, with the information it takes and gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Task {
+    /// Its name.
+    pub name: Name,
+    /// Its parameters.
+    pub params: Vec<Param>,
+    /// Declared inputs, if any (each method must deliver them to a subtask).
+    pub inputs: Vec<Info>,
+    /// Declared outputs, if any (each method must provide them).
+    pub outputs: Vec<Info>,
+    /// The whole `(:task ...)` form.
+    pub span: Span,
+    /// The name in the source.
+    pub name_span: Span,
+}
+
+/// A labelled subtask of a method: `(f1 (cameras ?p ?c))`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Subtask {
+    /// The label, unique in its method.
+    pub label: Name,
+    /// The task or functionality it calls.
+    pub call: Call,
+    /// The whole subtask in the source.
+    pub span: Span,
+}
+
+/// A channel between two subtasks of a method: `(f1 f2 (image ?p))`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelSpec {
+    /// The producing subtask's label.
+    pub from: Name,
+    /// The consuming subtask's label.
+    pub to: Name,
+    /// The information carried.
+    pub info: Info,
+    /// The whole channel in the source.
+    pub span: Span,
+}
+
+/// A method's `:inputs`/`:outputs` entry: the task's information is that of a subtask.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Redirect {
+    /// The information.
+    pub info: Info,
+    /// The subtask that consumes (for `:inputs`) or produces (for `:outputs`) it.
+    pub label: Name,
+    /// The entry in the source.
+    pub span: Span,
+}
+
+/// A method (the paper's config-method): one way to decompose a task.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Method {
+    /// Its name.
+    pub name: Name,
+    /// Its variables.
+    pub params: Vec<Param>,
+    /// The task it decomposes, with arguments in terms of its variables.
+    pub task: Call,
+    /// Conditions on the ecology state; positive atoms bind variables.
+    pub precondition: Vec<Literal>,
+    /// The subtasks, by label.
+    pub subtasks: Vec<Subtask>,
+    /// Channels between subtasks.
+    pub channels: Vec<ChannelSpec>,
+    /// Which subtask consumes each input of the task.
+    pub inputs: Vec<Redirect>,
+    /// Which subtask produces each output of the task.
+    pub outputs: Vec<Redirect>,
+    /// The whole `(:method ...)` form.
+    pub span: Span,
+    /// The name in the source.
+    pub name_span: Span,
+}
+
+impl Method {
+    /// The subtask with `label`.
+    pub fn subtask(&self, label: &str) -> Option<&Subtask> {
+        self.subtasks.iter().find(|s| &*s.label == label)
+    }
+}
+
+/// A numeric expression in an action cost: a number or a function term.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NumExpr {
+    /// A constant amount.
+    Number(u64),
+    /// A numeric fluent such as `(road-length ?from ?to)`, valued in the problem's `:init`.
+    Function(Call),
+}
+
+/// One effect of an action.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Effect {
+    /// The atom becomes true.
+    Add(Atom),
+    /// The atom becomes false.
+    Del(Atom),
+    /// `(increase (total-cost) AMOUNT)`
+    IncreaseCost(NumExpr, Span),
+}
+
+/// An action schema for the action planner.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Action {
+    /// Its name.
+    pub name: Name,
+    /// Its parameters (typed with `:typing`).
+    pub params: Vec<Param>,
+    /// Conditions on the world state.
+    pub precondition: Vec<Literal>,
+    /// What it changes.
+    pub effects: Vec<Effect>,
+    /// The configuration goal that performs it, if any.
+    pub configure: Option<Call>,
+    /// The whole `(:action ...)` form.
+    pub span: Span,
+    /// The name in the source.
+    pub name_span: Span,
+}
+
+/// A declared predicate or numeric function: `(at ?r - robot ?x - room)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PredicateDecl {
+    /// Its name.
+    pub name: Name,
+    /// Its parameters.
+    pub params: Vec<Param>,
+    /// Where it is declared.
+    pub span: Span,
+}
+
+/// A declared type and its parent (`object` when none is given).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TypeDecl {
+    /// The type.
+    pub name: Name,
+    /// Its supertype.
+    pub parent: Name,
+    /// Where it is declared.
+    pub span: Span,
+}
+
+/// A parsed and validated domain.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Domain {
+    /// `(domain NAME)`
+    pub name: Name,
+    /// `(:requirements ...)`, without the colons.
+    pub requirements: Vec<Name>,
+    /// `(:types ...)`
+    pub types: Vec<TypeDecl>,
+    /// `(:constants ...)`
+    pub constants: Vec<Param>,
+    /// `(:predicates ...)`
+    pub predicates: Vec<PredicateDecl>,
+    /// `(:functions ...)`
+    pub functions: Vec<PredicateDecl>,
+    /// `(:functionality ...)` forms.
+    pub functionalities: Vec<Functionality>,
+    /// `(:task ...)` forms.
+    pub tasks: Vec<Task>,
+    /// `(:method ...)` forms.
+    pub methods: Vec<Method>,
+    /// `(:action ...)` forms.
+    pub actions: Vec<Action>,
+    pub(crate) index: Index,
+}
+
+/// Name lookups, built once by validation.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub(crate) struct Index {
+    pub(crate) functionalities: HashMap<Name, usize>,
+    pub(crate) tasks: HashMap<Name, usize>,
+    pub(crate) actions: HashMap<Name, usize>,
+    pub(crate) methods_of_task: HashMap<Name, Vec<usize>>,
+}
+
+impl Domain {
+    /// The functionality called `name`.
+    pub fn functionality(&self, name: &str) -> Option<&Functionality> {
+        self.index
+            .functionalities
+            .get(name)
+            .map(|&i| &self.functionalities[i])
+    }
+
+    /// The task called `name`.
+    pub fn task(&self, name: &str) -> Option<&Task> {
+        self.index.tasks.get(name).map(|&i| &self.tasks[i])
+    }
+
+    /// The action called `name`.
+    pub fn action(&self, name: &str) -> Option<&Action> {
+        self.index.actions.get(name).map(|&i| &self.actions[i])
+    }
+
+    /// The methods that decompose task `name`, in source order.
+    pub fn methods_of(&self, name: &str) -> impl Iterator<Item = &Method> {
+        self.index
+            .methods_of_task
+            .get(name)
+            .into_iter()
+            .flatten()
+            .map(|&i| &self.methods[i])
+    }
+
+    /// Whether the domain declares `requirement` (without the colon).
+    pub fn requires(&self, requirement: &str) -> bool {
+        self.requirements.iter().any(|r| &**r == requirement)
+    }
+}
+
+/// The metric of a problem.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    /// `(:metric minimize (total-cost))`
+    MinimizeTotalCost,
+}
+
+/// A planning problem: `(define (problem NAME) (:domain NAME) ...)`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Problem {
+    /// `(problem NAME)`
+    pub name: Name,
+    /// `(:domain NAME)`
+    pub domain: Name,
+    /// `(:objects ...)`
+    pub objects: Vec<Param>,
+    /// The ground atoms of `(:init ...)`.
+    pub init: Vec<Atom>,
+    /// Numeric fluents of `(:init ...)`: `(= (road-length a b) 5)`.
+    pub numeric_init: Vec<(Call, u64)>,
+    /// `(:goal ...)`, a conjunction.
+    pub goal: Vec<Literal>,
+    /// `(:metric ...)`, if given.
+    pub metric: Option<Metric>,
+}
