@@ -1,3 +1,62 @@
 //! The `ecology` command-line tool.
+//!
+//! Exit codes, for every subcommand:
+//! - 0: success;
+//! - 1: no solution (no configuration, no plan) or the task failed;
+//! - 2: bad input or usage, with `file:line:col` diagnostics on stderr.
 
-fn main() {}
+mod configure;
+mod input;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Exit code: success.
+pub const EXIT_OK: u8 = 0;
+/// Exit code: no solution, or the task failed.
+pub const EXIT_NO_SOLUTION: u8 = 1;
+/// Exit code: bad input or usage.
+pub const EXIT_BAD_INPUT: u8 = 2;
+
+/// Ecology: self-configuration of an ecology of robots.
+#[derive(Debug, Parser)]
+#[command(name = "ecology", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Validate a domain (.eco) file and report every problem in it.
+    Check(configure::CheckArgs),
+    /// Find the cheapest admissible configuration for a goal.
+    Configure(configure::ConfigureArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(err) => {
+            let code = if err.use_stderr() {
+                EXIT_BAD_INPUT
+            } else {
+                EXIT_OK
+            };
+            let _ = err.print();
+            return ExitCode::from(code);
+        }
+    };
+    let result = match cli.command {
+        Command::Check(args) => configure::check(&args),
+        Command::Configure(args) => configure::configure(&args),
+    };
+    match result {
+        Ok(code) => ExitCode::from(code),
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::from(EXIT_BAD_INPUT)
+        }
+    }
+}

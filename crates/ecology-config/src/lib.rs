@@ -1,1 +1,576 @@
-//! placeholder
+//! The configuration planner of Ecology (the paper's Section V).
+//!
+//! Given a [`Domain`], an [`EcologyState`] and a goal such as
+//! `(navigate astrid bedroom)`, it finds the cheapest *admissible*
+//! configuration: functionality instances on PEIS-components and the channels
+//! between them, such that every precondition holds in the state and every
+//! input is connected to a compatible output at a sufficient rate. It can
+//! also list admissible configurations cheapest first, and when none exists it
+//! says why with an [`Explanation`].
+//!
+//! The planner is sans-IO: time comes from a [`Clock`] the caller passes in.
+//!
+//! ```
+//! use ecology_config::{plan, Options, Request, Status};
+//! let domain = ecology_domain::parse_domain(br#"(define (domain d)
+//!   (:functionality cam :parameters (?p ?c) :component (?p ?c)
+//!     :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 5)
+//!   (:task see :parameters (?p))
+//!   (:method see-with-camera :parameters (?p ?c) :task (see ?p)
+//!     :precondition (pc ?p cam ?c) :subtasks ((f1 (cam ?p ?c)))))"#).unwrap();
+//! let state = ecology_domain::parse_facts(b"(pc robot cam c1) (cost robot c1 3 on)").unwrap();
+//! let goal = ecology_domain::parse_goal("(see robot)").unwrap();
+//! let request = Request { domain: &domain, state: &state, goal: &goal, exclusions: &[] };
+//! let outcome = plan(&request, &Options::default(), &ecology_config::NoClock).unwrap();
+//! assert_eq!(outcome.status, Status::Proven);
+//! assert_eq!(outcome.configurations[0].cost, 3);
+//! ```
+
+mod compile;
+mod cost;
+mod explain;
+mod ground;
+pub mod oracle;
+mod search;
+pub mod synthetic;
+
+#[cfg(test)]
+mod tests;
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::Duration;
+
+use ecology_domain::{Call, Domain, EcologyState, Power};
+
+pub use cost::{CostModel, PaperCost};
+pub use explain::Explanation;
+
+use compile::{Callee, Compiled};
+use ground::{Ctx, Excluded};
+use search::Engine;
+
+/// What to plan for.
+#[derive(Debug, Clone, Copy)]
+pub struct Request<'a> {
+    /// The functionalities, tasks and methods.
+    pub domain: &'a Domain,
+    /// The acquired ecology state.
+    pub state: &'a EcologyState,
+    /// The ground goal: a task or functionality instance.
+    pub goal: &'a Call,
+    /// Components and PEIS that must not be used (failed ones).
+    pub exclusions: &'a [Exclusion],
+}
+
+/// Something the planner must not use.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum Exclusion {
+    /// One component, written `PEIS:COMPONENT`.
+    Component {
+        /// The PEIS.
+        peis: String,
+        /// The component on it.
+        component: String,
+    },
+    /// Every component of a PEIS, written `PEIS`.
+    Peis(String),
+}
+
+impl FromStr for Exclusion {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Exclusion, String> {
+        let s = s.trim().to_lowercase();
+        let valid = |part: &str| {
+            !part.is_empty()
+                && !part
+                    .chars()
+                    .any(|c| c.is_whitespace() || "():;?".contains(c))
+        };
+        match s.split_once(':') {
+            Some((peis, component)) if valid(peis) && valid(component) => {
+                Ok(Exclusion::Component {
+                    peis: peis.to_string(),
+                    component: component.to_string(),
+                })
+            }
+            None if valid(&s) => Ok(Exclusion::Peis(s)),
+            _ => Err(format!("`{s}` is not PEIS:COMPONENT or PEIS")),
+        }
+    }
+}
+
+impl fmt::Display for Exclusion {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Exclusion::Component { peis, component } => write!(f, "{peis}:{component}"),
+            Exclusion::Peis(peis) => f.write_str(peis),
+        }
+    }
+}
+
+/// Limits on one search; `None` means unlimited.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Budget {
+    /// Nodes expanded at most.
+    pub max_expansions: Option<u64>,
+    /// Time at most, as measured by the caller's [`Clock`].
+    pub max_time: Option<Duration>,
+}
+
+/// How to search.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    /// How many configurations to return, cheapest first (1: the optimum).
+    pub count: usize,
+    /// When to stop early.
+    pub budget: Budget,
+}
+
+impl Default for Options {
+    fn default() -> Options {
+        Options {
+            count: 1,
+            budget: Budget::default(),
+        }
+    }
+}
+
+/// Time since the search started, from the caller (the planner reads no clock).
+pub trait Clock {
+    /// Time elapsed since the planner was called.
+    fn elapsed(&self) -> Duration;
+}
+
+/// A clock that never advances: no time budget, and `micros` reads 0.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoClock;
+
+impl Clock for NoClock {
+    fn elapsed(&self) -> Duration {
+        Duration::ZERO
+    }
+}
+
+/// A goal the domain cannot plan for.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RequestError {
+    /// No task or functionality has the goal's name.
+    #[error("unknown task or functionality `{name}` in the goal")]
+    UnknownGoal {
+        /// The goal's name.
+        name: String,
+    },
+    /// The goal has the wrong number of arguments.
+    #[error("wrong arity: `{name}` takes {expected} arguments, the goal gives {given}")]
+    Arity {
+        /// The goal's name.
+        name: String,
+        /// Parameters of the task or functionality.
+        expected: usize,
+        /// Arguments in the goal.
+        given: usize,
+    },
+    /// The goal has a variable.
+    #[error("the goal must be ground, but `{0}` is a variable")]
+    NotGround(String),
+}
+
+/// A functionality instance in a configuration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FunctionalityInstance {
+    /// Where it sits in the decomposition, like `f0/f1/f2`.
+    pub label: String,
+    /// The functionality's name.
+    pub name: String,
+    /// Its ground arguments.
+    pub args: Vec<String>,
+    /// The PEIS it runs on.
+    pub peis: String,
+    /// The component that runs it.
+    pub component: String,
+    /// Whether the component is running now (off means it must be started).
+    pub power: Power,
+    /// What it costs in this configuration.
+    pub cost: u64,
+    /// Its inputs, ground, like `(image hsm)`.
+    pub inputs: Vec<String>,
+    /// Its outputs, ground.
+    pub outputs: Vec<String>,
+    /// Its postcondition, ground; a component with one reports `done`.
+    pub postcondition: Vec<String>,
+}
+
+impl FunctionalityInstance {
+    /// `(name arg ...)`
+    pub fn call(&self) -> String {
+        let mut out = format!("({}", self.name);
+        for a in &self.args {
+            out.push(' ');
+            out.push_str(a);
+        }
+        out.push(')');
+        out
+    }
+}
+
+/// A channel: an output of one functionality feeding an input of another.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelInstance {
+    /// The producer's label.
+    pub from: String,
+    /// The consumer's label.
+    pub to: String,
+    /// The information, like `(image hsm)`.
+    pub info: String,
+    /// The producer's PEIS.
+    pub from_peis: String,
+    /// The producer's component.
+    pub from_component: String,
+    /// The consumer's PEIS.
+    pub to_peis: String,
+    /// The consumer's component.
+    pub to_component: String,
+    /// Whether it crosses between PEIS.
+    pub remote: bool,
+    /// What it costs.
+    pub cost: u64,
+}
+
+/// An admissible configuration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Configuration {
+    /// Its total cost.
+    pub cost: u64,
+    /// Whether it is proven to be among the cheapest (see [`Outcome::status`]).
+    pub optimal: bool,
+    /// Its functionality instances, one per component.
+    pub functionalities: Vec<FunctionalityInstance>,
+    /// Its channels.
+    pub channels: Vec<ChannelInstance>,
+}
+
+impl Configuration {
+    /// Whether it uses component `component` of `peis`.
+    pub fn uses(&self, peis: &str, component: &str) -> bool {
+        self.functionalities
+            .iter()
+            .any(|f| f.peis == peis && f.component == component)
+    }
+
+    /// A canonical text identifying the configuration regardless of labels.
+    pub fn signature(&self) -> String {
+        let mut parts: Vec<String> = self
+            .functionalities
+            .iter()
+            .map(|f| format!("{}:{}={}", f.peis, f.component, f.call()))
+            .collect();
+        parts.sort();
+        let mut channels: Vec<String> = self
+            .channels
+            .iter()
+            .map(|c| {
+                format!(
+                    "{}:{}>{}:{}{}",
+                    c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
+                )
+            })
+            .collect();
+        channels.sort();
+        parts.extend(channels);
+        parts.join(" ")
+    }
+}
+
+impl fmt::Display for Configuration {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let width = self
+            .functionalities
+            .iter()
+            .map(|x| x.label.len())
+            .max()
+            .unwrap_or(0);
+        for x in &self.functionalities {
+            let power = match x.power {
+                Power::On => "on",
+                Power::Off => "off, started",
+            };
+            writeln!(
+                f,
+                "  {:width$}  {:<36} {}:{} ({power})  cost {}",
+                x.label,
+                x.call(),
+                x.peis,
+                x.component,
+                x.cost
+            )?;
+        }
+        if !self.channels.is_empty() {
+            writeln!(f, "  channels:")?;
+            for c in &self.channels {
+                let place = if c.remote {
+                    format!("remote {} → {}", c.from_peis, c.to_peis)
+                } else {
+                    format!("local on {}", c.from_peis)
+                };
+                let cost = if c.cost > 0 {
+                    format!("  cost {}", c.cost)
+                } else {
+                    String::new()
+                };
+                writeln!(f, "    {} → {}  {}  ({place}){cost}", c.from, c.to, c.info)?;
+            }
+        }
+        let proof = if self.optimal {
+            "proven optimal"
+        } else {
+            "not proven optimal"
+        };
+        write!(f, "  total cost {} ({proof})", self.cost)
+    }
+}
+
+/// How a search ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Status {
+    /// The configurations returned are proven to be the cheapest (all of them,
+    /// when fewer than asked for exist; none, when no configuration exists).
+    Proven,
+    /// The budget ran out: the configurations are the best found, not proven.
+    BudgetExceeded,
+}
+
+/// Counts of one search.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stats {
+    /// Search nodes expanded.
+    pub expanded: u64,
+    /// Search nodes generated.
+    pub generated: u64,
+    /// Ground method alternatives built (method and binding pairs).
+    pub alternatives: u64,
+    /// Time spent, by the caller's clock.
+    pub micros: u64,
+}
+
+/// The result of a search.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// Admissible configurations, cheapest first.
+    pub configurations: Vec<Configuration>,
+    /// Whether they are proven.
+    pub status: Status,
+    /// When there are none: why.
+    pub explanation: Option<Explanation>,
+    /// When the budget ran out: no configuration costs less than this.
+    pub lower_bound: Option<u64>,
+    /// Counts.
+    pub stats: Stats,
+}
+
+/// A search that can be run in steps under an outside budget.
+pub struct Search<'a> {
+    engine: Engine<'a>,
+    count: usize,
+    dived: bool,
+}
+
+impl fmt::Debug for Search<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Search")
+            .field("count", &self.count)
+            .field("expanded", &self.engine.expanded)
+            .finish_non_exhaustive()
+    }
+}
+
+/// What one call of [`Search::step`] reached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    /// More work remains.
+    InProgress,
+    /// The search is over; [`Search::finish`] has the proven result.
+    Done,
+}
+
+impl<'a> Search<'a> {
+    /// Prepares a search: compiles the domain and state, grounds the goal.
+    pub fn new(
+        request: &Request<'a>,
+        cost_model: &'a dyn CostModel,
+        options: &Options,
+    ) -> Result<Search<'a>, RequestError> {
+        let mut compiled = Compiled::new(request.domain, request.state);
+        let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
+        let excluded = excluded(&mut compiled, request.exclusions);
+        let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
+        Ok(Search {
+            engine: Engine::new(ctx, callee, &args),
+            count: options.count.max(1),
+            dived: false,
+        })
+    }
+
+    /// Runs at most `expansions` steps.
+    pub fn step(&mut self, expansions: u64) -> Progress {
+        if !self.dived && self.count == 1 {
+            self.dived = true;
+            self.engine.dive(expansions.max(1));
+        }
+        for _ in 0..expansions {
+            if self.engine.accepted.len() >= self.count || self.engine.is_exhausted() {
+                return Progress::Done;
+            }
+            self.engine.step(self.count == 1);
+        }
+        if self.engine.accepted.len() >= self.count || self.engine.is_exhausted() {
+            Progress::Done
+        } else {
+            Progress::InProgress
+        }
+    }
+
+    /// Nodes expanded so far.
+    pub fn expanded(&self) -> u64 {
+        self.engine.expanded
+    }
+
+    /// Ends the search. With `complete` false (the budget ran out), returns
+    /// the best found so far, not proven.
+    pub fn finish(mut self, complete: bool, elapsed: Duration) -> Outcome {
+        let mut configurations = std::mem::take(&mut self.engine.accepted);
+        let proven_count = configurations.len();
+        if configurations.is_empty()
+            && let Some(incumbent) = self.engine.incumbent.take()
+        {
+            configurations.push(incumbent);
+        }
+        if !complete && configurations.is_empty() {
+            // Dive for something usable from the best open node.
+            self.engine.dive(10_000);
+            configurations.extend(self.engine.incumbent.take());
+        }
+        for (i, c) in configurations.iter_mut().enumerate() {
+            c.optimal = complete || i < proven_count;
+        }
+        let explanation = (configurations.is_empty() && complete).then(|| {
+            explain::explain(
+                &self.engine.ctx,
+                &self.engine.graph,
+                self.engine.root,
+                &self.engine.rejections,
+            )
+        });
+        Outcome {
+            configurations,
+            status: if complete {
+                Status::Proven
+            } else {
+                Status::BudgetExceeded
+            },
+            explanation,
+            lower_bound: if complete {
+                None
+            } else {
+                self.engine.lower_bound()
+            },
+            stats: Stats {
+                expanded: self.engine.expanded,
+                generated: self.engine.generated,
+                alternatives: self.engine.graph.alternatives,
+                micros: elapsed.as_micros() as u64,
+            },
+        }
+    }
+}
+
+/// Plans with the paper's cost model; see [`plan_with`].
+pub fn plan<'a>(
+    request: &Request<'a>,
+    options: &Options,
+    clock: &dyn Clock,
+) -> Result<Outcome, RequestError> {
+    plan_with(request, &PaperCost, options, clock)
+}
+
+/// Finds the cheapest admissible configuration (or the `options.count`
+/// cheapest), stopping early when the budget runs out.
+pub fn plan_with<'a>(
+    request: &Request<'a>,
+    cost_model: &'a dyn CostModel,
+    options: &Options,
+    clock: &dyn Clock,
+) -> Result<Outcome, RequestError> {
+    const SLICE: u64 = 256;
+    let mut search = Search::new(request, cost_model, options)?;
+    loop {
+        let slice = match options.budget.max_expansions {
+            Some(max) => SLICE.min(max.saturating_sub(search.expanded())),
+            None => SLICE,
+        };
+        let over_time = options
+            .budget
+            .max_time
+            .is_some_and(|t| clock.elapsed() >= t);
+        if slice == 0 || over_time {
+            return Ok(search.finish(false, clock.elapsed()));
+        }
+        if search.step(slice) == Progress::Done {
+            return Ok(search.finish(true, clock.elapsed()));
+        }
+    }
+}
+
+/// Maps exclusions onto interned symbols; unknown names exclude nothing.
+fn excluded(compiled: &mut Compiled, exclusions: &[Exclusion]) -> Excluded {
+    let mut out = Excluded::default();
+    for e in exclusions {
+        match e {
+            Exclusion::Component { peis, component } => {
+                let p = compiled.syms.intern(peis);
+                let c = compiled.syms.intern(component);
+                out.components.insert((p, c));
+            }
+            Exclusion::Peis(peis) => {
+                let p = compiled.syms.intern(peis);
+                out.peis.insert(p);
+            }
+        }
+    }
+    out
+}
+
+/// The goal's callee and interned arguments.
+fn resolve_goal(
+    domain: &Domain,
+    compiled: &mut Compiled,
+    goal: &Call,
+) -> Result<(Callee, Vec<compile::Sym>), RequestError> {
+    let Some(&callee) = compiled.callee_by_name.get(&goal.name) else {
+        return Err(RequestError::UnknownGoal {
+            name: goal.name.to_string(),
+        });
+    };
+    let expected = match callee {
+        Callee::Func(f) => domain.functionalities[compiled.funcs[f as usize].src]
+            .params
+            .len(),
+        Callee::Task(t) => domain.tasks[compiled.tasks[t as usize].src].params.len(),
+    };
+    if expected != goal.args.len() {
+        return Err(RequestError::Arity {
+            name: goal.name.to_string(),
+            expected,
+            given: goal.args.len(),
+        });
+    }
+    let mut args = Vec::new();
+    for t in &goal.args {
+        match t {
+            ecology_domain::Term::Const(c) => args.push(compiled.syms.intern(c)),
+            ecology_domain::Term::Var(v) => return Err(RequestError::NotGround(format!("?{v}"))),
+        }
+    }
+    Ok((callee, args))
+}

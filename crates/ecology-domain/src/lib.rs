@@ -85,9 +85,10 @@ pub fn parse_facts(source: &[u8]) -> Result<EcologyState, Diagnostics> {
         for arg in call.args {
             match arg {
                 Term::Const(name) => args.push(name),
-                Term::Var(var) => parser.diags.push(
-                    Diagnostic::error(call.span, format!("facts are ground, but `?{var}` is a variable")),
-                ),
+                Term::Var(var) => parser.diags.push(Diagnostic::error(
+                    call.span,
+                    format!("facts are ground, but `?{var}` is a variable"),
+                )),
             }
         }
         if args.len() != form.list().map_or(0, |l| l.len() - 1) {

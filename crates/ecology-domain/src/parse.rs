@@ -92,10 +92,7 @@ impl Parser {
         }
         let items = first.list().unwrap_or(&[]);
         if items.first().and_then(Sexp::atom) != Some("define") {
-            self.error(
-                first.span,
-                format!("expected `(define ({kind} NAME) ...)`"),
-            );
+            self.error(first.span, format!("expected `(define ({kind} NAME) ...)`"));
             return None;
         }
         let header = items.get(1);
@@ -149,7 +146,10 @@ impl Parser {
     }
 
     fn field<'a>(fields: &Fields<'a>, key: &str) -> Option<&'a Sexp> {
-        fields.iter().find(|(k, _, _)| *k == key).map(|(_, _, v)| *v)
+        fields
+            .iter()
+            .find(|(k, _, _)| *k == key)
+            .map(|(_, _, v)| *v)
     }
 
     fn require<'a>(
@@ -172,7 +172,10 @@ impl Parser {
             Some(text) if classify(text) == AtomKind::Symbol => Some(text.into()),
             Some(text) if classify(text) == AtomKind::Number => {
                 self.check_number(text, sexp.span);
-                self.error(sexp.span, format!("expected {expected}, found number `{text}`"));
+                self.error(
+                    sexp.span,
+                    format!("expected {expected}, found number `{text}`"),
+                );
                 None
             }
             Some(text) => {
@@ -191,8 +194,9 @@ impl Parser {
             return true;
         }
         self.push(
-            Diagnostic::error(span, format!("malformed number `{text}`"))
-                .with_note("numbers are digits with an optional sign and fraction, like 25 or 12.5"),
+            Diagnostic::error(span, format!("malformed number `{text}`")).with_note(
+                "numbers are digits with an optional sign and fraction, like 25 or 12.5",
+            ),
         );
         false
     }
@@ -201,7 +205,10 @@ impl Parser {
     fn natural(&mut self, sexp: &Sexp, what: &str) -> Option<u64> {
         let text = sexp.atom().filter(|t| classify(t) == AtomKind::Number);
         let Some(text) = text else {
-            self.error(sexp.span, format!("expected {what}, a non-negative integer"));
+            self.error(
+                sexp.span,
+                format!("expected {what}, a non-negative integer"),
+            );
             return None;
         };
         if !self.check_number(text, sexp.span) {
@@ -430,15 +437,16 @@ impl Parser {
     fn unsupported(&mut self, head: &Sexp, context: &str) {
         let name = head.atom().unwrap_or("?");
         self.push(
-            Diagnostic::error(head.span, format!("`{name}` is not supported {context}"))
-                .with_note(format!(
+            Diagnostic::error(head.span, format!("`{name}` is not supported {context}")).with_note(
+                format!(
                     "supported requirements: {}",
                     SUPPORTED_REQUIREMENTS
                         .iter()
                         .map(|r| format!(":{r}"))
                         .collect::<Vec<_>>()
                         .join(" ")
-                )),
+                ),
+            ),
         );
     }
 
@@ -449,7 +457,10 @@ impl Parser {
             return None;
         };
         let Some(head) = items.first() else {
-            self.error(sexp.span, "expected information like `(image ?p)`, found `()`");
+            self.error(
+                sexp.span,
+                "expected information like `(image ?p)`, found `()`",
+            );
             return None;
         };
         let name = self.symbol(head, "an information name")?;
@@ -481,7 +492,10 @@ impl Parser {
             Some([first, ..]) if first.atom().is_some() => self.info(sexp).into_iter().collect(),
             Some(items) => items.iter().filter_map(|item| self.info(item)).collect(),
             None => {
-                self.error(sexp.span, "expected a list of information like `((image ?p))`");
+                self.error(
+                    sexp.span,
+                    "expected a list of information like `((image ?p))`",
+                );
                 Vec::new()
             }
         }
@@ -523,7 +537,10 @@ impl Parser {
                 Some([p, c]) => match (self.term(p), self.term(c)) {
                     (Some(Term::Var(p)), Some(Term::Var(c))) => Some((p, c)),
                     (Some(_), Some(_)) => {
-                        self.error(sexp.span, "`:component` takes two parameters, like `(?p ?c)`");
+                        self.error(
+                            sexp.span,
+                            "`:component` takes two parameters, like `(?p ?c)`",
+                        );
                         None
                     }
                     _ => None,
@@ -813,7 +830,10 @@ impl Parser {
             };
             let head = list.first().and_then(Sexp::atom);
             if head.is_some() && list.len() < 2 {
-                self.error(form.span, format!("`{}` is empty", head.unwrap_or_default()));
+                self.error(
+                    form.span,
+                    format!("`{}` is empty", head.unwrap_or_default()),
+                );
                 continue;
             }
             match head {
@@ -913,7 +933,10 @@ impl Parser {
                 continue;
             };
             let Some(head) = list.first() else {
-                self.error(item.span, "expected a declaration like `(at ?r ?x)`, found `()`");
+                self.error(
+                    item.span,
+                    "expected a declaration like `(at ?r ?x)`, found `()`",
+                );
                 continue;
             };
             if let Some(name) = self.symbol(head, "a predicate name") {
@@ -988,7 +1011,10 @@ impl Parser {
                     if ok {
                         problem.metric = Some(Metric::MinimizeTotalCost);
                     } else {
-                        self.error(form.span, "only `(:metric minimize (total-cost))` is supported");
+                        self.error(
+                            form.span,
+                            "only `(:metric minimize (total-cost))` is supported",
+                        );
                     }
                 }
                 Some(":requirements") => {}

@@ -98,7 +98,9 @@ impl EcologyState {
 
     /// Facts of one predicate.
     pub fn with_predicate<'a>(&'a self, predicate: &'a str) -> impl Iterator<Item = &'a Fact> {
-        self.facts.iter().filter(move |f| &*f.predicate == predicate)
+        self.facts
+            .iter()
+            .filter(move |f| &*f.predicate == predicate)
     }
 
     /// The `cost` fact of component `component` on `peis`.
@@ -176,16 +178,25 @@ pub(crate) fn check_fact(fact: &Fact, span: Span) -> Option<Diagnostic> {
     let natural = |text: &str| text.parse::<u64>().is_ok();
     match (&*fact.predicate, &fact.args[..]) {
         ("cost", [_, _, amount, _]) if !natural(amount) => Some(
-            Diagnostic::error(span, format!("cost `{amount}` is not a non-negative integer"))
-                .with_note(usage("cost")),
+            Diagnostic::error(
+                span,
+                format!("cost `{amount}` is not a non-negative integer"),
+            )
+            .with_note(usage("cost")),
         ),
         ("cost", [_, _, _, power]) if !matches!(&**power, "on" | "off") => Some(
-            Diagnostic::error(span, format!("component state `{power}` is neither `on` nor `off`"))
-                .with_note(usage("cost")),
+            Diagnostic::error(
+                span,
+                format!("component state `{power}` is neither `on` nor `off`"),
+            )
+            .with_note(usage("cost")),
         ),
         ("channel-cost", [_, _, amount]) if !natural(amount) => Some(
-            Diagnostic::error(span, format!("cost `{amount}` is not a non-negative integer"))
-                .with_note(usage("channel-cost")),
+            Diagnostic::error(
+                span,
+                format!("cost `{amount}` is not a non-negative integer"),
+            )
+            .with_note(usage("channel-cost")),
         ),
         _ => None,
     }

@@ -36,7 +36,12 @@ pub(crate) fn validate(domain: &mut Domain) -> Vec<Diagnostic> {
         v.unique_params(&task.params, &format!("task `{}`", task.name));
         let params = names(&task.params);
         for info in task.inputs.iter().chain(&task.outputs) {
-            v.vars_declared(&info.args, info.span, &params, &format!("task `{}`", task.name));
+            v.vars_declared(
+                &info.args,
+                info.span,
+                &params,
+                &format!("task `{}`", task.name),
+            );
         }
     }
     for method in &domain.methods {
@@ -108,7 +113,10 @@ impl Validator {
             } else {
                 let mut diag = Diagnostic::error(
                     m.task.span,
-                    format!("method `{}` is for undeclared task `{}`", m.name, m.task.name),
+                    format!(
+                        "method `{}` is for undeclared task `{}`",
+                        m.name, m.task.name
+                    ),
                 );
                 if index.functionalities.contains_key(&m.task.name) {
                     diag = diag.with_note("that is a functionality; methods decompose tasks");
@@ -129,7 +137,10 @@ impl Validator {
                 }
             }
         }
-        for (list, what) in [(&domain.predicates, "predicate"), (&domain.functions, "function")] {
+        for (list, what) in [
+            (&domain.predicates, "predicate"),
+            (&domain.functions, "function"),
+        ] {
             for (i, p) in list.iter().enumerate() {
                 if let Some(first) = list[..i].iter().find(|q| q.name == p.name) {
                     self.duplicate(what, &p.name, p.span, first.span);
@@ -149,8 +160,11 @@ impl Validator {
         for (i, p) in params.iter().enumerate() {
             if let Some(first) = params[..i].iter().find(|q| q.name == p.name) {
                 self.diags.push(
-                    Diagnostic::error(p.span, format!("duplicate parameter `{}` in {what}", p.name))
-                        .with_secondary(first.span, "first declared here"),
+                    Diagnostic::error(
+                        p.span,
+                        format!("duplicate parameter `{}` in {what}", p.name),
+                    )
+                    .with_secondary(first.span, "first declared here"),
                 );
             }
         }
@@ -162,8 +176,11 @@ impl Validator {
                 && !declared.contains(&**var)
             {
                 self.diags.push(
-                    Diagnostic::error(span, format!("variable `?{var}` is not a parameter of {what}"))
-                        .with_note("declare it in `:parameters`"),
+                    Diagnostic::error(
+                        span,
+                        format!("variable `?{var}` is not a parameter of {what}"),
+                    )
+                    .with_note("declare it in `:parameters`"),
                 );
             }
         }
@@ -242,12 +259,18 @@ impl Validator {
             self.vars_declared(&info.args, info.span, &params, &what);
         }
         for (i, info) in f.inputs.iter().enumerate() {
-            if f.inputs[..i].iter().any(|o| o.name == info.name && o.args == info.args) {
+            if f.inputs[..i]
+                .iter()
+                .any(|o| o.name == info.name && o.args == info.args)
+            {
                 self.error(info.span, format!("duplicate input {info} in {what}"));
             }
         }
         for (i, info) in f.outputs.iter().enumerate() {
-            if f.outputs[..i].iter().any(|o| o.name == info.name && o.args == info.args) {
+            if f.outputs[..i]
+                .iter()
+                .any(|o| o.name == info.name && o.args == info.args)
+            {
                 self.error(info.span, format!("duplicate output {info} in {what}"));
             }
         }
@@ -260,8 +283,11 @@ impl Validator {
             (Callee::Task(t), &t.params)
         } else {
             self.diags.push(
-                Diagnostic::error(call.span, format!("unknown task or functionality `{}`", call.name))
-                    .with_label("no `(:task ...)` or `(:functionality ...)` has this name"),
+                Diagnostic::error(
+                    call.span,
+                    format!("unknown task or functionality `{}`", call.name),
+                )
+                .with_label("no `(:task ...)` or `(:functionality ...)` has this name"),
             );
             return None;
         };
@@ -342,8 +368,11 @@ impl Validator {
         for (i, sub) in m.subtasks.iter().enumerate() {
             if let Some(first) = m.subtasks[..i].iter().find(|s| s.label == sub.label) {
                 self.diags.push(
-                    Diagnostic::error(sub.span, format!("duplicate label `{}` in {what}", sub.label))
-                        .with_secondary(first.span, "first used here"),
+                    Diagnostic::error(
+                        sub.span,
+                        format!("duplicate label `{}` in {what}", sub.label),
+                    )
+                    .with_secondary(first.span, "first used here"),
                 );
                 continue;
             }
@@ -368,11 +397,16 @@ impl Validator {
                 self.carries(domain, callee, call, &channel.info, Direction::Input);
             }
         }
-        for (redirects, direction) in [(&m.inputs, Direction::Input), (&m.outputs, Direction::Output)] {
+        for (redirects, direction) in [
+            (&m.inputs, Direction::Input),
+            (&m.outputs, Direction::Output),
+        ] {
             for redirect in redirects {
                 self.vars_declared(&redirect.info.args, redirect.info.span, &params, &what);
                 check_bound(self, &redirect.info.args, redirect.info.span);
-                if let Some((callee, call)) = self.label(m, &redirect.label, redirect.span, &callees) {
+                if let Some((callee, call)) =
+                    self.label(m, &redirect.label, redirect.span, &callees)
+                {
                     self.carries(domain, callee, call, &redirect.info, direction);
                 }
             }
@@ -426,12 +460,19 @@ impl Validator {
             None => {
                 let labels: Vec<&str> = m.subtasks.iter().map(|s| &*s.label).collect();
                 self.diags.push(
-                    Diagnostic::error(span, format!("no subtask labelled `{label}` in method `{}`", m.name))
-                        .with_note(format!("labels: {}", labels.join(" "))),
+                    Diagnostic::error(
+                        span,
+                        format!("no subtask labelled `{label}` in method `{}`", m.name),
+                    )
+                    .with_note(format!("labels: {}", labels.join(" "))),
                 );
                 None
             }
-            Some(sub) => callees.get(label).copied().flatten().map(|c| (c, &sub.call)),
+            Some(sub) => callees
+                .get(label)
+                .copied()
+                .flatten()
+                .map(|c| (c, &sub.call)),
         }
     }
 
@@ -446,7 +487,9 @@ impl Validator {
     ) {
         let (params, declared): (&[Param], Vec<&Info>) = match (callee, direction) {
             (Callee::Functionality(f), Direction::Input) => (&f.params, f.inputs.iter().collect()),
-            (Callee::Functionality(f), Direction::Output) => (&f.params, f.outputs.iter().collect()),
+            (Callee::Functionality(f), Direction::Output) => {
+                (&f.params, f.outputs.iter().collect())
+            }
             (Callee::Task(t), direction) => {
                 let declared = match direction {
                     Direction::Input => &t.inputs,
@@ -459,9 +502,9 @@ impl Validator {
                             Direction::Input => &m.inputs,
                             Direction::Output => &m.outputs,
                         };
-                        redirects
-                            .iter()
-                            .any(|r| r.info.name == info.name && r.info.args.len() == info.args.len())
+                        redirects.iter().any(|r| {
+                            r.info.name == info.name && r.info.args.len() == info.args.len()
+                        })
                     });
                     if !any {
                         self.not_carried(call, info, direction);
@@ -559,7 +602,13 @@ impl Validator {
             let edges = |t: usize| -> Vec<(usize, usize)> {
                 let task = &domain.tasks[t];
                 let mut out = Vec::new();
-                for m in domain.index.methods_of_task.get(&task.name).into_iter().flatten() {
+                for m in domain
+                    .index
+                    .methods_of_task
+                    .get(&task.name)
+                    .into_iter()
+                    .flatten()
+                {
                     for (s, sub) in domain.methods[*m].subtasks.iter().enumerate() {
                         if domain.index.tasks.contains_key(&sub.call.name) {
                             out.push((*m, s));
@@ -592,7 +641,10 @@ impl Validator {
                         let mut path: Vec<String> = Vec::new();
                         for (t, edges_of, next) in &stack[start..] {
                             let (m, _) = edges_of[next - 1];
-                            path.push(format!("{} → {}", domain.tasks[*t].name, domain.methods[m].name));
+                            path.push(format!(
+                                "{} → {}",
+                                domain.tasks[*t].name, domain.methods[m].name
+                            ));
                         }
                         path.push(domain.tasks[target].name.to_string());
                         if reported.insert(target) {

@@ -1,0 +1,298 @@
+//! `ecology check` and `ecology configure`: the domain language and the configuration planner.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use ecology_config::{
+    Budget, Clock, Configuration, Exclusion, Explanation, Options, Outcome, Request, Status,
+};
+use ecology_domain::Power;
+use serde_json::{Value, json};
+
+use crate::input::{self, Reported};
+use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+
+/// Arguments of `ecology check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    /// The domain file (.eco).
+    pub domain: PathBuf,
+}
+
+/// Arguments of `ecology configure`.
+#[derive(Debug, Args)]
+pub struct ConfigureArgs {
+    /// The domain file (.eco).
+    #[arg(long)]
+    pub domain: PathBuf,
+    /// The ecology state (.facts).
+    #[arg(long)]
+    pub state: PathBuf,
+    /// The goal, a ground task or functionality: '(navigate astrid bedroom)'.
+    #[arg(long)]
+    pub goal: String,
+    /// A failed component (PEIS:COMPONENT) or PEIS (PEIS) not to use; repeatable.
+    #[arg(long, value_name = "PEIS:COMPONENT")]
+    pub exclude: Vec<Exclusion>,
+    /// List every admissible configuration, cheapest first.
+    #[arg(long)]
+    pub all: bool,
+    /// With --all, list at most this many.
+    #[arg(long, requires = "all")]
+    pub limit: Option<usize>,
+    /// Stop after expanding this many search nodes (the result is then not proven).
+    #[arg(long, value_name = "N")]
+    pub max_nodes: Option<u64>,
+    /// Stop after this many milliseconds (the result is then not proven).
+    #[arg(long, value_name = "MS")]
+    pub max_millis: Option<u64>,
+    /// Print JSON.
+    #[arg(long, conflicts_with = "dot")]
+    pub json: bool,
+    /// Print Graphviz DOT.
+    #[arg(long)]
+    pub dot: bool,
+}
+
+/// Wall-clock time since the command started.
+#[derive(Debug)]
+pub struct WallClock(pub Instant);
+
+impl Clock for WallClock {
+    fn elapsed(&self) -> Duration {
+        self.0.elapsed()
+    }
+}
+
+/// `ecology check DOMAIN`
+pub fn check(args: &CheckArgs) -> anyhow::Result<u8> {
+    match input::domain(&args.domain)? {
+        Ok(domain) => {
+            println!(
+                "{}: domain `{}` is valid: {} functionalities, {} tasks, {} methods, {} actions",
+                args.domain.display(),
+                domain.name,
+                domain.functionalities.len(),
+                domain.tasks.len(),
+                domain.methods.len(),
+                domain.actions.len()
+            );
+            Ok(EXIT_OK)
+        }
+        Err(Reported) => Ok(EXIT_BAD_INPUT),
+    }
+}
+
+/// `ecology configure ...`
+pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
+    let clock = WallClock(Instant::now());
+    let Ok(domain) = input::domain(&args.domain)? else {
+        return Ok(EXIT_BAD_INPUT);
+    };
+    let Ok(state) = input::facts(&args.state)? else {
+        return Ok(EXIT_BAD_INPUT);
+    };
+    let Ok(goal) = input::goal(&args.goal) else {
+        return Ok(EXIT_BAD_INPUT);
+    };
+    let request = Request {
+        domain: &domain,
+        state: &state,
+        goal: &goal,
+        exclusions: &args.exclude,
+    };
+    let options = Options {
+        count: if args.all {
+            args.limit.unwrap_or(usize::MAX)
+        } else {
+            1
+        },
+        budget: Budget {
+            max_expansions: args.max_nodes,
+            max_time: args.max_millis.map(Duration::from_millis),
+        },
+    };
+    let outcome = match ecology_config::plan(&request, &options, &clock) {
+        Ok(outcome) => outcome,
+        Err(err) => {
+            eprintln!("error: {err}");
+            return Ok(EXIT_BAD_INPUT);
+        }
+    };
+    if outcome.configurations.is_empty() {
+        print_none(args, &outcome);
+        return Ok(EXIT_NO_SOLUTION);
+    }
+    if args.json {
+        let value = if args.all {
+            json!({
+                "configurations": outcome.configurations.iter().map(|c| config_json(c, &outcome)).collect::<Vec<_>>(),
+                "stats": stats_json(&outcome),
+            })
+        } else {
+            config_json(&outcome.configurations[0], &outcome)
+        };
+        println!("{value}");
+    } else if args.dot {
+        for config in &outcome.configurations {
+            print!("{}", dot(config, &args.goal));
+        }
+    } else {
+        print_human(args, &outcome);
+    }
+    Ok(EXIT_OK)
+}
+
+fn print_none(args: &ConfigureArgs, outcome: &Outcome) {
+    let budget = outcome.status == Status::BudgetExceeded;
+    if args.json {
+        let value = match &outcome.explanation {
+            Some(e) => {
+                json!({"error": "no configuration", "explanation": explanation_json(e), "stats": stats_json(outcome)})
+            }
+            None => json!({
+                "error": if budget { "budget exceeded" } else { "no configuration" },
+                "explanation": null,
+                "lower_bound": outcome.lower_bound,
+                "stats": stats_json(outcome),
+            }),
+        };
+        println!("{value}");
+        return;
+    }
+    match &outcome.explanation {
+        Some(e) => eprint!("{e}"),
+        None if budget => eprintln!(
+            "no configuration found for {} within the budget ({} nodes expanded)",
+            args.goal, outcome.stats.expanded
+        ),
+        None => eprintln!("no configuration for {}", args.goal),
+    }
+}
+
+fn print_human(args: &ConfigureArgs, outcome: &Outcome) {
+    let n = outcome.configurations.len();
+    for (i, config) in outcome.configurations.iter().enumerate() {
+        if args.all {
+            println!("configuration {} of {n} for {}:", i + 1, args.goal);
+        } else {
+            println!("configuration for {}:", args.goal);
+        }
+        println!("{config}");
+        if i + 1 < n {
+            println!();
+        }
+    }
+    if outcome.status == Status::BudgetExceeded {
+        let bound = outcome.lower_bound.map_or(String::new(), |b| {
+            format!("; no configuration costs less than {b}")
+        });
+        println!(
+            "  (the budget ran out after {} nodes{bound})",
+            outcome.stats.expanded
+        );
+    }
+    println!(
+        "  search: {} nodes expanded, {} generated, {} alternatives, {} µs",
+        outcome.stats.expanded,
+        outcome.stats.generated,
+        outcome.stats.alternatives,
+        outcome.stats.micros
+    );
+}
+
+fn stats_json(outcome: &Outcome) -> Value {
+    json!({
+        "expanded": outcome.stats.expanded,
+        "generated": outcome.stats.generated,
+        "alternatives": outcome.stats.alternatives,
+        "micros": outcome.stats.micros,
+    })
+}
+
+/// The JSON object of one configuration (the format is documented in README).
+pub fn config_json(config: &Configuration, outcome: &Outcome) -> Value {
+    json!({
+        "cost": config.cost,
+        "optimal": config.optimal,
+        "functionalities": config.functionalities.iter().map(|f| json!({
+            "label": f.label,
+            "name": f.name,
+            "args": f.args,
+            "peis": f.peis,
+            "component": f.component,
+            "state": match f.power { Power::On => "on", Power::Off => "off" },
+            "cost": f.cost,
+        })).collect::<Vec<_>>(),
+        "channels": config.channels.iter().map(|c| json!({
+            "from": c.from,
+            "to": c.to,
+            "info": c.info,
+            "remote": c.remote,
+        })).collect::<Vec<_>>(),
+        "stats": stats_json(outcome),
+    })
+}
+
+fn explanation_json(e: &Explanation) -> Value {
+    json!({
+        "subject": e.subject,
+        "reason": e.reason,
+        "causes": e.causes.iter().map(explanation_json).collect::<Vec<_>>(),
+    })
+}
+
+fn dot_escape(s: &str) -> String {
+    s.replace('\\', "\\\\").replace('"', "\\\"")
+}
+
+/// The configuration as a Graphviz digraph: PEIS as clusters, functionality
+/// instances as nodes, channels as edges.
+fn dot(config: &Configuration, goal: &str) -> String {
+    let mut out = String::new();
+    out.push_str(&format!(
+        "digraph configuration {{\n  label=\"{} — cost {}\";\n  labelloc=t;\n  node [shape=box, style=rounded];\n",
+        dot_escape(goal),
+        config.cost
+    ));
+    let mut peis: Vec<&str> = config
+        .functionalities
+        .iter()
+        .map(|f| f.peis.as_str())
+        .collect();
+    peis.sort_unstable();
+    peis.dedup();
+    for (i, p) in peis.iter().enumerate() {
+        out.push_str(&format!(
+            "  subgraph cluster_{i} {{\n    label=\"{}\";\n",
+            dot_escape(p)
+        ));
+        for f in config.functionalities.iter().filter(|f| f.peis == *p) {
+            let state = match f.power {
+                Power::On => "on",
+                Power::Off => "off",
+            };
+            out.push_str(&format!(
+                "    \"{}\" [label=\"{}\\n{}:{} ({state}) cost {}\"];\n",
+                dot_escape(&f.label),
+                dot_escape(&f.call()),
+                dot_escape(&f.peis),
+                dot_escape(&f.component),
+                f.cost
+            ));
+        }
+        out.push_str("  }\n");
+    }
+    for c in &config.channels {
+        let style = if c.remote { ", style=dashed" } else { "" };
+        out.push_str(&format!(
+            "  \"{}\" -> \"{}\" [label=\"{}\"{style}];\n",
+            dot_escape(&c.from),
+            dot_escape(&c.to),
+            dot_escape(&c.info)
+        ));
+    }
+    out.push_str("}\n");
+    out
+}

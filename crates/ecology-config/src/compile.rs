@@ -1,0 +1,517 @@
+//! The compiled problem: interned symbols, indexed facts, and schemas whose
+//! variables are slots, so that grounding and search work on integers.
+
+use std::collections::{HashMap, HashSet};
+
+use ecology_domain::{Domain, EcologyState, Info, Literal, Term};
+
+/// An interned symbol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(crate) struct Sym(pub(crate) u32);
+
+/// The symbol table of one planning problem.
+#[derive(Debug, Default)]
+pub(crate) struct Symbols {
+    map: HashMap<Box<str>, Sym>,
+    names: Vec<Box<str>>,
+}
+
+impl Symbols {
+    pub(crate) fn intern(&mut self, name: &str) -> Sym {
+        if let Some(&sym) = self.map.get(name) {
+            return sym;
+        }
+        let sym = Sym(self.names.len() as u32);
+        self.names.push(name.into());
+        self.map.insert(name.into(), sym);
+        sym
+    }
+
+    pub(crate) fn get(&self, name: &str) -> Option<Sym> {
+        self.map.get(name).copied()
+    }
+
+    pub(crate) fn name(&self, sym: Sym) -> &str {
+        &self.names[sym.0 as usize]
+    }
+}
+
+/// A term with variables as slots of the schema's binding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CTerm {
+    Var(u16),
+    Const(Sym),
+}
+
+impl CTerm {
+    pub(crate) fn ground(self, binding: &[Option<Sym>]) -> Option<Sym> {
+        match self {
+            CTerm::Var(slot) => binding[slot as usize],
+            CTerm::Const(sym) => Some(sym),
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub(crate) struct CAtom {
+    pub(crate) pred: Sym,
+    pub(crate) args: Vec<CTerm>,
+}
+
+#[derive(Debug, Clone)]
+pub(crate) enum CLit {
+    Pos(CAtom),
+    Neg(CAtom),
+    Eq(CTerm, CTerm),
+    Neq(CTerm, CTerm),
+}
+
+impl CLit {
+    fn terms(&self) -> Vec<CTerm> {
+        match self {
+            CLit::Pos(a) | CLit::Neg(a) => a.args.clone(),
+            CLit::Eq(a, b) | CLit::Neq(a, b) => vec![*a, *b],
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub(crate) struct CInfo {
+    pub(crate) name: Sym,
+    pub(crate) args: Vec<CTerm>,
+    pub(crate) hz: Option<f64>,
+}
+
+/// A ground information type.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(crate) struct GInfo {
+    pub(crate) name: Sym,
+    pub(crate) args: Box<[Sym]>,
+}
+
+impl CInfo {
+    pub(crate) fn ground(&self, binding: &[Option<Sym>]) -> GInfo {
+        GInfo {
+            name: self.name,
+            args: self
+                .args
+                .iter()
+                .map(|t| t.ground(binding).unwrap_or(Sym(u32::MAX)))
+                .collect(),
+        }
+    }
+}
+
+/// What a subtask calls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub(crate) enum Callee {
+    Func(u32),
+    Task(u32),
+}
+
+#[derive(Debug)]
+pub(crate) struct CFunc {
+    pub(crate) src: usize,
+    pub(crate) component: (u16, u16),
+    pub(crate) pre: Vec<CLit>,
+    pub(crate) inputs: Vec<CInfo>,
+    pub(crate) outputs: Vec<CInfo>,
+    pub(crate) cost: u64,
+}
+
+#[derive(Debug)]
+pub(crate) struct CTask {
+    pub(crate) src: usize,
+    pub(crate) methods: Vec<u32>,
+}
+
+#[derive(Debug)]
+pub(crate) struct CSubtask {
+    pub(crate) callee: Callee,
+    pub(crate) args: Vec<CTerm>,
+}
+
+#[derive(Debug)]
+pub(crate) struct CMethod {
+    pub(crate) src: usize,
+    pub(crate) nvars: usize,
+    pub(crate) task_args: Vec<CTerm>,
+    pub(crate) pre: Vec<CLit>,
+    pub(crate) subtasks: Vec<CSubtask>,
+    pub(crate) channels: Vec<(u16, u16, CInfo)>,
+    pub(crate) inputs: Vec<(CInfo, u16)>,
+    pub(crate) outputs: Vec<(CInfo, u16)>,
+}
+
+/// The facts of the state, indexed for joins.
+#[derive(Debug, Default)]
+pub(crate) struct Facts {
+    by_pred: HashMap<Sym, Vec<Box<[Sym]>>>,
+    /// (predicate, argument position, value) → indices into `by_pred[predicate]`.
+    index: HashMap<(Sym, u8, Sym), Vec<u32>>,
+    set: HashSet<(Sym, Box<[Sym]>)>,
+}
+
+impl Facts {
+    fn insert(&mut self, pred: Sym, args: Box<[Sym]>) {
+        if !self.set.insert((pred, args.clone())) {
+            return;
+        }
+        let list = self.by_pred.entry(pred).or_default();
+        let at = list.len() as u32;
+        for (pos, &arg) in args.iter().enumerate().take(u8::MAX as usize) {
+            self.index
+                .entry((pred, pos as u8, arg))
+                .or_default()
+                .push(at);
+        }
+        list.push(args);
+    }
+
+    pub(crate) fn holds(&self, pred: Sym, args: &[Sym]) -> bool {
+        // Avoid allocating for the common miss on an unknown predicate.
+        self.by_pred.contains_key(&pred) && self.set.contains(&(pred, args.into()))
+    }
+
+    pub(crate) fn of(&self, pred: Sym) -> &[Box<[Sym]>] {
+        self.by_pred.get(&pred).map_or(&[], Vec::as_slice)
+    }
+
+    /// Facts of `pred` that may match `pattern`, using the most selective index.
+    fn candidates(&self, pred: Sym, pattern: &[Option<Sym>]) -> Candidates<'_> {
+        let all = self.of(pred);
+        let mut best: Option<&[u32]> = None;
+        for (pos, value) in pattern.iter().enumerate() {
+            if let Some(value) = value {
+                let list = self
+                    .index
+                    .get(&(pred, pos as u8, *value))
+                    .map_or(&[][..], Vec::as_slice);
+                if best.is_none_or(|b| list.len() < b.len()) {
+                    best = Some(list);
+                }
+            }
+        }
+        match best {
+            Some(list) => Candidates::Indexed(all, list),
+            None => Candidates::All(all),
+        }
+    }
+}
+
+enum Candidates<'a> {
+    All(&'a [Box<[Sym]>]),
+    Indexed(&'a [Box<[Sym]>], &'a [u32]),
+}
+
+impl Candidates<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Candidates::All(all) => all.len(),
+            Candidates::Indexed(_, list) => list.len(),
+        }
+    }
+
+    fn get(&self, i: usize) -> &[Sym] {
+        match self {
+            Candidates::All(all) => &all[i],
+            Candidates::Indexed(all, list) => &all[list[i] as usize],
+        }
+    }
+}
+
+/// The domain and state, compiled.
+#[derive(Debug)]
+pub(crate) struct Compiled {
+    pub(crate) syms: Symbols,
+    pub(crate) facts: Facts,
+    pub(crate) funcs: Vec<CFunc>,
+    pub(crate) tasks: Vec<CTask>,
+    pub(crate) methods: Vec<CMethod>,
+    pub(crate) callee_by_name: HashMap<Box<str>, Callee>,
+}
+
+struct Slots<'a> {
+    map: HashMap<&'a str, u16>,
+}
+
+impl<'a> Slots<'a> {
+    fn new() -> Slots<'a> {
+        Slots {
+            map: HashMap::new(),
+        }
+    }
+
+    fn slot(&mut self, var: &'a str) -> u16 {
+        let next = self.map.len() as u16;
+        *self.map.entry(var).or_insert(next)
+    }
+}
+
+impl Compiled {
+    pub(crate) fn new(domain: &Domain, state: &EcologyState) -> Compiled {
+        let mut syms = Symbols::default();
+        let mut facts = Facts::default();
+        for fact in state.facts() {
+            let pred = syms.intern(&fact.predicate);
+            let args = fact.args.iter().map(|a| syms.intern(a)).collect();
+            facts.insert(pred, args);
+        }
+        let mut callee_by_name = HashMap::new();
+        for (i, f) in domain.functionalities.iter().enumerate() {
+            callee_by_name.insert(f.name.clone(), Callee::Func(i as u32));
+        }
+        for (i, t) in domain.tasks.iter().enumerate() {
+            callee_by_name.insert(t.name.clone(), Callee::Task(i as u32));
+        }
+        let mut compiled = Compiled {
+            syms,
+            facts,
+            funcs: Vec::new(),
+            tasks: Vec::new(),
+            methods: Vec::new(),
+            callee_by_name,
+        };
+        for (src, f) in domain.functionalities.iter().enumerate() {
+            let mut slots = Slots::new();
+            for p in &f.params {
+                slots.slot(&p.name);
+            }
+            let component = (slots.slot(&f.component.0), slots.slot(&f.component.1));
+            let func = CFunc {
+                src,
+                component,
+                pre: compiled.lits(&f.precondition, &mut slots),
+                inputs: compiled.infos(&f.inputs, &mut slots),
+                outputs: compiled.infos(&f.outputs, &mut slots),
+                cost: f.cost,
+            };
+            compiled.funcs.push(func);
+        }
+        for src in 0..domain.tasks.len() {
+            compiled.tasks.push(CTask {
+                src,
+                methods: Vec::new(),
+            });
+        }
+        for (src, m) in domain.methods.iter().enumerate() {
+            let Some(&Callee::Task(task)) = compiled.callee_by_name.get(&m.task.name) else {
+                continue;
+            };
+            let mut slots = Slots::new();
+            let task_args = compiled.terms(&m.task.args, &mut slots);
+            let pre = compiled.lits(&m.precondition, &mut slots);
+            let mut subtasks = Vec::new();
+            for sub in &m.subtasks {
+                let Some(&callee) = compiled.callee_by_name.get(&sub.call.name) else {
+                    continue;
+                };
+                subtasks.push(CSubtask {
+                    callee,
+                    args: compiled.terms(&sub.call.args, &mut slots),
+                });
+            }
+            let label = |name: &str| {
+                m.subtasks
+                    .iter()
+                    .position(|s| &*s.label == name)
+                    .map(|i| i as u16)
+            };
+            let mut channels = Vec::new();
+            for c in &m.channels {
+                if let (Some(from), Some(to)) = (label(&c.from), label(&c.to)) {
+                    let info = compiled.info(&c.info, &mut slots);
+                    channels.push((from, to, info));
+                }
+            }
+            let mut inputs = Vec::new();
+            for r in &m.inputs {
+                if let Some(at) = label(&r.label) {
+                    inputs.push((compiled.info(&r.info, &mut slots), at));
+                }
+            }
+            let mut outputs = Vec::new();
+            for r in &m.outputs {
+                if let Some(at) = label(&r.label) {
+                    outputs.push((compiled.info(&r.info, &mut slots), at));
+                }
+            }
+            // Declared parameters that are never used still get slots, so that
+            // the binding shown to people lists them all.
+            for p in &m.params {
+                slots.slot(&p.name);
+            }
+            compiled.tasks[task as usize]
+                .methods
+                .push(compiled.methods.len() as u32);
+            compiled.methods.push(CMethod {
+                src,
+                nvars: slots.map.len(),
+                task_args,
+                pre,
+                subtasks,
+                channels,
+                inputs,
+                outputs,
+            });
+        }
+        compiled
+    }
+
+    fn terms<'a>(&mut self, terms: &'a [Term], slots: &mut Slots<'a>) -> Vec<CTerm> {
+        terms
+            .iter()
+            .map(|t| match t {
+                Term::Var(v) => CTerm::Var(slots.slot(v)),
+                Term::Const(c) => CTerm::Const(self.syms.intern(c)),
+            })
+            .collect()
+    }
+
+    fn lits<'a>(&mut self, lits: &'a [Literal], slots: &mut Slots<'a>) -> Vec<CLit> {
+        lits.iter()
+            .map(|l| match l {
+                Literal::Pos(a) => CLit::Pos(CAtom {
+                    pred: self.syms.intern(&a.predicate),
+                    args: self.terms(&a.args, slots),
+                }),
+                Literal::Neg(a) => CLit::Neg(CAtom {
+                    pred: self.syms.intern(&a.predicate),
+                    args: self.terms(&a.args, slots),
+                }),
+                Literal::Eq(a, b, _) => {
+                    let t = self.terms(std::slice::from_ref(a), slots)[0];
+                    let u = self.terms(std::slice::from_ref(b), slots)[0];
+                    CLit::Eq(t, u)
+                }
+                Literal::Neq(a, b, _) => {
+                    let t = self.terms(std::slice::from_ref(a), slots)[0];
+                    let u = self.terms(std::slice::from_ref(b), slots)[0];
+                    CLit::Neq(t, u)
+                }
+            })
+            .collect()
+    }
+
+    fn info<'a>(&mut self, info: &'a Info, slots: &mut Slots<'a>) -> CInfo {
+        CInfo {
+            name: self.syms.intern(&info.name),
+            args: self.terms(&info.args, slots),
+            hz: info.hz,
+        }
+    }
+
+    fn infos<'a>(&mut self, infos: &'a [Info], slots: &mut Slots<'a>) -> Vec<CInfo> {
+        infos.iter().map(|i| self.info(i, slots)).collect()
+    }
+
+    /// Calls `found` with every extension of `binding` that satisfies `lits`.
+    pub(crate) fn solve(
+        &self,
+        lits: &[CLit],
+        binding: &mut Vec<Option<Sym>>,
+        found: &mut dyn FnMut(&[Option<Sym>]),
+    ) {
+        let mut done = vec![false; lits.len()];
+        self.solve_rec(lits, &mut done, binding, found);
+    }
+
+    fn solve_rec(
+        &self,
+        lits: &[CLit],
+        done: &mut [bool],
+        binding: &mut Vec<Option<Sym>>,
+        found: &mut dyn FnMut(&[Option<Sym>]),
+    ) {
+        // Checks whose variables are all bound are applied first: they prune.
+        for (i, lit) in lits.iter().enumerate() {
+            if done[i] || matches!(lit, CLit::Pos(_)) {
+                continue;
+            }
+            if lit.terms().iter().all(|t| t.ground(binding).is_some()) {
+                if !self.check(lit, binding) {
+                    return;
+                }
+                done[i] = true;
+                self.solve_rec(lits, done, binding, found);
+                done[i] = false;
+                return;
+            }
+        }
+        // Then the positive literal with the most bound arguments.
+        let next = lits
+            .iter()
+            .enumerate()
+            .filter(|(i, l)| !done[*i] && matches!(l, CLit::Pos(_)))
+            .max_by_key(|(i, l)| {
+                let bound = l
+                    .terms()
+                    .iter()
+                    .filter(|t| t.ground(binding).is_some())
+                    .count();
+                (bound, usize::MAX - i)
+            });
+        let Some((i, CLit::Pos(atom))) = next else {
+            // No positive literal is left. A check still open has a variable no
+            // literal binds (validation rules that out); it counts as failing.
+            if done.iter().all(|d| *d) {
+                found(binding);
+            }
+            return;
+        };
+        let pattern: Vec<Option<Sym>> = atom.args.iter().map(|t| t.ground(binding)).collect();
+        let candidates = self.facts.candidates(atom.pred, &pattern);
+        done[i] = true;
+        let mut newly = Vec::with_capacity(atom.args.len());
+        'facts: for k in 0..candidates.len() {
+            let fact = candidates.get(k);
+            if fact.len() != atom.args.len() {
+                continue;
+            }
+            newly.clear();
+            for (term, &value) in atom.args.iter().zip(fact) {
+                match term {
+                    CTerm::Const(c) if *c != value => {
+                        undo(binding, &newly);
+                        continue 'facts;
+                    }
+                    CTerm::Const(_) => {}
+                    CTerm::Var(slot) => match binding[*slot as usize] {
+                        Some(bound) if bound != value => {
+                            undo(binding, &newly);
+                            continue 'facts;
+                        }
+                        Some(_) => {}
+                        None => {
+                            binding[*slot as usize] = Some(value);
+                            newly.push(*slot);
+                        }
+                    },
+                }
+            }
+            self.solve_rec(lits, done, binding, found);
+            undo(binding, &newly);
+        }
+        done[i] = false;
+    }
+
+    /// Evaluates a literal whose terms are all bound.
+    pub(crate) fn check(&self, lit: &CLit, binding: &[Option<Sym>]) -> bool {
+        let g = |t: &CTerm| t.ground(binding);
+        match lit {
+            CLit::Pos(a) | CLit::Neg(a) => {
+                let args: Option<Vec<Sym>> = a.args.iter().map(g).collect();
+                let holds = args.is_some_and(|args| self.facts.holds(a.pred, &args));
+                holds == matches!(lit, CLit::Pos(_))
+            }
+            CLit::Eq(a, b) => g(a).is_some() && g(a) == g(b),
+            CLit::Neq(a, b) => g(a).is_some() && g(b).is_some() && g(a) != g(b),
+        }
+    }
+}
+
+fn undo(binding: &mut [Option<Sym>], slots: &[u16]) {
+    for &slot in slots {
+        binding[slot as usize] = None;
+    }
+}

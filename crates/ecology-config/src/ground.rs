@@ -1,0 +1,412 @@
+//! Grounding: the reachable AND-OR graph of task and functionality instances,
+//! with an admissible lower bound on the cost of each.
+//!
+//! A ground task instance has one alternative per applicable method and
+//! binding of its precondition; a ground functionality instance is a leaf that
+//! names its component and cost. The lower bound of an instance is the cheapest
+//! way to provide it in isolation, with every functionality occurrence charged
+//! its cost divided by how often its schema can occur in one configuration.
+//! Dividing keeps the bound admissible under component sharing (a component
+//! used k times is paid once, and k never exceeds that count); when no schema
+//! can occur twice, the bound is exact for conflict-free configurations.
+
+use std::collections::{HashMap, HashSet};
+
+use ecology_domain::{ComponentCost, Domain, Literal, Param, Power, Term};
+
+use crate::compile::{Callee, Compiled, Sym};
+use crate::cost::CostModel;
+
+/// "Cannot be provided."
+pub(crate) const INFEASIBLE: u64 = u64::MAX;
+
+/// Guards grounding against domains that bypassed validation with a cycle.
+const MAX_DEPTH: usize = 256;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(crate) struct ItemId(pub(crate) u32);
+
+/// Why a functionality instance cannot be used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum FuncProblem {
+    ComponentExcluded,
+    PeisExcluded,
+    /// The precondition literal at this index is false.
+    Precondition(usize),
+}
+
+#[derive(Debug)]
+pub(crate) struct FuncItem {
+    pub(crate) func: u32,
+    pub(crate) peis: Sym,
+    pub(crate) component: Sym,
+    /// What the cost model charges for it.
+    pub(crate) cost: u64,
+    /// `cost` divided by the multiplicity of its schema: what the bounds charge.
+    pub(crate) share: u64,
+    pub(crate) power: Power,
+    pub(crate) problem: Option<FuncProblem>,
+}
+
+/// One way to decompose a task instance: a method, a binding, the children.
+#[derive(Debug)]
+pub(crate) struct Alt {
+    pub(crate) method: u32,
+    pub(crate) binding: Box<[Option<Sym>]>,
+    pub(crate) children: Box<[ItemId]>,
+    pub(crate) lb: u64,
+    /// Two children that would run different functionalities on one component.
+    pub(crate) clash: Option<(usize, usize)>,
+}
+
+#[derive(Debug)]
+pub(crate) enum ItemKind {
+    Func(FuncItem),
+    Task { task: u32, alts: Vec<Alt> },
+}
+
+#[derive(Debug)]
+pub(crate) struct Item {
+    pub(crate) callee: Callee,
+    pub(crate) args: Box<[Sym]>,
+    pub(crate) kind: ItemKind,
+    pub(crate) lb: u64,
+}
+
+/// Components and PEIS the planner must not use.
+#[derive(Debug, Default)]
+pub(crate) struct Excluded {
+    pub(crate) components: HashSet<(Sym, Sym)>,
+    pub(crate) peis: HashSet<Sym>,
+}
+
+/// What grounding reads: the compiled problem, exclusions, costs.
+pub(crate) struct Ctx<'a> {
+    pub(crate) domain: &'a Domain,
+    pub(crate) compiled: Compiled,
+    pub(crate) cost_model: &'a dyn CostModel,
+    pub(crate) excluded: Excluded,
+    costs: HashMap<(Sym, Sym), ComponentCost>,
+    /// How often each functionality schema can occur in one configuration.
+    pub(crate) multiplicity: Vec<u64>,
+}
+
+impl<'a> Ctx<'a> {
+    pub(crate) fn new(
+        domain: &'a Domain,
+        compiled: Compiled,
+        cost_model: &'a dyn CostModel,
+        excluded: Excluded,
+        goal: Callee,
+    ) -> Ctx<'a> {
+        let mut costs = HashMap::new();
+        if let Some(cost) = compiled.syms.get("cost") {
+            for fact in compiled.facts.of(cost) {
+                if let [p, c, amount, power] = fact[..] {
+                    let amount = compiled.syms.name(amount).parse::<u64>();
+                    let power = match compiled.syms.name(power) {
+                        "on" => Power::On,
+                        _ => Power::Off,
+                    };
+                    if let Ok(amount) = amount {
+                        costs
+                            .entry((p, c))
+                            .or_insert(ComponentCost { amount, power });
+                    }
+                }
+            }
+        }
+        let multiplicity = multiplicity(&compiled, goal);
+        Ctx {
+            domain,
+            compiled,
+            cost_model,
+            excluded,
+            costs,
+            multiplicity,
+        }
+    }
+
+    pub(crate) fn callee_name(&self, callee: Callee) -> &'a str {
+        match callee {
+            Callee::Func(f) => {
+                &self.domain.functionalities[self.compiled.funcs[f as usize].src].name
+            }
+            Callee::Task(t) => &self.domain.tasks[self.compiled.tasks[t as usize].src].name,
+        }
+    }
+
+    pub(crate) fn method_name(&self, method: u32) -> &'a str {
+        &self.domain.methods[self.compiled.methods[method as usize].src].name
+    }
+
+    pub(crate) fn subtask_label(&self, method: u32, k: u16) -> &'a str {
+        let m = &self.domain.methods[self.compiled.methods[method as usize].src];
+        m.subtasks.get(k as usize).map_or("?", |s| &*s.label)
+    }
+
+    /// The functionality's postcondition with its parameters replaced by `args`.
+    pub(crate) fn ground_postcondition(&self, func: u32, args: &[Sym]) -> Vec<String> {
+        let f = &self.domain.functionalities[self.compiled.funcs[func as usize].src];
+        let names: Vec<String> = args
+            .iter()
+            .map(|&a| self.compiled.syms.name(a).to_string())
+            .collect();
+        f.postcondition
+            .iter()
+            .map(|lit| substitute_literal(lit, &f.params, &names))
+            .collect()
+    }
+
+    /// The channel cost from one PEIS to another under the cost model.
+    pub(crate) fn channel_cost(&self, from: Sym, to: Sym) -> u64 {
+        let c = &self.compiled;
+        let state = c.syms.get("channel-cost").and_then(|pred| {
+            c.facts.of(pred).iter().find_map(|f| match f[..] {
+                [a, b, n] if a == from && b == to => c.syms.name(n).parse().ok(),
+                _ => None,
+            })
+        });
+        self.cost_model
+            .channel_cost(c.syms.name(from), c.syms.name(to), state)
+    }
+
+    fn func_item(&self, func: u32, args: &[Sym]) -> FuncItem {
+        let c = &self.compiled;
+        let schema = &c.funcs[func as usize];
+        let binding: Vec<Option<Sym>> = args.iter().map(|&a| Some(a)).collect();
+        let peis = args[schema.component.0 as usize];
+        let component = args[schema.component.1 as usize];
+        let state = self.costs.get(&(peis, component)).copied();
+        let cost = self.cost_model.component_cost(
+            c.syms.name(peis),
+            c.syms.name(component),
+            state,
+            schema.cost,
+        );
+        let problem = if self.excluded.peis.contains(&peis) {
+            Some(FuncProblem::PeisExcluded)
+        } else if self.excluded.components.contains(&(peis, component)) {
+            Some(FuncProblem::ComponentExcluded)
+        } else {
+            schema
+                .pre
+                .iter()
+                .position(|lit| !c.check(lit, &binding))
+                .map(FuncProblem::Precondition)
+        };
+        FuncItem {
+            func,
+            peis,
+            component,
+            cost,
+            share: cost / self.multiplicity[func as usize].max(1),
+            power: state.map_or(Power::Off, |s| s.power),
+            problem,
+        }
+    }
+}
+
+/// The grounded AND-OR graph, grown on demand and memoized.
+#[derive(Debug, Default)]
+pub(crate) struct Graph {
+    pub(crate) items: Vec<Item>,
+    memo: HashMap<(Callee, Box<[Sym]>), ItemId>,
+    /// Alternatives created, for statistics.
+    pub(crate) alternatives: u64,
+}
+
+impl Graph {
+    pub(crate) fn item(&self, id: ItemId) -> &Item {
+        &self.items[id.0 as usize]
+    }
+
+    pub(crate) fn func(&self, id: ItemId) -> Option<&FuncItem> {
+        match &self.item(id).kind {
+            ItemKind::Func(f) => Some(f),
+            ItemKind::Task { .. } => None,
+        }
+    }
+
+    /// The instance of `callee` on `args`, grounded with its lower bound.
+    pub(crate) fn ground(&mut self, ctx: &Ctx<'_>, callee: Callee, args: &[Sym]) -> ItemId {
+        self.ground_at(ctx, callee, args, 0)
+    }
+
+    fn ground_at(&mut self, ctx: &Ctx<'_>, callee: Callee, args: &[Sym], depth: usize) -> ItemId {
+        if let Some(&id) = self.memo.get(&(callee, args.into())) {
+            return id;
+        }
+        let kind = match callee {
+            Callee::Func(func) => ItemKind::Func(ctx.func_item(func, args)),
+            Callee::Task(task) if depth < MAX_DEPTH => ItemKind::Task {
+                task,
+                alts: self.alternatives(ctx, task, args, depth),
+            },
+            Callee::Task(task) => ItemKind::Task {
+                task,
+                alts: Vec::new(),
+            },
+        };
+        let lb = match &kind {
+            ItemKind::Func(f) if f.problem.is_some() => INFEASIBLE,
+            ItemKind::Func(f) => f.share,
+            ItemKind::Task { alts, .. } => alts.iter().map(|a| a.lb).min().unwrap_or(INFEASIBLE),
+        };
+        let id = ItemId(self.items.len() as u32);
+        self.items.push(Item {
+            callee,
+            args: args.into(),
+            kind,
+            lb,
+        });
+        self.memo.insert((callee, args.into()), id);
+        id
+    }
+
+    fn alternatives(&mut self, ctx: &Ctx<'_>, task: u32, args: &[Sym], depth: usize) -> Vec<Alt> {
+        let c = &ctx.compiled;
+        let mut alts = Vec::new();
+        for &m in &c.tasks[task as usize].methods {
+            let method = &c.methods[m as usize];
+            let mut bindings: Vec<Box<[Option<Sym>]>> = Vec::new();
+            if let Some(mut binding) = bind_task_args(method, args) {
+                c.solve(&method.pre, &mut binding, &mut |b| bindings.push(b.into()));
+            }
+            for binding in bindings {
+                self.alternatives += 1;
+                let mut children = Vec::with_capacity(method.subtasks.len());
+                for sub in &method.subtasks {
+                    let sub_args: Option<Vec<Sym>> =
+                        sub.args.iter().map(|t| t.ground(&binding)).collect();
+                    // Validation guarantees every subtask argument is bound.
+                    let Some(sub_args) = sub_args else { continue };
+                    children.push(self.ground_at(ctx, sub.callee, &sub_args, depth + 1));
+                }
+                let clash = self.clash(&children);
+                let lb = if clash.is_some() {
+                    INFEASIBLE
+                } else {
+                    children
+                        .iter()
+                        .try_fold(0u64, |sum, &ch| match self.item(ch).lb {
+                            INFEASIBLE => None,
+                            lb => Some(sum.saturating_add(lb)),
+                        })
+                        .unwrap_or(INFEASIBLE)
+                };
+                alts.push(Alt {
+                    method: m,
+                    binding,
+                    children: children.into(),
+                    lb,
+                    clash,
+                });
+            }
+        }
+        alts
+    }
+
+    /// Two functionality children on one component running different instances.
+    fn clash(&self, children: &[ItemId]) -> Option<(usize, usize)> {
+        for (i, &a) in children.iter().enumerate() {
+            let Some(fa) = self.func(a) else { continue };
+            for (j, &b) in children.iter().enumerate().skip(i + 1) {
+                if a == b {
+                    continue;
+                }
+                if let Some(fb) = self.func(b)
+                    && (fa.peis, fa.component) == (fb.peis, fb.component)
+                {
+                    return Some((i, j));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// The method's binding with its task arguments set, or `None` if a constant
+/// in the method's `:task` does not match.
+pub(crate) fn bind_task_args(
+    method: &crate::compile::CMethod,
+    args: &[Sym],
+) -> Option<Vec<Option<Sym>>> {
+    let mut binding = vec![None; method.nvars];
+    for (term, &arg) in method.task_args.iter().zip(args) {
+        match *term {
+            crate::compile::CTerm::Const(c) if c != arg => return None,
+            crate::compile::CTerm::Const(_) => {}
+            crate::compile::CTerm::Var(slot) => match binding[slot as usize] {
+                Some(bound) if bound != arg => return None,
+                _ => binding[slot as usize] = Some(arg),
+            },
+        }
+    }
+    Some(binding)
+}
+
+/// For each functionality schema, the most times it can occur in one
+/// decomposition of `goal` (computed on schemas, so it holds for every binding).
+fn multiplicity(c: &Compiled, goal: Callee) -> Vec<u64> {
+    fn occ(
+        c: &Compiled,
+        callee: Callee,
+        memo: &mut HashMap<u32, Vec<u64>>,
+        depth: usize,
+    ) -> Vec<u64> {
+        let mut out = vec![0u64; c.funcs.len()];
+        match callee {
+            Callee::Func(f) => out[f as usize] = 1,
+            Callee::Task(t) => {
+                if let Some(v) = memo.get(&t) {
+                    return v.clone();
+                }
+                if depth >= MAX_DEPTH {
+                    return out;
+                }
+                for &m in &c.tasks[t as usize].methods {
+                    let mut sum = vec![0u64; c.funcs.len()];
+                    for sub in &c.methods[m as usize].subtasks {
+                        for (s, o) in sum.iter_mut().zip(occ(c, sub.callee, memo, depth + 1)) {
+                            *s = s.saturating_add(o);
+                        }
+                    }
+                    for (o, s) in out.iter_mut().zip(sum) {
+                        *o = (*o).max(s);
+                    }
+                }
+                memo.insert(t, out.clone());
+            }
+        }
+        out
+    }
+    occ(c, goal, &mut HashMap::new(), 0)
+}
+
+/// Renders a literal with parameters replaced by values (unknown variables stay).
+pub(crate) fn substitute_literal(lit: &Literal, params: &[Param], values: &[String]) -> String {
+    let sub = |t: &Term| match t {
+        Term::Var(v) => params
+            .iter()
+            .position(|p| p.name == *v)
+            .and_then(|i| values.get(i).cloned())
+            .unwrap_or_else(|| format!("?{v}")),
+        Term::Const(c) => c.to_string(),
+    };
+    let call = |pred: &str, args: &[Term]| {
+        let mut out = format!("({pred}");
+        for a in args {
+            out.push(' ');
+            out.push_str(&sub(a));
+        }
+        out.push(')');
+        out
+    };
+    match lit {
+        Literal::Pos(a) => call(&a.predicate, &a.args),
+        Literal::Neg(a) => format!("(not {})", call(&a.predicate, &a.args)),
+        Literal::Eq(a, b, _) => format!("(= {} {})", sub(a), sub(b)),
+        Literal::Neq(a, b, _) => format!("(not (= {} {}))", sub(a), sub(b)),
+    }
+}

@@ -1,0 +1,743 @@
+//! Best-first search with branch-and-bound over partial configurations.
+//!
+//! A node is a partial decomposition: the paper's stack of unexpanded task
+//! instances plus the functionalities placed so far. Expanding a node pops the
+//! top task instance and makes one child per alternative (method and binding).
+//! Nodes store only their parent and the alternative taken; the partial
+//! configuration is replayed from the root when a node is expanded, which keeps
+//! nodes a few dozen bytes each.
+//!
+//! `f = g + h` where `g` charges each functionality occurrence its share (see
+//! `ground`) and `h` sums the lower bounds of the pending instances; `f` never
+//! exceeds the cost of any completion. A greedy dive first finds an incumbent
+//! whose cost bounds the search (branch-and-bound); complete nodes are
+//! assembled and checked for admissibility (channels, rates, sharing) when
+//! popped, and re-queued at their true cost, so configurations come out
+//! cheapest first.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap, HashSet};
+
+use crate::compile::{Callee, GInfo, Sym};
+use crate::ground::{Ctx, Graph, INFEASIBLE, ItemId, ItemKind};
+use crate::{ChannelInstance, Configuration, FunctionalityInstance};
+
+const NO_PARENT: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum NodeState {
+    Open,
+    /// Complete, but not yet checked for admissibility.
+    Complete,
+    /// Complete and admissible; its configuration is in `Engine::assembled`.
+    Assembled(u32),
+    /// Expanded or assembled by the dive; nothing more to do with it.
+    Closed,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    parent: u32,
+    alt: u32,
+    /// Shares of the functionalities placed so far.
+    g: u64,
+    /// Sum of the lower bounds of the pending task instances.
+    h: u64,
+    depth: u32,
+    state: NodeState,
+}
+
+impl Node {
+    fn f(&self) -> u64 {
+        self.g.saturating_add(self.h)
+    }
+}
+
+/// A task or functionality instance in a partial configuration.
+#[derive(Debug, Clone)]
+struct Inst {
+    item: ItemId,
+    /// The parent instance and this instance's subtask index in the parent's method.
+    parent: Option<(u32, u16)>,
+    alt: Option<u32>,
+    children: Vec<u32>,
+}
+
+/// A partial configuration, replayed from a node's path.
+#[derive(Debug, Default)]
+struct Partial {
+    insts: Vec<Inst>,
+    stack: Vec<u32>,
+    used: HashMap<(Sym, Sym), ItemId>,
+}
+
+/// Why a complete decomposition is not an admissible configuration.
+pub(crate) type Inadmissible = String;
+
+/// The search state machine.
+pub(crate) struct Engine<'a> {
+    pub(crate) ctx: Ctx<'a>,
+    pub(crate) graph: Graph,
+    pub(crate) root: ItemId,
+    nodes: Vec<Node>,
+    open: BinaryHeap<(Reverse<u64>, u32, Reverse<u32>)>,
+    /// Upper bound from the incumbent (only when looking for one configuration).
+    bound: u64,
+    pub(crate) assembled: Vec<Configuration>,
+    pub(crate) accepted: Vec<Configuration>,
+    signatures: HashSet<String>,
+    pub(crate) expanded: u64,
+    pub(crate) generated: u64,
+    /// Distinct reasons complete decompositions were rejected, with counts.
+    pub(crate) rejections: Vec<(Inadmissible, u64)>,
+    pub(crate) incumbent: Option<Configuration>,
+}
+
+impl<'a> Engine<'a> {
+    pub(crate) fn new(ctx: Ctx<'a>, goal: Callee, args: &[Sym]) -> Engine<'a> {
+        let mut graph = Graph::default();
+        let root = graph.ground(&ctx, goal, args);
+        let mut engine = Engine {
+            ctx,
+            graph,
+            root,
+            nodes: Vec::new(),
+            open: BinaryHeap::new(),
+            bound: INFEASIBLE,
+            assembled: Vec::new(),
+            accepted: Vec::new(),
+            signatures: HashSet::new(),
+            expanded: 0,
+            generated: 0,
+            rejections: Vec::new(),
+            incumbent: None,
+        };
+        let lb = engine.graph.item(root).lb;
+        if lb != INFEASIBLE {
+            let (g, h, state) = match engine.graph.item(root).kind {
+                ItemKind::Func(_) => (lb, 0, NodeState::Complete),
+                ItemKind::Task { .. } => (0, lb, NodeState::Open),
+            };
+            engine.push(Node {
+                parent: NO_PARENT,
+                alt: 0,
+                g,
+                h,
+                depth: 0,
+                state,
+            });
+        }
+        engine
+    }
+
+    fn push(&mut self, node: Node) -> u32 {
+        let id = self.nodes.len() as u32;
+        self.nodes.push(node);
+        self.open.push((Reverse(node.f()), node.depth, Reverse(id)));
+        self.generated += 1;
+        id
+    }
+
+    /// The lowest `f` still open: a lower bound on anything not yet accepted.
+    pub(crate) fn lower_bound(&self) -> Option<u64> {
+        self.open.peek().map(|(Reverse(f), _, _)| *f)
+    }
+
+    /// Whether nothing is left to search.
+    pub(crate) fn is_exhausted(&self) -> bool {
+        self.open.is_empty()
+    }
+
+    /// Pops and processes one node; returns whether a configuration was accepted.
+    pub(crate) fn step(&mut self, keep_bound: bool) -> bool {
+        let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
+            return false;
+        };
+        if keep_bound && f >= self.bound {
+            // Branch-and-bound: nothing below can beat the incumbent.
+            self.open.clear();
+            return false;
+        }
+        let node = self.nodes[id as usize];
+        match node.state {
+            NodeState::Open => {
+                self.expanded += 1;
+                let partial = self.replay(id);
+                for child in self.children(id, &partial) {
+                    if !keep_bound || child.f() < self.bound {
+                        self.push(child);
+                    }
+                }
+                false
+            }
+            NodeState::Complete => {
+                let partial = self.replay(id);
+                match self.assemble(&partial) {
+                    Ok(config) => {
+                        let cost = config.cost;
+                        let at = self.assembled.len() as u32;
+                        self.assembled.push(config);
+                        let mut done = node;
+                        done.state = NodeState::Assembled(at);
+                        // Re-queue at the true cost: channel costs and sharing
+                        // can only raise it above the bound.
+                        done.g = cost;
+                        done.h = 0;
+                        if self.lower_bound().is_none_or(|lb| cost <= lb) {
+                            return self.accept(at);
+                        }
+                        self.nodes[id as usize] = done;
+                        self.open.push((Reverse(cost), done.depth, Reverse(id)));
+                        false
+                    }
+                    Err(reason) => {
+                        self.reject(reason);
+                        false
+                    }
+                }
+            }
+            NodeState::Assembled(at) => self.accept(at),
+            NodeState::Closed => false,
+        }
+    }
+
+    fn accept(&mut self, at: u32) -> bool {
+        let config = self.assembled[at as usize].clone();
+        if !self.signatures.insert(config.signature()) {
+            return false;
+        }
+        self.accepted.push(config);
+        true
+    }
+
+    fn reject(&mut self, reason: Inadmissible) {
+        if let Some((_, n)) = self.rejections.iter_mut().find(|(r, _)| *r == reason) {
+            *n += 1;
+        } else if self.rejections.len() < 64 {
+            self.rejections.push((reason, 1));
+        }
+    }
+
+    /// A greedy depth-first dive from the best open node, to find an incumbent
+    /// quickly; sets the bound. Gives up after `limit` expansions.
+    pub(crate) fn dive(&mut self, limit: u64) {
+        let Some(&(_, _, Reverse(start))) = self.open.peek() else {
+            return;
+        };
+        let mut stack = vec![start];
+        let mut spent = 0;
+        while let Some(id) = stack.pop() {
+            let node = self.nodes[id as usize];
+            if node.f() >= self.bound {
+                continue;
+            }
+            if node.state != NodeState::Closed {
+                self.nodes[id as usize].state = NodeState::Closed;
+            }
+            match node.state {
+                NodeState::Closed => {}
+                NodeState::Open => {
+                    if spent == limit {
+                        // Leave it for the best-first search.
+                        self.nodes[id as usize].state = NodeState::Open;
+                        return;
+                    }
+                    spent += 1;
+                    self.expanded += 1;
+                    let partial = self.replay(id);
+                    let mut children: Vec<Node> = self
+                        .children(id, &partial)
+                        .into_iter()
+                        .filter(|c| c.f() < self.bound)
+                        .collect();
+                    // Best child last, so it is popped first.
+                    children.sort_by_key(|c| (Reverse(c.f()), c.depth));
+                    for child in children {
+                        let cid = self.push(child);
+                        stack.push(cid);
+                    }
+                }
+                NodeState::Complete => {
+                    let partial = self.replay(id);
+                    match self.assemble(&partial) {
+                        Ok(config) => {
+                            self.bound = config.cost;
+                            self.incumbent = Some(config);
+                            return;
+                        }
+                        Err(reason) => self.reject(reason),
+                    }
+                }
+                NodeState::Assembled(at) => {
+                    let config = self.assembled[at as usize].clone();
+                    self.bound = config.cost;
+                    self.incumbent = Some(config);
+                    return;
+                }
+            }
+        }
+    }
+
+    fn path(&self, mut id: u32) -> Vec<u32> {
+        let mut alts = Vec::new();
+        while self.nodes[id as usize].parent != NO_PARENT {
+            alts.push(self.nodes[id as usize].alt);
+            id = self.nodes[id as usize].parent;
+        }
+        alts.reverse();
+        alts
+    }
+
+    fn replay(&self, id: u32) -> Partial {
+        let mut partial = Partial::default();
+        partial.insts.push(Inst {
+            item: self.root,
+            parent: None,
+            alt: None,
+            children: Vec::new(),
+        });
+        match self.graph.func(self.root) {
+            Some(f) => {
+                partial.used.insert((f.peis, f.component), self.root);
+            }
+            None => partial.stack.push(0),
+        }
+        for alt in self.path(id) {
+            let Some(top) = partial.stack.pop() else {
+                break;
+            };
+            self.apply(&mut partial, top, alt);
+        }
+        partial
+    }
+
+    fn apply(&self, partial: &mut Partial, top: u32, alt: u32) {
+        let item = partial.insts[top as usize].item;
+        let ItemKind::Task { alts, .. } = &self.graph.item(item).kind else {
+            return;
+        };
+        let alt_data = &alts[alt as usize];
+        partial.insts[top as usize].alt = Some(alt);
+        let mut tasks = Vec::new();
+        for (k, &child) in alt_data.children.iter().enumerate() {
+            let at = partial.insts.len() as u32;
+            partial.insts.push(Inst {
+                item: child,
+                parent: Some((top, k as u16)),
+                alt: None,
+                children: Vec::new(),
+            });
+            partial.insts[top as usize].children.push(at);
+            match self.graph.func(child) {
+                Some(f) => {
+                    partial.used.entry((f.peis, f.component)).or_insert(child);
+                }
+                None => tasks.push(at),
+            }
+        }
+        // The first subtask ends on top of the stack.
+        partial.stack.extend(tasks.into_iter().rev());
+    }
+
+    fn children(&mut self, id: u32, partial: &Partial) -> Vec<Node> {
+        let node = self.nodes[id as usize];
+        let Some(&top) = partial.stack.last() else {
+            return Vec::new();
+        };
+        let item = self.graph.item(partial.insts[top as usize].item);
+        let ItemKind::Task { alts, .. } = &item.kind else {
+            return Vec::new();
+        };
+        let pending = partial.stack.len() - 1;
+        let mut out = Vec::new();
+        'alts: for (a, alt) in alts.iter().enumerate() {
+            if alt.lb == INFEASIBLE {
+                continue;
+            }
+            let mut g = node.g;
+            let mut h = node.h - item.lb;
+            let mut tasks = 0;
+            for &child in alt.children.iter() {
+                match self.graph.func(child) {
+                    Some(f) => {
+                        if let Some(&other) = partial.used.get(&(f.peis, f.component))
+                            && other != child
+                        {
+                            // The component already runs another functionality.
+                            continue 'alts;
+                        }
+                        g += f.share;
+                    }
+                    None => {
+                        h += self.graph.item(child).lb;
+                        tasks += 1;
+                    }
+                }
+            }
+            out.push(Node {
+                parent: id,
+                alt: a as u32,
+                g,
+                h,
+                depth: node.depth + 1,
+                state: if pending + tasks == 0 {
+                    NodeState::Complete
+                } else {
+                    NodeState::Open
+                },
+            });
+        }
+        out
+    }
+
+    fn describe(&self, item: ItemId) -> String {
+        let item = self.graph.item(item);
+        let c = &self.ctx.compiled;
+        let mut out = String::from("(");
+        out.push_str(self.callee_name(item.callee));
+        for &a in item.args.iter() {
+            out.push(' ');
+            out.push_str(c.syms.name(a));
+        }
+        out.push(')');
+        out
+    }
+
+    pub(crate) fn callee_name(&self, callee: Callee) -> &str {
+        self.ctx.callee_name(callee)
+    }
+
+    fn info_text(&self, info: &GInfo) -> String {
+        let c = &self.ctx.compiled;
+        let mut out = format!("({}", c.syms.name(info.name));
+        for &a in info.args.iter() {
+            out.push(' ');
+            out.push_str(c.syms.name(a));
+        }
+        out.push(')');
+        out
+    }
+
+    /// The label path of an instance, like `f0/f1/f2`.
+    fn label(&self, partial: &Partial, mut inst: u32) -> String {
+        let mut parts = Vec::new();
+        while let Some((parent, k)) = partial.insts[inst as usize].parent {
+            let p = &partial.insts[parent as usize];
+            let label = p
+                .alt
+                .and_then(|alt| match &self.graph.item(p.item).kind {
+                    ItemKind::Task { alts, .. } => Some(alts[alt as usize].method),
+                    ItemKind::Func(_) => None,
+                })
+                .map(|m| self.ctx.subtask_label(m, k))
+                .unwrap_or("?");
+            parts.push(label.to_string());
+            inst = parent;
+        }
+        if parts.is_empty() {
+            return "goal".to_string();
+        }
+        parts.reverse();
+        parts.join("/")
+    }
+
+    /// The functionality instance providing `info` out of instance `inst`.
+    fn producer(
+        &self,
+        partial: &Partial,
+        mut inst: u32,
+        info: &GInfo,
+    ) -> Result<u32, Inadmissible> {
+        loop {
+            let i = &partial.insts[inst as usize];
+            let ItemKind::Task { alts, .. } = &self.graph.item(i.item).kind else {
+                return Ok(inst);
+            };
+            let alt = &alts[i.alt.unwrap_or(0) as usize];
+            let method = &self.ctx.compiled.methods[alt.method as usize];
+            let found = method
+                .outputs
+                .iter()
+                .find(|(out, _)| out.ground(&alt.binding) == *info);
+            match found {
+                Some((_, sub)) => inst = i.children[*sub as usize],
+                None => {
+                    return Err(format!(
+                        "{} ({}) does not provide {} with method {}",
+                        self.label(partial, inst),
+                        self.describe(i.item),
+                        self.info_text(info),
+                        self.ctx.method_name(alt.method)
+                    ));
+                }
+            }
+        }
+    }
+
+    /// Every functionality instance consuming `info` delivered to instance `inst`.
+    fn consumers(
+        &self,
+        partial: &Partial,
+        inst: u32,
+        info: &GInfo,
+        out: &mut Vec<u32>,
+    ) -> Result<(), Inadmissible> {
+        let i = &partial.insts[inst as usize];
+        let ItemKind::Task { alts, .. } = &self.graph.item(i.item).kind else {
+            out.push(inst);
+            return Ok(());
+        };
+        let alt = &alts[i.alt.unwrap_or(0) as usize];
+        let method = &self.ctx.compiled.methods[alt.method as usize];
+        let mut any = false;
+        for (input, sub) in &method.inputs {
+            if input.ground(&alt.binding) == *info {
+                any = true;
+                self.consumers(partial, i.children[*sub as usize], info, out)?;
+            }
+        }
+        if any {
+            Ok(())
+        } else {
+            Err(format!(
+                "{} ({}) does not take {} as input with method {}",
+                self.label(partial, inst),
+                self.describe(i.item),
+                self.info_text(info),
+                self.ctx.method_name(alt.method)
+            ))
+        }
+    }
+
+    /// Turns a complete decomposition into a configuration, or says why it is
+    /// not admissible.
+    fn assemble(&self, partial: &Partial) -> Result<Configuration, Inadmissible> {
+        let c = &self.ctx.compiled;
+        // Functionality instances, one per component.
+        let mut by_component: HashMap<(Sym, Sym), u32> = HashMap::new();
+        let mut order: Vec<u32> = Vec::new();
+        for (at, inst) in partial.insts.iter().enumerate() {
+            let Some(f) = self.graph.func(inst.item) else {
+                continue;
+            };
+            match by_component.get(&(f.peis, f.component)) {
+                Some(&first) if partial.insts[first as usize].item != inst.item => {
+                    return Err(format!(
+                        "component {}:{} would run both {} and {}",
+                        c.syms.name(f.peis),
+                        c.syms.name(f.component),
+                        self.describe(partial.insts[first as usize].item),
+                        self.describe(inst.item)
+                    ));
+                }
+                Some(_) => {}
+                None => {
+                    by_component.insert((f.peis, f.component), at as u32);
+                    order.push(at as u32);
+                }
+            }
+        }
+        let key = |inst: u32| {
+            let f = self.graph.func(partial.insts[inst as usize].item);
+            f.map(|f| (f.peis, f.component))
+        };
+        // Wires: (consumer component, info) → producer instance.
+        let mut wires: Vec<((Sym, Sym), GInfo, u32, u32)> = Vec::new();
+        for inst in &partial.insts {
+            let ItemKind::Task { alts, .. } = &self.graph.item(inst.item).kind else {
+                continue;
+            };
+            let Some(alt) = inst.alt.map(|a| &alts[a as usize]) else {
+                continue;
+            };
+            let method = &c.methods[alt.method as usize];
+            for (from, to, info) in &method.channels {
+                let info = info.ground(&alt.binding);
+                let producer = self.producer(partial, inst.children[*from as usize], &info)?;
+                let mut consumers = Vec::new();
+                self.consumers(partial, inst.children[*to as usize], &info, &mut consumers)?;
+                for consumer in consumers {
+                    let (Some(_), Some(ckey)) = (key(producer), key(consumer)) else {
+                        continue;
+                    };
+                    let existing = wires.iter().find(|(k, i, _, _)| *k == ckey && *i == info);
+                    match existing {
+                        Some(&(_, _, p, _)) if key(p) != key(producer) => {
+                            return Err(format!(
+                                "input {} of {} would come from both {} and {}",
+                                self.info_text(&info),
+                                self.describe(partial.insts[consumer as usize].item),
+                                self.describe(partial.insts[p as usize].item),
+                                self.describe(partial.insts[producer as usize].item),
+                            ));
+                        }
+                        Some(_) => {}
+                        None => wires.push((ckey, info.clone(), producer, consumer)),
+                    }
+                }
+            }
+        }
+        // Every wire carries an output of its producer to an input of its
+        // consumer, at a sufficient rate.
+        for (_, info, producer, consumer) in &wires {
+            let pf = self.graph.func(partial.insts[*producer as usize].item);
+            let cf = self.graph.func(partial.insts[*consumer as usize].item);
+            let (Some(pf), Some(cf)) = (pf, cf) else {
+                continue;
+            };
+            let pi = partial.insts[*producer as usize].item;
+            let ci = partial.insts[*consumer as usize].item;
+            let p_args: Vec<Option<Sym>> =
+                self.graph.item(pi).args.iter().map(|&a| Some(a)).collect();
+            let c_args: Vec<Option<Sym>> =
+                self.graph.item(ci).args.iter().map(|&a| Some(a)).collect();
+            let out = c.funcs[pf.func as usize]
+                .outputs
+                .iter()
+                .find(|o| o.ground(&p_args) == *info);
+            let input = c.funcs[cf.func as usize]
+                .inputs
+                .iter()
+                .find(|i| i.ground(&c_args) == *info);
+            let Some(out) = out else {
+                return Err(format!(
+                    "{} does not output {}",
+                    self.describe(pi),
+                    self.info_text(info)
+                ));
+            };
+            let Some(input) = input else {
+                return Err(format!(
+                    "{} does not input {}",
+                    self.describe(ci),
+                    self.info_text(info)
+                ));
+            };
+            if let Some(need) = input.hz
+                && out.hz.is_none_or(|offered| offered < need)
+            {
+                let offered = out
+                    .hz
+                    .map_or("no stated rate".to_string(), |hz| format!("{hz} Hz"));
+                return Err(format!(
+                    "{} needs {} at {need} Hz but {} offers {offered}",
+                    self.describe(ci),
+                    self.info_text(info),
+                    self.describe(pi)
+                ));
+            }
+        }
+        // Every input of every functionality is connected.
+        for &at in &order {
+            let item = partial.insts[at as usize].item;
+            let Some(f) = self.graph.func(item) else {
+                continue;
+            };
+            let args: Vec<Option<Sym>> = self
+                .graph
+                .item(item)
+                .args
+                .iter()
+                .map(|&a| Some(a))
+                .collect();
+            for input in &c.funcs[f.func as usize].inputs {
+                let info = input.ground(&args);
+                if !wires
+                    .iter()
+                    .any(|(k, i, _, _)| *k == (f.peis, f.component) && *i == info)
+                {
+                    return Err(format!(
+                        "input {} of {} ({}) is not connected",
+                        self.info_text(&info),
+                        self.label(partial, at),
+                        self.describe(item)
+                    ));
+                }
+            }
+        }
+        // Cost: distinct components, plus distinct channels between PEIS.
+        let mut cost: u64 = 0;
+        let mut functionalities = Vec::new();
+        for &at in &order {
+            let item = partial.insts[at as usize].item;
+            let Some(f) = self.graph.func(item) else {
+                continue;
+            };
+            cost = cost.saturating_add(f.cost);
+            let schema = &c.funcs[f.func as usize];
+            let args: Vec<Option<Sym>> = self
+                .graph
+                .item(item)
+                .args
+                .iter()
+                .map(|&a| Some(a))
+                .collect();
+            functionalities.push(FunctionalityInstance {
+                label: self.label(partial, at),
+                name: self.callee_name(Callee::Func(f.func)).to_string(),
+                args: self
+                    .graph
+                    .item(item)
+                    .args
+                    .iter()
+                    .map(|&a| c.syms.name(a).to_string())
+                    .collect(),
+                peis: c.syms.name(f.peis).to_string(),
+                component: c.syms.name(f.component).to_string(),
+                power: f.power,
+                cost: f.cost,
+                inputs: schema
+                    .inputs
+                    .iter()
+                    .map(|i| self.info_text(&i.ground(&args)))
+                    .collect(),
+                outputs: schema
+                    .outputs
+                    .iter()
+                    .map(|o| self.info_text(&o.ground(&args)))
+                    .collect(),
+                postcondition: self
+                    .ctx
+                    .ground_postcondition(f.func, &self.graph.item(item).args),
+            });
+        }
+        let mut channels = Vec::new();
+        let mut seen: HashSet<((Sym, Sym), (Sym, Sym), GInfo)> = HashSet::new();
+        for (ckey, info, producer, _) in &wires {
+            let Some(pkey) = key(*producer) else { continue };
+            if !seen.insert((pkey, *ckey, info.clone())) {
+                continue;
+            }
+            let remote = pkey.0 != ckey.0;
+            let channel_cost = if remote {
+                self.ctx.channel_cost(pkey.0, ckey.0)
+            } else {
+                0
+            };
+            cost = cost.saturating_add(channel_cost);
+            let label_of = |k: (Sym, Sym)| {
+                by_component
+                    .get(&k)
+                    .map(|&at| self.label(partial, at))
+                    .unwrap_or_default()
+            };
+            channels.push(ChannelInstance {
+                from: label_of(pkey),
+                to: label_of(*ckey),
+                info: self.info_text(info),
+                from_peis: c.syms.name(pkey.0).to_string(),
+                from_component: c.syms.name(pkey.1).to_string(),
+                to_peis: c.syms.name(ckey.0).to_string(),
+                to_component: c.syms.name(ckey.1).to_string(),
+                remote,
+                cost: channel_cost,
+            });
+        }
+        Ok(Configuration {
+            cost,
+            optimal: false,
+            functionalities,
+            channels,
+        })
+    }
+}
