@@ -179,7 +179,9 @@ fn print_human(args: &ConfigureArgs, outcome: &Outcome) {
         } else {
             println!("configuration for {}:", args.goal);
         }
-        println!("{config}");
+        for line in config.to_string().lines() {
+            println!("  {line}");
+        }
         if i + 1 < n {
             println!();
         }

@@ -298,7 +298,7 @@ impl fmt::Display for Configuration {
             };
             writeln!(
                 f,
-                "  {:width$}  {:<36} {}:{} ({power})  cost {}",
+                "{:width$}  {:<36} {}:{} ({power})  cost {}",
                 x.label,
                 x.call(),
                 x.peis,
@@ -307,7 +307,7 @@ impl fmt::Display for Configuration {
             )?;
         }
         if !self.channels.is_empty() {
-            writeln!(f, "  channels:")?;
+            writeln!(f, "channels:")?;
             for c in &self.channels {
                 let place = if c.remote {
                     format!("remote {} → {}", c.from_peis, c.to_peis)
@@ -319,7 +319,7 @@ impl fmt::Display for Configuration {
                 } else {
                     String::new()
                 };
-                writeln!(f, "    {} → {}  {}  ({place}){cost}", c.from, c.to, c.info)?;
+                writeln!(f, "  {} → {}  {}  ({place}){cost}", c.from, c.to, c.info)?;
             }
         }
         let proof = if self.optimal {
@@ -327,7 +327,7 @@ impl fmt::Display for Configuration {
         } else {
             "not proven optimal"
         };
-        write!(f, "  total cost {} ({proof})", self.cost)
+        write!(f, "total cost {} ({proof})", self.cost)
     }
 }
 

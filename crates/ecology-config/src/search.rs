@@ -173,6 +173,10 @@ impl<'a> Engine<'a> {
             NodeState::Complete => {
                 let partial = self.replay(id);
                 match self.assemble(&partial) {
+                    Ok(config) if keep_bound && config.cost >= self.bound => {
+                        // No better than the incumbent.
+                        false
+                    }
                     Ok(config) => {
                         let cost = config.cost;
                         let at = self.assembled.len() as u32;

@@ -1,1 +1,329 @@
-//! Synthetic.
+//! Seeded generators of synthetic ecologies, for property tests and benchmarks.
+//!
+//! Each generator writes a domain and a state as `.eco` and `.facts` text and
+//! parses them back, so the parser is exercised too. Randomness comes from a
+//! small seeded generator: the same seed gives the same ecology everywhere.
+
+use std::fmt::Write;
+
+use ecology_domain::{Call, Domain, EcologyState};
+
+/// SplitMix64: a tiny, well-mixed, seedable generator.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// A generator from a seed.
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// A number in `0..n` (`n` > 0).
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n.max(1)
+    }
+
+    /// True with probability `p`.
+    pub fn chance(&mut self, p: f64) -> bool {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 <= p
+    }
+}
+
+/// A generated problem, as text and parsed.
+#[derive(Debug, Clone)]
+pub struct Instance {
+    /// The domain's source.
+    pub domain_text: String,
+    /// The state's source.
+    pub facts_text: String,
+    /// The goal's source.
+    pub goal_text: String,
+    /// The parsed domain.
+    pub domain: Domain,
+    /// The parsed state.
+    pub state: EcologyState,
+    /// The parsed goal.
+    pub goal: Call,
+    /// Every component, as `(peis, component)`.
+    pub components: Vec<(String, String)>,
+}
+
+/// Why a generated instance did not parse: a generator bug, with the text.
+#[derive(Debug, Clone)]
+pub struct GeneratorError(pub String);
+
+fn finish(
+    domain_text: String,
+    facts_text: String,
+    goal_text: String,
+    components: Vec<(String, String)>,
+) -> Result<Instance, GeneratorError> {
+    let domain = ecology_domain::parse_domain(domain_text.as_bytes())
+        .map_err(|d| GeneratorError(d.render("generated.eco", domain_text.as_bytes())))?;
+    let state = ecology_domain::parse_facts(facts_text.as_bytes())
+        .map_err(|d| GeneratorError(d.render("generated.facts", facts_text.as_bytes())))?;
+    let goal = ecology_domain::parse_goal(&goal_text)
+        .map_err(|d| GeneratorError(d.render("goal", goal_text.as_bytes())))?;
+    Ok(Instance {
+        domain_text,
+        facts_text,
+        goal_text,
+        domain,
+        state,
+        goal,
+        components,
+    })
+}
+
+/// A small random ecology for testing against the brute-force oracle: one to
+/// three PEIS, a handful of component types and functionalities, three layers
+/// of tasks with one to three methods each, random channels, rates, sharing
+/// and clashes.
+pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed);
+    let n_peis = 1 + rng.below(3);
+    let n_types = 2 + rng.below(3);
+    let n_infos = 1 + rng.below(3);
+    let mut facts = String::new();
+    let mut components = Vec::new();
+    for p in 0..n_peis {
+        writeln!(facts, "(peis p{p})").ok();
+        if rng.chance(0.7) {
+            writeln!(facts, "(ok p{p})").ok();
+        }
+        for t in 0..n_types {
+            for k in 0..2 {
+                if rng.chance(if k == 0 { 0.6 } else { 0.2 }) {
+                    let c = format!("c{p}{t}{k}");
+                    writeln!(facts, "(pc p{p} t{t} {c})").ok();
+                    if rng.chance(0.8) {
+                        let power = if rng.chance(0.5) { "on" } else { "off" };
+                        writeln!(facts, "(cost p{p} {c} {} {power})", rng.below(40)).ok();
+                    }
+                    components.push((format!("p{p}"), c));
+                }
+            }
+        }
+    }
+    if n_peis > 1 && rng.chance(0.3) {
+        writeln!(facts, "(channel-cost p0 p1 {})", rng.below(10)).ok();
+    }
+    // Functionalities.
+    struct F {
+        ty: u64,
+        inputs: Vec<u64>,
+        outputs: Vec<u64>,
+    }
+    let mut domain = String::from("(define (domain small)\n");
+    let n_funcs = 2 + rng.below(4);
+    let mut funcs = Vec::new();
+    for f in 0..n_funcs {
+        let ty = rng.below(n_types);
+        let inputs: Vec<u64> = (0..n_infos).filter(|_| rng.chance(0.25)).collect();
+        let outputs: Vec<u64> = (0..n_infos).filter(|_| rng.chance(0.5)).collect();
+        let hz = |rng: &mut Rng| {
+            if rng.chance(0.2) {
+                format!(" :hz {}", 1 + rng.below(3) * 10)
+            } else {
+                String::new()
+            }
+        };
+        let ins: String = inputs.iter().map(|i| format!("(i{i}{})", hz(&mut rng))).collect();
+        let outs: String = outputs.iter().map(|i| format!("(i{i}{})", hz(&mut rng))).collect();
+        let ok = if rng.chance(0.2) { " (ok ?p)" } else { "" };
+        writeln!(
+            domain,
+            "  (:functionality f{f} :parameters (?p ?c) :component (?p ?c)\n    :precondition (and (pc ?p t{ty} ?c){ok}) :input ({ins}) :output ({outs}) :cost {})",
+            rng.below(30)
+        )
+        .ok();
+        funcs.push(F { ty, inputs, outputs });
+    }
+    // Tasks, bottom-up so that their interfaces are known to the layers above.
+    let mut task_outputs: Vec<Vec<u64>> = Vec::new();
+    let mut task_inputs: Vec<Vec<u64>> = Vec::new();
+    for level in (0..3u64).rev() {
+        writeln!(domain, "  (:task t{level} :parameters ())").ok();
+        let mut outs_union: Vec<u64> = Vec::new();
+        let mut ins_union: Vec<u64> = Vec::new();
+        for m in 0..1 + rng.below(3) {
+            // Subtasks: functionalities, or tasks of lower levels (already declared).
+            let n_sub = 1 + rng.below(3);
+            let mut subs: Vec<(String, Vec<u64>, Vec<u64>)> = Vec::new(); // call, inputs, outputs
+            let mut pre = Vec::new();
+            let mut bound: Vec<u64> = Vec::new();
+            let mut first_is_func = false;
+            for j in 0..n_sub {
+                let lower_tasks = 2 - level; // tasks t{level+1}..t2 exist
+                if lower_tasks > 0 && rng.chance(0.35) {
+                    let t = level + 1 + rng.below(lower_tasks);
+                    let idx = (2 - t) as usize;
+                    subs.push((format!("(t{t})"), task_inputs[idx].clone(), task_outputs[idx].clone()));
+                } else {
+                    let f = rng.below(n_funcs) as usize;
+                    // Usually the functionality's own type; sometimes another (then
+                    // the functionality's precondition fails), sometimes shared vars.
+                    let ty = if rng.chance(0.85) { funcs[f].ty } else { rng.below(n_types) };
+                    // Reusing the first subtask's variables makes two subtasks
+                    // share (or clash on) one component.
+                    let var = if j > 0 && first_is_func && rng.chance(0.15) { 0 } else { j };
+                    if j == 0 {
+                        first_is_func = true;
+                    }
+                    if var == j {
+                        pre.push(format!("(pc ?p{j} t{ty} ?c{j})"));
+                        bound.push(j);
+                    }
+                    subs.push((
+                        format!("(f{f} ?p{var} ?c{var})"),
+                        funcs[f].inputs.clone(),
+                        funcs[f].outputs.clone(),
+                    ));
+                }
+            }
+            if bound.len() >= 2 && rng.chance(0.3) {
+                pre.push(format!("(not (= ?p{} ?p{}))", bound[0], bound[1]));
+            }
+            let mut channels = String::new();
+            let mut fed: Vec<(usize, u64)> = Vec::new();
+            for a in 0..subs.len() {
+                for b in 0..subs.len() {
+                    if a == b {
+                        continue;
+                    }
+                    for &i in &subs[a].2 {
+                        if subs[b].1.contains(&i) && rng.chance(0.7) {
+                            write!(channels, "(s{a} s{b} (i{i}))").ok();
+                            fed.push((b, i));
+                        }
+                    }
+                }
+            }
+            let mut outputs = String::new();
+            for i in 0..n_infos {
+                let providers: Vec<usize> = (0..subs.len()).filter(|&s| subs[s].2.contains(&i)).collect();
+                if !providers.is_empty() && rng.chance(0.6) {
+                    let s = providers[rng.below(providers.len() as u64) as usize];
+                    write!(outputs, "((i{i}) s{s})").ok();
+                    outs_union.push(i);
+                }
+            }
+            let mut inputs = String::new();
+            for (s, sub) in subs.iter().enumerate() {
+                for &i in &sub.1 {
+                    if !fed.contains(&(s, i)) && rng.chance(0.5) {
+                        write!(inputs, "((i{i}) s{s})").ok();
+                        ins_union.push(i);
+                    }
+                }
+            }
+            let vars: String = (0..n_sub).map(|j| format!(" ?p{j} ?c{j}")).collect();
+            let subtasks: String = subs.iter().enumerate().map(|(s, sub)| format!("(s{s} {})", sub.0)).collect();
+            writeln!(
+                domain,
+                "  (:method t{level}-m{m} :parameters ({}) :task (t{level})\n    :precondition (and {}) :subtasks ({subtasks})\n    :channels ({channels}) :inputs ({inputs}) :outputs ({outputs}))",
+                vars.trim(),
+                pre.join(" ")
+            )
+            .ok();
+        }
+        outs_union.sort_unstable();
+        outs_union.dedup();
+        ins_union.sort_unstable();
+        ins_union.dedup();
+        task_outputs.push(outs_union);
+        task_inputs.push(ins_union);
+    }
+    domain.push(')');
+    let goal = if rng.chance(0.9) { "(t0)".to_string() } else { "(t1)".to_string() };
+    finish(domain, facts, goal, components)
+}
+
+/// Parameters of a benchmark ecology.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shape {
+    /// PEIS in the ecology.
+    pub peis: usize,
+    /// Components on each PEIS.
+    pub components_per_peis: usize,
+    /// Component types.
+    pub types: usize,
+    /// Alternative methods per task.
+    pub methods: usize,
+    /// Levels of task decomposition.
+    pub depth: usize,
+    /// Random seed.
+    pub seed: u64,
+}
+
+/// A benchmark ecology shaped like the paper's: a robot `q0` needs information
+/// produced through `depth` levels of tasks; each level's task has `methods`
+/// alternatives, each binding a provider PEIS that has two component types
+/// (a source and a processor, like ceiling cameras and a tracking system), fed
+/// by the level below. Costs and on/off states are random.
+pub fn ecology(shape: Shape) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(shape.seed);
+    let types = shape.types.max(2) as u64;
+    let mut facts = String::with_capacity(shape.peis * shape.components_per_peis * 48);
+    let mut components = Vec::new();
+    for p in 0..shape.peis {
+        writeln!(facts, "(peis q{p})").ok();
+        for k in 0..shape.components_per_peis {
+            let c = format!("c{p}x{k}");
+            let t = rng.below(types);
+            let power = if rng.chance(0.5) { "on" } else { "off" };
+            writeln!(facts, "(pc q{p} t{t} {c}) (cost q{p} {c} {} {power})", 1 + rng.below(100)).ok();
+            components.push((format!("q{p}"), c));
+        }
+    }
+    let mut domain = String::from("(define (domain synthetic)\n");
+    for d in 0..shape.depth {
+        writeln!(domain, "  (:task level{d} :parameters (?r) :output ((info{d} ?r)))").ok();
+        for j in 0..shape.methods {
+            let source = rng.below(types);
+            let processor = rng.below(types);
+            let below = d + 1 < shape.depth;
+            let input = if below {
+                format!(" :input ((info{} ?r))", d + 1)
+            } else {
+                String::new()
+            };
+            writeln!(
+                domain,
+                "  (:functionality source{d}-{j} :parameters (?r ?p ?c) :component (?p ?c)\n    :precondition (pc ?p t{source} ?c){input} :output ((mid{d}-{j} ?r)) :cost {})",
+                rng.below(50)
+            )
+            .ok();
+            writeln!(
+                domain,
+                "  (:functionality process{d}-{j} :parameters (?r ?p ?c) :component (?p ?c)\n    :precondition (pc ?p t{processor} ?c) :input ((mid{d}-{j} ?r)) :output ((info{d} ?r)) :cost {})",
+                rng.below(50)
+            )
+            .ok();
+            let (lower, lower_channel) = if below {
+                (
+                    format!("(s0 (level{} ?r)) ", d + 1),
+                    format!("(s0 s1 (info{} ?r)) ", d + 1),
+                )
+            } else {
+                (String::new(), String::new())
+            };
+            writeln!(
+                domain,
+                "  (:method level{d}-by-{j} :parameters (?r ?p ?c1 ?c2) :task (level{d} ?r)\n    :precondition (and (peis ?r) (pc ?p t{source} ?c1) (pc ?p t{processor} ?c2) (not (= ?c1 ?c2)))\n    :subtasks ({lower}(s1 (source{d}-{j} ?r ?p ?c1)) (s2 (process{d}-{j} ?r ?p ?c2)))\n    :channels ({lower_channel}(s1 s2 (mid{d}-{j} ?r)))\n    :outputs (((info{d} ?r) s2)))"
+            )
+            .ok();
+        }
+    }
+    domain.push(')');
+    finish(domain, facts, "(level0 q0)".to_string(), components)
+}
