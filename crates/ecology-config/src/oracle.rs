@@ -109,7 +109,10 @@ impl Oracle<'_> {
             self.state.facts().iter().any(|f| {
                 f.predicate == atom.predicate
                     && f.args.len() == atom.args.len()
-                    && f.args.iter().zip(&atom.args).all(|(x, t)| value(t, b).as_deref() == Some(&**x))
+                    && f.args
+                        .iter()
+                        .zip(&atom.args)
+                        .all(|(x, t)| value(t, b).as_deref() == Some(&**x))
             })
         };
         match lit {
@@ -181,7 +184,10 @@ impl Oracle<'_> {
         let comp = b.get(&*f.component.1).cloned().unwrap_or_default();
         let excluded = self.exclusions.iter().any(|e| match e {
             Exclusion::Peis(p) => *p == peis,
-            Exclusion::Component { peis: p, component: c } => *p == peis && *c == comp,
+            Exclusion::Component {
+                peis: p,
+                component: c,
+            } => *p == peis && *c == comp,
         });
         !excluded && f.precondition.iter().all(|l| self.holds(l, &b))
     }
@@ -206,8 +212,12 @@ impl Oracle<'_> {
                 // The cartesian product of the subtasks' trees.
                 let mut combos: Vec<Vec<Tree>> = vec![Vec::new()];
                 for sub in &method.subtasks {
-                    let sub_args: Vec<String> =
-                        sub.call.args.iter().map(|t| value(t, &binding).unwrap_or_default()).collect();
+                    let sub_args: Vec<String> = sub
+                        .call
+                        .args
+                        .iter()
+                        .map(|t| value(t, &binding).unwrap_or_default())
+                        .collect();
                     let options = self.trees(&sub.call.name, &sub_args, limit)?;
                     let mut next = Vec::new();
                     for combo in &combos {
@@ -247,7 +257,10 @@ impl Oracle<'_> {
                 children,
             } => {
                 let m = &self.domain.methods[*method];
-                let r = m.outputs.iter().find(|r| info_text(&r.info, binding) == info)?;
+                let r = m
+                    .outputs
+                    .iter()
+                    .find(|r| info_text(&r.info, binding) == info)?;
                 let k = m.subtasks.iter().position(|s| s.label == r.label)?;
                 self.producer(&children[k], info)
             }
@@ -302,7 +315,10 @@ impl Oracle<'_> {
         let Tree::Func { name, args } = leaf else {
             return Default::default();
         };
-        let f = self.domain.functionality(name).map(|f| (f, params_binding(&f.params, args)));
+        let f = self
+            .domain
+            .functionality(name)
+            .map(|f| (f, params_binding(&f.params, args)));
         let (peis, comp) = f.map_or((String::new(), String::new()), |(f, b)| {
             (
                 b.get(&*f.component.0).cloned().unwrap_or_default(),
@@ -377,7 +393,9 @@ impl Oracle<'_> {
         }
         // Every input connected.
         for leaf in &leaves {
-            let Tree::Func { name, args } = leaf else { continue };
+            let Tree::Func { name, args } = leaf else {
+                continue;
+            };
             let f = self.domain.functionality(name)?;
             let b = params_binding(&f.params, args);
             let (p, c, _) = self.leaf_key(leaf);
@@ -391,16 +409,24 @@ impl Oracle<'_> {
         let mut cost = 0u64;
         let mut parts: BTreeSet<String> = BTreeSet::new();
         for ((p, c), call) in &components {
-            let name = call.trim_start_matches('(').split(' ').next().unwrap_or_default();
+            let name = call
+                .trim_start_matches('(')
+                .split(' ')
+                .next()
+                .unwrap_or_default();
             let name = name.trim_end_matches(')');
             let default = self.domain.functionality(name).map_or(0, |f| f.cost);
-            cost += self.cost_model.component_cost(p, c, self.state.component_cost(p, c), default);
+            cost += self
+                .cost_model
+                .component_cost(p, c, self.state.component_cost(p, c), default);
             parts.insert(format!("{p}:{c}={call}"));
         }
         let mut channels: BTreeSet<String> = BTreeSet::new();
         for (((cp, cc), info), (pp, pc)) in &wires {
             if pp != cp {
-                cost += self.cost_model.channel_cost(pp, cp, self.state.channel_cost(pp, cp));
+                cost += self
+                    .cost_model
+                    .channel_cost(pp, cp, self.state.channel_cost(pp, cp));
             }
             channels.insert(format!("{pp}:{pc}>{cp}:{cc}{info}"));
         }
@@ -418,6 +444,9 @@ impl Oracle<'_> {
         let f = self.domain.functionality(name)?;
         let b = params_binding(&f.params, args);
         let ports = if output { &f.outputs } else { &f.inputs };
-        ports.iter().find(|i| info_text(i, &b) == info).map(|i| i.hz)
+        ports
+            .iter()
+            .find(|i| info_text(i, &b) == info)
+            .map(|i| i.hz)
     }
 }

@@ -137,8 +137,14 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
                 String::new()
             }
         };
-        let ins: String = inputs.iter().map(|i| format!("(i{i}{})", hz(&mut rng))).collect();
-        let outs: String = outputs.iter().map(|i| format!("(i{i}{})", hz(&mut rng))).collect();
+        let ins: String = inputs
+            .iter()
+            .map(|i| format!("(i{i}{})", hz(&mut rng)))
+            .collect();
+        let outs: String = outputs
+            .iter()
+            .map(|i| format!("(i{i}{})", hz(&mut rng)))
+            .collect();
         let ok = if rng.chance(0.2) { " (ok ?p)" } else { "" };
         writeln!(
             domain,
@@ -146,7 +152,11 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
             rng.below(30)
         )
         .ok();
-        funcs.push(F { ty, inputs, outputs });
+        funcs.push(F {
+            ty,
+            inputs,
+            outputs,
+        });
     }
     // Tasks, bottom-up so that their interfaces are known to the layers above.
     let mut task_outputs: Vec<Vec<u64>> = Vec::new();
@@ -167,15 +177,27 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
                 if lower_tasks > 0 && rng.chance(0.35) {
                     let t = level + 1 + rng.below(lower_tasks);
                     let idx = (2 - t) as usize;
-                    subs.push((format!("(t{t})"), task_inputs[idx].clone(), task_outputs[idx].clone()));
+                    subs.push((
+                        format!("(t{t})"),
+                        task_inputs[idx].clone(),
+                        task_outputs[idx].clone(),
+                    ));
                 } else {
                     let f = rng.below(n_funcs) as usize;
                     // Usually the functionality's own type; sometimes another (then
                     // the functionality's precondition fails), sometimes shared vars.
-                    let ty = if rng.chance(0.85) { funcs[f].ty } else { rng.below(n_types) };
+                    let ty = if rng.chance(0.85) {
+                        funcs[f].ty
+                    } else {
+                        rng.below(n_types)
+                    };
                     // Reusing the first subtask's variables makes two subtasks
                     // share (or clash on) one component.
-                    let var = if j > 0 && first_is_func && rng.chance(0.15) { 0 } else { j };
+                    let var = if j > 0 && first_is_func && rng.chance(0.15) {
+                        0
+                    } else {
+                        j
+                    };
                     if j == 0 {
                         first_is_func = true;
                     }
@@ -210,7 +232,9 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
             }
             let mut outputs = String::new();
             for i in 0..n_infos {
-                let providers: Vec<usize> = (0..subs.len()).filter(|&s| subs[s].2.contains(&i)).collect();
+                let providers: Vec<usize> = (0..subs.len())
+                    .filter(|&s| subs[s].2.contains(&i))
+                    .collect();
                 if !providers.is_empty() && rng.chance(0.6) {
                     let s = providers[rng.below(providers.len() as u64) as usize];
                     write!(outputs, "((i{i}) s{s})").ok();
@@ -227,7 +251,11 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
                 }
             }
             let vars: String = (0..n_sub).map(|j| format!(" ?p{j} ?c{j}")).collect();
-            let subtasks: String = subs.iter().enumerate().map(|(s, sub)| format!("(s{s} {})", sub.0)).collect();
+            let subtasks: String = subs
+                .iter()
+                .enumerate()
+                .map(|(s, sub)| format!("(s{s} {})", sub.0))
+                .collect();
             writeln!(
                 domain,
                 "  (:method t{level}-m{m} :parameters ({}) :task (t{level})\n    :precondition (and {}) :subtasks ({subtasks})\n    :channels ({channels}) :inputs ({inputs}) :outputs ({outputs}))",
@@ -244,7 +272,11 @@ pub fn small(seed: u64) -> Result<Instance, GeneratorError> {
         task_inputs.push(ins_union);
     }
     domain.push(')');
-    let goal = if rng.chance(0.9) { "(t0)".to_string() } else { "(t1)".to_string() };
+    let goal = if rng.chance(0.9) {
+        "(t0)".to_string()
+    } else {
+        "(t1)".to_string()
+    };
     finish(domain, facts, goal, components)
 }
 
@@ -281,13 +313,22 @@ pub fn ecology(shape: Shape) -> Result<Instance, GeneratorError> {
             let c = format!("c{p}x{k}");
             let t = rng.below(types);
             let power = if rng.chance(0.5) { "on" } else { "off" };
-            writeln!(facts, "(pc q{p} t{t} {c}) (cost q{p} {c} {} {power})", 1 + rng.below(100)).ok();
+            writeln!(
+                facts,
+                "(pc q{p} t{t} {c}) (cost q{p} {c} {} {power})",
+                1 + rng.below(100)
+            )
+            .ok();
             components.push((format!("q{p}"), c));
         }
     }
     let mut domain = String::from("(define (domain synthetic)\n");
     for d in 0..shape.depth {
-        writeln!(domain, "  (:task level{d} :parameters (?r) :output ((info{d} ?r)))").ok();
+        writeln!(
+            domain,
+            "  (:task level{d} :parameters (?r) :output ((info{d} ?r)))"
+        )
+        .ok();
         for j in 0..shape.methods {
             let source = rng.below(types);
             let processor = rng.below(types);

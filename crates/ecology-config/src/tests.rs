@@ -10,8 +10,8 @@ use proptest::prelude::*;
 use crate::oracle::{self, Limit};
 use crate::synthetic::{self, Shape};
 use crate::{
-    Budget, Clock, Configuration, CostModel, Exclusion, NoClock, Options, Outcome,
-    PaperCost, Request, Status, plan, plan_with,
+    Budget, Clock, Configuration, CostModel, Exclusion, NoClock, Options, Outcome, PaperCost,
+    Request, Status, plan, plan_with,
 };
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
@@ -20,7 +20,9 @@ const FRIDGE: &str = include_str!("../../../domains/fridge.eco");
 const FRIDGE_FACTS: &str = include_str!("../../../domains/fridge.facts");
 
 fn exclusions(list: &[&str]) -> Vec<Exclusion> {
-    list.iter().map(|e| e.parse().expect("valid exclusion")).collect()
+    list.iter()
+        .map(|e| e.parse().expect("valid exclusion"))
+        .collect()
 }
 
 fn run(domain: &str, facts: &str, goal: &str, exclude: &[&str], count: usize) -> Outcome {
@@ -90,7 +92,13 @@ fn navigate_uses_the_ceiling_cameras_at_80() {
 // The paper, Fig. 6: exactly three ways to navigate, at 80, 170 and 190.
 #[test]
 fn all_lists_the_three_position_sources_cheapest_first() {
-    let outcome = run(PEIS_HOME, PEIS_HOME_FACTS, "(navigate astrid bedroom)", &[], usize::MAX);
+    let outcome = run(
+        PEIS_HOME,
+        PEIS_HOME_FACTS,
+        "(navigate astrid bedroom)",
+        &[],
+        usize::MAX,
+    );
     let costs: Vec<u64> = outcome.configurations.iter().map(|c| c.cost).collect();
     assert_eq!(costs, [80, 170, 190]);
     assert!(outcome.configurations[1].uses("astrid", "l1"));
@@ -119,7 +127,10 @@ fn excluding_the_tracking_system_switches_the_laser_on() {
 
 #[test]
 fn no_position_source_left_is_explained() {
-    let outcome = home("(navigate astrid bedroom)", &["hsm:tr1", "astrid:l1", "pippi:ol2"]);
+    let outcome = home(
+        "(navigate astrid bedroom)",
+        &["hsm:tr1", "astrid:l1", "pippi:ol2"],
+    );
     assert!(outcome.configurations.is_empty());
     assert_eq!(outcome.status, Status::Proven);
     let explanation = outcome.explanation.expect("an explanation");
@@ -152,10 +163,16 @@ fn excluding_a_peis_excludes_its_components() {
 #[test]
 fn grasp_and_wake_up_start_their_components() {
     let grasp = home("(grasp astrid newspaper)", &[]);
-    assert_eq!(grasp.configurations[0].cost, 100, "gripper start-up 90 + default 10");
+    assert_eq!(
+        grasp.configurations[0].cost, 100,
+        "gripper start-up 90 + default 10"
+    );
     assert_eq!(components(&grasp.configurations[0]), ["astrid:gr1"]);
     let wake = home("(wake-up astrid johanna)", &[]);
-    assert_eq!(wake.configurations[0].cost, 20, "speaker start-up 10 + default 10");
+    assert_eq!(
+        wake.configurations[0].cost, 20,
+        "speaker start-up 10 + default 10"
+    );
     assert_eq!(
         wake.configurations[0].functionalities[0].postcondition,
         ["(awake johanna)"]
@@ -175,14 +192,33 @@ fn a_missing_component_type_is_named() {
 // The paper's Fig. 1: the fridge opens its own door for the robot's nose.
 #[test]
 fn fridge_inspection_uses_the_cameras_and_the_fridge_door() {
-    let outcome = run(FRIDGE, FRIDGE_FACTS, "(inspect-food robby fridge1)", &[], usize::MAX);
+    let outcome = run(
+        FRIDGE,
+        FRIDGE_FACTS,
+        "(inspect-food robby fridge1)",
+        &[],
+        usize::MAX,
+    );
     let best = &outcome.configurations[0];
     assert!(best.uses("fridge1", "d1"), "{best}");
     assert!(best.uses("monitor", "tr1"), "{best}");
     assert!(best.uses("robby", "nose1"), "{best}");
-    assert!(outcome.configurations.len() >= 2, "self-localization is the alternative");
-    let fallback = run(FRIDGE, FRIDGE_FACTS, "(inspect-food robby fridge1)", &["monitor"], 1);
-    assert!(fallback.configurations[0].uses("robby", "od1"), "{}", fallback.configurations[0]);
+    assert!(
+        outcome.configurations.len() >= 2,
+        "self-localization is the alternative"
+    );
+    let fallback = run(
+        FRIDGE,
+        FRIDGE_FACTS,
+        "(inspect-food robby fridge1)",
+        &["monitor"],
+        1,
+    );
+    assert!(
+        fallback.configurations[0].uses("robby", "od1"),
+        "{}",
+        fallback.configurations[0]
+    );
 }
 
 #[test]
@@ -203,11 +239,18 @@ fn rates_must_be_met() {
         :subtasks ((a (fast-cam ?p ?c)) (b (tracker ?p ?t))) :channels ((a b (image ?p)))))"#;
     let facts = "(pc r cam c1) (pc r fast-cam c2) (pc r tracker t1)";
     let outcome = run(domain, facts, "(track r)", &[], usize::MAX);
-    assert_eq!(outcome.configurations.len(), 1, "the 10 Hz camera is too slow");
+    assert_eq!(
+        outcome.configurations.len(),
+        1,
+        "the 10 Hz camera is too slow"
+    );
     assert_eq!(outcome.configurations[0].cost, 6);
     let outcome = run(domain, facts, "(track r)", &["r:c2"], 1);
     let text = outcome.explanation.expect("explained").to_string();
-    assert!(text.contains("needs (image r) at 25 Hz but (cam r c1) offers 10 Hz"), "{text}");
+    assert!(
+        text.contains("needs (image r) at 25 Hz but (cam r c1) offers 10 Hz"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -236,7 +279,13 @@ fn a_shared_component_is_paid_once() {
 #[test]
 fn channel_costs_count_between_peis() {
     let facts = format!("{PEIS_HOME_FACTS}\n(channel-cost hsm astrid 100)");
-    let outcome = run(PEIS_HOME, &facts, "(navigate astrid bedroom)", &[], usize::MAX);
+    let outcome = run(
+        PEIS_HOME,
+        &facts,
+        "(navigate astrid bedroom)",
+        &[],
+        usize::MAX,
+    );
     let costs: Vec<u64> = outcome.configurations.iter().map(|c| c.cost).collect();
     assert_eq!(costs, [170, 180, 190], "the cameras now cost 80 + 100");
 }
@@ -280,8 +329,14 @@ fn bad_goals_are_request_errors() {
     let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
     let state = EcologyState::new();
     for (goal, message) in [
-        ("(fly astrid)", "unknown task or functionality `fly` in the goal"),
-        ("(navigate astrid)", "wrong arity: `navigate` takes 2 arguments, the goal gives 1"),
+        (
+            "(fly astrid)",
+            "unknown task or functionality `fly` in the goal",
+        ),
+        (
+            "(navigate astrid)",
+            "wrong arity: `navigate` takes 2 arguments, the goal gives 1",
+        ),
     ] {
         let goal = parse_goal(goal).expect("parses");
         let request = Request {
@@ -337,10 +392,7 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
             max_time: Some(Duration::from_millis(500)),
         },
     ] {
-        let options = Options {
-            count: 1,
-            budget,
-        };
+        let options = Options { count: 1, budget };
         let outcome = plan(&request, &options, &Ticking::default()).expect("valid");
         assert_eq!(outcome.status, Status::BudgetExceeded);
         if let Some(found) = outcome.configurations.first() {
@@ -355,7 +407,8 @@ fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
     let instance = synthetic::small(seed).map_err(|e| TestCaseError::fail(e.0))?;
     let mut exclusions = Vec::new();
     if exclude_one && !instance.components.is_empty() {
-        let (peis, component) = &instance.components[(seed % instance.components.len() as u64) as usize];
+        let (peis, component) =
+            &instance.components[(seed % instance.components.len() as u64) as usize];
         exclusions.push(Exclusion::Component {
             peis: peis.clone(),
             component: component.clone(),
@@ -377,7 +430,12 @@ fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
         goal: &instance.goal,
         exclusions: &exclusions,
     };
-    let context = || format!("seed {seed} excluding {exclusions:?}\n{}\n{}\ngoal {}", instance.domain_text, instance.facts_text, instance.goal_text);
+    let context = || {
+        format!(
+            "seed {seed} excluding {exclusions:?}\n{}\n{}\ngoal {}",
+            instance.domain_text, instance.facts_text, instance.goal_text
+        )
+    };
 
     // The optimum.
     let best = plan(&request, &Options::default(), &NoClock).expect("valid goal");
@@ -397,7 +455,11 @@ fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
     let costs: Vec<u64> = all.configurations.iter().map(|c| c.cost).collect();
     let expected_costs: Vec<u64> = expected.iter().map(|c| c.cost).collect();
     prop_assert_eq!(&costs, &expected_costs, "{}", context());
-    let mut got: Vec<String> = all.configurations.iter().map(Configuration::signature).collect();
+    let mut got: Vec<String> = all
+        .configurations
+        .iter()
+        .map(Configuration::signature)
+        .collect();
     let mut want: Vec<String> = expected.iter().map(|c| c.signature.clone()).collect();
     got.sort();
     want.sort();
@@ -454,9 +516,16 @@ fn the_generators_are_deterministic() {
             goal: &instance.goal,
             exclusions: &[],
         };
-        if !plan(&request, &Options::default(), &NoClock).expect("valid").configurations.is_empty() {
+        if !plan(&request, &Options::default(), &NoClock)
+            .expect("valid")
+            .configurations
+            .is_empty()
+        {
             solvable += 1;
         }
     }
-    assert!(solvable > 40, "only {solvable} of 200 random instances are solvable");
+    assert!(
+        solvable > 40,
+        "only {solvable} of 200 random instances are solvable"
+    );
 }

@@ -1,1 +1,526 @@
-//! Tests of the domain language.
+//! Tests of the domain language, from source text to the model or to rendered diagnostics.
+
+use expect_test::{Expect, expect};
+use proptest::prelude::*;
+
+use crate::{Literal, Term, parse_domain, parse_facts, parse_goal, parse_problem, render};
+
+const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
+const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
+const FRIDGE: &str = include_str!("../../../domains/fridge.eco");
+const FRIDGE_FACTS: &str = include_str!("../../../domains/fridge.facts");
+
+/// Parses `src` as a domain and compares the rendered diagnostics with `expected`.
+fn check(src: &str, expected: Expect) {
+    let actual = match parse_domain(src.as_bytes()) {
+        Ok(_) => "ok".to_string(),
+        Err(diags) => diags.render("test.eco", src.as_bytes()),
+    };
+    expected.assert_eq(&actual);
+}
+
+/// The messages of every diagnostic for `src`, in order.
+fn messages(src: &[u8]) -> Vec<String> {
+    match parse_domain(src) {
+        Ok(_) => Vec::new(),
+        Err(diags) => diags.0.into_iter().map(|d| d.message).collect(),
+    }
+}
+
+fn assert_error(src: &str, fragment: &str) {
+    let all = messages(src.as_bytes());
+    assert!(
+        all.iter().any(|m| m.contains(fragment)),
+        "expected an error containing {fragment:?}, got {all:#?}"
+    );
+}
+
+/// A minimal valid domain to which each test adds one mistake.
+const BASE: &str = r#"(define (domain d)
+  (:functionality cam :parameters (?p ?c) :component (?p ?c)
+    :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 5)
+  (:functionality tracker :parameters (?p ?t ?o) :component (?p ?t)
+    :precondition (pc ?p tr ?t) :input ((image ?p)) :output ((pos ?o)) :cost 5)
+  (:task locate :parameters (?r) :output ((pos ?r)))
+  (:method by-cam :parameters (?r ?p ?c ?t) :task (locate ?r)
+    :precondition (and (pc ?p cam ?c) (pc ?p tr ?t))
+    :subtasks ((f1 (cam ?p ?c)) (f2 (tracker ?p ?t ?r)))
+    :channels ((f1 f2 (image ?p)))
+    :outputs (((pos ?r) f2)))
+"#;
+
+fn with(extra: &str) -> String {
+    format!("{BASE}{extra})")
+}
+
+#[test]
+fn reference_domains_parse() {
+    let home = parse_domain(PEIS_HOME.as_bytes()).expect("peis-home.eco is valid");
+    assert_eq!(home.name.as_ref(), "peis-home");
+    assert_eq!(home.methods_of("get-position").count(), 2);
+    assert_eq!(home.methods_of("get-global-position").count(), 2);
+    let tracking = home.functionality("tracking-system").expect("declared");
+    assert_eq!(tracking.inputs[0].hz, Some(15.0));
+    assert_eq!(tracking.component, ("p".into(), "t".into()));
+    let method = home
+        .methods_of("get-global-position")
+        .next()
+        .expect("a method");
+    assert!(
+        matches!(&method.precondition[4], Literal::Neq(Term::Var(a), Term::Var(b), _) if &**a == "r" && &**b == "p")
+    );
+    let mv = home.action("move").expect("declared");
+    assert_eq!(
+        mv.configure.as_ref().map(ToString::to_string).as_deref(),
+        Some("(navigate ?r ?to)")
+    );
+    assert_eq!(mv.params[0].ty.as_deref(), Some("robot"));
+
+    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("peis-home.facts is valid");
+    let laser = state.component_cost("astrid", "l1").expect("a cost fact");
+    assert_eq!((laser.amount, laser.power), (100, crate::Power::Off));
+
+    parse_domain(FRIDGE.as_bytes()).expect("fridge.eco is valid");
+    parse_facts(FRIDGE_FACTS.as_bytes()).expect("fridge.facts is valid");
+}
+
+#[test]
+fn base_is_valid() {
+    check(&with(""), expect!["ok"]);
+}
+
+#[test]
+fn every_error_is_reported_at_once_with_line_and_column() {
+    let src = r#"(define (domain bad)
+  (:functionality cam :parameters (?p ?c) :component (?p ?x)
+    :precondition (pc ?p cam) :output ((image ?p)) :cost 12x)
+  (:task t :parameters (?r))
+  (:task t :parameters (?r))
+  (:method m :parameters (?r ?q) :task (t ?r)
+    :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+    :channels ((f1 f9 (image ?r)) (f1 f3 (sound ?r))))
+  (:method m2 :parameters (?r) :task (u ?r)))
+"#;
+    check(
+        src,
+        expect![[r#"
+            error: `:component` names `?x`, which is not a parameter of functionality `cam`
+              ┌─ test.eco:2:19
+              │
+            2 │   (:functionality cam :parameters (?p ?c) :component (?p ?x)
+              │                   ^^^
+              │
+              = `:component (?p ?c)` names the parameters bound to the PEIS and its component
+
+            error: wrong arity: `pc` takes 3 arguments, given 2
+              ┌─ test.eco:3:19
+              │
+            3 │     :precondition (pc ?p cam) :output ((image ?p)) :cost 12x)
+              │                   ^^^^^^^^^^^
+
+            error: malformed number `12x`
+              ┌─ test.eco:3:58
+              │
+            3 │     :precondition (pc ?p cam) :output ((image ?p)) :cost 12x)
+              │                                                          ^^^
+              │
+              = numbers are digits with an optional sign and fraction, like 25 or 12.5
+
+            error: duplicate name `t`
+              ┌─ test.eco:5:10
+              │
+            4 │   (:task t :parameters (?r))
+              │          - first defined here
+            5 │   (:task t :parameters (?r))
+              │          ^
+
+            error: variable `?q` is bound neither by the task `(t ?r)` nor by a precondition
+              ┌─ test.eco:7:20
+              │
+            7 │     :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+              │                    ^^^^^^^^^^^^^^
+              │
+              = a positive precondition such as `(pc ?p TYPE ?q)` binds it
+
+            error: wrong arity: `cam` takes 2 arguments, given 3
+              ┌─ test.eco:7:20
+              │
+            7 │     :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+              │                    ^^^^^^^^^^^^^^
+
+            error: unknown task or functionality `nothing`
+              ┌─ test.eco:7:40
+              │
+            7 │     :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+              │                                        ^^^^^^^^^^^^ no `(:task ...)` or `(:functionality ...)` has this name
+
+            error: recursive decomposition: task `t` can reach itself through its methods
+              ┌─ test.eco:7:58
+              │
+            7 │     :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+              │                                                          ^^^^^^
+              │
+              = t → m → t
+              = a configuration is finite; break the cycle
+
+            error: no subtask labelled `f9` in method `m`
+              ┌─ test.eco:8:16
+              │
+            8 │     :channels ((f1 f9 (image ?r)) (f1 f3 (sound ?r))))
+              │                ^^^^^^^^^^^^^^^^^^
+              │
+              = labels: f1 f2 f3
+
+            error: `t` does not input (sound ?r)
+              ┌─ test.eco:8:42
+              │
+            7 │     :subtasks ((f1 (cam ?r ?q ?q)) (f2 (nothing ?r)) (f3 (t ?r)))
+              │                                                          ------ the inputting subtask
+            8 │     :channels ((f1 f9 (image ?r)) (f1 f3 (sound ?r))))
+              │                                          ^^^^^^^^^^
+
+            error: method `m2` is for undeclared task `u`
+              ┌─ test.eco:9:38
+              │
+            9 │   (:method m2 :parameters (?r) :task (u ?r)))
+              │                                      ^^^^^^
+              │
+              = declare it with `(:task u :parameters (...))`
+
+        "#]],
+    );
+}
+
+#[test]
+fn unbalanced_parentheses() {
+    check(
+        "(define (domain d)\n  (:task t :parameters (?r))",
+        expect![[r#"
+            error: unbalanced parentheses
+              ┌─ test.eco:1:1
+              │
+            1 │ (define (domain d)
+              │ ^ this `(` is never closed
+
+        "#]],
+    );
+    assert_error(&format!("{})", with("")), "unbalanced parentheses");
+}
+
+#[test]
+fn unknown_subtask() {
+    assert_error(
+        &with("(:method m :parameters (?r) :task (locate ?r) :subtasks ((a (fly ?r))))"),
+        "unknown task or functionality `fly`",
+    );
+}
+
+#[test]
+fn wrong_arity() {
+    assert_error(
+        &with(
+            "(:method m :parameters (?r ?p ?c) :task (locate ?r) :precondition (pc ?p cam ?c) :subtasks ((a (cam ?p))))",
+        ),
+        "wrong arity: `cam` takes 2 arguments, given 1",
+    );
+    assert_error(
+        &with("(:method m :parameters (?r) :task (locate ?r ?r))"),
+        "wrong arity: task `locate` takes 1 argument, given 2",
+    );
+    assert_error(
+        &with("(:method m :parameters (?r ?p) :task (locate ?r) :precondition (peis ?p ?r))"),
+        "wrong arity: `peis` takes 1 argument, given 2",
+    );
+}
+
+#[test]
+fn unbound_variables() {
+    assert_error(
+        &with("(:method m :parameters (?r ?p ?c) :task (locate ?r) :subtasks ((a (cam ?p ?c))))"),
+        "variable `?p` is bound neither by the task `(locate ?r)` nor by a precondition",
+    );
+    assert_error(
+        &with("(:method m :parameters (?r) :task (locate ?r) :precondition (pc ?p cam ?c))"),
+        "variable `?p` is not a parameter of method `m`",
+    );
+    assert_error(
+        &with(
+            "(:functionality f :parameters (?p ?c) :component (?p ?c) :precondition (pc ?p ?t ?c))",
+        ),
+        "variable `?t` is not a parameter of functionality `f`",
+    );
+}
+
+#[test]
+fn channels_must_connect_matching_information() {
+    let method = |channel: &str| {
+        with(&format!(
+            "(:method m :parameters (?r ?p ?c ?t) :task (locate ?r)
+               :precondition (and (pc ?p cam ?c) (pc ?p tr ?t))
+               :subtasks ((f1 (cam ?p ?c)) (f2 (tracker ?p ?t ?r)))
+               :channels ({channel}) :outputs (((pos ?r) f2)))"
+        ))
+    };
+    check(&method("(f1 f2 (image ?p))"), expect!["ok"]);
+    assert_error(
+        &method("(f1 f7 (image ?p))"),
+        "no subtask labelled `f7` in method `m`",
+    );
+    assert_error(
+        &method("(f1 f2 (sound ?p))"),
+        "`cam` does not output (sound ?p)",
+    );
+    assert_error(&method("(f2 f1 (pos ?r))"), "`cam` does not input (pos ?r)");
+    assert_error(
+        &method("(f1 f2 (image ?p ?p))"),
+        "`cam` does not output (image ?p ?p)",
+    );
+    assert_error(
+        &method("(f1 f1 (image ?p))"),
+        "a channel from a subtask to itself",
+    );
+}
+
+#[test]
+fn declared_task_outputs_must_be_provided() {
+    assert_error(
+        &with(
+            "(:method m :parameters (?r ?p ?c) :task (locate ?r) :precondition (pc ?p cam ?c) :subtasks ((f1 (cam ?p ?c))))",
+        ),
+        "method `m` does not say which subtask handles output (pos ?r) of task `locate`",
+    );
+}
+
+#[test]
+fn duplicate_names() {
+    assert_error(
+        &with("(:task locate :parameters (?x))"),
+        "duplicate name `locate`",
+    );
+    assert_error(
+        &with("(:task cam :parameters (?x))"),
+        "duplicate name `cam`",
+    );
+    assert_error(
+        &with("(:method by-cam :parameters (?r) :task (locate ?r) :outputs (((pos ?r) x)))"),
+        "duplicate method `by-cam`",
+    );
+    assert_error(
+        &with("(:task u :parameters (?x ?x))"),
+        "duplicate parameter `x` in task `u`",
+    );
+    assert_error(
+        &with(
+            "(:method m :parameters (?r) :task (locate ?r) :subtasks ((a (locate ?r)) (a (locate ?r))))",
+        ),
+        "duplicate label `a` in method `m`",
+    );
+}
+
+#[test]
+fn method_for_an_undeclared_task() {
+    assert_error(
+        &with("(:method m :parameters (?r) :task (fly ?r))"),
+        "method `m` is for undeclared task `fly`",
+    );
+}
+
+#[test]
+fn component_must_name_parameters() {
+    assert_error(
+        &with("(:functionality f :parameters (?p) :component (?p ?c))"),
+        "`:component` names `?c`, which is not a parameter of functionality `f`",
+    );
+    assert_error(
+        &with("(:functionality f :parameters (?p ?c))"),
+        "functionality `f` has no `:component`",
+    );
+}
+
+#[test]
+fn recursion_through_methods_is_found_at_load_time() {
+    let src = with(
+        "(:task a :parameters (?r)) (:task b :parameters (?r))
+         (:method a1 :parameters (?r) :task (a ?r) :subtasks ((x (b ?r))))
+         (:method b1 :parameters (?r) :task (b ?r) :subtasks ((y (a ?r))))",
+    );
+    assert_error(
+        &src,
+        "recursive decomposition: task `a` can reach itself through its methods",
+    );
+    let diags = parse_domain(src.as_bytes()).expect_err("recursive");
+    assert!(
+        diags
+            .0
+            .iter()
+            .any(|d| d.notes.iter().any(|n| n == "a → a1 → b → b1 → a"))
+    );
+}
+
+#[test]
+fn malformed_numbers() {
+    assert_error(
+        &with("(:functionality f :parameters (?p ?c) :component (?p ?c) :cost 1.2.3)"),
+        "malformed number `1.2.3`",
+    );
+    assert_error(
+        &with("(:functionality f :parameters (?p ?c) :component (?p ?c) :cost -4)"),
+        "a cost must be a non-negative integer",
+    );
+    assert_error(
+        &with("(:functionality f :parameters (?p ?c) :component (?p ?c) :output ((x ?p :hz 0)))"),
+        "a rate must be a positive number of hertz",
+    );
+    let facts = parse_facts(b"(cost astrid l1 1o0 on) (cost astrid l2 5 maybe)").expect_err("bad");
+    let text: Vec<&str> = facts.0.iter().map(|d| d.message.as_str()).collect();
+    assert_eq!(
+        text,
+        [
+            "malformed number `1o0`",
+            "component state `maybe` is neither `on` nor `off`"
+        ]
+    );
+}
+
+#[test]
+fn nesting_deeper_than_64() {
+    let deep = format!("(define (domain d) {}{})", "(".repeat(70), ")".repeat(70));
+    assert_error(&deep, "nesting deeper than 64 levels");
+    // Far deeper nesting is reported the same way, without exhausting the stack.
+    let hostile = "(".repeat(1_000_000);
+    let all = messages(hostile.as_bytes());
+    assert!(all.iter().any(|m| m == "nesting deeper than 64 levels"));
+}
+
+#[test]
+fn invalid_utf8() {
+    let mut src = b"(define (domain d)\n  (:task t\xff\xfe :parameters (?r)))".to_vec();
+    let diags = parse_domain(&src).expect_err("invalid");
+    expect![[r#"
+        error: invalid UTF-8 in source file
+          ┌─ test.eco:2:11
+          │
+        2 │   (:task t�� :parameters (?r)))
+          │           ^ this byte sequence is not UTF-8
+
+    "#]]
+    .assert_eq(&render("test.eco", &src, &diags.0));
+    src.truncate(5);
+    src.push(0xc3);
+    assert_eq!(messages(&src), ["invalid UTF-8 in source file"]);
+}
+
+#[test]
+fn files_over_8_mib() {
+    let big = vec![b' '; 8 * 1024 * 1024 + 1];
+    assert_eq!(
+        messages(&big),
+        ["file is 8388609 bytes, larger than the limit of 8388608 bytes (8 MiB)"]
+    );
+}
+
+#[test]
+fn unsupported_pddl_is_named() {
+    assert_error(
+        "(define (domain d) (:requirements :strips :adl))",
+        "requirement `:adl` is not supported",
+    );
+    assert_error(
+        "(define (domain d) (:action a :parameters (?x) :precondition (or (p ?x) (q ?x))))",
+        "`or` is not supported in conditions",
+    );
+}
+
+#[test]
+fn problems_and_goals() {
+    let problem = parse_problem(
+        b"(define (problem wake) (:domain peis-home)
+           (:objects astrid - robot bedroom entrance - room)
+           (:init (at astrid entrance) (= (distance entrance bedroom) 4))
+           (:goal (and (at astrid bedroom) (not (at astrid entrance))))
+           (:metric minimize (total-cost)))",
+    )
+    .expect("valid problem");
+    assert_eq!(problem.objects.len(), 3);
+    assert_eq!(problem.objects[2].ty.as_deref(), Some("room"));
+    assert_eq!(problem.numeric_init[0].1, 4);
+    assert_eq!(problem.goal.len(), 2);
+    assert!(parse_problem(b"(define (problem p) (:init (at ?x)))").is_err());
+    assert_eq!(
+        parse_goal("(navigate astrid bedroom)")
+            .expect("ground")
+            .to_string(),
+        "(navigate astrid bedroom)"
+    );
+    assert!(parse_goal("(navigate ?r bedroom)").is_err());
+    assert!(parse_goal("(a) (b)").is_err());
+}
+
+#[test]
+fn facts_must_be_ground_and_well_formed() {
+    let diags = parse_facts(b"(peis ?x) (pc astrid laser) (peis astrid)").expect_err("bad");
+    let text: Vec<&str> = diags.0.iter().map(|d| d.message.as_str()).collect();
+    assert_eq!(
+        text,
+        [
+            "facts are ground, but `?x` is a variable",
+            "wrong arity: `pc` takes 3 arguments, given 2"
+        ]
+    );
+}
+
+/// Mutates `src` at byte positions chosen by `edits`.
+fn mutate(src: &[u8], edits: &[(usize, u8, u8)]) -> Vec<u8> {
+    let mut out = src.to_vec();
+    for &(at, kind, byte) in edits {
+        if out.is_empty() {
+            out.push(byte);
+            continue;
+        }
+        let at = at % out.len();
+        match kind % 4 {
+            0 => out[at] = byte,
+            1 => {
+                out.remove(at);
+            }
+            2 => out.insert(at, byte),
+            _ => out.insert(at, b"()?:;-\n"[byte as usize % 7]),
+        }
+    }
+    out
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 3000, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// The parser never panics on random bytes.
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512)) {
+        let _ = parse_domain(&bytes);
+        let _ = parse_facts(&bytes);
+        let _ = parse_problem(&bytes);
+        if let Err(diags) = parse_domain(&bytes) {
+            prop_assert!(!diags.0.is_empty());
+            let _ = render("fuzz.eco", &bytes, &diags.0);
+        }
+    }
+
+    /// Nor on random mutations of the reference domain; and every error it
+    /// reports renders with a position inside the file.
+    #[test]
+    fn mutations_of_the_reference_domain_never_panic(
+        edits in proptest::collection::vec((any::<usize>(), any::<u8>(), any::<u8>()), 1..8)
+    ) {
+        let src = mutate(PEIS_HOME.as_bytes(), &edits);
+        if let Err(diags) = parse_domain(&src) {
+            prop_assert!(!diags.0.is_empty());
+            for d in &diags.0 {
+                prop_assert!(d.span.start <= src.len() && d.span.end <= src.len() + 1);
+            }
+            let text = render("peis-home.eco", &src, &diags.0);
+            prop_assert!(text.contains("peis-home.eco:"));
+        }
+        let facts = mutate(PEIS_HOME_FACTS.as_bytes(), &edits);
+        let _ = parse_facts(&facts);
+    }
+}
