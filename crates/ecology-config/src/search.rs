@@ -24,6 +24,9 @@ use crate::{ChannelInstance, Configuration, FunctionalityInstance};
 
 const NO_PARENT: u32 = u32::MAX;
 
+/// A component: (PEIS, component).
+type ComponentKey = (Sym, Sym);
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum NodeState {
     Open,
@@ -68,7 +71,7 @@ struct Inst {
 struct Partial {
     insts: Vec<Inst>,
     stack: Vec<u32>,
-    used: HashMap<(Sym, Sym), ItemId>,
+    used: HashMap<ComponentKey, ItemId>,
 }
 
 /// Why a complete decomposition is not an admissible configuration.
@@ -518,7 +521,7 @@ impl<'a> Engine<'a> {
     fn assemble(&self, partial: &Partial) -> Result<Configuration, Inadmissible> {
         let c = &self.ctx.compiled;
         // Functionality instances, one per component.
-        let mut by_component: HashMap<(Sym, Sym), u32> = HashMap::new();
+        let mut by_component: HashMap<ComponentKey, u32> = HashMap::new();
         let mut order: Vec<u32> = Vec::new();
         for (at, inst) in partial.insts.iter().enumerate() {
             let Some(f) = self.graph.func(inst.item) else {
@@ -546,7 +549,7 @@ impl<'a> Engine<'a> {
             f.map(|f| (f.peis, f.component))
         };
         // Wires: (consumer component, info) → producer instance.
-        let mut wires: Vec<((Sym, Sym), GInfo, u32, u32)> = Vec::new();
+        let mut wires: Vec<(ComponentKey, GInfo, u32, u32)> = Vec::new();
         for inst in &partial.insts {
             let ItemKind::Task { alts, .. } = &self.graph.item(inst.item).kind else {
                 continue;
@@ -706,7 +709,7 @@ impl<'a> Engine<'a> {
             });
         }
         let mut channels = Vec::new();
-        let mut seen: HashSet<((Sym, Sym), (Sym, Sym), GInfo)> = HashSet::new();
+        let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> = HashSet::new();
         for (ckey, info, producer, _) in &wires {
             let Some(pkey) = key(*producer) else { continue };
             if !seen.insert((pkey, *ckey, info.clone())) {
@@ -719,7 +722,7 @@ impl<'a> Engine<'a> {
                 0
             };
             cost = cost.saturating_add(channel_cost);
-            let label_of = |k: (Sym, Sym)| {
+            let label_of = |k: ComponentKey| {
                 by_component
                     .get(&k)
                     .map(|&at| self.label(partial, at))

@@ -598,7 +598,7 @@ impl Validator {
             if colour[root] != Colour::White {
                 continue;
             }
-            let mut stack: Vec<(usize, Vec<(usize, usize)>, usize)> = Vec::new();
+            let mut stack: Vec<Frame> = Vec::new();
             let edges = |t: usize| -> Vec<(usize, usize)> {
                 let task = &domain.tasks[t];
                 let mut out = Vec::new();
@@ -667,6 +667,10 @@ impl Validator {
         }
     }
 }
+
+/// A task on the recursion search's path: the task, its (method, subtask)
+/// edges, and the next edge to follow.
+type Frame = (usize, Vec<(usize, usize)>, usize);
 
 #[derive(Clone, Copy)]
 enum Direction {

@@ -1,0 +1,264 @@
+//! The `ecology` binary, from the command line: outputs and exit codes.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn ecology(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ecology"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("runs")
+}
+
+fn configure(extra: &[&str]) -> Output {
+    let mut args = vec![
+        "configure",
+        "--domain",
+        "domains/peis-home.eco",
+        "--state",
+        "domains/peis-home.facts",
+        "--goal",
+        "(navigate astrid bedroom)",
+    ];
+    args.extend_from_slice(extra);
+    ecology(&args)
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn json(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("not JSON ({e}): {}", stdout(out)))
+}
+
+#[test]
+fn configure_the_reference_goal() {
+    let out = configure(&[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    assert!(
+        text.contains("(tracking-system hsm tr1 astrid)     hsm:tr1 (on)  cost 20"),
+        "{text}"
+    );
+    assert!(text.contains("(remote hsm → astrid)"), "{text}");
+    assert!(text.contains("total cost 80 (proven optimal)"), "{text}");
+}
+
+#[test]
+fn configure_all_lists_three() {
+    let out = configure(&["--all"]);
+    let totals: Vec<String> = stdout(&out)
+        .lines()
+        .filter(|l| l.contains("total cost"))
+        .map(|l| l.trim().to_string())
+        .collect();
+    assert_eq!(
+        totals,
+        [
+            "total cost 80 (proven optimal)",
+            "total cost 170 (proven optimal)",
+            "total cost 190 (proven optimal)"
+        ]
+    );
+    let out = configure(&["--all", "--limit", "2", "--json"]);
+    let costs: Vec<u64> = json(&out)["configurations"]
+        .as_array()
+        .expect("an array")
+        .iter()
+        .map(|c| c["cost"].as_u64().expect("a cost"))
+        .collect();
+    assert_eq!(costs, [80, 170]);
+}
+
+#[test]
+fn configure_json() {
+    let out = configure(&["--json"]);
+    assert_eq!(out.status.code(), Some(0));
+    let v = json(&out);
+    assert_eq!(v["cost"], 80);
+    assert_eq!(v["optimal"], true);
+    let tracking = v["functionalities"]
+        .as_array()
+        .expect("an array")
+        .iter()
+        .find(|f| f["name"] == "tracking-system")
+        .expect("tracking system")
+        .clone();
+    assert_eq!(tracking["peis"], "hsm");
+    assert_eq!(tracking["component"], "tr1");
+    assert_eq!(tracking["state"], "on");
+    assert_eq!(
+        tracking["args"],
+        serde_json::json!(["hsm", "tr1", "astrid"])
+    );
+    let remote: Vec<&Value> = v["channels"]
+        .as_array()
+        .expect("an array")
+        .iter()
+        .filter(|c| c["remote"] == true)
+        .collect();
+    assert_eq!(remote.len(), 1);
+    assert_eq!(remote[0]["info"], "(global-pos astrid)");
+    assert!(v["stats"]["expanded"].as_u64().is_some());
+    assert!(v["stats"]["generated"].as_u64().is_some());
+    assert!(v["stats"]["micros"].as_u64().is_some());
+}
+
+#[test]
+fn configure_with_exclusions() {
+    let v = json(&configure(&["--exclude", "hsm:tr1", "--json"]));
+    assert_eq!(v["cost"], 170);
+    let laser = v["functionalities"]
+        .as_array()
+        .expect("an array")
+        .iter()
+        .find(|f| f["component"] == "l1")
+        .expect("the laser")
+        .clone();
+    assert_eq!(laser["state"], "off");
+    assert_eq!(laser["cost"], 120);
+
+    let v = json(&configure(&[
+        "--exclude",
+        "hsm:tr1",
+        "--exclude",
+        "astrid:l1",
+        "--json",
+    ]));
+    assert_eq!(v["cost"], 190);
+
+    let out = configure(&[
+        "--exclude",
+        "hsm:tr1",
+        "--exclude",
+        "astrid:l1",
+        "--exclude",
+        "pippi:ol2",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let text = stderr(&out);
+    assert!(
+        text.contains("no configuration for (navigate astrid bedroom)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("input (position astrid) of f1 (navigation astrid tc1 bedroom)"),
+        "{text}"
+    );
+
+    let out = configure(&[
+        "--exclude",
+        "hsm:tr1",
+        "--exclude",
+        "astrid:l1",
+        "--exclude",
+        "pippi:ol2",
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let v = json(&out);
+    assert_eq!(v["error"], "no configuration");
+    assert!(
+        v["explanation"]["causes"][0]["reason"]
+            .as_str()
+            .expect("a reason")
+            .contains("(position astrid)")
+    );
+}
+
+#[test]
+fn configure_dot() {
+    let out = configure(&["--dot"]);
+    let text = stdout(&out);
+    assert!(text.starts_with("digraph configuration {"), "{text}");
+    assert!(text.contains("subgraph cluster_"), "{text}");
+    assert!(text.contains("label=\"hsm\""), "{text}");
+    assert!(
+        text.contains("\"f0/f1/f2\" -> \"f0/f2\" [label=\"(global-pos astrid)\", style=dashed];"),
+        "{text}"
+    );
+}
+
+#[test]
+fn configure_under_a_budget_is_flagged() {
+    let out = configure(&["--max-nodes", "0"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("not proven optimal"),
+        "{}",
+        stdout(&out)
+    );
+}
+
+#[test]
+fn check_reports_diagnostics_and_exits_2() {
+    let out = ecology(&["check", "domains/peis-home.eco"]);
+    assert_eq!(out.status.code(), Some(0));
+    assert!(stdout(&out).contains("domain `peis-home` is valid"));
+
+    let dir = std::env::temp_dir().join(format!("ecology-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let bad = dir.join("bad.eco");
+    std::fs::write(
+        &bad,
+        "(define (domain bad)\n  (:task t :parameters (?r))\n  (:method m :parameters (?r) :task (t ?r) :subtasks ((a (fly ?r)))))\n",
+    )
+    .expect("write");
+    let out = ecology(&["check", bad.to_str().expect("utf-8 path")]);
+    assert_eq!(out.status.code(), Some(2));
+    let text = stderr(&out);
+    assert!(text.contains("bad.eco:3:58"), "{text}");
+    assert!(
+        text.contains("unknown task or functionality `fly`"),
+        "{text}"
+    );
+    assert!(text.contains("1 error in"), "{text}");
+
+    let out = ecology(&["check", "no/such/file.eco"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("cannot open no/such/file.eco"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_goals_and_arguments_exit_2() {
+    let out = ecology(&[
+        "configure",
+        "--domain",
+        "domains/peis-home.eco",
+        "--state",
+        "domains/peis-home.facts",
+        "--goal",
+        "(fly astrid",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("<goal>:1:1"), "{}", stderr(&out));
+    let out = ecology(&[
+        "configure",
+        "--domain",
+        "domains/peis-home.eco",
+        "--state",
+        "domains/peis-home.facts",
+        "--goal",
+        "(fly astrid)",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("unknown task or functionality `fly` in the goal"));
+    let out = configure(&["--exclude", "a:b:c"]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = ecology(&["frobnicate"]);
+    assert_eq!(out.status.code(), Some(2));
+}
