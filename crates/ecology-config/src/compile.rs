@@ -89,6 +89,19 @@ pub(crate) struct GInfo {
     pub(crate) args: Box<[Sym]>,
 }
 
+impl GInfo {
+    /// `(name arg ...)`, for people.
+    pub(crate) fn text(&self, syms: &Symbols) -> String {
+        let mut out = format!("({}", syms.name(self.name));
+        for &a in self.args.iter() {
+            out.push(' ');
+            out.push_str(syms.name(a));
+        }
+        out.push(')');
+        out
+    }
+}
+
 impl CInfo {
     pub(crate) fn ground(&self, binding: &[Option<Sym>]) -> GInfo {
         GInfo {

@@ -174,13 +174,7 @@ pub(crate) fn explain_item(
                         .find(|(from, _, _)| *from as usize == k);
                     let reason = match feeds {
                         Some((_, to, info)) => {
-                            let info = info.ground(&alt.binding);
-                            let mut text = format!("({}", c.syms.name(info.name));
-                            for &a in info.args.iter() {
-                                text.push(' ');
-                                text.push_str(c.syms.name(a));
-                            }
-                            text.push(')');
+                            let text = info.ground(&alt.binding).text(&c.syms);
                             let to_child = alt.children.get(*to as usize).copied();
                             format!(
                                 "input {text} of {} {} cannot be provided by {label}",
@@ -190,13 +184,7 @@ pub(crate) fn explain_item(
                         }
                         None => match method.outputs.iter().find(|(_, sub)| *sub as usize == k) {
                             Some((info, _)) => {
-                                let info = info.ground(&alt.binding);
-                                let mut text = format!("({}", c.syms.name(info.name));
-                                for &a in info.args.iter() {
-                                    text.push(' ');
-                                    text.push_str(c.syms.name(a));
-                                }
-                                text.push(')');
+                                let text = info.ground(&alt.binding).text(&c.syms);
                                 format!("output {text} cannot be provided by {label}")
                             }
                             None => format!("subtask {label} cannot be provided"),

@@ -398,16 +398,17 @@ impl<'a> Engine<'a> {
     }
 
     fn describe(&self, item: ItemId) -> String {
-        let item = self.graph.item(item);
-        let c = &self.ctx.compiled;
-        let mut out = String::from("(");
-        out.push_str(self.callee_name(item.callee));
-        for &a in item.args.iter() {
-            out.push(' ');
-            out.push_str(c.syms.name(a));
-        }
-        out.push(')');
-        out
+        crate::explain::describe(&self.ctx, &self.graph, item)
+    }
+
+    /// The ground arguments of an item, as a binding of its schema's slots.
+    fn binding_of(&self, item: ItemId) -> Vec<Option<Sym>> {
+        self.graph
+            .item(item)
+            .args
+            .iter()
+            .map(|&a| Some(a))
+            .collect()
     }
 
     pub(crate) fn callee_name(&self, callee: Callee) -> &str {
@@ -415,14 +416,7 @@ impl<'a> Engine<'a> {
     }
 
     fn info_text(&self, info: &GInfo) -> String {
-        let c = &self.ctx.compiled;
-        let mut out = format!("({}", c.syms.name(info.name));
-        for &a in info.args.iter() {
-            out.push(' ');
-            out.push_str(c.syms.name(a));
-        }
-        out.push(')');
-        out
+        info.text(&self.ctx.compiled.syms)
     }
 
     /// The label path of an instance, like `f0/f1/f2`.
@@ -594,10 +588,8 @@ impl<'a> Engine<'a> {
             };
             let pi = partial.insts[*producer as usize].item;
             let ci = partial.insts[*consumer as usize].item;
-            let p_args: Vec<Option<Sym>> =
-                self.graph.item(pi).args.iter().map(|&a| Some(a)).collect();
-            let c_args: Vec<Option<Sym>> =
-                self.graph.item(ci).args.iter().map(|&a| Some(a)).collect();
+            let p_args = self.binding_of(pi);
+            let c_args = self.binding_of(ci);
             let out = c.funcs[pf.func as usize]
                 .outputs
                 .iter()
@@ -640,13 +632,7 @@ impl<'a> Engine<'a> {
             let Some(f) = self.graph.func(item) else {
                 continue;
             };
-            let args: Vec<Option<Sym>> = self
-                .graph
-                .item(item)
-                .args
-                .iter()
-                .map(|&a| Some(a))
-                .collect();
+            let args = self.binding_of(item);
             for input in &c.funcs[f.func as usize].inputs {
                 let info = input.ground(&args);
                 if !wires
@@ -672,13 +658,7 @@ impl<'a> Engine<'a> {
             };
             cost = cost.saturating_add(f.cost);
             let schema = &c.funcs[f.func as usize];
-            let args: Vec<Option<Sym>> = self
-                .graph
-                .item(item)
-                .args
-                .iter()
-                .map(|&a| Some(a))
-                .collect();
+            let args = self.binding_of(item);
             functionalities.push(FunctionalityInstance {
                 label: self.label(partial, at),
                 name: self.callee_name(Callee::Func(f.func)).to_string(),
