@@ -1,7 +1,7 @@
 //! The compiled problem: interned symbols, indexed facts, and schemas whose
 //! variables are slots, so that grounding and search work on integers.
 
-use std::collections::{HashMap, HashSet};
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use ecology_domain::{Domain, EcologyState, Info, Literal, Term};
 
@@ -251,7 +251,7 @@ struct Slots<'a> {
 impl<'a> Slots<'a> {
     fn new() -> Slots<'a> {
         Slots {
-            map: HashMap::new(),
+            map: HashMap::default(),
         }
     }
 
@@ -270,7 +270,7 @@ impl Compiled {
             let args = fact.args.iter().map(|a| syms.intern(a)).collect();
             facts.insert(pred, args);
         }
-        let mut callee_by_name = HashMap::new();
+        let mut callee_by_name = HashMap::default();
         for (i, f) in domain.functionalities.iter().enumerate() {
             callee_by_name.insert(f.name.clone(), Callee::Func(i as u32));
         }

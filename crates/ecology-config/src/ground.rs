@@ -10,7 +10,7 @@
 //! used k times is paid once, and k never exceeds that count); when no schema
 //! can occur twice, the bound is exact for conflict-free configurations.
 
-use std::collections::{HashMap, HashSet};
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use ecology_domain::{ComponentCost, Domain, Literal, Param, Power, Term};
 
@@ -99,7 +99,7 @@ impl<'a> Ctx<'a> {
         excluded: Excluded,
         goal: Callee,
     ) -> Ctx<'a> {
-        let mut costs = HashMap::new();
+        let mut costs = HashMap::default();
         if let Some(cost) = compiled.syms.get("cost") {
             for fact in compiled.facts.of(cost) {
                 if let [p, c, amount, power] = fact[..] {
@@ -381,7 +381,7 @@ fn multiplicity(c: &Compiled, goal: Callee) -> Vec<u64> {
         }
         out
     }
-    occ(c, goal, &mut HashMap::new(), 0)
+    occ(c, goal, &mut HashMap::default(), 0)
 }
 
 /// Renders a literal with parameters replaced by values (unknown variables stay).
