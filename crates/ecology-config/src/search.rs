@@ -357,6 +357,7 @@ impl<'a> Engine<'a> {
         };
         let pending = partial.stack.len() - 1;
         let mut out = Vec::new();
+        let mut clashes = Vec::new();
         'alts: for (a, alt) in alts.iter().enumerate() {
             if alt.lb == INFEASIBLE {
                 continue;
@@ -371,6 +372,7 @@ impl<'a> Engine<'a> {
                             && other != child
                         {
                             // The component already runs another functionality.
+                            clashes.push((other, child, f.peis, f.component));
                             continue 'alts;
                         }
                         g += f.share;
@@ -393,6 +395,17 @@ impl<'a> Engine<'a> {
                     NodeState::Open
                 },
             });
+        }
+        for (a, b, peis, component) in clashes {
+            let syms = &self.ctx.compiled.syms;
+            let reason = format!(
+                "component {}:{} would run both {} and {}",
+                syms.name(peis),
+                syms.name(component),
+                self.describe(a),
+                self.describe(b)
+            );
+            self.reject(reason);
         }
         out
     }

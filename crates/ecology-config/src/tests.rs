@@ -529,3 +529,44 @@ fn the_generators_are_deterministic() {
         "only {solvable} of 200 random instances are solvable"
     );
 }
+
+#[test]
+fn a_component_cannot_run_two_functionalities() {
+    // One camera would have to stream and record at once: inadmissible.
+    let domain = r#"(define (domain clash)
+      (:functionality stream :parameters (?p ?c) :component (?p ?c)
+        :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 1)
+      (:functionality record :parameters (?p ?c) :component (?p ?c)
+        :precondition (pc ?p cam ?c) :cost 1)
+      (:task watch :parameters (?p))
+      (:method stream-and-record :parameters (?p ?c ?d) :task (watch ?p)
+        :precondition (and (pc ?p cam ?c) (pc ?p cam ?d))
+        :subtasks ((a (stream ?p ?c)) (b (record ?p ?d))))
+      (:task show :parameters (?p))
+      (:method show-stream :parameters (?p ?c) :task (show ?p)
+        :precondition (pc ?p cam ?c) :subtasks ((a (stream ?p ?c))))
+      (:task keep :parameters (?p))
+      (:method keep-record :parameters (?p ?c) :task (keep ?p)
+        :precondition (pc ?p cam ?c) :subtasks ((a (record ?p ?c))))
+      (:task both :parameters (?p))
+      (:method both-tasks :parameters (?p) :task (both ?p)
+        :subtasks ((x (show ?p)) (y (keep ?p)))))"#;
+    let one = "(pc r cam c1)";
+    let outcome = run(domain, one, "(watch r)", &[], 1);
+    let text = outcome.explanation.expect("explained").to_string();
+    assert!(
+        text.contains("(stream r c1) and (record r c1) would both run on component r:c1"),
+        "{text}"
+    );
+    // Across tasks, the clash is found by the search.
+    let outcome = run(domain, one, "(both r)", &[], 1);
+    let text = outcome.explanation.expect("explained").to_string();
+    assert!(
+        text.contains("every decomposition is inadmissible"),
+        "{text}"
+    );
+    assert!(text.contains("component r:c1 would run both"), "{text}");
+    // With two cameras, both work.
+    let outcome = run(domain, "(pc r cam c1) (pc r cam c2)", "(both r)", &[], 1);
+    assert_eq!(outcome.configurations[0].cost, 2);
+}
