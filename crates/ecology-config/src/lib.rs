@@ -224,6 +224,9 @@ pub struct ChannelInstance {
     pub to: String,
     /// The information, like `(image hsm)`.
     pub info: String,
+    /// The kind of information alone, like `image`: the suffix of the
+    /// producer's output tuple `C.out.image` and the consumer's input `C.mi-image`.
+    pub info_name: String,
     /// The producer's PEIS.
     pub from_peis: String,
     /// The producer's component.

@@ -725,6 +725,7 @@ impl<'a> Engine<'a> {
                 from: label_of(pkey),
                 to: label_of(*ckey),
                 info: self.info_text(info),
+                info_name: c.syms.name(info.name).to_string(),
                 from_peis: c.syms.name(pkey.0).to_string(),
                 from_component: c.syms.name(pkey.1).to_string(),
                 to_peis: c.syms.name(ckey.0).to_string(),

@@ -1,0 +1,685 @@
+//! The executive: sequencer, deployer and monitor as one event loop (the
+//! paper's Sections VI and VII).
+//!
+//! [`Executive::handle`] takes the time and one [`Event`] (a tuple update, a
+//! PEIS joining or leaving, a timer, the start command) and returns the
+//! [`Command`]s to carry out (remote sets to PEIS, timers). It does no IO, so a
+//! whole run can be driven and tested with virtual time.
+//!
+//! For each action of the plan: acquire the state from the mirror, plan the
+//! cheapest configuration without the components that failed during the
+//! action, deploy it (switch components on, write their `params`, point their
+//! `mi-` inputs at producers' outputs), wait until every component reports
+//! `running`, then switch off what the previous configuration started and no
+//! longer needs (make-before-break). The action is done when every
+//! functionality with a postcondition reports `done`. A component in `error`,
+//! `waiting` beyond a grace period, never `running` after deployment, or on a
+//! PEIS that left, is a failure: it is excluded and the action reconfigured.
+//! When no configuration exists the action fails with the planner's
+//! explanation.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::Duration;
+
+use ecology_config::{Configuration, Exclusion, NoClock, Options, Request};
+use ecology_domain::{Call, Domain, EcologyState};
+
+use crate::log::{LogEntry, LogEvent};
+use crate::mirror::{Change, Mirror};
+
+/// A timer the executive asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TimerId(pub u64);
+
+/// What the executive reacts to.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Event {
+    /// Start executing the plan.
+    Start,
+    /// A tuple was set (DESIGN section 5); `seq` increases per owner and key.
+    Tuple {
+        /// The owner PEIS.
+        owner: String,
+        /// The dotted key.
+        key: String,
+        /// The value, as text.
+        value: String,
+        /// The tuple's sequence number.
+        seq: u64,
+    },
+    /// A PEIS appeared.
+    PeisJoined(String),
+    /// A PEIS disappeared (left, crashed or lost).
+    PeisLeft(String),
+    /// A timer fired.
+    Timer(TimerId),
+}
+
+/// What the executive asks its driver to do.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Command {
+    /// Ask `owner` to set its tuple `key` to `value` (a remote set).
+    RemoteSet {
+        /// The PEIS that owns the tuple.
+        owner: String,
+        /// The dotted key.
+        key: String,
+        /// The value.
+        value: String,
+    },
+    /// Fire `Event::Timer(id)` after `after`.
+    StartTimer {
+        /// The timer.
+        id: TimerId,
+        /// The delay.
+        after: Duration,
+    },
+    /// Forget a timer.
+    CancelTimer(TimerId),
+}
+
+/// Time limits of the executive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExecConfig {
+    /// How long every component of a new configuration has to report `running`.
+    pub deploy_timeout: Duration,
+    /// How long a component may report `waiting` before it counts as failed.
+    pub waiting_grace: Duration,
+    /// How long one action may take.
+    pub action_timeout: Duration,
+    /// How many alternative configurations to log with each choice.
+    pub alternatives: usize,
+}
+
+impl Default for ExecConfig {
+    fn default() -> ExecConfig {
+        ExecConfig {
+            deploy_timeout: Duration::from_secs(10),
+            waiting_grace: Duration::from_secs(2),
+            action_timeout: Duration::from_secs(600),
+            alternatives: 3,
+        }
+    }
+}
+
+/// One step of a plan: an action and the configuration goal that performs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedAction {
+    /// The action, like `(move astrid living-room entrance)`.
+    pub action: String,
+    /// Its `:configure` goal, like `(navigate astrid entrance)`; `None` when it
+    /// needs no configuration.
+    pub goal: Option<Call>,
+}
+
+/// Where a run stands.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RunStatus {
+    /// Not started.
+    Idle,
+    /// Executing action `index`.
+    Running {
+        /// The action's index in the plan.
+        index: usize,
+    },
+    /// Every action is done.
+    Done,
+    /// An action failed and nothing replanned around it.
+    Failed {
+        /// The failed action's index.
+        index: usize,
+        /// Why.
+        reason: String,
+    },
+}
+
+type ComponentKey = (String, String);
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Phase {
+    /// Waiting for the components of the new configuration to run.
+    Deploying { pending: BTreeSet<ComponentKey> },
+    /// Running; waiting for postconditions.
+    Running,
+}
+
+#[derive(Debug)]
+struct ActionRun {
+    index: usize,
+    excluded: Vec<Exclusion>,
+    failed: BTreeSet<ComponentKey>,
+    config: Option<Configuration>,
+    phase: Phase,
+    deploy_timer: Option<TimerId>,
+    action_timer: TimerId,
+    waiting: BTreeMap<ComponentKey, TimerId>,
+    done: BTreeSet<ComponentKey>,
+}
+
+/// The executive. See the module documentation.
+#[derive(Debug)]
+pub struct Executive {
+    domain: Domain,
+    world: EcologyState,
+    plan: Vec<PlannedAction>,
+    config: ExecConfig,
+    mirror: Mirror,
+    status: RunStatus,
+    run: Option<ActionRun>,
+    /// The configuration running now (from this or an earlier action).
+    running: Option<Configuration>,
+    /// Components this executive switched on, to switch off when unneeded.
+    started: BTreeSet<ComponentKey>,
+    /// The `params` last written to each component.
+    params: BTreeMap<ComponentKey, String>,
+    next_timer: u64,
+    now: Duration,
+    log: Vec<LogEntry>,
+}
+
+impl Executive {
+    /// An executive for `plan` in `domain`; `world` holds facts about the
+    /// world the configuration planner may need besides the acquired ones.
+    pub fn new(
+        domain: Domain,
+        world: EcologyState,
+        plan: Vec<PlannedAction>,
+        config: ExecConfig,
+    ) -> Executive {
+        Executive {
+            domain,
+            world,
+            plan,
+            config,
+            mirror: Mirror::new(),
+            status: RunStatus::Idle,
+            run: None,
+            running: None,
+            started: BTreeSet::new(),
+            params: BTreeMap::new(),
+            next_timer: 0,
+            now: Duration::ZERO,
+            log: Vec::new(),
+        }
+    }
+
+    /// Where the run stands.
+    pub fn status(&self) -> &RunStatus {
+        &self.status
+    }
+
+    /// Every event logged so far.
+    pub fn log(&self) -> &[LogEntry] {
+        &self.log
+    }
+
+    /// The mirror of the ecology's tuples.
+    pub fn mirror(&self) -> &Mirror {
+        &self.mirror
+    }
+
+    /// The configuration running now, if any.
+    pub fn running(&self) -> Option<&Configuration> {
+        self.running.as_ref()
+    }
+
+    /// Handles one event at time `now` (time since the run's clock started).
+    pub fn handle(&mut self, now: Duration, event: Event) -> Vec<Command> {
+        self.now = self.now.max(now);
+        let mut out = Vec::new();
+        match event {
+            Event::Start => {
+                if self.status == RunStatus::Idle {
+                    let actions = self.plan.iter().map(|a| a.action.clone()).collect();
+                    self.record(LogEvent::Plan { actions });
+                    self.start_action(0, &mut out);
+                }
+            }
+            Event::Tuple {
+                owner,
+                key,
+                value,
+                seq,
+            } => {
+                if let Some(Change::Status {
+                    peis,
+                    component,
+                    status,
+                }) = self.mirror.apply(&owner, &key, &value, seq)
+                {
+                    self.on_status((peis, component), &status, &mut out);
+                }
+            }
+            Event::PeisJoined(peis) => self.mirror.joined(&peis),
+            Event::PeisLeft(peis) => {
+                self.mirror.left(&peis);
+                self.on_peis_left(&peis, &mut out);
+            }
+            Event::Timer(id) => self.on_timer(id, &mut out),
+        }
+        out
+    }
+
+    fn record(&mut self, event: LogEvent) {
+        self.log.push(LogEntry { t: self.now, event });
+    }
+
+    fn timer(&mut self, after: Duration, out: &mut Vec<Command>) -> TimerId {
+        self.next_timer += 1;
+        let id = TimerId(self.next_timer);
+        out.push(Command::StartTimer { id, after });
+        id
+    }
+
+    fn start_action(&mut self, index: usize, out: &mut Vec<Command>) {
+        if index >= self.plan.len() {
+            self.status = RunStatus::Done;
+            self.run = None;
+            self.record(LogEvent::TaskDone);
+            return;
+        }
+        self.status = RunStatus::Running { index };
+        let action = self.plan[index].action.clone();
+        self.record(LogEvent::ActionStarted {
+            index,
+            action: action.clone(),
+        });
+        let action_timer = self.timer(self.config.action_timeout, out);
+        self.run = Some(ActionRun {
+            index,
+            excluded: Vec::new(),
+            failed: BTreeSet::new(),
+            config: None,
+            phase: Phase::Running,
+            deploy_timer: None,
+            action_timer,
+            waiting: BTreeMap::new(),
+            done: BTreeSet::new(),
+        });
+        if self.plan[index].goal.is_none() {
+            self.finish_action(out);
+            return;
+        }
+        self.configure(false, out);
+    }
+
+    /// Acquire state, plan, deploy.
+    fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        let index = run.index;
+        let exclusions = run.excluded.clone();
+        let Some(goal) = self.plan[index].goal.clone() else {
+            return;
+        };
+        let state = self.mirror.state(&self.world);
+        let (peis, components) = self.mirror.counts();
+        self.record(LogEvent::StateAcquired { peis, components });
+        let request = Request {
+            domain: &self.domain,
+            state: &state,
+            goal: &goal,
+            exclusions: &exclusions,
+        };
+        let options = Options {
+            count: self.config.alternatives.max(1),
+            ..Options::default()
+        };
+        let outcome = match ecology_config::plan(&request, &options, &NoClock) {
+            Ok(outcome) => outcome,
+            Err(err) => {
+                self.fail_action(err.to_string(), out);
+                return;
+            }
+        };
+        let Some(chosen) = outcome.configurations.first().cloned() else {
+            let reason = outcome
+                .explanation
+                .map_or_else(|| format!("no configuration for {goal}"), |e| e.to_string());
+            self.fail_action(reason, out);
+            return;
+        };
+        self.record(LogEvent::Configuration {
+            goal: goal.to_string(),
+            cost: chosen.cost,
+            optimal: chosen.optimal,
+            functionalities: chosen
+                .functionalities
+                .iter()
+                .map(|f| format!("{} on {}:{}", f.call(), f.peis, f.component))
+                .collect(),
+            alternatives: outcome.configurations.iter().map(|c| c.cost).collect(),
+            reconfiguration,
+        });
+        self.deploy(chosen, out);
+    }
+
+    fn deploy(&mut self, config: Configuration, out: &mut Vec<Command>) {
+        let mut switched_on = Vec::new();
+        let mut pending = BTreeSet::new();
+        let mut finished = Vec::new();
+        for f in &config.functionalities {
+            let key = (f.peis.clone(), f.component.clone());
+            let view = self.mirror.component(&f.peis, &f.component);
+            let on = view.is_some_and(|v| v.on);
+            if !on {
+                out.push(Command::RemoteSet {
+                    owner: f.peis.clone(),
+                    key: format!("components.{}.reqState", f.component),
+                    value: "on".to_string(),
+                });
+                self.started.insert(key.clone());
+                switched_on.push(format!("{}:{}", f.peis, f.component));
+            }
+            let params = f.call();
+            let unchanged = self.params.get(&key) == Some(&params);
+            // A component kept from the previous configuration with the same
+            // params is ready if it runs, and may even have finished its step.
+            let status = view.and_then(|v| v.status.as_deref());
+            let ready = unchanged && matches!(status, Some("running" | "done"));
+            if unchanged && status == Some("done") {
+                finished.push(key.clone());
+            }
+            if !unchanged {
+                out.push(Command::RemoteSet {
+                    owner: f.peis.clone(),
+                    key: format!("{}.params", f.component),
+                    value: params.clone(),
+                });
+                self.params.insert(key.clone(), params);
+            }
+            if !ready {
+                pending.insert(key);
+            }
+        }
+        let mut channels = Vec::new();
+        for c in &config.channels {
+            out.push(Command::RemoteSet {
+                owner: c.to_peis.clone(),
+                key: format!("{}.mi-{}", c.to_component, c.info_name),
+                value: format!(
+                    "(meta {} {}.out.{})",
+                    c.from_peis, c.from_component, c.info_name
+                ),
+            });
+            channels.push(format!(
+                "{}:{} → {}:{} {}",
+                c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
+            ));
+        }
+        self.record(LogEvent::Deployed {
+            switched_on,
+            channels,
+        });
+        let deploy_timer = if pending.is_empty() {
+            None
+        } else {
+            Some(self.timer(self.config.deploy_timeout, out))
+        };
+        let Some(run) = &mut self.run else { return };
+        if let Some(old) = run.deploy_timer.take() {
+            out.push(Command::CancelTimer(old));
+        }
+        for (_, id) in std::mem::take(&mut run.waiting) {
+            out.push(Command::CancelTimer(id));
+        }
+        run.done = finished.into_iter().collect();
+        run.deploy_timer = deploy_timer;
+        run.config = Some(config);
+        run.phase = Phase::Deploying { pending };
+        self.check_deployed(out);
+    }
+
+    /// Moves to `Running` once nothing is pending, switching off what the
+    /// previous configuration started and this one does not use.
+    fn check_deployed(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        let Phase::Deploying { pending } = &run.phase else {
+            return;
+        };
+        if !pending.is_empty() {
+            return;
+        }
+        run.phase = Phase::Running;
+        if let Some(id) = run.deploy_timer.take() {
+            out.push(Command::CancelTimer(id));
+        }
+        let config = run.config.clone();
+        let mut switched_off = Vec::new();
+        if let Some(config) = &config {
+            let unneeded: Vec<ComponentKey> = self
+                .started
+                .iter()
+                .filter(|(p, c)| !config.uses(p, c))
+                .cloned()
+                .collect();
+            for (p, c) in unneeded {
+                out.push(Command::RemoteSet {
+                    owner: p.clone(),
+                    key: format!("components.{c}.reqState"),
+                    value: "off".to_string(),
+                });
+                self.started.remove(&(p.clone(), c.clone()));
+                self.params.remove(&(p.clone(), c.clone()));
+                switched_off.push(format!("{p}:{c}"));
+            }
+        }
+        self.running = config;
+        self.record(LogEvent::Running { switched_off });
+        self.check_done(out);
+    }
+
+    fn in_current_config(&self, key: &ComponentKey) -> bool {
+        self.run
+            .as_ref()
+            .and_then(|r| r.config.as_ref())
+            .is_some_and(|c| c.uses(&key.0, &key.1))
+    }
+
+    fn on_status(&mut self, key: ComponentKey, status: &str, out: &mut Vec<Command>) {
+        // Components outside the current configuration, and ones that already
+        // failed during this action, are not acted on.
+        if !self.in_current_config(&key) {
+            return;
+        }
+        let Some(run) = &mut self.run else { return };
+        if run.failed.contains(&key) {
+            return;
+        }
+        if status != "waiting"
+            && let Some(id) = run.waiting.remove(&key)
+        {
+            out.push(Command::CancelTimer(id));
+        }
+        match status {
+            "running" | "done" => {
+                if let Phase::Deploying { pending } = &mut run.phase {
+                    pending.remove(&key);
+                }
+                if status == "done" {
+                    run.done.insert(key);
+                }
+                self.check_deployed(out);
+                self.check_done(out);
+            }
+            "error" => {
+                let cause = self
+                    .mirror
+                    .component(&key.0, &key.1)
+                    .and_then(|c| c.cause.clone())
+                    .unwrap_or_else(|| "error".to_string());
+                self.failure(vec![key], cause, out);
+            }
+            "waiting" if !run.waiting.contains_key(&key) && run.phase == Phase::Running => {
+                let id = self.timer(self.config.waiting_grace, out);
+                if let Some(run) = &mut self.run {
+                    run.waiting.insert(key, id);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn on_peis_left(&mut self, peis: &str, out: &mut Vec<Command>) {
+        let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
+            return;
+        };
+        let lost: Vec<ComponentKey> = config
+            .functionalities
+            .iter()
+            .filter(|f| f.peis == peis)
+            .map(|f| (f.peis.clone(), f.component.clone()))
+            .collect();
+        if !lost.is_empty() {
+            self.failure(lost, format!("PEIS {peis} left the ecology"), out);
+        }
+    }
+
+    fn on_timer(&mut self, id: TimerId, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        if id == run.action_timer {
+            let reason = format!(
+                "the action did not finish within {:?}",
+                self.config.action_timeout
+            );
+            self.fail_action(reason, out);
+            return;
+        }
+        if run.deploy_timer == Some(id) {
+            run.deploy_timer = None;
+            if let Phase::Deploying { pending } = &run.phase {
+                let late: Vec<ComponentKey> = pending.iter().cloned().collect();
+                let cause = format!(
+                    "did not report running within {:?}",
+                    self.config.deploy_timeout
+                );
+                self.failure(late, cause, out);
+            }
+            return;
+        }
+        let waited = run
+            .waiting
+            .iter()
+            .find(|(_, t)| **t == id)
+            .map(|(k, _)| k.clone());
+        if let Some(key) = waited {
+            run.waiting.remove(&key);
+            let cause = self
+                .mirror
+                .component(&key.0, &key.1)
+                .and_then(|c| c.cause.clone())
+                .map_or_else(
+                    || format!("waiting for longer than {:?}", self.config.waiting_grace),
+                    |c| {
+                        format!(
+                            "waiting for longer than {:?}: {c}",
+                            self.config.waiting_grace
+                        )
+                    },
+                );
+            self.failure(vec![key], cause, out);
+        }
+    }
+
+    /// Excludes the failed components and reconfigures the action.
+    fn failure(&mut self, failed: Vec<ComponentKey>, cause: String, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        let fresh: Vec<ComponentKey> = failed
+            .into_iter()
+            .filter(|k| !run.failed.contains(k))
+            .collect();
+        if fresh.is_empty() {
+            return;
+        }
+        for key in &fresh {
+            run.failed.insert(key.clone());
+            run.excluded.push(Exclusion::Component {
+                peis: key.0.clone(),
+                component: key.1.clone(),
+            });
+        }
+        let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
+        for (peis, component) in &fresh {
+            self.record(LogEvent::Failure {
+                peis: peis.clone(),
+                component: component.clone(),
+                cause: cause.clone(),
+            });
+        }
+        self.record(LogEvent::Reconfiguration { excluded });
+        self.configure(true, out);
+    }
+
+    fn check_done(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        if run.phase != Phase::Running {
+            return;
+        }
+        let Some(config) = &run.config else { return };
+        let finishing: Vec<ComponentKey> = config
+            .functionalities
+            .iter()
+            .filter(|f| !f.postcondition.is_empty())
+            .map(|f| (f.peis.clone(), f.component.clone()))
+            .collect();
+        if !finishing.is_empty() && finishing.iter().all(|k| run.done.contains(k)) {
+            self.finish_action(out);
+        }
+    }
+
+    fn finish_action(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = self.run.take() else { return };
+        out.push(Command::CancelTimer(run.action_timer));
+        for (_, id) in run.waiting {
+            out.push(Command::CancelTimer(id));
+        }
+        self.record(LogEvent::ActionDone {
+            index: run.index,
+            action: self.plan[run.index].action.clone(),
+        });
+        self.start_action(run.index + 1, out);
+    }
+
+    fn fail_action(&mut self, reason: String, out: &mut Vec<Command>) {
+        let Some(run) = self.run.take() else { return };
+        out.push(Command::CancelTimer(run.action_timer));
+        if let Some(id) = run.deploy_timer {
+            out.push(Command::CancelTimer(id));
+        }
+        for (_, id) in run.waiting {
+            out.push(Command::CancelTimer(id));
+        }
+        self.record(LogEvent::ActionFailed {
+            index: run.index,
+            action: self.plan[run.index].action.clone(),
+            reason: reason.clone(),
+        });
+        self.status = RunStatus::Failed {
+            index: run.index,
+            reason,
+        };
+    }
+
+    /// Action-level recovery: after an action failed, continue with a new
+    /// plan (from the action planner, without the failed action).
+    pub fn replan(&mut self, now: Duration, plan: Vec<PlannedAction>) -> Vec<Command> {
+        self.now = self.now.max(now);
+        let mut out = Vec::new();
+        if !matches!(self.status, RunStatus::Failed { .. }) {
+            return out;
+        }
+        self.plan = plan;
+        let actions = self.plan.iter().map(|a| a.action.clone()).collect();
+        self.record(LogEvent::Plan { actions });
+        self.start_action(0, &mut out);
+        out
+    }
+
+    /// Gives up after a failed action: the task fails.
+    pub fn abandon(&mut self, now: Duration) {
+        self.now = self.now.max(now);
+        if let RunStatus::Failed { index, .. } = &self.status {
+            let reason = format!("action {} failed", self.plan[*index].action);
+            self.record(LogEvent::TaskFailed { reason });
+        }
+    }
+}

@@ -1,0 +1,19 @@
+//! The executive of Ecology (the paper's Sections IV, VI and VII): it acquires
+//! the ecology state from tuples, configures each action of a plan with the
+//! configuration planner, deploys the configuration, monitors it, and
+//! reconfigures when a component or a PEIS fails.
+//!
+//! [`Executive`] is sans-IO: an event loop `handle(now, Event) -> Vec<Command>`
+//! over a closed [`Event`] type. A driver connects it to a tuple space:
+//! subscription changes and presence in, remote sets and timers out.
+
+mod executive;
+mod log;
+mod mirror;
+
+#[cfg(test)]
+mod tests;
+
+pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
+pub use log::{LogEntry, LogEvent};
+pub use mirror::{Change, ComponentView, Mirror, PeisView};

@@ -1,0 +1,202 @@
+//! The executive's event log: every step, timestamped, printable as a
+//! readable timeline. The JSON-lines form (one object per event with `"t"` in
+//! seconds and `"event"` named by [`LogEvent::name`]) is written at the edge.
+
+use std::fmt;
+use std::time::Duration;
+
+/// One logged event with its time.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogEntry {
+    /// Time since the run started.
+    pub t: Duration,
+    /// What happened.
+    pub event: LogEvent,
+}
+
+/// What the executive did or saw.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LogEvent {
+    /// A plan of actions to execute.
+    Plan {
+        /// The actions, in order.
+        actions: Vec<String>,
+    },
+    /// An action started.
+    ActionStarted {
+        /// Its index in the plan.
+        index: usize,
+        /// The action.
+        action: String,
+    },
+    /// The ecology state was acquired.
+    StateAcquired {
+        /// PEIS present.
+        peis: usize,
+        /// Components known on them.
+        components: usize,
+    },
+    /// A configuration was chosen.
+    Configuration {
+        /// The configuration goal.
+        goal: String,
+        /// Its cost.
+        cost: u64,
+        /// Whether proven optimal.
+        optimal: bool,
+        /// Its functionality instances, as `(call) on PEIS:COMPONENT`.
+        functionalities: Vec<String>,
+        /// The costs of the alternatives considered, cheapest first (the chosen one included).
+        alternatives: Vec<u64>,
+        /// Whether this replaces a failed configuration.
+        reconfiguration: bool,
+    },
+    /// Deploy commands were sent.
+    Deployed {
+        /// Components asked to switch on.
+        switched_on: Vec<String>,
+        /// Channels wired, as `P:C → P:C (info)`.
+        channels: Vec<String>,
+    },
+    /// Every component of the configuration reports running.
+    Running {
+        /// Components of the previous configuration switched off.
+        switched_off: Vec<String>,
+    },
+    /// A component failed.
+    Failure {
+        /// Its PEIS.
+        peis: String,
+        /// The component.
+        component: String,
+        /// Why.
+        cause: String,
+    },
+    /// The action is being reconfigured without what failed.
+    Reconfiguration {
+        /// Everything excluded for this action so far.
+        excluded: Vec<String>,
+    },
+    /// An action completed.
+    ActionDone {
+        /// Its index.
+        index: usize,
+        /// The action.
+        action: String,
+    },
+    /// An action failed: no configuration, or timeout.
+    ActionFailed {
+        /// Its index.
+        index: usize,
+        /// The action.
+        action: String,
+        /// Why, with the planner's explanation.
+        reason: String,
+    },
+    /// Every action completed.
+    TaskDone,
+    /// The task failed.
+    TaskFailed {
+        /// Why.
+        reason: String,
+    },
+}
+
+impl LogEvent {
+    /// The event's name in the JSON-lines log.
+    pub fn name(&self) -> &'static str {
+        match self {
+            LogEvent::Plan { .. } => "plan",
+            LogEvent::ActionStarted { .. } => "action_started",
+            LogEvent::StateAcquired { .. } => "state_acquired",
+            LogEvent::Configuration { .. } => "configuration",
+            LogEvent::Deployed { .. } => "deployed",
+            LogEvent::Running { .. } => "running",
+            LogEvent::Failure { .. } => "failure",
+            LogEvent::Reconfiguration { .. } => "reconfiguration",
+            LogEvent::ActionDone { .. } => "action_done",
+            LogEvent::ActionFailed { .. } => "action_failed",
+            LogEvent::TaskDone => "task_done",
+            LogEvent::TaskFailed { .. } => "task_failed",
+        }
+    }
+}
+
+impl fmt::Display for LogEntry {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:>8.3}s  ", self.t.as_secs_f64())?;
+        match &self.event {
+            LogEvent::Plan { actions } => write!(f, "plan: {}", actions.join(" → ")),
+            LogEvent::ActionStarted { index, action } => {
+                write!(f, "action {}: {action}", index + 1)
+            }
+            LogEvent::StateAcquired { peis, components } => {
+                write!(f, "  state acquired: {peis} PEIS, {components} components")
+            }
+            LogEvent::Configuration {
+                goal,
+                cost,
+                optimal,
+                functionalities,
+                alternatives,
+                reconfiguration,
+            } => {
+                let what = if *reconfiguration {
+                    "reconfigured"
+                } else {
+                    "configuration"
+                };
+                let proof = if *optimal {
+                    "optimal"
+                } else {
+                    "not proven optimal"
+                };
+                let alts: Vec<String> = alternatives.iter().map(u64::to_string).collect();
+                write!(
+                    f,
+                    "  {what} for {goal}: cost {cost} ({proof}; alternatives {})",
+                    alts.join(", ")
+                )?;
+                for func in functionalities {
+                    write!(f, "\n              {func}")?;
+                }
+                Ok(())
+            }
+            LogEvent::Deployed {
+                switched_on,
+                channels,
+            } => {
+                let on = if switched_on.is_empty() {
+                    "nothing to switch on".to_string()
+                } else {
+                    format!("switch on {}", switched_on.join(", "))
+                };
+                write!(f, "  deploy: {on}; {} channels", channels.len())
+            }
+            LogEvent::Running { switched_off } if switched_off.is_empty() => {
+                write!(f, "  running")
+            }
+            LogEvent::Running { switched_off } => {
+                write!(f, "  running; switched off {}", switched_off.join(", "))
+            }
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => write!(f, "  FAILURE {peis}:{component}: {cause}"),
+            LogEvent::Reconfiguration { excluded } => {
+                write!(f, "  reconfiguring without {}", excluded.join(", "))
+            }
+            LogEvent::ActionDone { index, action } => {
+                write!(f, "action {} done: {action}", index + 1)
+            }
+            LogEvent::ActionFailed {
+                index,
+                action,
+                reason,
+            } => write!(f, "action {} FAILED: {action}\n{reason}", index + 1),
+            LogEvent::TaskDone => write!(f, "task done"),
+            LogEvent::TaskFailed { reason } => write!(f, "task FAILED: {reason}"),
+        }
+    }
+}

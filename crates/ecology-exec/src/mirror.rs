@@ -1,0 +1,179 @@
+//! State acquisition: a mirror of the tuples the executive subscribes to, and
+//! the ecology state (the paper's Section IV) built from it.
+//!
+//! Each PEIS's init component publishes `components.C.type`, `.cost` and
+//! `.currState`; each component publishes `C.status` and `C.cause` (DESIGN
+//! section 6). Updates carry the tuple's per-key sequence number: an update
+//! whose number is not newer than the last one seen is a duplicate or arrived
+//! out of order, and is dropped.
+
+use std::collections::{BTreeMap, HashMap};
+
+use ecology_domain::{EcologyState, Fact};
+
+/// What the mirror knows of one component.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ComponentView {
+    /// `components.C.type`
+    pub ty: Option<String>,
+    /// `components.C.cost`
+    pub cost: Option<u64>,
+    /// `components.C.currState` is `on`.
+    pub on: bool,
+    /// `C.status`
+    pub status: Option<String>,
+    /// `C.cause`
+    pub cause: Option<String>,
+    /// `C.params`, as applied by the PEIS.
+    pub params: Option<String>,
+}
+
+/// What the mirror knows of one PEIS.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct PeisView {
+    /// Whether it is present (joined, or publishing, and not left since).
+    pub present: bool,
+    /// Its components, by name.
+    pub components: BTreeMap<String, ComponentView>,
+}
+
+/// A change the mirror saw that matters to the executive.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Change {
+    /// A component's status changed.
+    Status {
+        /// The PEIS.
+        peis: String,
+        /// The component.
+        component: String,
+        /// The new status.
+        status: String,
+    },
+    /// Anything else (types, costs, on/off, causes).
+    Other,
+}
+
+/// The executive's mirror of the ecology's tuples.
+#[derive(Debug, Clone, Default)]
+pub struct Mirror {
+    peis: BTreeMap<String, PeisView>,
+    last_seq: HashMap<(String, String), u64>,
+}
+
+impl Mirror {
+    /// An empty mirror.
+    pub fn new() -> Mirror {
+        Mirror::default()
+    }
+
+    /// Every PEIS seen.
+    pub fn peis(&self) -> &BTreeMap<String, PeisView> {
+        &self.peis
+    }
+
+    /// One component, if seen.
+    pub fn component(&self, peis: &str, component: &str) -> Option<&ComponentView> {
+        self.peis.get(peis)?.components.get(component)
+    }
+
+    /// A PEIS joined.
+    pub fn joined(&mut self, peis: &str) {
+        self.peis.entry(peis.to_string()).or_default().present = true;
+    }
+
+    /// A PEIS left: it is absent until it publishes or joins again.
+    pub fn left(&mut self, peis: &str) {
+        if let Some(view) = self.peis.get_mut(peis) {
+            view.present = false;
+        }
+    }
+
+    /// Applies a tuple update; `None` when it is a duplicate or out of order.
+    pub fn apply(&mut self, owner: &str, key: &str, value: &str, seq: u64) -> Option<Change> {
+        let slot = self
+            .last_seq
+            .entry((owner.to_string(), key.to_string()))
+            .or_insert(0);
+        if seq <= *slot && *slot != 0 {
+            return None;
+        }
+        *slot = seq;
+        let view = self.peis.entry(owner.to_string()).or_default();
+        view.present = true;
+        let value = value.trim();
+        if let Some(rest) = key.strip_prefix("components.") {
+            let Some((component, field)) = rest.rsplit_once('.') else {
+                return Some(Change::Other);
+            };
+            let c = view.components.entry(component.to_string()).or_default();
+            match field {
+                "type" => c.ty = Some(value.to_string()),
+                "cost" => c.cost = value.parse().ok(),
+                "currState" => c.on = value == "on",
+                _ => {}
+            }
+            return Some(Change::Other);
+        }
+        let Some((component, field)) = key.split_once('.') else {
+            return Some(Change::Other);
+        };
+        let c = view.components.entry(component.to_string()).or_default();
+        match field {
+            "status" => {
+                c.status = Some(value.to_string());
+                Some(Change::Status {
+                    peis: owner.to_string(),
+                    component: component.to_string(),
+                    status: value.to_string(),
+                })
+            }
+            "cause" => {
+                c.cause = Some(value.to_string());
+                Some(Change::Other)
+            }
+            "params" => {
+                c.params = Some(value.to_string());
+                Some(Change::Other)
+            }
+            _ => Some(Change::Other),
+        }
+    }
+
+    /// The ecology state: `(peis P)` for present PEIS, and for each of their
+    /// components with a known type `(pc P TYPE C)`, `(cost P C N on|off)` and
+    /// `(status P C S)`, plus the given world facts.
+    pub fn state(&self, world: &EcologyState) -> EcologyState {
+        let mut state = EcologyState::new();
+        for (name, view) in &self.peis {
+            if !view.present {
+                continue;
+            }
+            state.insert(Fact::new("peis", &[name]));
+            for (c, comp) in &view.components {
+                let Some(ty) = &comp.ty else { continue };
+                state.insert(Fact::new("pc", &[name, ty, c]));
+                if let Some(cost) = comp.cost {
+                    let power = if comp.on { "on" } else { "off" };
+                    state.insert(Fact::new("cost", &[name, c, &cost.to_string(), power]));
+                }
+                if let Some(status) = &comp.status {
+                    state.insert(Fact::new("status", &[name, c, status]));
+                }
+            }
+        }
+        for fact in world.facts() {
+            state.insert(fact.clone());
+        }
+        state
+    }
+
+    /// Counts of present PEIS and of their typed components.
+    pub fn counts(&self) -> (usize, usize) {
+        let present: Vec<&PeisView> = self.peis.values().filter(|v| v.present).collect();
+        let components = present
+            .iter()
+            .map(|v| v.components.values().filter(|c| c.ty.is_some()).count())
+            .sum();
+        (present.len(), components)
+    }
+}

@@ -1,0 +1,629 @@
+//! Tests of the executive, driven by events in virtual time against a small
+//! scripted ecology that plays the PEIS side of the component contract.
+
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap};
+use std::time::Duration;
+
+use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
+
+use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, TimerId};
+
+const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
+const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
+
+fn secs(s: f64) -> Duration {
+    Duration::from_secs_f64(s)
+}
+
+/// Something scheduled in the scripted ecology.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+enum Due {
+    /// Deliver an event to the executive.
+    Deliver(EventOrd),
+    /// A component finishes starting up: it is on.
+    SwitchedOn(String, String),
+    /// A component finishes its step: it reports `done`.
+    Finish(String, String, u64),
+}
+
+/// `Event` with an order, for the schedule.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+enum EventOrd {
+    Tuple(String, String, String, u64),
+    Left(String),
+}
+
+#[derive(Debug, Default, Clone)]
+struct Component {
+    ty: String,
+    cost: u64,
+    on: bool,
+    params: Option<String>,
+    /// Never becomes running (a broken start-up).
+    stuck: bool,
+    /// Broken: reports error instead of running.
+    broken: Option<String>,
+    /// Bumped at each new params, to ignore finishes of older ones.
+    generation: u64,
+}
+
+/// A scripted ecology: components start after a delay, run when they have
+/// params, and those with a postcondition report `done` after `step_time`.
+struct Ecology {
+    components: BTreeMap<(String, String), Component>,
+    seq: BTreeMap<(String, String), u64>,
+    schedule: BinaryHeap<Reverse<(Duration, u64, Due)>>,
+    order: u64,
+    now: Duration,
+    startup: Duration,
+    step_time: Duration,
+    gone: Vec<String>,
+}
+
+impl Ecology {
+    fn from_facts(facts: &str) -> Ecology {
+        let state = parse_facts(facts.as_bytes()).expect("facts");
+        let mut components = BTreeMap::new();
+        for f in state.with_predicate("pc") {
+            let (p, ty, c) = (
+                f.args[0].to_string(),
+                f.args[1].to_string(),
+                f.args[2].to_string(),
+            );
+            let cost = state.component_cost(&p, &c);
+            components.insert(
+                (p, c),
+                Component {
+                    ty,
+                    cost: cost.map_or(10, |c| c.amount),
+                    on: cost.is_some_and(|c| c.power == ecology_domain::Power::On),
+                    ..Component::default()
+                },
+            );
+        }
+        Ecology {
+            components,
+            seq: BTreeMap::new(),
+            schedule: BinaryHeap::new(),
+            order: 0,
+            now: Duration::ZERO,
+            startup: secs(1.0),
+            step_time: secs(5.0),
+            gone: Vec::new(),
+        }
+    }
+
+    fn at(&mut self, t: Duration, due: Due) {
+        self.order += 1;
+        self.schedule.push(Reverse((t, self.order, due)));
+    }
+
+    fn publish(&mut self, owner: &str, key: &str, value: &str, delay: Duration) {
+        if self.gone.iter().any(|g| g == owner) {
+            return;
+        }
+        let seq = self
+            .seq
+            .entry((owner.to_string(), key.to_string()))
+            .or_insert(0);
+        *seq += 1;
+        let due = Due::Deliver(EventOrd::Tuple(
+            owner.to_string(),
+            key.to_string(),
+            value.to_string(),
+            *seq,
+        ));
+        self.at(self.now + delay, due);
+    }
+
+    /// Every init tuple, at time zero.
+    fn boot(&mut self) {
+        let all: Vec<((String, String), Component)> = self
+            .components
+            .iter()
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect();
+        for ((p, c), comp) in all {
+            self.publish(
+                &p,
+                &format!("components.{c}.type"),
+                &comp.ty,
+                Duration::ZERO,
+            );
+            self.publish(
+                &p,
+                &format!("components.{c}.cost"),
+                &comp.cost.to_string(),
+                Duration::ZERO,
+            );
+            let state = if comp.on { "on" } else { "off" };
+            self.publish(
+                &p,
+                &format!("components.{c}.currState"),
+                state,
+                Duration::ZERO,
+            );
+            self.publish(&p, &format!("{c}.status"), "idle", Duration::ZERO);
+        }
+    }
+
+    /// The PEIS side of a command.
+    fn apply(&mut self, command: &Command, exec_timers: &mut Vec<(Duration, TimerId)>) {
+        match command {
+            Command::StartTimer { id, after } => exec_timers.push((self.now + *after, *id)),
+            Command::CancelTimer(id) => exec_timers.retain(|(_, t)| t != id),
+            Command::RemoteSet { owner, key, value } => {
+                if self.gone.contains(owner) {
+                    return;
+                }
+                if let Some(rest) = key.strip_prefix("components.") {
+                    let c = rest.trim_end_matches(".reqState").to_string();
+                    if value == "on" {
+                        self.at(self.now + self.startup, Due::SwitchedOn(owner.clone(), c));
+                    } else if let Some(comp) = self.components.get_mut(&(owner.clone(), c.clone()))
+                    {
+                        comp.on = false;
+                        comp.params = None;
+                        self.publish(
+                            owner,
+                            &format!("components.{c}.currState"),
+                            "off",
+                            Duration::ZERO,
+                        );
+                        self.publish(owner, &format!("{c}.status"), "idle", Duration::ZERO);
+                    }
+                } else if let Some(c) = key.strip_suffix(".params") {
+                    let key = (owner.clone(), c.to_string());
+                    if let Some(comp) = self.components.get_mut(&key) {
+                        comp.params = Some(value.clone());
+                        comp.generation += 1;
+                    }
+                    self.report(owner, c);
+                }
+                // `mi-` meta-tuples are accepted silently: inputs always flow here.
+            }
+        }
+    }
+
+    /// A component reports what it is doing now.
+    fn report(&mut self, p: &str, c: &str) {
+        let Some(comp) = self
+            .components
+            .get(&(p.to_string(), c.to_string()))
+            .cloned()
+        else {
+            return;
+        };
+        if !comp.on || comp.stuck {
+            return;
+        }
+        let Some(params) = comp.params else { return };
+        if let Some(cause) = comp.broken {
+            self.publish(p, &format!("{c}.cause"), &cause, Duration::ZERO);
+            self.publish(p, &format!("{c}.status"), "error", Duration::ZERO);
+            return;
+        }
+        self.publish(p, &format!("{c}.status"), "running", Duration::ZERO);
+        let has_postcondition = ["(navigation ", "(gripper ", "(speaker "]
+            .iter()
+            .any(|n| params.starts_with(n));
+        if has_postcondition {
+            self.at(
+                self.now + self.step_time,
+                Due::Finish(p.to_string(), c.to_string(), comp.generation),
+            );
+        }
+    }
+
+    /// Runs the executive until it stops or `limit` passes; returns it.
+    fn run(
+        mut self,
+        mut exec: Executive,
+        limit: Duration,
+        mut inject: impl FnMut(&mut Ecology, Duration),
+    ) -> Executive {
+        let mut timers: Vec<(Duration, TimerId)> = Vec::new();
+        self.boot();
+        let mut started = false;
+        loop {
+            let next_due = self.schedule.peek().map(|Reverse((t, _, _))| *t);
+            let next_timer = timers.iter().map(|(t, _)| *t).min();
+            let next = match (next_due, next_timer) {
+                (Some(a), Some(b)) => a.min(b),
+                (Some(a), None) | (None, Some(a)) => a,
+                (None, None) => break,
+            };
+            if next > limit {
+                break;
+            }
+            let before = self.now;
+            self.now = next;
+            inject(&mut self, before);
+            let commands = if next_timer == Some(next) && next_due.is_none_or(|d| d > next) {
+                let at = timers
+                    .iter()
+                    .position(|(t, _)| *t == next)
+                    .expect("a timer");
+                let (_, id) = timers.remove(at);
+                exec.handle(next, Event::Timer(id))
+            } else {
+                let Some(Reverse((_, _, due))) = self.schedule.pop() else {
+                    break;
+                };
+                match due {
+                    Due::Deliver(EventOrd::Tuple(owner, key, value, seq)) => exec.handle(
+                        next,
+                        Event::Tuple {
+                            owner,
+                            key,
+                            value,
+                            seq,
+                        },
+                    ),
+                    Due::Deliver(EventOrd::Left(p)) => exec.handle(next, Event::PeisLeft(p)),
+                    Due::SwitchedOn(p, c) => {
+                        if let Some(comp) = self.components.get_mut(&(p.clone(), c.clone())) {
+                            comp.on = true;
+                        }
+                        self.publish(
+                            &p,
+                            &format!("components.{c}.currState"),
+                            "on",
+                            Duration::ZERO,
+                        );
+                        self.report(&p, &c);
+                        Vec::new()
+                    }
+                    Due::Finish(p, c, generation) => {
+                        let current = self
+                            .components
+                            .get(&(p.clone(), c.clone()))
+                            .map(|x| x.generation);
+                        if current == Some(generation) && !self.gone.contains(&p) {
+                            self.publish(&p, &format!("{c}.status"), "done", Duration::ZERO);
+                        }
+                        Vec::new()
+                    }
+                }
+            };
+            for command in &commands {
+                self.apply(command, &mut timers);
+            }
+            // Start once the init tuples of time zero are in.
+            if !started
+                && self
+                    .schedule
+                    .peek()
+                    .is_none_or(|Reverse((t, _, _))| *t > Duration::ZERO)
+            {
+                started = true;
+                let commands = exec.handle(self.now, Event::Start);
+                for command in &commands {
+                    self.apply(command, &mut timers);
+                }
+            }
+            if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
+                break;
+            }
+        }
+        exec
+    }
+
+    /// A component starts failing: it reports `error` with `cause`.
+    fn break_component(&mut self, p: &str, c: &str, cause: &str) {
+        if let Some(comp) = self.components.get_mut(&(p.to_string(), c.to_string())) {
+            comp.broken = Some(cause.to_string());
+        }
+        self.report(p, c);
+    }
+
+    /// A PEIS vanishes: no more tuples from it, and presence says it left.
+    fn vanish(&mut self, p: &str) {
+        self.gone.push(p.to_string());
+        self.at(self.now, Due::Deliver(EventOrd::Left(p.to_string())));
+    }
+}
+
+fn plan() -> Vec<PlannedAction> {
+    let step = |action: &str, goal: &str| PlannedAction {
+        action: action.to_string(),
+        goal: Some(parse_goal(goal).expect("goal")),
+    };
+    vec![
+        step(
+            "(move astrid living-room entrance)",
+            "(navigate astrid entrance)",
+        ),
+        step(
+            "(get astrid newspaper entrance)",
+            "(grasp astrid newspaper)",
+        ),
+        step(
+            "(move astrid entrance bedroom)",
+            "(navigate astrid bedroom)",
+        ),
+        step("(wake astrid johanna bedroom)", "(wake-up astrid johanna)"),
+    ]
+}
+
+fn executive(plan: Vec<PlannedAction>) -> Executive {
+    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
+    Executive::new(domain, EcologyState::new(), plan, ExecConfig::default())
+}
+
+fn costs(exec: &Executive) -> Vec<(u64, bool)> {
+    exec.log()
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Configuration {
+                cost,
+                reconfiguration,
+                ..
+            } => Some((*cost, *reconfiguration)),
+            _ => None,
+        })
+        .collect()
+}
+
+fn names(exec: &Executive) -> Vec<&'static str> {
+    exec.log().iter().map(|e| e.event.name()).collect()
+}
+
+fn timeline(exec: &Executive) -> String {
+    exec.log().iter().map(|e| format!("{e}\n")).collect()
+}
+
+// The paper, Section VIII, steps 1-5 and 7 without the failure.
+#[test]
+fn a_whole_plan_runs_to_completion() {
+    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |_, _| {});
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    assert_eq!(
+        costs(&exec),
+        [(80, false), (100, false), (80, false), (20, false)]
+    );
+    assert_eq!(names(&exec).last(), Some(&"task_done"));
+    assert_eq!(
+        names(&exec).iter().filter(|n| **n == "action_done").count(),
+        4
+    );
+    // The gripper was started for action 2 and switched off once unneeded.
+    let text = timeline(&exec);
+    assert!(text.contains("switch on astrid:gr1"), "{text}");
+    assert!(text.contains("switched off astrid:gr1"), "{text}");
+}
+
+// The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.
+#[test]
+fn a_failing_component_is_reconfigured_around() {
+    let mut broken = false;
+    let exec =
+        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
+            // Twelve seconds in, Astrid is on her way to the bedroom.
+            if !broken && eco.now >= secs(14.0) {
+                broken = true;
+                eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
+            }
+        });
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    assert_eq!(
+        costs(&exec),
+        [
+            (80, false),
+            (100, false),
+            (80, false),
+            (170, true),
+            (20, false)
+        ]
+    );
+    let failures: Vec<String> = exec
+        .log()
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => Some(format!("{peis}:{component} {cause}")),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(failures, ["hsm:tr1 camera ca1 stopped producing images"]);
+    assert!(
+        timeline(&exec).contains("switch on astrid:l1"),
+        "{}",
+        timeline(&exec)
+    );
+}
+
+#[test]
+fn a_vanishing_peis_is_reconfigured_around() {
+    let mut gone = false;
+    let exec =
+        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
+            if !gone && eco.now >= secs(14.0) {
+                gone = true;
+                eco.vanish("hsm");
+            }
+        });
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    assert_eq!(
+        costs(&exec),
+        [
+            (80, false),
+            (100, false),
+            (80, false),
+            (170, true),
+            (20, false)
+        ]
+    );
+    let text = timeline(&exec);
+    assert!(
+        text.contains("FAILURE hsm:ca1: PEIS hsm left the ecology"),
+        "{text}"
+    );
+    assert!(
+        text.contains("FAILURE hsm:tr1: PEIS hsm left the ecology"),
+        "{text}"
+    );
+}
+
+#[test]
+fn no_configuration_fails_the_action_with_the_explanation() {
+    // Without a laser and without Pippi, losing the tracking system leaves nothing.
+    let facts: String = PEIS_HOME_FACTS
+        .lines()
+        .filter(|l| !l.contains("pippi") && !l.contains(" l1"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let mut broken = false;
+    let mut exec = Ecology::from_facts(&facts).run(executive(plan()), secs(600.0), |eco, _| {
+        if !broken && eco.now >= secs(2.0) {
+            broken = true;
+            eco.break_component("hsm", "tr1", "camera failure");
+        }
+    });
+    let RunStatus::Failed { index, reason } = exec.status().clone() else {
+        panic!("the action should fail: {}", timeline(&exec));
+    };
+    assert_eq!(index, 0);
+    assert!(reason.contains("input (position astrid)"), "{reason}");
+    assert!(reason.contains("component hsm:tr1 is excluded"), "{reason}");
+    assert_eq!(names(&exec).last(), Some(&"action_failed"));
+    exec.abandon(secs(3.0));
+    assert_eq!(names(&exec).last(), Some(&"task_failed"));
+}
+
+#[test]
+fn a_component_that_never_runs_times_out_and_is_replaced() {
+    let mut eco = Ecology::from_facts(PEIS_HOME_FACTS);
+    if let Some(tr1) = eco
+        .components
+        .get_mut(&("hsm".to_string(), "tr1".to_string()))
+    {
+        tr1.stuck = true;
+    }
+    let exec = eco.run(executive(plan()[..1].to_vec()), secs(600.0), |_, _| {});
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    assert_eq!(costs(&exec), [(80, false), (170, true)]);
+    let text = timeline(&exec);
+    assert!(
+        text.contains("FAILURE hsm:tr1: did not report running within 10s"),
+        "{text}"
+    );
+}
+
+#[test]
+fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
+    let mut exec = executive(plan()[..1].to_vec());
+    let tuple = |owner: &str, key: &str, value: &str, seq: u64| Event::Tuple {
+        owner: owner.to_string(),
+        key: key.to_string(),
+        value: value.to_string(),
+        seq,
+    };
+    // Boot: every component on (so nothing is switched on) and idle.
+    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
+    for f in state.with_predicate("pc") {
+        let (p, ty, c) = (&*f.args[0], &*f.args[1], &*f.args[2]);
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.type"), ty, 1),
+        );
+        let cost = state.component_cost(p, c).map_or(10, |c| c.amount);
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.cost"), &cost.to_string(), 1),
+        );
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.currState"), "on", 1),
+        );
+    }
+    exec.handle(Duration::ZERO, Event::Start);
+    for (p, c) in [
+        ("astrid", "tc1"),
+        ("astrid", "s1"),
+        ("hsm", "ca1"),
+        ("hsm", "tr1"),
+    ] {
+        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
+    }
+    assert_eq!(costs(&exec), [(80, false)]);
+    // tr1 fails; the same tuple arrives twice, then an older one late.
+    exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 4));
+    exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 4));
+    exec.handle(secs(2.1), tuple("hsm", "tr1.status", "running", 3));
+    // A new error from the already-excluded tr1, and one from ca1, which the
+    // new configuration no longer uses.
+    exec.handle(secs(2.2), tuple("hsm", "tr1.status", "error", 5));
+    exec.handle(secs(2.3), tuple("hsm", "ca1.status", "error", 3));
+    // Everything is on here, so the laser costs its running cost: 100 + 10 + 20 + 20.
+    assert_eq!(
+        costs(&exec),
+        [(80, false), (150, true)],
+        "{}",
+        timeline(&exec)
+    );
+    assert_eq!(names(&exec).iter().filter(|n| **n == "failure").count(), 1);
+    assert_eq!(
+        names(&exec)
+            .iter()
+            .filter(|n| **n == "reconfiguration")
+            .count(),
+        1
+    );
+}
+
+#[test]
+fn waiting_too_long_is_a_failure() {
+    let mut exec = executive(plan()[..1].to_vec());
+    let tuple = |owner: &str, key: &str, value: &str, seq: u64| Event::Tuple {
+        owner: owner.to_string(),
+        key: key.to_string(),
+        value: value.to_string(),
+        seq,
+    };
+    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
+    for f in state.with_predicate("pc") {
+        let (p, ty, c) = (&*f.args[0], &*f.args[1], &*f.args[2]);
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.type"), ty, 1),
+        );
+        let cost = state.component_cost(p, c).map_or(10, |c| c.amount);
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.cost"), &cost.to_string(), 1),
+        );
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.currState"), "on", 1),
+        );
+    }
+    exec.handle(Duration::ZERO, Event::Start);
+    for (p, c) in [
+        ("astrid", "tc1"),
+        ("astrid", "s1"),
+        ("hsm", "ca1"),
+        ("hsm", "tr1"),
+    ] {
+        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
+    }
+    exec.handle(
+        secs(2.0),
+        tuple("astrid", "s1.cause", "(global-pos astrid)", 1),
+    );
+    let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+    let Some(Command::StartTimer { id, after }) = commands.first().cloned() else {
+        panic!("a grace timer: {commands:?}");
+    };
+    assert_eq!(after, ExecConfig::default().waiting_grace);
+    exec.handle(secs(4.0), Event::Timer(id));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("FAILURE astrid:s1: waiting for longer than 2s: (global-pos astrid)"),
+        "{text}"
+    );
+}
