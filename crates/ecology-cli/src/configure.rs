@@ -16,8 +16,9 @@ use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 /// Arguments of `ecology check`.
 #[derive(Debug, Args)]
 pub struct CheckArgs {
-    /// The domain file (.eco).
-    pub domain: PathBuf,
+    /// Domain files (.eco), or state files (.facts); every problem in each is reported.
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
 }
 
 /// Arguments of `ecology configure`.
@@ -65,23 +66,32 @@ impl Clock for WallClock {
     }
 }
 
-/// `ecology check DOMAIN`
+/// `ecology check FILE...`
 pub fn check(args: &CheckArgs) -> anyhow::Result<u8> {
-    match input::domain(&args.domain)? {
-        Ok(domain) => {
-            println!(
+    let mut code = EXIT_OK;
+    for path in &args.files {
+        let is_facts = path.extension().is_some_and(|e| e == "facts");
+        if is_facts {
+            match input::facts(path)? {
+                Ok(state) => println!("{}: {} facts, valid", path.display(), state.len()),
+                Err(Reported) => code = EXIT_BAD_INPUT,
+            }
+            continue;
+        }
+        match input::domain(path)? {
+            Ok(domain) => println!(
                 "{}: domain `{}` is valid: {} functionalities, {} tasks, {} methods, {} actions",
-                args.domain.display(),
+                path.display(),
                 domain.name,
                 domain.functionalities.len(),
                 domain.tasks.len(),
                 domain.methods.len(),
                 domain.actions.len()
-            );
-            Ok(EXIT_OK)
+            ),
+            Err(Reported) => code = EXIT_BAD_INPUT,
         }
-        Err(Reported) => Ok(EXIT_BAD_INPUT),
     }
+    Ok(code)
 }
 
 /// `ecology configure ...`

@@ -29,7 +29,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Validate a domain (.eco) file and report every problem in it.
+    /// Validate domain (.eco) and state (.facts) files, reporting every problem in them.
     Check(configure::CheckArgs),
     /// Find the cheapest admissible configuration for a goal.
     Configure(configure::ConfigureArgs),

@@ -205,9 +205,11 @@ fn configure_under_a_budget_is_flagged() {
 
 #[test]
 fn check_reports_diagnostics_and_exits_2() {
-    let out = ecology(&["check", "domains/peis-home.eco"]);
-    assert_eq!(out.status.code(), Some(0));
+    let out = ecology(&["check", "domains/peis-home.eco", "domains/peis-home.facts", "domains/fridge.eco"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(stdout(&out).contains("domain `peis-home` is valid"));
+    assert!(stdout(&out).contains("domains/peis-home.facts: 30 facts, valid"));
+    assert!(stdout(&out).contains("domain `fridge` is valid"));
 
     let dir = std::env::temp_dir().join(format!("ecology-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
