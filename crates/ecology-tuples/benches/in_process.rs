@@ -1,0 +1,2 @@
+//! Placeholder replaced by the in-process throughput and latency benchmark.
+fn main() {}

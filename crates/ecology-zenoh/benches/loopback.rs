@@ -1,0 +1,2 @@
+//! Placeholder replaced by the Zenoh loopback benchmark.
+fn main() {}

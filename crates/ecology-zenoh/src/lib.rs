@@ -1,0 +1,1 @@
+//! The tuple space over Eclipse Zenoh.
