@@ -200,14 +200,14 @@ impl fmt::Debug for Subscription {
 /// A live stream of [`PresenceEvent`]s: first `Joined` for every PEIS present, then every change.
 pub struct PresenceSubscription {
     events: mpsc::UnboundedReceiver<PresenceEvent>,
-    _guard: Box<dyn Send>,
+    _guard: Box<dyn Send + Sync>,
 }
 
 impl PresenceSubscription {
     /// A presence subscription fed by `events`; `guard` is dropped when the subscription is.
     pub fn from_channel(
         events: mpsc::UnboundedReceiver<PresenceEvent>,
-        guard: impl Send + 'static,
+        guard: impl Send + Sync + 'static,
     ) -> Self {
         Self {
             events,
