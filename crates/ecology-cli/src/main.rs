@@ -7,6 +7,7 @@
 
 mod configure;
 mod input;
+mod tuples;
 
 use std::process::ExitCode;
 
@@ -33,6 +34,8 @@ enum Command {
     Check(configure::CheckArgs),
     /// Find the cheapest admissible configuration for a goal.
     Configure(configure::ConfigureArgs),
+    /// Watch, get and set tuples of a live ecology over Zenoh.
+    Tuples(tuples::TuplesArgs),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),
+        Command::Tuples(args) => tuples::run(args).map(|code| u8::try_from(code).unwrap_or(1)),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -1,5 +1,7 @@
 //! The `ecology` binary, from the command line: outputs and exit codes.
 
+mod tuples;
+
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
@@ -205,7 +207,12 @@ fn configure_under_a_budget_is_flagged() {
 
 #[test]
 fn check_reports_diagnostics_and_exits_2() {
-    let out = ecology(&["check", "domains/peis-home.eco", "domains/peis-home.facts", "domains/fridge.eco"]);
+    let out = ecology(&[
+        "check",
+        "domains/peis-home.eco",
+        "domains/peis-home.facts",
+        "domains/fridge.eco",
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(stdout(&out).contains("domain `peis-home` is valid"));
     assert!(stdout(&out).contains("domains/peis-home.facts: 30 facts, valid"));

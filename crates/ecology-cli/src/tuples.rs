@@ -1,0 +1,402 @@
+//! `ecology tuples`: watch, get and set tuples of a live ecology over Zenoh (like PEIS tupleview).
+//!
+//! Exit codes: 0 success, 1 not found (no such tuple, owner not reachable, remote set refused),
+//! 2 bad input (malformed name, key, pattern or value). Failing to join the ecology is an error (1).
+
+use std::io::{BufRead, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use ecology_tuples::{
+    Clock, Key, PeisId, PresenceEvent, SystemClock, Tuple, TupleError, TupleEvent, TuplePattern,
+    TupleSpace, ValidationError, Value,
+};
+use ecology_zenoh::{ZenohError, ZenohOptions, ZenohPeis};
+
+/// Exit code: success.
+pub const EXIT_OK: i32 = 0;
+/// Exit code: the tuple or PEIS was not found, or the owner refused.
+pub const EXIT_NOT_FOUND: i32 = 1;
+/// Exit code: bad input.
+pub const EXIT_BAD_INPUT: i32 = 2;
+
+/// `ecology tuples`: options to join an ecology, and what to do there.
+#[derive(clap::Args, Debug)]
+pub struct TuplesArgs {
+    /// Endpoint to listen on, such as tcp/127.0.0.1:7447 (repeatable).
+    #[arg(long, global = true, value_name = "ENDPOINT")]
+    listen: Vec<String>,
+    /// Endpoint of a PEIS to connect to, such as tcp/127.0.0.1:7447 (repeatable).
+    #[arg(long, global = true, value_name = "ENDPOINT")]
+    connect: Vec<String>,
+    /// The PEIS name to join as (default: tuples-PID).
+    #[arg(long, global = true, value_name = "PEIS")]
+    name: Option<String>,
+    /// A Zenoh configuration file (JSON5); --listen and --connect override it.
+    #[arg(long, global = true, value_name = "FILE")]
+    zenoh_config: Option<PathBuf>,
+    /// Find peers by UDP multicast scouting (off by default).
+    #[arg(long, global = true)]
+    multicast: bool,
+    #[command(subcommand)]
+    command: TuplesCommand,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum TuplesCommand {
+    /// Show tuples as they change: owner, key, value preview and age.
+    Watch {
+        /// OWNER:KEYPATTERN, such as 'astrid:components.*.status' ('*' one segment, '**' any); default every tuple.
+        pattern: Option<String>,
+        /// Print one JSON object per change.
+        #[arg(long)]
+        json: bool,
+        /// Stop after this many tuple changes.
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+    },
+    /// Print the value of tuple (OWNER, KEY).
+    Get {
+        /// The owning PEIS.
+        owner: String,
+        /// The dotted key.
+        key: String,
+    },
+    /// Set tuple (OWNER, KEY) to VALUE; a remote set when OWNER is another PEIS.
+    Set {
+        /// The owning PEIS.
+        owner: String,
+        /// The dotted key.
+        key: String,
+        /// The value, as text.
+        value: String,
+        /// After setting, stay in the ecology (print `ready`) until standard input closes.
+        #[arg(long)]
+        hold: bool,
+    },
+    /// List the PEIS present.
+    Peers,
+}
+
+/// Runs `ecology tuples` and returns the exit code.
+pub fn run(args: TuplesArgs) -> anyhow::Result<i32> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(run_async(args))
+}
+
+fn bad_input(e: &ValidationError) -> i32 {
+    eprintln!("ecology tuples: {e}");
+    EXIT_BAD_INPUT
+}
+
+async fn run_async(args: TuplesArgs) -> anyhow::Result<i32> {
+    let name = match &args.name {
+        Some(name) => PeisId::new(name),
+        None => PeisId::new(&format!("tuples-{}", std::process::id())),
+    };
+    let name = match name {
+        Ok(name) => name,
+        Err(e) => return Ok(bad_input(&e)),
+    };
+    // Validate the command before joining, so bad input fails fast and joins nothing.
+    let command = match Command::parse(&args.command) {
+        Ok(command) => command,
+        Err(e) => return Ok(bad_input(&e)),
+    };
+    let mut options = ZenohOptions::new(name);
+    options.listen = args.listen.clone();
+    options.connect = args.connect.clone();
+    options.zenoh_config = args.zenoh_config.clone();
+    options.multicast_scouting = args.multicast;
+    let peis = match ZenohPeis::open(options).await {
+        Ok(peis) => peis,
+        Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => {
+            eprintln!(
+                "ecology tuples: a PEIS named {id} is already present; choose another --name"
+            );
+            return Ok(EXIT_BAD_INPUT);
+        }
+        Err(e) => return Err(e).context("joining the ecology"),
+    };
+    let code = command.execute(&peis).await;
+    peis.close().await;
+    code
+}
+
+enum Command {
+    Watch {
+        pattern: TuplePattern,
+        json: bool,
+        count: Option<u64>,
+    },
+    Get {
+        owner: PeisId,
+        key: Key,
+    },
+    Set {
+        owner: PeisId,
+        key: Key,
+        value: String,
+        hold: bool,
+    },
+    Peers,
+}
+
+impl Command {
+    fn parse(command: &TuplesCommand) -> Result<Self, ValidationError> {
+        Ok(match command {
+            TuplesCommand::Watch {
+                pattern,
+                json,
+                count,
+            } => Self::Watch {
+                pattern: match pattern {
+                    Some(p) => TuplePattern::parse(p)?,
+                    None => TuplePattern::everything(),
+                },
+                json: *json,
+                count: *count,
+            },
+            TuplesCommand::Get { owner, key } => Self::Get {
+                owner: PeisId::new(owner)?,
+                key: Key::new(key)?,
+            },
+            TuplesCommand::Set {
+                owner,
+                key,
+                value,
+                hold,
+            } => Self::Set {
+                owner: PeisId::new(owner)?,
+                key: Key::new(key)?,
+                value: value.clone(),
+                hold: *hold,
+            },
+            TuplesCommand::Peers => Self::Peers,
+        })
+    }
+
+    async fn execute(self, peis: &ZenohPeis) -> anyhow::Result<i32> {
+        let mut out = std::io::stdout().lock();
+        match self {
+            Self::Get { owner, key } => match peis.get(owner.clone(), key.clone()).await? {
+                Some(tuple) => {
+                    out.write_all(&tuple.data)?;
+                    writeln!(out)?;
+                    Ok(EXIT_OK)
+                }
+                None => {
+                    eprintln!("ecology tuples: no tuple ({owner} {key})");
+                    Ok(EXIT_NOT_FOUND)
+                }
+            },
+            Self::Set {
+                owner,
+                key,
+                value,
+                hold,
+            } => {
+                match peis.set_remote(owner, key, Value::text(value)).await {
+                    Ok(tuple) => writeln!(out, "{} {} seq {}", tuple.owner, tuple.key, tuple.seq)?,
+                    Err(TupleError::Invalid(e)) => return Ok(bad_input(&e)),
+                    Err(
+                        e @ (TupleError::OwnerUnreachable { .. }
+                        | TupleError::RemoteSetRefused { .. }),
+                    ) => {
+                        eprintln!("ecology tuples: {e}");
+                        return Ok(EXIT_NOT_FOUND);
+                    }
+                    Err(e) => return Err(e).context("setting the tuple"),
+                }
+                if hold {
+                    writeln!(out, "ready")?;
+                    out.flush()?;
+                    drop(out);
+                    wait_for_stdin_to_close().await?;
+                }
+                Ok(EXIT_OK)
+            }
+            Self::Peers => {
+                for id in peis.peers().await? {
+                    writeln!(out, "{id}")?;
+                }
+                Ok(EXIT_OK)
+            }
+            Self::Watch {
+                pattern,
+                json,
+                count,
+            } => {
+                drop(out);
+                watch(peis, pattern, json, count).await
+            }
+        }
+    }
+}
+
+async fn wait_for_stdin_to_close() -> anyhow::Result<()> {
+    let reader = tokio::task::spawn_blocking(|| {
+        let mut line = String::new();
+        let mut stdin = std::io::stdin().lock();
+        while stdin.read_line(&mut line).is_ok_and(|n| n > 0) {
+            line.clear();
+        }
+    });
+    tokio::select! {
+        done = reader => done.context("waiting for standard input")?,
+        signal = tokio::signal::ctrl_c() => signal.context("waiting for ctrl-c")?,
+    }
+    Ok(())
+}
+
+async fn watch(
+    peis: &ZenohPeis,
+    pattern: TuplePattern,
+    json: bool,
+    count: Option<u64>,
+) -> anyhow::Result<i32> {
+    let mut tuples = peis.subscribe(pattern).await?;
+    let mut presence = peis.subscribe_presence().await?;
+    let clock = SystemClock;
+    let mut seen = 0;
+    loop {
+        if count.is_some_and(|c| seen >= c) {
+            return Ok(EXIT_OK);
+        }
+        let line = tokio::select! {
+            event = tuples.next() => match event {
+                Some(event) => {
+                    seen += 1;
+                    if json { event_json(&event, &clock) } else { event_line(&event, &clock) }
+                }
+                None => return Ok(EXIT_OK),
+            },
+            event = presence.next(), if !json => match event {
+                Some(PresenceEvent::Joined(id)) => format!("+ {id} joined"),
+                Some(PresenceEvent::Left(id)) => format!("- {id} left"),
+                None => return Ok(EXIT_OK),
+            },
+            signal = tokio::signal::ctrl_c() => {
+                signal.context("waiting for ctrl-c")?;
+                return Ok(EXIT_OK);
+            }
+        };
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{line}")?;
+        out.flush()?;
+    }
+}
+
+/// At most 60 characters of the value: text as is (control characters escaped), bytes in hex.
+fn preview(tuple: &Tuple) -> String {
+    const MAX: usize = 60;
+    match tuple.text() {
+        Ok(text) => {
+            let escaped: String = text.chars().flat_map(char::escape_default).collect();
+            if escaped.chars().count() > MAX {
+                let cut: String = escaped.chars().take(MAX).collect();
+                format!("\"{cut}…\"")
+            } else {
+                format!("\"{escaped}\"")
+            }
+        }
+        Err(_) => {
+            let hex: String = tuple
+                .data
+                .iter()
+                .take(MAX / 2)
+                .map(|b| format!("{b:02x}"))
+                .collect();
+            let more = if tuple.data.len() > MAX / 2 {
+                "…"
+            } else {
+                ""
+            };
+            format!("0x{hex}{more} ({} bytes)", tuple.data.len())
+        }
+    }
+}
+
+fn age(tuple: &Tuple, clock: &dyn Clock) -> Duration {
+    clock.now().saturating_duration_since(tuple.ts_write)
+}
+
+fn event_line(event: &TupleEvent, clock: &dyn Clock) -> String {
+    match event {
+        TupleEvent::Changed(t) => format!(
+            "{:<12} {:<32} {}  ({} seq {}, age {:.1}s)",
+            t.owner,
+            t.key,
+            preview(t),
+            t.mimetype,
+            t.seq,
+            age(t, clock).as_secs_f64()
+        ),
+        TupleEvent::Removed {
+            owner, key, reason, ..
+        } => format!("{owner:<12} {key:<32} removed ({reason:?})"),
+        TupleEvent::Retargeted {
+            meta_owner,
+            meta_key,
+            target,
+        } => format!("{meta_owner:<12} {meta_key:<32} points at {target:?}"),
+    }
+}
+
+fn event_json(event: &TupleEvent, clock: &dyn Clock) -> String {
+    let value = match event {
+        TupleEvent::Changed(t) => {
+            let mut object = serde_json::json!({
+                "event": "changed",
+                "owner": t.owner.as_str(),
+                "key": t.key.as_str(),
+                "mimetype": t.mimetype.as_str(),
+                "seq": t.seq,
+                "ts_write_ns": t.ts_write.as_nanos(),
+                "age_ms": u64::try_from(age(t, clock).as_millis()).unwrap_or(u64::MAX),
+            });
+            match t.text() {
+                Ok(text) => object["value"] = serde_json::Value::from(text),
+                Err(_) => {
+                    let hex: String = t.data.iter().map(|b| format!("{b:02x}")).collect();
+                    object["value_hex"] = serde_json::Value::from(hex);
+                }
+            }
+            if let Some(ts) = t.ts_user {
+                object["ts_user_ns"] = serde_json::Value::from(ts.as_nanos());
+            }
+            if let Some(expiry) = t.expiry {
+                object["expiry_ns"] = serde_json::Value::from(expiry.as_nanos());
+            }
+            object
+        }
+        TupleEvent::Removed {
+            owner,
+            key,
+            seq,
+            reason,
+        } => serde_json::json!({
+            "event": "removed",
+            "owner": owner.as_str(),
+            "key": key.as_str(),
+            "seq": seq,
+            "reason": format!("{reason:?}").to_lowercase(),
+        }),
+        TupleEvent::Retargeted {
+            meta_owner,
+            meta_key,
+            target,
+        } => serde_json::json!({
+            "event": "retargeted",
+            "owner": meta_owner.as_str(),
+            "key": meta_key.as_str(),
+            "target": target.as_ref().map(ToString::to_string),
+        }),
+    };
+    value.to_string()
+}

@@ -1,0 +1,180 @@
+//! `ecology tuples` across separate OS processes on 127.0.0.1: one holds a PEIS, others get, set, watch and list it.
+
+use std::io::BufRead;
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+const PATIENCE: Duration = Duration::from_secs(30);
+
+fn free_endpoint() -> String {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+    format!(
+        "tcp/127.0.0.1:{}",
+        listener.local_addr().expect("address").port()
+    )
+}
+
+fn ecology(args: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_ecology"));
+    command.arg("tuples").args(args);
+    command
+}
+
+/// Runs a joining `ecology tuples` invocation to completion, bounded by PATIENCE.
+fn run_joined(connect: &str, args: &[&str]) -> Output {
+    let listen = free_endpoint();
+    let child = ecology(&["--listen", &listen, "--connect", connect])
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn ecology");
+    let pid = child.id();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(child.wait_with_output());
+    });
+    match rx.recv_timeout(PATIENCE) {
+        Ok(output) => output.expect("wait for ecology"),
+        Err(_) => {
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("ecology tuples {args:?} did not finish within {PATIENCE:?}");
+        }
+    }
+}
+
+fn stdout(output: &Output) -> String {
+    String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+/// The PEIS `astrid` in its own process, killed when dropped.
+struct Holder(Child);
+
+impl Drop for Holder {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn two_processes_share_tuples() {
+    let endpoint = free_endpoint();
+    let mut holder = Holder(
+        ecology(&["--name", "astrid", "--listen", &endpoint])
+            .args(["set", "astrid", "components.l1.status", "running", "--hold"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn holder"),
+    );
+    let out = holder.0.stdout.take().expect("piped stdout");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(out).lines() {
+            let Ok(line) = line else { return };
+            if tx.send(line).is_err() {
+                return;
+            }
+        }
+    });
+    let first = rx.recv_timeout(PATIENCE).expect("holder reports the set");
+    assert_eq!(first, "astrid components.l1.status seq 1");
+    assert_eq!(rx.recv_timeout(PATIENCE).expect("holder ready"), "ready");
+
+    let got = run_joined(&endpoint, &["get", "astrid", "components.l1.status"]);
+    assert_eq!(
+        (got.status.code(), stdout(&got).as_str()),
+        (Some(0), "running\n")
+    );
+
+    let missing = run_joined(&endpoint, &["get", "astrid", "components.l1.cost"]);
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&missing.stderr).contains("no tuple (astrid components.l1.cost)")
+    );
+
+    let set = run_joined(
+        &endpoint,
+        &["set", "astrid", "components.l1.reqState", "on"],
+    );
+    assert_eq!(
+        (set.status.code(), stdout(&set).as_str()),
+        (Some(0), "astrid components.l1.reqState seq 1\n")
+    );
+    let got = run_joined(&endpoint, &["get", "astrid", "components.l1.reqState"]);
+    assert_eq!(stdout(&got), "on\n");
+
+    let unreachable = run_joined(&endpoint, &["set", "ghost", "x", "1"]);
+    assert_eq!(unreachable.status.code(), Some(1));
+
+    let watched = run_joined(
+        &endpoint,
+        &[
+            "watch",
+            "astrid:components.*.status",
+            "--json",
+            "--count",
+            "1",
+        ],
+    );
+    assert_eq!(watched.status.code(), Some(0));
+    let line = stdout(&watched);
+    let event: serde_json::Value = serde_json::from_str(line.trim()).expect("one JSON object");
+    assert_eq!(event["event"], "changed");
+    assert_eq!(event["owner"], "astrid");
+    assert_eq!(event["key"], "components.l1.status");
+    assert_eq!(event["value"], "running");
+    assert_eq!(event["seq"], 1);
+
+    let readable = run_joined(&endpoint, &["watch", "astrid:**", "--count", "2"]);
+    let text = stdout(&readable);
+    assert!(
+        text.contains("components.l1.status") && text.contains("\"running\""),
+        "{text}"
+    );
+    assert!(text.contains("age "), "{text}");
+
+    let peers = run_joined(&endpoint, &["--name", "lister", "peers"]);
+    assert_eq!(stdout(&peers), "astrid\nlister\n");
+
+    let taken = run_joined(&endpoint, &["--name", "astrid", "peers"]);
+    assert_eq!(taken.status.code(), Some(2));
+
+    // Closing the holder's standard input makes it leave; it exits cleanly.
+    drop(holder.0.stdin.take());
+    let (tx, rx) = mpsc::channel();
+    let mut child = std::mem::replace(
+        &mut holder.0,
+        Command::new("true").spawn().expect("spawn true"),
+    );
+    std::thread::spawn(move || {
+        let _ = tx.send(child.wait());
+    });
+    let status = rx
+        .recv_timeout(PATIENCE)
+        .expect("holder exits")
+        .expect("wait");
+    assert!(status.success());
+}
+
+#[test]
+fn bad_input_exits_with_2() {
+    for args in [
+        &["get", "astrid", "a..b"][..],
+        &["get", "as.trid", "k"],
+        &["watch", "astrid:comp*"],
+        &["--name", "bad name", "peers"],
+    ] {
+        let output = ecology(args)
+            .stdin(Stdio::null())
+            .output()
+            .expect("run ecology");
+        assert_eq!(output.status.code(), Some(2), "{args:?}");
+        assert!(!output.stderr.is_empty());
+    }
+    let usage = ecology(&["get", "astrid"]).output().expect("run ecology");
+    assert_eq!(usage.status.code(), Some(2));
+}

@@ -1,0 +1,470 @@
+//! The in-process tuple space: every PEIS of an ecology in one process, on an injected clock.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, Weak};
+
+use tokio::sync::{Notify, mpsc, watch};
+use tokio::task::JoinHandle;
+
+use crate::clock::Clock;
+use crate::error::TupleError;
+use crate::model::{Key, PeisId, PresenceEvent, Timestamp, Tuple, TupleEvent, Value};
+use crate::owned::OwnedTuples;
+use crate::pattern::TuplePattern;
+use crate::space::{PeisOptions, TupleSpace};
+use crate::subscription::{PresenceSubscription, Subscription};
+
+/// An ecology in one process. PEIS join it with [`InProcessSpace::join`] and get an [`InProcessPeis`] handle.
+///
+/// It owns one background task that removes expired tuples and reports vanished PEIS as left
+/// when their lease runs out, both on the injected [`Clock`]. The task stops when the space is
+/// dropped or [`InProcessSpace::shutdown`] is awaited. Creating a space needs a tokio runtime.
+#[derive(Debug)]
+pub struct InProcessSpace {
+    shared: Arc<Shared>,
+    shutdown: watch::Sender<bool>,
+    timer: Option<JoinHandle<()>>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    clock: Arc<dyn Clock>,
+    state: Mutex<State>,
+    // Wakes the timer task when an earlier deadline may have appeared.
+    wake: Notify,
+    generations: AtomicU64,
+}
+
+#[derive(Debug, Default)]
+struct State {
+    peers: BTreeMap<PeisId, Peer>,
+    subscribers: Vec<Subscriber>,
+    presence: Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>,
+    next_subscriber: u64,
+}
+
+#[derive(Debug)]
+struct Peer {
+    tuples: OwnedTuples,
+    options: PeisOptions,
+    generation: u64,
+    // Set when the PEIS vanished: it is reported as left at this time.
+    lease_end: Option<Timestamp>,
+}
+
+#[derive(Debug)]
+struct Subscriber {
+    id: u64,
+    pattern: TuplePattern,
+    events: mpsc::UnboundedSender<TupleEvent>,
+}
+
+impl InProcessSpace {
+    /// An empty ecology on `clock`. Must be called inside a tokio runtime.
+    pub fn new(clock: Arc<dyn Clock>) -> Self {
+        let shared = Arc::new(Shared {
+            clock,
+            state: Mutex::new(State::default()),
+            wake: Notify::new(),
+            generations: AtomicU64::new(0),
+        });
+        let (shutdown, shutdown_rx) = watch::channel(false);
+        let timer = tokio::spawn(run_timer(shared.clone(), shutdown_rx));
+        Self {
+            shared,
+            shutdown,
+            timer: Some(timer),
+        }
+    }
+
+    /// Joins PEIS `peis` to the ecology; every subscriber to presence sees it join.
+    pub fn join(&self, peis: PeisId, options: PeisOptions) -> Result<InProcessPeis, TupleError> {
+        let generation = self.shared.generations.fetch_add(1, Ordering::Relaxed);
+        let mut state = self.shared.lock();
+        if state.peers.contains_key(&peis) {
+            return Err(TupleError::AlreadyPresent(peis));
+        }
+        state.peers.insert(
+            peis.clone(),
+            Peer {
+                tuples: OwnedTuples::new(peis.clone()),
+                options,
+                generation,
+                lease_end: None,
+            },
+        );
+        state.broadcast_presence(&PresenceEvent::Joined(peis.clone()));
+        drop(state);
+        Ok(InProcessPeis {
+            shared: self.shared.clone(),
+            me: peis.clone(),
+            membership: Arc::new(Membership {
+                shared: Arc::downgrade(&self.shared),
+                peis,
+                generation,
+            }),
+        })
+    }
+
+    /// The clock the space runs on.
+    pub fn clock(&self) -> &Arc<dyn Clock> {
+        &self.shared.clock
+    }
+
+    /// Stops the background task and waits for it.
+    pub async fn shutdown(mut self) {
+        let _ = self.shutdown.send(true);
+        if let Some(timer) = self.timer.take() {
+            // The task only ends by the signal, or by panicking; either way there is nothing to do.
+            let _ = timer.await;
+        }
+    }
+}
+
+impl Drop for InProcessSpace {
+    fn drop(&mut self) {
+        let _ = self.shutdown.send(true);
+        if let Some(timer) = self.timer.take() {
+            timer.abort();
+        }
+    }
+}
+
+async fn run_timer(shared: Arc<Shared>, mut shutdown: watch::Receiver<bool>) {
+    loop {
+        let notified = shared.wake.notified();
+        tokio::pin!(notified);
+        // Register for wake-ups before reading the deadline, so none is missed in between.
+        notified.as_mut().enable();
+        let sleep = match shared.lock().next_deadline() {
+            Some(deadline) => shared.clock.sleep_until(deadline),
+            None => Box::pin(std::future::pending()),
+        };
+        tokio::select! {
+            _ = sleep => {}
+            _ = notified => {}
+            _ = shutdown.changed() => return,
+        }
+        let now = shared.clock.now();
+        shared.lock().process_due(now);
+    }
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A panic while holding the lock leaves consistent data (every update is one step), so poison is ignored.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+impl State {
+    fn next_deadline(&self) -> Option<Timestamp> {
+        self.peers
+            .values()
+            .flat_map(|p| p.tuples.next_expiry().into_iter().chain(p.lease_end))
+            .min()
+    }
+
+    fn process_due(&mut self, now: Timestamp) {
+        let mut events = Vec::new();
+        let mut vanished = Vec::new();
+        for (id, peer) in &mut self.peers {
+            events.extend(peer.tuples.expire_due(now));
+            if peer.lease_end.is_some_and(|end| end <= now) {
+                vanished.push(id.clone());
+            }
+        }
+        for event in &events {
+            self.broadcast(event);
+        }
+        for id in vanished {
+            self.peers.remove(&id);
+            self.broadcast_presence(&PresenceEvent::Left(id));
+        }
+    }
+
+    fn broadcast(&mut self, event: &TupleEvent) {
+        let (owner, key) = event.subject();
+        self.subscribers
+            .retain(|s| !s.pattern.matches(owner, key) || s.events.send(event.clone()).is_ok());
+    }
+
+    fn broadcast_presence(&mut self, event: &PresenceEvent) {
+        self.presence
+            .retain(|(_, tx)| tx.send(event.clone()).is_ok());
+    }
+
+    /// The peer entry of a live handle: present, same incarnation, not vanished.
+    fn live_peer(&mut self, me: &PeisId, generation: u64) -> Result<&mut Peer, TupleError> {
+        match self.peers.get_mut(me) {
+            Some(peer) if peer.generation == generation && peer.lease_end.is_none() => Ok(peer),
+            _ => Err(TupleError::Departed(me.clone())),
+        }
+    }
+
+    fn set_owned(
+        &mut self,
+        owner: &PeisId,
+        generation: Option<u64>,
+        key: Key,
+        value: Value,
+        now: Timestamp,
+    ) -> Result<(Tuple, bool), TupleError> {
+        let peer = match generation {
+            Some(generation) => self.live_peer(owner, generation)?,
+            None => self
+                .peers
+                .get_mut(owner)
+                .ok_or_else(|| TupleError::Departed(owner.clone()))?,
+        };
+        peer.options.limits.check(&key, &value)?;
+        let expires = value.time_to_live.is_some();
+        let tuple = peer.tuples.set(key, value, now);
+        self.broadcast(&TupleEvent::Changed(tuple.clone()));
+        Ok((tuple, expires))
+    }
+}
+
+/// Leaves the ecology when the last clone of a handle is dropped.
+#[derive(Debug)]
+struct Membership {
+    shared: Weak<Shared>,
+    peis: PeisId,
+    generation: u64,
+}
+
+impl Drop for Membership {
+    fn drop(&mut self) {
+        if let Some(shared) = self.shared.upgrade() {
+            let mut state = shared.lock();
+            let current = state
+                .peers
+                .get(&self.peis)
+                .is_some_and(|p| p.generation == self.generation && p.lease_end.is_none());
+            if current {
+                state.peers.remove(&self.peis);
+                state.broadcast_presence(&PresenceEvent::Left(self.peis.clone()));
+            }
+        }
+    }
+}
+
+/// Removes a subscriber when its subscription is dropped.
+#[derive(Debug)]
+struct SubscriberGuard {
+    shared: Weak<Shared>,
+    id: u64,
+    presence: bool,
+}
+
+impl Drop for SubscriberGuard {
+    fn drop(&mut self) {
+        if let Some(shared) = self.shared.upgrade() {
+            let mut state = shared.lock();
+            if self.presence {
+                state.presence.retain(|(id, _)| *id != self.id);
+            } else {
+                state.subscribers.retain(|s| s.id != self.id);
+            }
+        }
+    }
+}
+
+/// One PEIS's handle on an [`InProcessSpace`]. Clones act as the same PEIS; when the last clone
+/// is dropped (or [`InProcessPeis::leave`] is called) the PEIS leaves the ecology.
+#[derive(Clone, Debug)]
+pub struct InProcessPeis {
+    shared: Arc<Shared>,
+    me: PeisId,
+    membership: Arc<Membership>,
+}
+
+impl InProcessPeis {
+    /// Leaves the ecology now: presence subscribers see `Left`, and the PEIS's tuples are gone.
+    /// Other clones of this handle stop working.
+    pub fn leave(self) {
+        let mut state = self.shared.lock();
+        if state
+            .live_peer(&self.me, self.membership.generation)
+            .is_ok()
+        {
+            state.peers.remove(&self.me);
+            state.broadcast_presence(&PresenceEvent::Left(self.me.clone()));
+        }
+    }
+
+    /// Simulates a crash: the PEIS stops without saying goodbye, as if its process were killed.
+    /// The others see it `Left` once its lease has run out on the clock.
+    pub fn vanish(self) {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        if let Ok(peer) = state.live_peer(&self.me, self.membership.generation) {
+            peer.lease_end = Some(now.saturating_add(peer.options.lease));
+        }
+        drop(state);
+        self.shared.wake.notify_one();
+    }
+
+    fn generation(&self) -> u64 {
+        self.membership.generation
+    }
+
+    fn check_live(&self, state: &mut State) -> Result<(), TupleError> {
+        state.live_peer(&self.me, self.generation()).map(|_| ())
+    }
+
+    fn set_now(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
+        let now = self.shared.clock.now();
+        let (tuple, expires) =
+            self.shared
+                .lock()
+                .set_owned(&self.me, Some(self.generation()), key, value, now)?;
+        if expires {
+            self.shared.wake.notify_one();
+        }
+        Ok(tuple)
+    }
+}
+
+impl TupleSpace for InProcessPeis {
+    fn peis(&self) -> &PeisId {
+        &self.me
+    }
+
+    async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
+        self.set_now(key, value)
+    }
+
+    async fn delete(&self, key: Key) -> Result<bool, TupleError> {
+        let mut state = self.shared.lock();
+        let peer = state.live_peer(&self.me, self.generation())?;
+        match peer.tuples.delete(&key) {
+            Some(event) => {
+                state.broadcast(&event);
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
+    async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        Ok(state
+            .peers
+            .get(&owner)
+            .and_then(|p| p.tuples.get(&key, now))
+            .cloned())
+    }
+
+    async fn get_matching(&self, pattern: TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        Ok(state
+            .peers
+            .values()
+            .filter(|p| pattern.owner.matches(p.tuples.owner()))
+            .flat_map(|p| p.tuples.matching(&pattern.key, now))
+            .cloned()
+            .collect())
+    }
+
+    async fn subscribe(&self, pattern: TuplePattern) -> Result<Subscription, TupleError> {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        let (tx, rx) = mpsc::unbounded_channel();
+        // Under the lock, the snapshot and the registration are one step: nothing falls in between.
+        for peer in state.peers.values() {
+            if pattern.owner.matches(peer.tuples.owner()) {
+                for tuple in peer.tuples.matching(&pattern.key, now) {
+                    let _ = tx.send(TupleEvent::Changed(tuple.clone()));
+                }
+            }
+        }
+        let id = state.next_subscriber;
+        state.next_subscriber += 1;
+        state.subscribers.push(Subscriber {
+            id,
+            pattern,
+            events: tx,
+        });
+        let guard = SubscriberGuard {
+            shared: Arc::downgrade(&self.shared),
+            id,
+            presence: false,
+        };
+        Ok(Subscription::from_channel(rx, guard))
+    }
+
+    async fn set_remote(&self, owner: PeisId, key: Key, value: Value) -> Result<Tuple, TupleError> {
+        let own_limits = {
+            let mut state = self.shared.lock();
+            state
+                .live_peer(&self.me, self.generation())?
+                .options
+                .limits
+                .clone()
+        };
+        own_limits.check(&key, &value)?;
+        if owner == self.me {
+            return self.set_now(key, value);
+        }
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        match state.peers.get(&owner) {
+            Some(peer) if peer.lease_end.is_none() => {
+                if let Err(e) = peer.options.limits.check(&key, &value) {
+                    return Err(TupleError::RemoteSetRefused {
+                        owner,
+                        key,
+                        reason: e.to_string(),
+                    });
+                }
+                if !peer.options.remote_set.permits(&key) {
+                    return Err(TupleError::RemoteSetRefused {
+                        owner,
+                        key,
+                        reason: "its remote-set policy does not allow this key".to_owned(),
+                    });
+                }
+            }
+            _ => return Err(TupleError::OwnerUnreachable { owner, key }),
+        }
+        // The owner applies the request with its own sequence numbers and limits.
+        let (tuple, expires) = state.set_owned(&owner, None, key, value, now)?;
+        drop(state);
+        if expires {
+            self.shared.wake.notify_one();
+        }
+        Ok(tuple)
+    }
+
+    async fn peers(&self) -> Result<Vec<PeisId>, TupleError> {
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        Ok(state.peers.keys().cloned().collect())
+    }
+
+    async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        let (tx, rx) = mpsc::unbounded_channel();
+        for id in state.peers.keys() {
+            let _ = tx.send(PresenceEvent::Joined(id.clone()));
+        }
+        let id = state.next_subscriber;
+        state.next_subscriber += 1;
+        state.presence.push((id, tx));
+        let guard = SubscriberGuard {
+            shared: Arc::downgrade(&self.shared),
+            id,
+            presence: true,
+        };
+        Ok(PresenceSubscription::from_channel(rx, guard))
+    }
+}

@@ -1,0 +1,36 @@
+//! The Ecology tuple space: the tuple model, the `TupleSpace` trait and the in-process implementation.
+//!
+//! All PEIS of an ecology talk through a tuple space (DESIGN.md section 5). Each PEIS owns the tuples
+//! under its name and alone publishes them; anyone may read and subscribe; another PEIS changes a
+//! tuple only by a remote-set request that the owner applies. A meta-tuple holds `(meta OWNER KEY)`
+//! and subscriptions can follow it. Presence events say which PEIS joined and left.
+//!
+//! [`InProcessSpace`] runs a whole ecology in one process on an injected [`Clock`]
+//! ([`VirtualClock`] in tests); `ecology-zenoh` implements the same [`TupleSpace`] over the network.
+
+mod clock;
+mod error;
+mod in_process;
+mod model;
+mod owned;
+mod pattern;
+mod space;
+mod subscription;
+
+#[cfg(any(test, feature = "conformance"))]
+pub mod conformance;
+
+#[cfg(test)]
+mod tests;
+
+pub use clock::{Clock, Sleep, SystemClock, VirtualClock};
+pub use error::{TupleError, ValidationError};
+pub use in_process::{InProcessPeis, InProcessSpace};
+pub use model::{
+    Key, Limits, MAX_NAME_LEN, MetaPointer, Mimetype, PeisId, PresenceEvent, RemovalReason,
+    Timestamp, Tuple, TupleEvent, Value,
+};
+pub use owned::OwnedTuples;
+pub use pattern::{KeyPattern, OwnerPattern, Segment, TuplePattern};
+pub use space::{PeisOptions, RemoteSetPolicy, TupleSpace};
+pub use subscription::{PresenceSubscription, Resubscribe, SubscribeFuture, Subscription};

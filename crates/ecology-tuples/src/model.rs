@@ -1,0 +1,448 @@
+//! The tuple model: PEIS names, dotted keys, timestamps, values, tuples, events and meta-tuple pointers.
+
+use std::fmt;
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::Bytes;
+
+use crate::error::ValidationError;
+
+/// Longest PEIS name, key or pattern accepted, in bytes.
+pub const MAX_NAME_LEN: usize = 255;
+
+/// Whether `c` may appear in a PEIS name or a key segment.
+fn is_name_char(c: char) -> bool {
+    c.is_ascii_alphanumeric() || c == '-' || c == '_'
+}
+
+/// The name of a PEIS, such as `astrid`: 1 to 255 characters from `[A-Za-z0-9_-]`.
+///
+/// Cloning is cheap (a reference count).
+#[derive(Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct PeisId(Arc<str>);
+
+impl PeisId {
+    /// Validates `name` as a PEIS name.
+    pub fn new(name: &str) -> Result<Self, ValidationError> {
+        let reason = if name.is_empty() {
+            Some("it is empty")
+        } else if name.len() > MAX_NAME_LEN {
+            Some("it is longer than 255 bytes")
+        } else if !name.chars().all(is_name_char) {
+            Some("only letters, digits, '-' and '_' are allowed")
+        } else {
+            None
+        };
+        match reason {
+            Some(reason) => Err(ValidationError::PeisId {
+                name: name.to_owned(),
+                reason,
+            }),
+            None => Ok(Self(name.into())),
+        }
+    }
+
+    /// The name as text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl fmt::Display for PeisId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl fmt::Debug for PeisId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(&*self.0, f)
+    }
+}
+
+impl std::str::FromStr for PeisId {
+    type Err = ValidationError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::new(s)
+    }
+}
+
+/// A dotted tuple key such as `components.l1.status`: non-empty segments of `[A-Za-z0-9_-]`, at most 255 bytes.
+///
+/// Cloning is cheap (a reference count).
+#[derive(Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Key(Arc<str>);
+
+impl Key {
+    /// Validates `key` as a dotted key.
+    pub fn new(key: &str) -> Result<Self, ValidationError> {
+        let reason = if key.is_empty() {
+            Some("it is empty")
+        } else if key.len() > MAX_NAME_LEN {
+            Some("it is longer than 255 bytes")
+        } else if key.split('.').any(str::is_empty) {
+            Some("a segment between dots is empty")
+        } else if !key.split('.').all(|s| s.chars().all(is_name_char)) {
+            Some("segments may only hold letters, digits, '-' and '_'")
+        } else {
+            None
+        };
+        match reason {
+            Some(reason) => Err(ValidationError::Key {
+                key: key.to_owned(),
+                reason,
+            }),
+            None => Ok(Self(key.into())),
+        }
+    }
+
+    /// The key as dotted text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The segments of the key, in order.
+    pub fn segments(&self) -> std::str::Split<'_, char> {
+        self.0.split('.')
+    }
+}
+
+impl fmt::Display for Key {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl fmt::Debug for Key {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(&*self.0, f)
+    }
+}
+
+impl std::str::FromStr for Key {
+    type Err = ValidationError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::new(s)
+    }
+}
+
+/// The mimetype of a tuple's data, such as `text/plain`: printable ASCII, 1 to 255 bytes.
+#[derive(Clone, PartialEq, Eq, Hash)]
+pub struct Mimetype(Arc<str>);
+
+impl Mimetype {
+    /// The mimetype of text values (`text/plain`); also the default of [`Value::text`].
+    pub const TEXT: &'static str = "text/plain";
+    /// The mimetype of raw bytes (`application/octet-stream`); the default of samples without metadata.
+    pub const OCTET_STREAM: &'static str = "application/octet-stream";
+
+    /// Validates `mimetype`.
+    pub fn new(mimetype: &str) -> Result<Self, ValidationError> {
+        let reason = if mimetype.is_empty() {
+            Some("it is empty")
+        } else if mimetype.len() > MAX_NAME_LEN {
+            Some("it is longer than 255 bytes")
+        } else if !mimetype.bytes().all(|b| b.is_ascii_graphic() || b == b' ') {
+            Some("only printable ASCII is allowed")
+        } else {
+            None
+        };
+        match reason {
+            Some(reason) => Err(ValidationError::Mimetype {
+                mimetype: mimetype.to_owned(),
+                reason,
+            }),
+            None => Ok(Self(mimetype.into())),
+        }
+    }
+
+    /// `text/plain`.
+    pub fn text() -> Self {
+        Self(Self::TEXT.into())
+    }
+
+    /// `application/octet-stream`.
+    pub fn octet_stream() -> Self {
+        Self(Self::OCTET_STREAM.into())
+    }
+
+    /// The mimetype as text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl fmt::Display for Mimetype {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl fmt::Debug for Mimetype {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(&*self.0, f)
+    }
+}
+
+/// A point in time: nanoseconds since the UNIX epoch, on the clock of the tuple space.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct Timestamp(pub u64);
+
+impl Timestamp {
+    /// Nanoseconds since the UNIX epoch.
+    pub fn as_nanos(self) -> u64 {
+        self.0
+    }
+
+    /// This time plus `d`, saturating at the end of representable time.
+    pub fn saturating_add(self, d: Duration) -> Self {
+        let nanos = u64::try_from(d.as_nanos()).unwrap_or(u64::MAX);
+        Self(self.0.saturating_add(nanos))
+    }
+
+    /// Time elapsed from `earlier` to `self`, zero if `earlier` is later.
+    pub fn saturating_duration_since(self, earlier: Self) -> Duration {
+        Duration::from_nanos(self.0.saturating_sub(earlier.0))
+    }
+}
+
+impl fmt::Display for Timestamp {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}.{:09}",
+            self.0 / 1_000_000_000,
+            self.0 % 1_000_000_000
+        )
+    }
+}
+
+/// What a PEIS writes: data with its mimetype, an optional user timestamp and an optional time to live.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Value {
+    /// The data bytes.
+    pub data: Bytes,
+    /// The mimetype of the data.
+    pub mimetype: Mimetype,
+    /// A timestamp chosen by the writer (for example when a sensor reading was taken).
+    pub ts_user: Option<Timestamp>,
+    /// How long the tuple lives after it is written; `None` lives until deleted or replaced.
+    pub time_to_live: Option<Duration>,
+}
+
+impl Value {
+    /// A `text/plain` value.
+    pub fn text(text: impl Into<String>) -> Self {
+        Self {
+            data: Bytes::from(text.into()),
+            mimetype: Mimetype::text(),
+            ts_user: None,
+            time_to_live: None,
+        }
+    }
+
+    /// An `application/octet-stream` value.
+    pub fn bytes(data: impl Into<Bytes>) -> Self {
+        Self {
+            data: data.into(),
+            mimetype: Mimetype::octet_stream(),
+            ts_user: None,
+            time_to_live: None,
+        }
+    }
+
+    /// The same value with another mimetype.
+    pub fn with_mimetype(mut self, mimetype: Mimetype) -> Self {
+        self.mimetype = mimetype;
+        self
+    }
+
+    /// The same value with a user timestamp.
+    pub fn with_ts_user(mut self, ts_user: Timestamp) -> Self {
+        self.ts_user = Some(ts_user);
+        self
+    }
+
+    /// The same value, expiring `ttl` after it is written.
+    pub fn with_time_to_live(mut self, ttl: Duration) -> Self {
+        self.time_to_live = Some(ttl);
+        self
+    }
+}
+
+/// A tuple as stored and delivered: who owns it, its key, value and metadata.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Tuple {
+    /// The PEIS that owns (and alone publishes) the tuple.
+    pub owner: PeisId,
+    /// The dotted key.
+    pub key: Key,
+    /// The data bytes.
+    pub data: Bytes,
+    /// The mimetype of the data.
+    pub mimetype: Mimetype,
+    /// When the owner wrote it, on the owner's clock.
+    pub ts_write: Timestamp,
+    /// A timestamp chosen by the writer, if any.
+    pub ts_user: Option<Timestamp>,
+    /// When it expires, on the owner's clock, if it does.
+    pub expiry: Option<Timestamp>,
+    /// Version of (owner, key): increases with every set, delete and expiry. 0 means unknown (a sample without metadata).
+    pub seq: u64,
+}
+
+impl Tuple {
+    /// The data as UTF-8 text.
+    pub fn text(&self) -> Result<&str, ValidationError> {
+        std::str::from_utf8(&self.data).map_err(|e| ValidationError::NotUtf8 {
+            owner: self.owner.clone(),
+            key: self.key.clone(),
+            offset: e.valid_up_to(),
+        })
+    }
+
+    /// Whether the tuple has expired at `now`.
+    pub fn is_expired_at(&self, now: Timestamp) -> bool {
+        self.expiry.is_some_and(|e| e <= now)
+    }
+
+    /// The meta-tuple pointer this tuple holds, if its value is `(meta OWNER KEY)`.
+    pub fn meta_pointer(&self) -> Result<MetaPointer, ValidationError> {
+        let text = self.text()?;
+        MetaPointer::parse(text).map_err(|reason| ValidationError::NotMeta {
+            owner: self.owner.clone(),
+            key: self.key.clone(),
+            reason,
+        })
+    }
+}
+
+/// Why a tuple disappeared.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RemovalReason {
+    /// Its owner deleted it.
+    Deleted,
+    /// Its time to live ran out.
+    Expired,
+}
+
+/// A change seen through a [`Subscription`](crate::Subscription).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TupleEvent {
+    /// A tuple was set (or is current when the subscription starts).
+    Changed(Tuple),
+    /// A tuple was deleted or expired.
+    Removed {
+        /// Owner of the tuple.
+        owner: PeisId,
+        /// Key of the tuple.
+        key: Key,
+        /// Version of the removal (0 when unknown).
+        seq: u64,
+        /// Deleted or expired.
+        reason: RemovalReason,
+    },
+    /// The meta-tuple a subscription follows now points elsewhere (only on meta subscriptions).
+    Retargeted {
+        /// Owner of the meta-tuple.
+        meta_owner: PeisId,
+        /// Key of the meta-tuple.
+        meta_key: Key,
+        /// The new target, or `None` when the meta-tuple was removed or does not hold a valid pointer.
+        target: Option<MetaPointer>,
+    },
+}
+
+impl TupleEvent {
+    /// The owner and key the event is about (for `Retargeted`, the meta-tuple).
+    pub fn subject(&self) -> (&PeisId, &Key) {
+        match self {
+            TupleEvent::Changed(t) => (&t.owner, &t.key),
+            TupleEvent::Removed { owner, key, .. } => (owner, key),
+            TupleEvent::Retargeted {
+                meta_owner,
+                meta_key,
+                ..
+            } => (meta_owner, meta_key),
+        }
+    }
+}
+
+/// A PEIS appearing in or disappearing from the ecology.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum PresenceEvent {
+    /// The PEIS is present (joined, or was present when the subscription started).
+    Joined(PeisId),
+    /// The PEIS left, or vanished and its lease ran out.
+    Left(PeisId),
+}
+
+/// The target of a meta-tuple: the value `(meta OWNER KEY)` points at tuple (OWNER, KEY).
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct MetaPointer {
+    /// Owner of the target tuple.
+    pub owner: PeisId,
+    /// Key of the target tuple.
+    pub key: Key,
+}
+
+impl MetaPointer {
+    /// Parses `(meta OWNER KEY)` (whitespace-separated, surrounding whitespace allowed).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let inner = text
+            .trim()
+            .strip_prefix('(')
+            .and_then(|s| s.strip_suffix(')'))
+            .ok_or_else(|| "it is not in parentheses".to_owned())?;
+        let mut words = inner.split_whitespace();
+        match (words.next(), words.next(), words.next(), words.next()) {
+            (Some("meta"), Some(owner), Some(key), None) => Ok(Self {
+                owner: PeisId::new(owner).map_err(|e| e.to_string())?,
+                key: Key::new(key).map_err(|e| e.to_string())?,
+            }),
+            (Some("meta"), ..) => Err("it needs exactly an owner and a key".to_owned()),
+            _ => Err("it does not start with `meta`".to_owned()),
+        }
+    }
+
+    /// The value a meta-tuple holds to point here.
+    pub fn to_value(&self) -> Value {
+        Value::text(self.to_string())
+    }
+}
+
+impl fmt::Display for MetaPointer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "(meta {} {})", self.owner, self.key)
+    }
+}
+
+/// Limits a tuple space enforces on what is written and received.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest value accepted, in bytes (1 MiB by default).
+    pub max_value_bytes: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_value_bytes: 1 << 20,
+        }
+    }
+}
+
+impl Limits {
+    /// Checks `value` against the limits, for key `key`.
+    pub fn check(&self, key: &Key, value: &Value) -> Result<(), ValidationError> {
+        if value.data.len() > self.max_value_bytes {
+            return Err(ValidationError::ValueTooLarge {
+                key: key.clone(),
+                size: value.data.len(),
+                limit: self.max_value_bytes,
+            });
+        }
+        Ok(())
+    }
+}

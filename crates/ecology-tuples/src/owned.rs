@@ -1,0 +1,125 @@
+//! The tuples one PEIS owns: values, per-key sequence numbers and expiry, shared by every implementation.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use crate::model::{Key, PeisId, RemovalReason, Timestamp, Tuple, TupleEvent, Value};
+use crate::pattern::KeyPattern;
+
+/// The store of one owner's tuples. It does not validate: callers check keys and limits first.
+#[derive(Debug)]
+pub struct OwnedTuples {
+    owner: PeisId,
+    tuples: BTreeMap<Key, Tuple>,
+    // Sequence numbers outlive deletes, so a key set again after a delete keeps increasing.
+    seqs: HashMap<Key, u64>,
+    // May hold stale entries (overwritten or deleted tuples); `expire_due` skips them.
+    expiry: BTreeSet<(Timestamp, Key)>,
+}
+
+impl OwnedTuples {
+    /// An empty store for `owner`.
+    pub fn new(owner: PeisId) -> Self {
+        Self {
+            owner,
+            tuples: BTreeMap::new(),
+            seqs: HashMap::new(),
+            expiry: BTreeSet::new(),
+        }
+    }
+
+    /// The owner of the tuples.
+    pub fn owner(&self) -> &PeisId {
+        &self.owner
+    }
+
+    fn next_seq(&mut self, key: &Key) -> u64 {
+        let seq = self.seqs.entry(key.clone()).or_insert(0);
+        *seq += 1;
+        *seq
+    }
+
+    /// Writes `value` at `key` at time `now`; returns the new tuple.
+    pub fn set(&mut self, key: Key, value: Value, now: Timestamp) -> Tuple {
+        let seq = self.next_seq(&key);
+        let expiry = value.time_to_live.map(|ttl| now.saturating_add(ttl));
+        let tuple = Tuple {
+            owner: self.owner.clone(),
+            key: key.clone(),
+            data: value.data,
+            mimetype: value.mimetype,
+            ts_write: now,
+            ts_user: value.ts_user,
+            expiry,
+            seq,
+        };
+        if let Some(at) = expiry {
+            self.expiry.insert((at, key.clone()));
+        }
+        self.tuples.insert(key, tuple.clone());
+        tuple
+    }
+
+    /// Deletes `key`; returns the removal event if the tuple existed.
+    pub fn delete(&mut self, key: &Key) -> Option<TupleEvent> {
+        self.tuples.remove(key)?;
+        Some(TupleEvent::Removed {
+            owner: self.owner.clone(),
+            key: key.clone(),
+            seq: self.next_seq(key),
+            reason: RemovalReason::Deleted,
+        })
+    }
+
+    /// The tuple at `key` if it exists and has not expired at `now`.
+    pub fn get(&self, key: &Key, now: Timestamp) -> Option<&Tuple> {
+        self.tuples.get(key).filter(|t| !t.is_expired_at(now))
+    }
+
+    /// The tuples matching `pattern` that have not expired at `now`, ordered by key.
+    pub fn matching<'a>(
+        &'a self,
+        pattern: &'a KeyPattern,
+        now: Timestamp,
+    ) -> impl Iterator<Item = &'a Tuple> + 'a {
+        self.tuples
+            .values()
+            .filter(move |t| pattern.matches(&t.key) && !t.is_expired_at(now))
+    }
+
+    /// When the next tuple expires, if any does (possibly a stale entry; then `expire_due` does nothing).
+    pub fn next_expiry(&self) -> Option<Timestamp> {
+        self.expiry.first().map(|(at, _)| *at)
+    }
+
+    /// Removes every tuple whose expiry is at or before `now`; returns their removal events.
+    pub fn expire_due(&mut self, now: Timestamp) -> Vec<TupleEvent> {
+        let mut events = Vec::new();
+        while let Some((at, key)) = self.expiry.first().cloned() {
+            if at > now {
+                break;
+            }
+            self.expiry.pop_first();
+            let current = self.tuples.get(&key).and_then(|t| t.expiry);
+            if current == Some(at) {
+                self.tuples.remove(&key);
+                events.push(TupleEvent::Removed {
+                    owner: self.owner.clone(),
+                    key: key.clone(),
+                    seq: self.next_seq(&key),
+                    reason: RemovalReason::Expired,
+                });
+            }
+        }
+        events
+    }
+
+    /// Number of tuples stored (expired ones not yet removed included).
+    pub fn len(&self) -> usize {
+        self.tuples.len()
+    }
+
+    /// Whether the store is empty.
+    pub fn is_empty(&self) -> bool {
+        self.tuples.is_empty()
+    }
+}

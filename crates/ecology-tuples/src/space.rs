@@ -1,0 +1,163 @@
+//! The `TupleSpace` trait every implementation provides, and the options a PEIS joins with.
+
+use std::future::Future;
+use std::time::Duration;
+
+use crate::error::TupleError;
+use crate::model::{Key, Limits, MetaPointer, PeisId, Tuple, Value};
+use crate::pattern::{KeyPattern, TuplePattern};
+use crate::subscription::{PresenceSubscription, Resubscribe, Subscription};
+
+/// The tuple space as seen by one PEIS: a handle bound to that PEIS.
+///
+/// The handle publishes only its own PEIS's tuples ([`TupleSpace::set`], [`TupleSpace::delete`]);
+/// it changes another PEIS's tuple only by asking that PEIS ([`TupleSpace::set_remote`]), which applies
+/// the request itself under its [`RemoteSetPolicy`]. Reads and subscriptions cover every PEIS.
+/// Handles are cheap to clone; clones act as the same PEIS.
+pub trait TupleSpace: Clone + Send + Sync + 'static {
+    /// The PEIS this handle acts as.
+    fn peis(&self) -> &PeisId;
+
+    /// Sets this PEIS's tuple `key` to `value` and publishes it; returns the tuple as written.
+    fn set(&self, key: Key, value: Value)
+    -> impl Future<Output = Result<Tuple, TupleError>> + Send;
+
+    /// Deletes this PEIS's tuple `key`; returns whether it existed.
+    fn delete(&self, key: Key) -> impl Future<Output = Result<bool, TupleError>> + Send;
+
+    /// The current tuple (owner, key), if it exists and has not expired.
+    fn get(
+        &self,
+        owner: PeisId,
+        key: Key,
+    ) -> impl Future<Output = Result<Option<Tuple>, TupleError>> + Send;
+
+    /// Every current tuple matching `pattern`, ordered by owner and key.
+    fn get_matching(
+        &self,
+        pattern: TuplePattern,
+    ) -> impl Future<Output = Result<Vec<Tuple>, TupleError>> + Send;
+
+    /// Subscribes to tuples matching `pattern`: the current ones first, then every change.
+    fn subscribe(
+        &self,
+        pattern: TuplePattern,
+    ) -> impl Future<Output = Result<Subscription, TupleError>> + Send;
+
+    /// Asks `owner` to set its tuple `key` to `value`; returns the tuple once the owner has applied it.
+    ///
+    /// When `owner` is this PEIS, this is [`TupleSpace::set`].
+    fn set_remote(
+        &self,
+        owner: PeisId,
+        key: Key,
+        value: Value,
+    ) -> impl Future<Output = Result<Tuple, TupleError>> + Send;
+
+    /// The PEIS present in the ecology, this one included, sorted.
+    fn peers(&self) -> impl Future<Output = Result<Vec<PeisId>, TupleError>> + Send;
+
+    /// Subscribes to presence: `Joined` for every PEIS present now, then joins and leaves.
+    fn subscribe_presence(
+        &self,
+    ) -> impl Future<Output = Result<PresenceSubscription, TupleError>> + Send;
+
+    /// Sets this PEIS's tuple `key` to the meta-tuple value `(meta OWNER KEY)` pointing at `target`.
+    fn set_meta(
+        &self,
+        key: Key,
+        target: &MetaPointer,
+    ) -> impl Future<Output = Result<Tuple, TupleError>> + Send {
+        self.set(key, target.to_value())
+    }
+
+    /// Subscribes through meta-tuple (`meta_owner`, `meta_key`): to the tuple it points at, re-following
+    /// whenever the pointer changes. See [`Subscription::follow_meta`] for the events.
+    fn subscribe_meta(
+        &self,
+        meta_owner: PeisId,
+        meta_key: Key,
+    ) -> impl Future<Output = Result<Subscription, TupleError>> + Send {
+        let space = self.clone();
+        async move {
+            let pointer = space
+                .subscribe(TuplePattern::exact(meta_owner.clone(), &meta_key))
+                .await?;
+            let resubscribe: Resubscribe = Box::new(move |target: MetaPointer| {
+                let space = space.clone();
+                Box::pin(async move {
+                    space
+                        .subscribe(TuplePattern::exact(target.owner, &target.key))
+                        .await
+                })
+            });
+            Ok(Subscription::follow_meta(
+                meta_owner,
+                meta_key,
+                pointer,
+                resubscribe,
+            ))
+        }
+    }
+}
+
+/// Which of its keys a PEIS lets others set through remote set.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RemoteSetPolicy {
+    allowed: Vec<KeyPattern>,
+}
+
+impl RemoteSetPolicy {
+    /// Every key may be set remotely (the PEIS default).
+    pub fn allow_all() -> Self {
+        Self {
+            allowed: vec![KeyPattern::any()],
+        }
+    }
+
+    /// No key may be set remotely.
+    pub fn deny_all() -> Self {
+        Self {
+            allowed: Vec::new(),
+        }
+    }
+
+    /// Only keys matching one of `patterns` may be set remotely.
+    pub fn allow(patterns: impl IntoIterator<Item = KeyPattern>) -> Self {
+        Self {
+            allowed: patterns.into_iter().collect(),
+        }
+    }
+
+    /// Whether a remote set of `key` is allowed.
+    pub fn permits(&self, key: &Key) -> bool {
+        self.allowed.iter().any(|p| p.matches(key))
+    }
+}
+
+impl Default for RemoteSetPolicy {
+    fn default() -> Self {
+        Self::allow_all()
+    }
+}
+
+/// How a PEIS joins the ecology.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PeisOptions {
+    /// Which keys others may set through remote set.
+    pub remote_set: RemoteSetPolicy,
+    /// How long after a PEIS vanishes (stops without leaving) the others report it as left. 2 s by default.
+    pub lease: Duration,
+    /// Limits on values written and received.
+    pub limits: Limits,
+}
+
+impl Default for PeisOptions {
+    fn default() -> Self {
+        Self {
+            remote_set: RemoteSetPolicy::allow_all(),
+            lease: Duration::from_secs(2),
+            limits: Limits::default(),
+        }
+    }
+}

@@ -1,0 +1,38 @@
+//! The Ecology tuple space over Eclipse Zenoh: the only crate of the workspace that imports zenoh.
+//!
+//! [`ZenohPeis`] implements [`ecology_tuples::TupleSpace`] with the mapping of DESIGN.md section 5:
+//! tuple (OWNER, `a.b.c`) is the key expression `peis/OWNER/a/b/c`, its metadata rides in the
+//! sample attachment ([`wire`] documents the bytes), each PEIS answers `get` for its own subtree
+//! with a queryable, remote sets are queries to `peis/OWNER/@set/KEY` that the owner applies,
+//! and presence is the liveliness token `peis/OWNER/@alive`, whose lease is the transport lease.
+
+mod config;
+mod peis;
+pub mod wire;
+
+pub use config::ZenohOptions;
+pub use peis::ZenohPeis;
+
+use ecology_tuples::TupleError;
+
+/// Why a PEIS could not join an ecology over Zenoh.
+#[derive(Debug, thiserror::Error)]
+pub enum ZenohError {
+    /// The Zenoh configuration (file or option) is invalid.
+    #[error("invalid zenoh configuration ({what}): {message}")]
+    Config {
+        /// Which file or setting.
+        what: String,
+        /// Zenoh's message.
+        message: String,
+    },
+    /// The session could not be opened (an endpoint could not be listened on or connected to).
+    #[error("cannot open the zenoh session: {message}")]
+    Open {
+        /// Zenoh's message.
+        message: String,
+    },
+    /// The tuple space refused the PEIS (for example, its name is taken).
+    #[error(transparent)]
+    Space(#[from] TupleError),
+}

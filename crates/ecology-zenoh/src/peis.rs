@@ -1,0 +1,658 @@
+//! `ZenohPeis`: one PEIS's handle on a tuple space carried by Zenoh.
+
+use std::collections::{BTreeSet, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use bytes::Bytes;
+use ecology_tuples::{
+    Clock, Key, Mimetype, OwnedTuples, PeisId, PeisOptions, PresenceEvent, PresenceSubscription,
+    RemovalReason, Subscription, Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+};
+use tokio::sync::{Notify, mpsc, watch};
+use tokio::task::JoinHandle;
+use zenoh::key_expr::KeyExpr;
+use zenoh::qos::CongestionControl;
+use zenoh::query::{ConsolidationMode, Query};
+use zenoh::sample::{Sample, SampleKind};
+
+use crate::wire::{self, Metadata, WireError};
+use crate::{ZenohError, ZenohOptions};
+
+/// One PEIS in an ecology over Zenoh: a Zenoh session plus what the PEIS owns.
+///
+/// Opening declares a queryable on `peis/NAME/**` (answers `get` for its tuples), a queryable on
+/// `peis/NAME/@set/**` (applies remote sets), and the liveliness token `peis/NAME/@alive`.
+/// One owned task serves both queryables and removes expired tuples; it stops on
+/// [`ZenohPeis::close`] or when the last clone of the handle is dropped.
+#[derive(Clone, Debug)]
+pub struct ZenohPeis {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
+    core: Arc<Core>,
+    shutdown: watch::Sender<bool>,
+    service: Mutex<Option<JoinHandle<()>>>,
+}
+
+struct Core {
+    me: PeisId,
+    options: PeisOptions,
+    session: zenoh::Session,
+    clock: Arc<dyn Clock>,
+    store: Mutex<OwnedTuples>,
+    // Held from assigning a seq to handing the sample to Zenoh, so samples of a key leave in seq order.
+    publishing: tokio::sync::Mutex<()>,
+    expiry_changed: Notify,
+    malformed: Arc<AtomicU64>,
+    query_timeout: std::time::Duration,
+    token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
+}
+
+impl std::fmt::Debug for Core {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Core")
+            .field("me", &self.me)
+            .field("zid", &self.session.zid())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        let _ = self.shutdown.send(true);
+        if let Some(service) = lock(&self.service).take() {
+            service.abort();
+        }
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // Every critical section leaves the data consistent, so a poisoned lock is still usable.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn transport(operation: &'static str) -> impl FnOnce(zenoh::Error) -> TupleError {
+    move |e| TupleError::Transport {
+        operation,
+        message: e.to_string(),
+    }
+}
+
+impl ZenohPeis {
+    /// Opens a Zenoh session and joins the ecology as `options.name`.
+    ///
+    /// Fails if the configuration is invalid, an endpoint cannot be listened on or connected to,
+    /// or a PEIS with the same name is already present. Needs tokio's multi-thread runtime.
+    pub async fn open(options: ZenohOptions) -> Result<Self, ZenohError> {
+        let config = options.zenoh_config()?;
+        let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
+            message: e.to_string(),
+        })?;
+        let me = options.name.clone();
+        let already = session
+            .liveliness()
+            .get(wire::alive_key_expr(&me))
+            .timeout(options.query_timeout)
+            .await
+            .map_err(|e| ZenohError::Open {
+                message: e.to_string(),
+            })?;
+        if already.recv_async().await.is_ok() {
+            let _ = session.close().await;
+            return Err(ZenohError::Space(TupleError::AlreadyPresent(me)));
+        }
+        let get_queryable = session
+            .declare_queryable(format!("{}/{}/**", wire::ROOT, me))
+            .await
+            .map_err(|e| ZenohError::Open {
+                message: e.to_string(),
+            })?;
+        let set_queryable = session
+            .declare_queryable(format!("{}/{}/@set/**", wire::ROOT, me))
+            .await
+            .map_err(|e| ZenohError::Open {
+                message: e.to_string(),
+            })?;
+        let token = session
+            .liveliness()
+            .declare_token(wire::alive_key_expr(&me))
+            .await
+            .map_err(|e| ZenohError::Open {
+                message: e.to_string(),
+            })?;
+        let core = Arc::new(Core {
+            store: Mutex::new(OwnedTuples::new(me.clone())),
+            me,
+            options: options.peis,
+            session,
+            clock: options.clock,
+            publishing: tokio::sync::Mutex::new(()),
+            expiry_changed: Notify::new(),
+            malformed: Arc::new(AtomicU64::new(0)),
+            query_timeout: options.query_timeout,
+            token: Mutex::new(Some(token)),
+        });
+        let (shutdown, shutdown_rx) = watch::channel(false);
+        let service = tokio::spawn(serve(
+            core.clone(),
+            get_queryable,
+            set_queryable,
+            shutdown_rx,
+        ));
+        Ok(Self {
+            inner: Arc::new(Inner {
+                core,
+                shutdown,
+                service: Mutex::new(Some(service)),
+            }),
+        })
+    }
+
+    /// Leaves the ecology: stops the service task, withdraws the liveliness token and closes the session.
+    pub async fn close(self) {
+        let _ = self.inner.shutdown.send(true);
+        let service = lock(&self.inner.service).take();
+        if let Some(service) = service {
+            // The task ends on the signal; an error would only mean it panicked, which leaves nothing to clean.
+            let _ = service.await;
+        }
+        let token = lock(&self.inner.core.token).take();
+        if let Some(token) = token {
+            let _ = token.undeclare().await;
+        }
+        let _ = self.inner.core.session.close().await;
+    }
+
+    /// Samples dropped because they could not be read as tuples (bad key, attachment or size).
+    pub fn malformed_samples(&self) -> u64 {
+        self.inner.core.malformed.load(Ordering::Relaxed)
+    }
+
+    /// Every tuple matching `pattern`, asked of the PEIS that own them.
+    async fn query_tuples(&self, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+        let core = &self.inner.core;
+        let replies = core
+            .session
+            .get(wire::pattern_key_expr(pattern))
+            .consolidation(ConsolidationMode::None)
+            .timeout(core.query_timeout)
+            .await
+            .map_err(transport("get"))?;
+        let mut tuples = Vec::new();
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                match decode_sample(sample, &core.options, core.clock.as_ref()) {
+                    Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => {
+                        tuples.push(t)
+                    }
+                    Ok(_) => {}
+                    Err(_) => {
+                        core.malformed.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+        tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
+        tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
+        Ok(tuples)
+    }
+}
+
+/// Publishes `value` as this PEIS's tuple `key`: the one path for local sets, remote sets applied, and expiry.
+async fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
+    let _order = core.publishing.lock().await;
+    let tuple = lock(&core.store).set(key, value, core.clock.now());
+    if tuple.expiry.is_some() {
+        core.expiry_changed.notify_one();
+    }
+    core.session
+        .put(
+            wire::tuple_key_expr(&core.me, &tuple.key),
+            tuple.data.clone(),
+        )
+        .attachment(Metadata::of_tuple(&tuple).encode())
+        .congestion_control(CongestionControl::Block)
+        .await
+        .map_err(transport("put"))?;
+    Ok(tuple)
+}
+
+async fn publish_removal(core: &Core, event: &TupleEvent) -> Result<(), TupleError> {
+    if let TupleEvent::Removed {
+        owner,
+        key,
+        seq,
+        reason,
+    } = event
+    {
+        let meta = Metadata::of_removal(*seq, core.clock.now(), *reason == RemovalReason::Expired);
+        core.session
+            .delete(wire::tuple_key_expr(owner, key))
+            .attachment(meta.encode())
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(transport("delete"))?;
+    }
+    Ok(())
+}
+
+/// The service task: answers `get` queries, applies remote sets, and expires tuples on the clock.
+async fn serve(
+    core: Arc<Core>,
+    get_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    set_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    loop {
+        let notified = core.expiry_changed.notified();
+        tokio::pin!(notified);
+        notified.as_mut().enable();
+        let next = lock(&core.store).next_expiry();
+        let sleep = match next {
+            Some(at) => core.clock.sleep_until(at),
+            None => Box::pin(std::future::pending()),
+        };
+        tokio::select! {
+            _ = shutdown.changed() => return,
+            query = get_queryable.recv_async() => match query {
+                Ok(query) => answer_get(&core, query).await,
+                Err(_) => return,
+            },
+            query = set_queryable.recv_async() => match query {
+                Ok(query) => apply_remote_set(&core, query).await,
+                Err(_) => return,
+            },
+            _ = sleep => {
+                let _order = core.publishing.lock().await;
+                let events = lock(&core.store).expire_due(core.clock.now());
+                for event in &events {
+                    // A failed publication of an expiry leaves the tuple removed locally; `get` agrees.
+                    let _ = publish_removal(&core, event).await;
+                }
+            }
+            _ = &mut notified => {}
+        }
+    }
+}
+
+async fn answer_get(core: &Core, query: Query) {
+    let now = core.clock.now();
+    let matching: Vec<Tuple> = {
+        let store = lock(&core.store);
+        let query_ke = query.key_expr();
+        store
+            .matching(&ecology_tuples::KeyPattern::any(), now)
+            .filter(|t| {
+                KeyExpr::try_from(wire::tuple_key_expr(&t.owner, &t.key))
+                    .is_ok_and(|ke| query_ke.intersects(&ke))
+            })
+            .cloned()
+            .collect()
+    };
+    for tuple in matching {
+        let _ = query
+            .reply(
+                wire::tuple_key_expr(&tuple.owner, &tuple.key),
+                tuple.data.clone(),
+            )
+            .attachment(Metadata::of_tuple(&tuple).encode())
+            .await;
+    }
+}
+
+async fn apply_remote_set(core: &Core, query: Query) {
+    let result = remote_set_value(core, &query);
+    let outcome = match result {
+        Ok((key, value)) => publish(core, key, value).await.map_err(|e| e.to_string()),
+        Err(reason) => Err(reason),
+    };
+    let _ = match outcome {
+        Ok(tuple) => {
+            query
+                .reply(query.key_expr().clone(), tuple.data.clone())
+                .attachment(Metadata::of_tuple(&tuple).encode())
+                .await
+        }
+        Err(reason) => query.reply_err(reason).await,
+    };
+}
+
+fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> {
+    let key = wire::parse_remote_set_key_expr(&core.me, query.key_expr().as_str())
+        .map_err(|e| format!("{e} (a remote set needs one exact key)"))?;
+    let data = query
+        .payload()
+        .map(|p| Bytes::from(p.to_bytes().into_owned()))
+        .unwrap_or_default();
+    let value = match query.attachment() {
+        Some(att) => Metadata::decode(&att.to_bytes())
+            .map_err(|e| e.to_string())?
+            .into_request(data),
+        None => Value::bytes(data),
+    };
+    if let Err(e) = core.options.limits.check(&key, &value) {
+        return Err(e.to_string());
+    }
+    if !core.options.remote_set.permits(&key) {
+        return Err(format!("remote set of {key} is not allowed by {}", core.me));
+    }
+    Ok((key, value))
+}
+
+/// Reads a sample as a tuple event. A sample with no attachment gets default metadata.
+fn decode_sample(
+    sample: &Sample,
+    options: &PeisOptions,
+    clock: &dyn Clock,
+) -> Result<TupleEvent, WireError> {
+    let (owner, key) = wire::parse_tuple_key_expr(sample.key_expr().as_str())?;
+    let meta = match sample.attachment() {
+        Some(att) => Some(Metadata::decode(&att.to_bytes())?),
+        None => None,
+    };
+    match sample.kind() {
+        SampleKind::Put => {
+            let size = sample.payload().len();
+            if size > options.limits.max_value_bytes {
+                return Err(WireError::TooLarge {
+                    size,
+                    limit: options.limits.max_value_bytes,
+                });
+            }
+            let data = Bytes::from(sample.payload().to_bytes().into_owned());
+            let meta = meta.unwrap_or_else(|| Metadata {
+                seq: 0,
+                ts_write: clock.now(),
+                ts_user: None,
+                expiry: None,
+                expired: false,
+                mimetype: default_mimetype(sample),
+            });
+            Ok(TupleEvent::Changed(meta.into_tuple(owner, key, data)))
+        }
+        SampleKind::Delete => {
+            let (seq, expired) = meta.map_or((0, false), |m| (m.seq, m.expired));
+            Ok(TupleEvent::Removed {
+                owner,
+                key,
+                seq,
+                reason: if expired {
+                    RemovalReason::Expired
+                } else {
+                    RemovalReason::Deleted
+                },
+            })
+        }
+    }
+}
+
+/// The mimetype of a sample without metadata: its Zenoh encoding if it names one, else octet-stream.
+fn default_mimetype(sample: &Sample) -> Mimetype {
+    let encoding = sample.encoding().to_string();
+    if encoding == "zenoh/bytes" {
+        return Mimetype::octet_stream();
+    }
+    Mimetype::new(&encoding).unwrap_or_else(|_| Mimetype::octet_stream())
+}
+
+/// Merges a subscription's snapshot with live samples that arrive while the snapshot is taken.
+struct Merge {
+    events: mpsc::UnboundedSender<TupleEvent>,
+    snapshot_done: bool,
+    buffered: Vec<TupleEvent>,
+    // Per key, the seq the snapshot delivered; live samples at or below it are duplicates or stale.
+    snapshot_seq: HashMap<(PeisId, Key), u64>,
+}
+
+impl Merge {
+    fn live(&mut self, event: TupleEvent) {
+        if self.snapshot_done {
+            self.deliver(event);
+        } else {
+            self.buffered.push(event);
+        }
+    }
+
+    fn deliver(&mut self, event: TupleEvent) {
+        let seq = match &event {
+            TupleEvent::Changed(t) => t.seq,
+            TupleEvent::Removed { seq, .. } => *seq,
+            TupleEvent::Retargeted { .. } => 0,
+        };
+        if seq > 0 && !self.snapshot_seq.is_empty() {
+            let (owner, key) = event.subject();
+            let id = (owner.clone(), key.clone());
+            if let Some(&seen) = self.snapshot_seq.get(&id) {
+                if seq <= seen {
+                    return;
+                }
+                self.snapshot_seq.remove(&id);
+            }
+        }
+        let _ = self.events.send(event);
+    }
+
+    fn finish_snapshot(&mut self, tuples: Vec<Tuple>) {
+        for tuple in tuples {
+            self.snapshot_seq
+                .insert((tuple.owner.clone(), tuple.key.clone()), tuple.seq);
+            let _ = self.events.send(TupleEvent::Changed(tuple));
+        }
+        self.snapshot_done = true;
+        for event in std::mem::take(&mut self.buffered) {
+            self.deliver(event);
+        }
+    }
+}
+
+impl TupleSpace for ZenohPeis {
+    fn peis(&self) -> &PeisId {
+        &self.inner.core.me
+    }
+
+    async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
+        self.inner.core.options.limits.check(&key, &value)?;
+        publish(&self.inner.core, key, value).await
+    }
+
+    async fn delete(&self, key: Key) -> Result<bool, TupleError> {
+        let core = &self.inner.core;
+        let _order = core.publishing.lock().await;
+        let removal = lock(&core.store).delete(&key);
+        match removal {
+            Some(event) => {
+                publish_removal(core, &event).await?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
+    async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
+        let core = &self.inner.core;
+        if owner == core.me {
+            return Ok(lock(&core.store).get(&key, core.clock.now()).cloned());
+        }
+        let tuples = self.query_tuples(&TuplePattern::exact(owner, &key)).await?;
+        Ok(tuples.into_iter().next())
+    }
+
+    async fn get_matching(&self, pattern: TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+        self.query_tuples(&pattern).await
+    }
+
+    async fn subscribe(&self, pattern: TuplePattern) -> Result<Subscription, TupleError> {
+        let core = &self.inner.core;
+        let (tx, rx) = mpsc::unbounded_channel();
+        let merge = Arc::new(Mutex::new(Merge {
+            events: tx,
+            snapshot_done: false,
+            buffered: Vec::new(),
+            snapshot_seq: HashMap::new(),
+        }));
+        let live = merge.clone();
+        let malformed = core.malformed.clone();
+        let options = core.options.clone();
+        let clock = core.clock.clone();
+        let filter = pattern.clone();
+        // Declare first, then ask for the current values: nothing set in between is missed.
+        let subscriber = core
+            .session
+            .declare_subscriber(wire::pattern_key_expr(&pattern))
+            .callback(
+                move |sample| match decode_sample(&sample, &options, clock.as_ref()) {
+                    Ok(event) => {
+                        let (owner, key) = event.subject();
+                        if filter.matches(owner, key) {
+                            lock(&live).live(event);
+                        }
+                    }
+                    Err(_) => {
+                        malformed.fetch_add(1, Ordering::Relaxed);
+                    }
+                },
+            )
+            .await
+            .map_err(transport("subscribe"))?;
+        let snapshot = self.query_tuples(&pattern).await?;
+        lock(&merge).finish_snapshot(snapshot);
+        Ok(Subscription::from_channel(rx, subscriber))
+    }
+
+    async fn set_remote(&self, owner: PeisId, key: Key, value: Value) -> Result<Tuple, TupleError> {
+        let core = &self.inner.core;
+        core.options.limits.check(&key, &value)?;
+        if owner == core.me {
+            return publish(core, key, value).await;
+        }
+        let replies = core
+            .session
+            .get(wire::remote_set_key_expr(&owner, &key))
+            .payload(value.data.clone())
+            .attachment(Metadata::of_request(&value).encode())
+            .consolidation(ConsolidationMode::None)
+            .timeout(core.query_timeout)
+            .await
+            .map_err(transport("remote set"))?;
+        let Ok(reply) = replies.recv_async().await else {
+            return Err(TupleError::OwnerUnreachable { owner, key });
+        };
+        match reply.result() {
+            Ok(sample) => {
+                let meta = sample
+                    .attachment()
+                    .ok_or("the reply has no metadata")
+                    .and_then(|att| {
+                        Metadata::decode(&att.to_bytes())
+                            .map_err(|_| "the reply's metadata is malformed")
+                    })
+                    .map_err(|message| TupleError::Transport {
+                        operation: "remote set",
+                        message: message.to_owned(),
+                    })?;
+                let data = Bytes::from(sample.payload().to_bytes().into_owned());
+                Ok(meta.into_tuple(owner, key, data))
+            }
+            Err(err) => Err(TupleError::RemoteSetRefused {
+                owner,
+                key,
+                reason: String::from_utf8_lossy(&err.payload().to_bytes()).into_owned(),
+            }),
+        }
+    }
+
+    async fn peers(&self) -> Result<Vec<PeisId>, TupleError> {
+        let core = &self.inner.core;
+        let replies = core
+            .session
+            .liveliness()
+            .get(wire::ALL_ALIVE)
+            .timeout(core.query_timeout)
+            .await
+            .map_err(transport("peers"))?;
+        let mut peers = BTreeSet::new();
+        peers.insert(core.me.clone());
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
+                    peers.insert(id);
+                }
+            }
+        }
+        Ok(peers.into_iter().collect())
+    }
+
+    async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
+        let core = &self.inner.core;
+        let (tx, rx) = mpsc::unbounded_channel();
+        let presence = Arc::new(Mutex::new(Presence {
+            present: BTreeSet::new(),
+            events: tx,
+        }));
+        let live = presence.clone();
+        let subscriber = core
+            .session
+            .liveliness()
+            .declare_subscriber(wire::ALL_ALIVE)
+            .history(true)
+            .callback(move |sample| {
+                if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
+                    lock(&live).observe(id, sample.kind() == SampleKind::Put);
+                }
+            })
+            .await
+            .map_err(transport("subscribe to presence"))?;
+        // Tokens already known are delivered as history; asking once more covers a token whose link
+        // forms while the subscriber is being declared. `Presence` drops repeats.
+        reconcile_presence(core, &presence).await?;
+        Ok(PresenceSubscription::from_channel(rx, subscriber))
+    }
+}
+
+/// Who a presence subscription has reported present; turns token samples into join and leave events once each.
+struct Presence {
+    present: BTreeSet<PeisId>,
+    events: mpsc::UnboundedSender<PresenceEvent>,
+}
+
+impl Presence {
+    fn observe(&mut self, id: PeisId, alive: bool) {
+        let event = if alive && self.present.insert(id.clone()) {
+            PresenceEvent::Joined(id)
+        } else if !alive && self.present.remove(&id) {
+            PresenceEvent::Left(id)
+        } else {
+            return;
+        };
+        let _ = self.events.send(event);
+    }
+}
+
+/// Asks for every liveliness token and reports PEIS not yet seen as joined.
+async fn reconcile_presence(core: &Core, presence: &Mutex<Presence>) -> Result<(), TupleError> {
+    let replies = core
+        .session
+        .liveliness()
+        .get(wire::ALL_ALIVE)
+        .timeout(core.query_timeout)
+        .await
+        .map_err(transport("peers"))?;
+    let mut alive = BTreeSet::new();
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
+                alive.insert(id);
+            }
+        }
+    }
+    // Only joins are reconciled: a reply missing from a slow query must not read as a PEIS lost;
+    // departures arrive as token deletions (or when the transport lease runs out).
+    let mut presence = lock(presence);
+    for id in alive {
+        presence.observe(id, true);
+    }
+    Ok(())
+}

@@ -1,0 +1,318 @@
+//! The wire format: key expressions for tuples, remote sets and presence, and the attachment that carries metadata.
+//!
+//! Pure functions with no zenoh types, so the format is tested (and documented in `docs/tuples.md`) on its own.
+//!
+//! Attachment layout, version 1, integers little-endian:
+//!
+//! | bytes | field |
+//! | --- | --- |
+//! | 1 | version, `1` |
+//! | 1 | flags: bit 0 `ts_user` present, bit 1 `expiry` present, bit 2 removal by expiry (on deletes); other bits ignored |
+//! | 8 | `seq` (u64) |
+//! | 8 | `ts_write`, nanoseconds since the UNIX epoch (u64) |
+//! | 8 | `ts_user` (u64), only if flag bit 0 |
+//! | 8 | `expiry` (u64, ns since epoch), only if flag bit 1; in a remote-set request: time to live in ns |
+//! | 1 | mimetype length `n` |
+//! | n | mimetype, printable ASCII |
+//!
+//! Nothing may follow the mimetype.
+
+use std::time::Duration;
+
+use bytes::Bytes;
+use ecology_tuples::{
+    Key, KeyPattern, Mimetype, OwnerPattern, PeisId, Segment, Timestamp, Tuple, TuplePattern, Value,
+};
+
+/// First chunk of every key expression of the tuple space.
+pub const ROOT: &str = "peis";
+/// Version byte of the attachment layout.
+pub const VERSION: u8 = 1;
+
+const FLAG_TS_USER: u8 = 1;
+const FLAG_EXPIRY: u8 = 1 << 1;
+const FLAG_EXPIRED: u8 = 1 << 2;
+
+/// Why bytes from the network could not be read as a tuple.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    /// The key expression is not `peis/OWNER/KEY…` with a valid owner and key.
+    #[error("key expression {0:?} is not peis/OWNER/KEY")]
+    KeyExpr(String),
+    /// The attachment is not a valid metadata record.
+    #[error("malformed attachment: {0}")]
+    Attachment(&'static str),
+    /// The value is over the receiver's size limit.
+    #[error("value of {size} bytes is over the limit of {limit} bytes")]
+    TooLarge {
+        /// Size of the value.
+        size: usize,
+        /// The receiver's limit.
+        limit: usize,
+    },
+}
+
+/// `peis/OWNER/k/e/y` for tuple (OWNER, k.e.y).
+pub fn tuple_key_expr(owner: &PeisId, key: &Key) -> String {
+    let mut ke = String::with_capacity(ROOT.len() + owner.as_str().len() + key.as_str().len() + 2);
+    ke.push_str(ROOT);
+    ke.push('/');
+    ke.push_str(owner.as_str());
+    ke.push('/');
+    for (i, segment) in key.segments().enumerate() {
+        if i > 0 {
+            ke.push('/');
+        }
+        ke.push_str(segment);
+    }
+    ke
+}
+
+/// `peis/OWNER/@set/k/e/y`: where a remote set of (OWNER, k.e.y) is sent as a query.
+pub fn remote_set_key_expr(owner: &PeisId, key: &Key) -> String {
+    format!("{ROOT}/{owner}/@set/{}", key.as_str().replace('.', "/"))
+}
+
+/// `peis/OWNER/@alive`: the liveliness token of a present PEIS.
+pub fn alive_key_expr(owner: &PeisId) -> String {
+    format!("{ROOT}/{owner}/@alive")
+}
+
+/// `peis/*/@alive`: every PEIS's liveliness token.
+pub const ALL_ALIVE: &str = "peis/*/@alive";
+
+/// The key expression covering a tuple pattern: `*` and `**` map to Zenoh's `*` and `**`.
+pub fn pattern_key_expr(pattern: &TuplePattern) -> String {
+    let owner = match &pattern.owner {
+        OwnerPattern::Exact(id) => id.as_str().to_owned(),
+        OwnerPattern::Any => "*".to_owned(),
+    };
+    let key = key_pattern_chunks(&pattern.key);
+    format!("{ROOT}/{owner}/{key}")
+}
+
+fn key_pattern_chunks(pattern: &KeyPattern) -> String {
+    // Zenoh's canonical form puts `*` before `**` when they are adjacent; both orders match the same keys.
+    let mut chunks: Vec<&str> = pattern
+        .segments()
+        .iter()
+        .map(|s| match s {
+            Segment::Exact(s) => s,
+            Segment::One => "*",
+            Segment::Any => "**",
+        })
+        .collect();
+    let mut i = 0;
+    while i + 1 < chunks.len() {
+        if chunks[i] == "**" && chunks[i + 1] == "*" {
+            chunks.swap(i, i + 1);
+            i = i.saturating_sub(1);
+        } else {
+            i += 1;
+        }
+    }
+    chunks.join("/")
+}
+
+/// Reads (owner, key) from `peis/OWNER/k/e/y`.
+pub fn parse_tuple_key_expr(ke: &str) -> Result<(PeisId, Key), WireError> {
+    let fail = || WireError::KeyExpr(ke.to_owned());
+    let rest = ke
+        .strip_prefix(ROOT)
+        .and_then(|r| r.strip_prefix('/'))
+        .ok_or_else(fail)?;
+    let (owner, key) = rest.split_once('/').ok_or_else(fail)?;
+    let owner = PeisId::new(owner).map_err(|_| fail())?;
+    let key = Key::new(&key.replace('/', ".")).map_err(|_| fail())?;
+    Ok((owner, key))
+}
+
+/// Reads the key from `peis/OWNER/@set/k/e/y`, given OWNER.
+pub fn parse_remote_set_key_expr(owner: &PeisId, ke: &str) -> Result<Key, WireError> {
+    let prefix = format!("{ROOT}/{owner}/@set/");
+    let key = ke
+        .strip_prefix(&prefix)
+        .ok_or_else(|| WireError::KeyExpr(ke.to_owned()))?;
+    Key::new(&key.replace('/', ".")).map_err(|_| WireError::KeyExpr(ke.to_owned()))
+}
+
+/// Reads OWNER from `peis/OWNER/@alive`.
+pub fn parse_alive_key_expr(ke: &str) -> Result<PeisId, WireError> {
+    ke.strip_prefix(ROOT)
+        .and_then(|r| r.strip_prefix('/'))
+        .and_then(|r| r.strip_suffix("/@alive"))
+        .and_then(|owner| PeisId::new(owner).ok())
+        .ok_or_else(|| WireError::KeyExpr(ke.to_owned()))
+}
+
+/// Tuple metadata as carried in an attachment.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Metadata {
+    /// Per-key version.
+    pub seq: u64,
+    /// Write time on the owner's clock.
+    pub ts_write: Timestamp,
+    /// Writer's own timestamp.
+    pub ts_user: Option<Timestamp>,
+    /// Expiry time (or, in a remote-set request, time to live in ns).
+    pub expiry: Option<u64>,
+    /// Whether a delete sample reports an expiry rather than a delete.
+    pub expired: bool,
+    /// Mimetype of the data.
+    pub mimetype: Mimetype,
+}
+
+impl Metadata {
+    /// The metadata of `tuple`.
+    pub fn of_tuple(tuple: &Tuple) -> Self {
+        Self {
+            seq: tuple.seq,
+            ts_write: tuple.ts_write,
+            ts_user: tuple.ts_user,
+            expiry: tuple.expiry.map(Timestamp::as_nanos),
+            expired: false,
+            mimetype: tuple.mimetype.clone(),
+        }
+    }
+
+    /// The metadata of a remote-set request for `value`.
+    pub fn of_request(value: &Value) -> Self {
+        Self {
+            seq: 0,
+            ts_write: Timestamp(0),
+            ts_user: value.ts_user,
+            expiry: value
+                .time_to_live
+                .map(|ttl| u64::try_from(ttl.as_nanos()).unwrap_or(u64::MAX)),
+            expired: false,
+            mimetype: value.mimetype.clone(),
+        }
+    }
+
+    /// Metadata for a delete sample.
+    pub fn of_removal(seq: u64, ts_write: Timestamp, expired: bool) -> Self {
+        Self {
+            seq,
+            ts_write,
+            ts_user: None,
+            expiry: None,
+            expired,
+            mimetype: Mimetype::octet_stream(),
+        }
+    }
+
+    /// Serializes the metadata in the layout of the module documentation.
+    pub fn encode(&self) -> Vec<u8> {
+        let mime = self.mimetype.as_str().as_bytes();
+        let mut out = Vec::with_capacity(2 + 8 * 4 + 1 + mime.len());
+        let mut flags = 0;
+        if self.ts_user.is_some() {
+            flags |= FLAG_TS_USER;
+        }
+        if self.expiry.is_some() {
+            flags |= FLAG_EXPIRY;
+        }
+        if self.expired {
+            flags |= FLAG_EXPIRED;
+        }
+        out.push(VERSION);
+        out.push(flags);
+        out.extend_from_slice(&self.seq.to_le_bytes());
+        out.extend_from_slice(&self.ts_write.as_nanos().to_le_bytes());
+        if let Some(ts) = self.ts_user {
+            out.extend_from_slice(&ts.as_nanos().to_le_bytes());
+        }
+        if let Some(expiry) = self.expiry {
+            out.extend_from_slice(&expiry.to_le_bytes());
+        }
+        // Mimetypes are at most 255 bytes (checked by `Mimetype::new`).
+        out.push(u8::try_from(mime.len()).unwrap_or(u8::MAX));
+        out.extend_from_slice(mime);
+        out
+    }
+
+    /// Parses an attachment; any deviation from the layout is an error.
+    pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
+        let mut r = Reader(bytes);
+        if r.u8()? != VERSION {
+            return Err(WireError::Attachment("unknown version"));
+        }
+        let flags = r.u8()?;
+        let seq = r.u64()?;
+        let ts_write = Timestamp(r.u64()?);
+        let ts_user = if flags & FLAG_TS_USER != 0 {
+            Some(Timestamp(r.u64()?))
+        } else {
+            None
+        };
+        let expiry = if flags & FLAG_EXPIRY != 0 {
+            Some(r.u64()?)
+        } else {
+            None
+        };
+        let len = usize::from(r.u8()?);
+        let mime = r.take(len)?;
+        if !r.0.is_empty() {
+            return Err(WireError::Attachment("trailing bytes"));
+        }
+        let mime = std::str::from_utf8(mime)
+            .map_err(|_| WireError::Attachment("mimetype is not UTF-8"))?;
+        let mimetype =
+            Mimetype::new(mime).map_err(|_| WireError::Attachment("invalid mimetype"))?;
+        Ok(Self {
+            seq,
+            ts_write,
+            ts_user,
+            expiry,
+            expired: flags & FLAG_EXPIRED != 0,
+            mimetype,
+        })
+    }
+
+    /// The tuple (owner, key) with `data` and this metadata.
+    pub fn into_tuple(self, owner: PeisId, key: Key, data: Bytes) -> Tuple {
+        Tuple {
+            owner,
+            key,
+            data,
+            mimetype: self.mimetype,
+            ts_write: self.ts_write,
+            ts_user: self.ts_user,
+            expiry: self.expiry.map(Timestamp),
+            seq: self.seq,
+        }
+    }
+
+    /// The value a remote-set request with `data` and this metadata asks for.
+    pub fn into_request(self, data: Bytes) -> Value {
+        Value {
+            data,
+            mimetype: self.mimetype,
+            ts_user: self.ts_user,
+            time_to_live: self.expiry.map(Duration::from_nanos),
+        }
+    }
+}
+
+struct Reader<'a>(&'a [u8]);
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], WireError> {
+        if self.0.len() < n {
+            return Err(WireError::Attachment("too short"));
+        }
+        let (head, tail) = self.0.split_at(n);
+        self.0 = tail;
+        Ok(head)
+    }
+
+    fn u8(&mut self) -> Result<u8, WireError> {
+        Ok(self.take(1)?[0])
+    }
+
+    fn u64(&mut self) -> Result<u64, WireError> {
+        let mut buf = [0; 8];
+        buf.copy_from_slice(self.take(8)?);
+        Ok(u64::from_le_bytes(buf))
+    }
+}

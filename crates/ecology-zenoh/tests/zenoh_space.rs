@@ -1,0 +1,537 @@
+//! Tests of the Zenoh tuple space: the conformance suite over several sessions on 127.0.0.1, a separate
+//! PEIS process that vanishes, interop with stock Zenoh clients, malformed samples, and the wire format.
+
+use std::io::BufRead;
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::Duration;
+
+use ecology_tuples::conformance::{Harness, next_event, wait_presence};
+use ecology_tuples::{
+    Key, KeyPattern, Mimetype, PeisId, PeisOptions, PresenceEvent, PresenceSubscription,
+    RemovalReason, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+    VirtualClock,
+};
+use ecology_zenoh::wire::{self, Metadata, WireError};
+use ecology_zenoh::{ZenohOptions, ZenohPeis};
+
+const PATIENCE: Duration = Duration::from_secs(10);
+
+fn free_endpoint() -> String {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+    let port = listener.local_addr().expect("local address").port();
+    format!("tcp/127.0.0.1:{port}")
+}
+
+fn peis(p: &str) -> PeisId {
+    PeisId::new(p).expect("valid name")
+}
+
+fn key(k: &str) -> Key {
+    Key::new(k).expect("valid key")
+}
+
+/// A PEIS in a separate OS process; killed when dropped, so a failing test leaves no process behind.
+struct PeerProcess {
+    child: Child,
+}
+
+impl PeerProcess {
+    fn spawn(
+        name: &str,
+        listen: &str,
+        connect: &[String],
+        lease: Duration,
+        tuples: &[&str],
+    ) -> Self {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_ecology-zenoh-peer"));
+        command.args(["--name", name, "--listen", listen]);
+        for endpoint in connect {
+            command.args(["--connect", endpoint]);
+        }
+        command.args(["--lease-ms", &lease.as_millis().to_string()]);
+        command.args(tuples);
+        let child = command
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn ecology-zenoh-peer");
+        Self { child }
+    }
+
+    /// Waits for the process to print `ready`.
+    async fn ready(&mut self) {
+        let stdout = self.child.stdout.take().expect("piped stdout");
+        let line = tokio::time::timeout(
+            PATIENCE,
+            tokio::task::spawn_blocking(move || {
+                let mut line = String::new();
+                std::io::BufReader::new(stdout)
+                    .read_line(&mut line)
+                    .map(|_| line)
+            }),
+        )
+        .await
+        .expect("peer ready in time")
+        .expect("reader task")
+        .expect("read peer stdout");
+        assert_eq!(line.trim(), "ready");
+    }
+
+    /// Freezes the process: its sockets stay open but it sends nothing, as when a network is lost.
+    fn freeze(&self) {
+        let status = Command::new("kill")
+            .args(["-STOP", &self.child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(status.success());
+    }
+}
+
+impl Drop for PeerProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs every PEIS as its own Zenoh session on 127.0.0.1, connected in a full mesh, on one virtual clock.
+struct ZenohHarness {
+    clock: VirtualClock,
+    members: Vec<Member>,
+    processes: Vec<PeerProcess>,
+}
+
+struct Member {
+    space: ZenohPeis,
+    endpoint: String,
+    presence: PresenceSubscription,
+}
+
+impl ZenohHarness {
+    fn new() -> Self {
+        Self {
+            clock: VirtualClock::default(),
+            members: Vec::new(),
+            processes: Vec::new(),
+        }
+    }
+
+    /// The endpoint a newcomer dials: the first member's; gossip completes the mesh.
+    fn endpoints(&self) -> Vec<String> {
+        self.members
+            .iter()
+            .take(1)
+            .map(|m| m.endpoint.clone())
+            .collect()
+    }
+
+    /// Waits until every member sees `name` present.
+    async fn everyone_sees(&mut self, name: &PeisId) {
+        for member in &mut self.members {
+            wait_presence(
+                &mut member.presence,
+                &PresenceEvent::Joined(name.clone()),
+                PATIENCE,
+            )
+            .await;
+        }
+    }
+}
+
+impl Harness for ZenohHarness {
+    type Space = ZenohPeis;
+    type Vanishing = PeerProcess;
+
+    async fn join(&mut self, name: &str, options: PeisOptions) -> ZenohPeis {
+        let endpoint = free_endpoint();
+        let mut zenoh_options = ZenohOptions::new(peis(name));
+        zenoh_options.peis = options;
+        zenoh_options.listen = vec![endpoint.clone()];
+        zenoh_options.connect = self.endpoints();
+        zenoh_options.clock = Arc::new(self.clock.clone());
+        let space = ZenohPeis::open(zenoh_options).await.expect("open session");
+        let mut presence = space.subscribe_presence().await.expect("presence");
+        let mut unseen: std::collections::BTreeSet<PeisId> = self
+            .members
+            .iter()
+            .map(|m| m.space.peis().clone())
+            .collect();
+        let waited = tokio::time::timeout(PATIENCE, async {
+            while !unseen.is_empty() {
+                match presence.next().await {
+                    Some(PresenceEvent::Joined(id)) => {
+                        unseen.remove(&id);
+                    }
+                    Some(PresenceEvent::Left(_)) => {}
+                    None => return,
+                }
+            }
+        });
+        if waited.await.is_err() {
+            panic!(
+                "{name} does not see every member join; it sees {:?}",
+                space.peers().await
+            );
+        }
+        self.everyone_sees(&peis(name)).await;
+        self.members.push(Member {
+            space: space.clone(),
+            endpoint,
+            presence,
+        });
+        space
+    }
+
+    async fn leave(&mut self, space: ZenohPeis) {
+        self.members.retain(|m| m.space.peis() != space.peis());
+        space.close().await;
+    }
+
+    async fn join_vanishing(&mut self, name: &str, options: PeisOptions) -> PeerProcess {
+        let mut process = PeerProcess::spawn(
+            name,
+            &free_endpoint(),
+            &self.endpoints(),
+            options.lease,
+            &[],
+        );
+        process.ready().await;
+        self.everyone_sees(&peis(name)).await;
+        process
+    }
+
+    async fn vanish(&mut self, process: PeerProcess) {
+        process.freeze();
+        self.processes.push(process);
+    }
+
+    fn advance(&self, d: Duration) {
+        self.clock.advance(d);
+    }
+
+    fn leases_on_virtual_time(&self) -> bool {
+        false
+    }
+
+    fn patience(&self) -> Duration {
+        PATIENCE
+    }
+
+    async fn finish(self) {
+        for member in self.members {
+            member.space.close().await;
+        }
+        drop(self.processes);
+    }
+}
+
+mod conformance {
+    use super::ZenohHarness;
+    ecology_tuples::conformance_tests!(ZenohHarness::new());
+}
+
+/// A raw Zenoh session (a stock client) connected to `endpoint`.
+async fn stock_client(endpoint: &str) -> zenoh::Session {
+    let mut config = zenoh::Config::default();
+    config
+        .insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .expect("config");
+    config
+        .insert_json5("listen/endpoints", &format!("[\"{}\"]", free_endpoint()))
+        .expect("config");
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .expect("config");
+    zenoh::open(config).await.expect("open stock client")
+}
+
+async fn lone_peis(name: &str, options: PeisOptions) -> (ZenohPeis, String) {
+    let endpoint = free_endpoint();
+    let mut zenoh_options = ZenohOptions::new(peis(name));
+    zenoh_options.peis = options;
+    zenoh_options.listen = vec![endpoint.clone()];
+    (
+        ZenohPeis::open(zenoh_options).await.expect("open"),
+        endpoint,
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_plain_put_is_a_tuple_and_malformed_samples_are_counted() {
+    let mut options = PeisOptions::default();
+    options.limits.max_value_bytes = 64;
+    let (watcher, endpoint) = lone_peis("watcher", options).await;
+    let mut sub = watcher
+        .subscribe(TuplePattern::everything())
+        .await
+        .expect("subscribe");
+    let client = stock_client(&endpoint).await;
+
+    client
+        .put("peis/robot/sensor/temperature", "21.5")
+        .await
+        .expect("put");
+    match next_event(&mut sub, PATIENCE).await {
+        TupleEvent::Changed(t) => {
+            assert_eq!(
+                (t.owner.as_str(), t.key.as_str()),
+                ("robot", "sensor.temperature")
+            );
+            assert_eq!((t.text(), t.seq), (Ok("21.5"), 0));
+            assert_eq!(t.mimetype.as_str(), Mimetype::OCTET_STREAM);
+        }
+        other => panic!("unexpected {other:?}"),
+    }
+    client
+        .put("peis/robot/sensor/label", "kitchen")
+        .encoding(zenoh::bytes::Encoding::TEXT_PLAIN)
+        .await
+        .expect("put");
+    match next_event(&mut sub, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!(t.mimetype.as_str(), "text/plain"),
+        other => panic!("unexpected {other:?}"),
+    }
+
+    assert_eq!(watcher.malformed_samples(), 0);
+    client.put("peis/robot", "no key").await.expect("put");
+    client.put("peis/ro-bot/a/@x", "bad key").await.ok();
+    client
+        .put("peis/robot/x", "bad attachment")
+        .attachment(vec![9u8, 9])
+        .await
+        .expect("put");
+    client
+        .put("peis/robot/x", vec![0u8; 65])
+        .await
+        .expect("put");
+    let mut truncated = Metadata::of_request(&Value::text("x")).encode();
+    truncated.pop();
+    client
+        .put("peis/robot/x", "truncated")
+        .attachment(truncated)
+        .await
+        .expect("put");
+    client.put("peis/robot/after", "valid").await.expect("put");
+    match next_event(&mut sub, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!((t.key.as_str(), t.text()), ("after", Ok("valid"))),
+        other => panic!("unexpected {other:?}"),
+    }
+    assert_eq!(watcher.malformed_samples(), 4);
+    client.delete("peis/robot/after").await.expect("delete");
+    assert!(matches!(
+        next_event(&mut sub, PATIENCE).await,
+        TupleEvent::Removed {
+            seq: 0,
+            reason: RemovalReason::Deleted,
+            ..
+        }
+    ));
+    client.close().await.expect("close");
+    watcher.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stock_client_can_get_and_remote_set() {
+    let options = PeisOptions {
+        remote_set: ecology_tuples::RemoteSetPolicy::allow([KeyPattern::new(
+            "components.*.reqState",
+        )
+        .expect("pattern")]),
+        ..PeisOptions::default()
+    };
+    let (astrid, endpoint) = lone_peis("astrid", options).await;
+    astrid
+        .set(
+            key("components.l1.cost"),
+            Value::text("100").with_ts_user(Timestamp(7)),
+        )
+        .await
+        .expect("set");
+    let client = stock_client(&endpoint).await;
+
+    let replies = client.get("peis/astrid/components/**").await.expect("get");
+    let reply = replies.recv_async().await.expect("one reply");
+    let sample = reply.result().expect("a sample");
+    assert_eq!(sample.key_expr().as_str(), "peis/astrid/components/l1/cost");
+    assert_eq!(&*sample.payload().to_bytes(), b"100");
+    let meta =
+        Metadata::decode(&sample.attachment().expect("attachment").to_bytes()).expect("metadata");
+    assert_eq!(
+        (meta.seq, meta.ts_user, meta.mimetype.as_str()),
+        (1, Some(Timestamp(7)), "text/plain")
+    );
+
+    let replies = client
+        .get("peis/astrid/@set/components/l1/reqState")
+        .payload("on")
+        .await
+        .expect("remote set");
+    let reply = replies.recv_async().await.expect("one reply");
+    assert!(reply.result().is_ok(), "{:?}", reply.result().err());
+    let applied = astrid
+        .get(peis("astrid"), key("components.l1.reqState"))
+        .await
+        .expect("get")
+        .expect("applied");
+    assert_eq!((applied.text(), applied.seq), (Ok("on"), 1));
+
+    let replies = client
+        .get("peis/astrid/@set/secret")
+        .payload("x")
+        .await
+        .expect("remote set");
+    let reply = replies.recv_async().await.expect("one reply");
+    let err = reply.result().expect_err("refused");
+    let reason = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
+    assert!(reason.contains("not allowed"), "{reason}");
+    client.close().await.expect("close");
+    astrid.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_name_cannot_join_twice_and_a_config_file_is_honoured() {
+    let (first, endpoint) = lone_peis("astrid", PeisOptions::default()).await;
+    let dir = std::env::temp_dir().join(format!("ecology-zenoh-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let file = dir.join("zenoh.json5");
+    std::fs::write(
+        &file,
+        format!(
+            "{{ mode: \"peer\", connect: {{ endpoints: [\"{endpoint}\"] }}, listen: {{ endpoints: [\"{}\"] }}, scouting: {{ multicast: {{ enabled: false }} }} }}",
+            free_endpoint()
+        ),
+    )
+    .expect("write config");
+    let mut options = ZenohOptions::new(peis("astrid"));
+    options.zenoh_config = Some(file.clone());
+    let second = ZenohPeis::open(options).await;
+    assert!(
+        matches!(
+            second,
+            Err(ecology_zenoh::ZenohError::Space(
+                TupleError::AlreadyPresent(_)
+            ))
+        ),
+        "{second:?}"
+    );
+    let mut options = ZenohOptions::new(peis("pippi"));
+    options.zenoh_config = Some(file);
+    let pippi = ZenohPeis::open(options).await.expect("open from file");
+    assert_eq!(
+        pippi.peers().await.expect("peers"),
+        vec![peis("astrid"), peis("pippi")]
+    );
+    let mut bad = ZenohOptions::new(peis("bad"));
+    bad.zenoh_config = Some(dir.join("missing.json5"));
+    assert!(matches!(
+        ZenohPeis::open(bad).await,
+        Err(ecology_zenoh::ZenohError::Config { .. })
+    ));
+    pippi.close().await;
+    first.close().await;
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn tuples_map_to_key_expressions() {
+    assert_eq!(
+        wire::tuple_key_expr(&peis("astrid"), &key("components.l1.status")),
+        "peis/astrid/components/l1/status"
+    );
+    assert_eq!(
+        wire::parse_tuple_key_expr("peis/astrid/components/l1/status"),
+        Ok((peis("astrid"), key("components.l1.status")))
+    );
+    for bad in [
+        "peis/astrid",
+        "peis",
+        "other/astrid/x",
+        "peis/a.b/x",
+        "peis/astrid/a//b",
+        "peis/astrid/@set/x",
+    ] {
+        assert!(wire::parse_tuple_key_expr(bad).is_err(), "{bad}");
+    }
+    assert_eq!(
+        wire::remote_set_key_expr(&peis("astrid"), &key("components.l1.reqState")),
+        "peis/astrid/@set/components/l1/reqState"
+    );
+    assert_eq!(wire::alive_key_expr(&peis("astrid")), "peis/astrid/@alive");
+    assert_eq!(
+        wire::parse_alive_key_expr("peis/astrid/@alive"),
+        Ok(peis("astrid"))
+    );
+    let pattern = |p: &str| wire::pattern_key_expr(&TuplePattern::parse(p).expect("valid"));
+    assert_eq!(
+        pattern("*:components.*.status"),
+        "peis/*/components/*/status"
+    );
+    assert_eq!(pattern("astrid:**"), "peis/astrid/**");
+    assert_eq!(pattern("a:x.**.*"), "peis/a/x/*/**");
+    for p in [
+        "*:components.*.status",
+        "astrid:**",
+        "a:x.**.*.y.**.*",
+        "a:**.*",
+    ] {
+        let ke = pattern(p);
+        assert!(zenoh::key_expr::KeyExpr::new(ke.clone()).is_ok(), "{ke}");
+        assert!(
+            zenoh::key_expr::keyexpr::new(&ke).is_ok_and(|k| k.as_str() == ke),
+            "{ke} is canonical"
+        );
+    }
+}
+
+#[test]
+fn metadata_round_trips_and_malformed_attachments_are_rejected() {
+    let tuple = ecology_tuples::Tuple {
+        owner: peis("astrid"),
+        key: key("x"),
+        data: bytes::Bytes::from_static(b"v"),
+        mimetype: Mimetype::new("application/json").expect("valid"),
+        ts_write: Timestamp(1),
+        ts_user: Some(Timestamp(2)),
+        expiry: Some(Timestamp(3)),
+        seq: 42,
+    };
+    let encoded = Metadata::of_tuple(&tuple).encode();
+    assert_eq!(encoded.len(), 2 + 8 * 4 + 1 + "application/json".len());
+    assert_eq!(&encoded[..2], &[wire::VERSION, 0b011]);
+    assert_eq!(&encoded[2..10], &42u64.to_le_bytes());
+    let decoded = Metadata::decode(&encoded).expect("decodes");
+    assert_eq!(
+        decoded
+            .clone()
+            .into_tuple(peis("astrid"), key("x"), tuple.data.clone()),
+        tuple
+    );
+
+    let minimal = Metadata::of_removal(5, Timestamp(9), true).encode();
+    assert_eq!(minimal.len(), 2 + 16 + 1 + Mimetype::OCTET_STREAM.len());
+    assert!(Metadata::decode(&minimal).is_ok_and(|m| m.expired && m.seq == 5));
+
+    let mut trailing = encoded.clone();
+    trailing.push(0);
+    let mut version = encoded.clone();
+    version[0] = 2;
+    let mut bad_mime = encoded.clone();
+    let last = bad_mime.len() - 1;
+    bad_mime[last] = 0xff;
+    for (bytes, expected) in [
+        (
+            &encoded[..encoded.len() - 1],
+            WireError::Attachment("too short"),
+        ),
+        (&trailing[..], WireError::Attachment("trailing bytes")),
+        (&version[..], WireError::Attachment("unknown version")),
+        (
+            &bad_mime[..],
+            WireError::Attachment("mimetype is not UTF-8"),
+        ),
+        (&[][..], WireError::Attachment("too short")),
+    ] {
+        assert_eq!(Metadata::decode(bytes), Err(expected));
+    }
+}
