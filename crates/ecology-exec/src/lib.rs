@@ -7,6 +7,7 @@
 //! over a closed [`Event`] type. A driver connects it to a tuple space:
 //! subscription changes and presence in, remote sets and timers out.
 
+mod driver;
 mod executive;
 mod log;
 mod mirror;
@@ -14,6 +15,7 @@ mod mirror;
 #[cfg(test)]
 mod tests;
 
+pub use driver::{DriverConfig, drive};
 pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};

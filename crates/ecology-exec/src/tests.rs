@@ -627,3 +627,211 @@ fn waiting_too_long_is_a_failure() {
         "{text}"
     );
 }
+
+/// End to end on the in-process tuple space, in virtual time: PEIS hosts run
+/// test components that honour the component contract, and the driver runs
+/// the executive over the space.
+mod on_the_tuple_space {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::time::Duration;
+
+    use ecology_domain::{EcologyState, parse_domain, parse_facts};
+    use ecology_peis::{Component, ComponentError, ComponentSpec, Context, run_host};
+    use ecology_tuples::{
+        Clock, InProcessPeis, InProcessSpace, PeisId, PeisOptions, Value, VirtualClock,
+    };
+
+    use super::{PEIS_HOME, PEIS_HOME_FACTS, costs, names, plan, timeline};
+    use crate::{DriverConfig, ExecConfig, Executive, RunStatus, drive};
+
+    /// (inputs, outputs, seconds of fresh input until done) of each functionality.
+    fn behaviour(
+        functionality: &str,
+    ) -> (
+        &'static [&'static str],
+        &'static [&'static str],
+        Option<u64>,
+    ) {
+        match functionality {
+            "laser" => (&[], &["range-scan"], None),
+            "odometry" => (&[], &["odometry"], None),
+            "ceiling-cameras" | "camera" => (&[], &["image"], None),
+            "scan-matching" => (&["range-scan", "odometry"], &["position"], None),
+            "pose-tracking" => (&["global-pos"], &["position"], None),
+            "tracking-system" | "object-localizer" => (&["image"], &["global-pos"], None),
+            "navigation" => (&["position"], &[], Some(3)),
+            _ => (&[], &[], Some(1)),
+        }
+    }
+
+    /// A component that follows the contract: `waiting` while an input is
+    /// missing or stale, `running` while it works, `done` when its step ends;
+    /// `broken` makes it fail with a cause.
+    fn body(broken: Arc<AtomicBool>) -> Arc<dyn Component<InProcessPeis>> {
+        Arc::new(move |ctx: Context<InProcessPeis>| {
+            let broken = broken.clone();
+            async move {
+                let name = ctx
+                    .params()
+                    .trim_start_matches('(')
+                    .split_whitespace()
+                    .next()
+                    .unwrap_or("")
+                    .to_string();
+                let (ins, outs, finish) = behaviour(&name);
+                let mut inputs = ctx.inputs(ins).await?;
+                let mut shown = String::new();
+                let mut worked = Duration::ZERO;
+                loop {
+                    if broken.load(Ordering::Relaxed) {
+                        return Err(ComponentError::Fault(
+                            "camera ca1 stopped producing images".into(),
+                        ));
+                    }
+                    inputs.poll();
+                    let missing = inputs.missing(Duration::from_millis(500));
+                    let status = if missing.is_empty() {
+                        "running"
+                    } else {
+                        "waiting"
+                    };
+                    if status != shown {
+                        let cause = (!missing.is_empty()).then(|| missing.join(" "));
+                        ctx.status(status, cause.as_deref()).await?;
+                        shown = status.to_string();
+                    }
+                    if missing.is_empty() {
+                        for out in outs {
+                            ctx.output(out, Value::text(ctx.args().join(" "))).await?;
+                        }
+                        worked += Duration::from_millis(100);
+                        if finish.is_some_and(|s| worked >= Duration::from_secs(s)) {
+                            ctx.status("done", None).await?;
+                            return Ok(());
+                        }
+                    }
+                    ctx.sleep(Duration::from_millis(100)).await;
+                }
+            }
+        })
+    }
+
+    async fn run(break_tracking_at: Option<Duration>) -> Executive {
+        let clock = VirtualClock::default();
+        let shared: Arc<dyn Clock> = Arc::new(clock.clone());
+        let space = InProcessSpace::new(shared.clone());
+        let facts = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
+        let tracking_broken = Arc::new(AtomicBool::new(false));
+        let healthy = Arc::new(AtomicBool::new(false));
+        let mut hosts = Vec::new();
+        let mut stops = Vec::new();
+        for peis in ["astrid", "hsm", "pippi"] {
+            let handle = space
+                .join(PeisId::new(peis).expect("name"), PeisOptions::default())
+                .expect("joins");
+            let mut specs = Vec::new();
+            for f in facts.with_predicate("pc").filter(|f| &*f.args[0] == peis) {
+                let c = f.args[2].to_string();
+                let cost = facts.component_cost(peis, &c).expect("a cost");
+                let broken = if (peis, c.as_str()) == ("hsm", "tr1") {
+                    tracking_broken.clone()
+                } else {
+                    healthy.clone()
+                };
+                specs.push(ComponentSpec {
+                    name: c,
+                    kind: f.args[1].to_string(),
+                    cost: cost.amount,
+                    on: cost.power == ecology_domain::Power::On,
+                    startup: Duration::from_millis(500),
+                    body: body(broken),
+                });
+            }
+            let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+            stops.push(stop);
+            hosts.push(tokio::spawn(run_host(
+                handle,
+                shared.clone(),
+                specs,
+                async {
+                    let _ = stopped.await;
+                },
+            )));
+        }
+        let me = space
+            .join(
+                PeisId::new("executive").expect("name"),
+                PeisOptions::default(),
+            )
+            .expect("joins");
+        // Virtual time moves only when every task has had its turn.
+        let ticking = Arc::new(AtomicBool::new(true));
+        let ticker = {
+            let ticking = ticking.clone();
+            let clock = clock.clone();
+            let broken = tracking_broken.clone();
+            let start = shared.now();
+            tokio::spawn(async move {
+                while ticking.load(Ordering::Relaxed) {
+                    for _ in 0..50 {
+                        tokio::task::yield_now().await;
+                    }
+                    clock.advance(Duration::from_millis(20));
+                    let now = clock_now(&clock).saturating_duration_since(start);
+                    if break_tracking_at.is_some_and(|at| now >= at) {
+                        broken.store(true, Ordering::Relaxed);
+                    }
+                }
+            })
+        };
+        let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
+        let mut exec = Executive::new(domain, EcologyState::new(), plan(), ExecConfig::default());
+        let config = DriverConfig {
+            limit: Some(Duration::from_secs(300)),
+            ..DriverConfig::default()
+        };
+        drive(&me, shared.clone(), &mut exec, config)
+            .await
+            .expect("drives");
+        ticking.store(false, Ordering::Relaxed);
+        let _ = ticker.await;
+        for stop in stops {
+            let _ = stop.send(());
+        }
+        for host in hosts {
+            host.await.expect("host task").expect("host ran cleanly");
+        }
+        space.shutdown().await;
+        exec
+    }
+
+    fn clock_now(clock: &VirtualClock) -> ecology_tuples::Timestamp {
+        clock.now()
+    }
+
+    // The paper's Section VIII on the real middleware (in-process), no failure.
+    #[tokio::test]
+    async fn a_plan_runs_on_the_tuple_space() {
+        let exec = run(None).await;
+        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        assert_eq!(
+            costs(&exec),
+            [(80, false), (100, false), (80, false), (20, false)]
+        );
+        assert_eq!(names(&exec).last(), Some(&"task_done"));
+    }
+
+    // The paper's Section VIII step 6: the tracking system fails on the way to the bedroom.
+    #[tokio::test]
+    async fn a_failure_on_the_tuple_space_is_reconfigured() {
+        let exec = run(Some(Duration::from_secs(6))).await;
+        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        let text = timeline(&exec);
+        assert!(
+            text.contains("FAILURE hsm:tr1: camera ca1 stopped producing images"),
+            "{text}"
+        );
+        assert!(costs(&exec).contains(&(170, true)), "{text}");
+    }
+}

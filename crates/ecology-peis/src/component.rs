@@ -1,0 +1,236 @@
+//! The `Component` trait and the context a component body runs in (DESIGN section 6).
+//!
+//! A component body runs one functionality instance, given by its `params`
+//! (such as `(navigation astrid tc1 bedroom)`): it reads its inputs through
+//! the `C.mi-INFO` meta-tuples the deployer points at producers' outputs,
+//! writes its outputs as `C.out.INFO`, and reports `C.status` (`running`,
+//! `waiting` with the missing inputs in `C.cause`, `done`) itself. Returning an
+//! error reports `error` with the error as the cause; the host does that.
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use ecology_tuples::{
+    Clock, Key, PeisId, Subscription, Timestamp, Tuple, TupleError, TupleEvent, TupleSpace, Value,
+};
+
+/// A boxed, sendable future: what a component body returns.
+pub type BoxFuture<T> = Pin<Box<dyn Future<Output = T> + Send + 'static>>;
+
+/// Why a component body stopped with an error.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ComponentError {
+    /// The component's own fault, in its words (becomes `C.cause`).
+    #[error("{0}")]
+    Fault(String),
+    /// The tuple space refused an operation.
+    #[error("tuple space: {0}")]
+    Space(String),
+}
+
+impl From<TupleError> for ComponentError {
+    fn from(e: TupleError) -> ComponentError {
+        ComponentError::Space(e.to_string())
+    }
+}
+
+/// The body of a PEIS-component.
+pub trait Component<S: TupleSpace>: Send + Sync + 'static {
+    /// Runs the functionality instance in `ctx.params()` until it finishes
+    /// (returning `Ok` after reporting `done`, if it has an end), fails, or is
+    /// cancelled by the host (the future is dropped).
+    fn run(&self, ctx: Context<S>) -> BoxFuture<Result<(), ComponentError>>;
+}
+
+impl<S, F, Fut> Component<S> for F
+where
+    S: TupleSpace,
+    F: Fn(Context<S>) -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = Result<(), ComponentError>> + Send + 'static,
+{
+    fn run(&self, ctx: Context<S>) -> BoxFuture<Result<(), ComponentError>> {
+        Box::pin(self(ctx))
+    }
+}
+
+/// What a component body sees: its PEIS, its name, its params, its clock.
+#[derive(Clone)]
+pub struct Context<S: TupleSpace> {
+    space: S,
+    component: String,
+    params: String,
+    clock: Arc<dyn Clock>,
+}
+
+impl<S: TupleSpace> std::fmt::Debug for Context<S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Context")
+            .field("peis", self.space.peis())
+            .field("component", &self.component)
+            .field("params", &self.params)
+            .finish()
+    }
+}
+
+fn key(text: &str) -> Result<Key, ComponentError> {
+    Key::new(text).map_err(|e| ComponentError::Space(e.to_string()))
+}
+
+impl<S: TupleSpace> Context<S> {
+    pub(crate) fn new(
+        space: S,
+        component: String,
+        params: String,
+        clock: Arc<dyn Clock>,
+    ) -> Context<S> {
+        Context {
+            space,
+            component,
+            params,
+            clock,
+        }
+    }
+
+    /// The PEIS this component runs on.
+    pub fn peis(&self) -> &PeisId {
+        self.space.peis()
+    }
+
+    /// The component's name, such as `tc1`.
+    pub fn component(&self) -> &str {
+        &self.component
+    }
+
+    /// The functionality instance to run, such as `(navigation astrid tc1 bedroom)`.
+    pub fn params(&self) -> &str {
+        &self.params
+    }
+
+    /// The params' arguments after the functionality name.
+    pub fn args(&self) -> Vec<&str> {
+        self.params
+            .trim_matches(|c| c == '(' || c == ')')
+            .split_whitespace()
+            .skip(1)
+            .collect()
+    }
+
+    /// The tuple space, as this PEIS.
+    pub fn space(&self) -> &S {
+        &self.space
+    }
+
+    /// The clock.
+    pub fn clock(&self) -> &Arc<dyn Clock> {
+        &self.clock
+    }
+
+    /// Reports `C.status` (and `C.cause`, cleared when `None`).
+    pub async fn status(&self, status: &str, cause: Option<&str>) -> Result<(), ComponentError> {
+        let c = &self.component;
+        self.space
+            .set(
+                key(&format!("{c}.cause"))?,
+                Value::text(cause.unwrap_or("")),
+            )
+            .await?;
+        self.space
+            .set(key(&format!("{c}.status"))?, Value::text(status))
+            .await?;
+        Ok(())
+    }
+
+    /// Publishes output `info` as `C.out.INFO`.
+    pub async fn output(&self, info: &str, value: Value) -> Result<Tuple, ComponentError> {
+        let c = &self.component;
+        Ok(self
+            .space
+            .set(key(&format!("{c}.out.{info}"))?, value)
+            .await?)
+    }
+
+    /// Follows the inputs `infos` through their `C.mi-INFO` meta-tuples.
+    pub async fn inputs(&self, infos: &[&str]) -> Result<Inputs, ComponentError> {
+        let mut subscriptions = Vec::new();
+        for info in infos {
+            let meta = key(&format!("{}.mi-{info}", self.component))?;
+            let sub = self.space.subscribe_meta(self.peis().clone(), meta).await?;
+            subscriptions.push((info.to_string(), sub));
+        }
+        Ok(Inputs {
+            subscriptions,
+            latest: BTreeMap::new(),
+            clock: self.clock.clone(),
+        })
+    }
+
+    /// Sleeps for `d` on the PEIS's clock.
+    pub async fn sleep(&self, d: Duration) {
+        let deadline = self.clock.now().saturating_add(d);
+        self.clock.sleep_until(deadline).await;
+    }
+}
+
+/// A component's inputs: the latest value of each, as it arrives.
+pub struct Inputs {
+    subscriptions: Vec<(String, Subscription)>,
+    latest: BTreeMap<String, (Tuple, Timestamp)>,
+    clock: Arc<dyn Clock>,
+}
+
+impl std::fmt::Debug for Inputs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Inputs")
+            .field(
+                "infos",
+                &self
+                    .subscriptions
+                    .iter()
+                    .map(|(i, _)| i)
+                    .collect::<Vec<_>>(),
+            )
+            .finish_non_exhaustive()
+    }
+}
+
+impl Inputs {
+    /// Takes in every update that has arrived, without waiting.
+    pub fn poll(&mut self) {
+        let now = self.clock.now();
+        for (info, sub) in &mut self.subscriptions {
+            while let Some(event) = sub.try_next() {
+                match event {
+                    TupleEvent::Changed(t) => {
+                        self.latest.insert(info.clone(), (t, now));
+                    }
+                    TupleEvent::Removed { .. } | TupleEvent::Retargeted { .. } => {
+                        self.latest.remove(info);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The latest value of `info`, if any.
+    pub fn latest(&self, info: &str) -> Option<&Tuple> {
+        self.latest.get(info).map(|(t, _)| t)
+    }
+
+    /// The inputs with no value received within `max_age` (self-monitoring:
+    /// a component with missing inputs reports `waiting` naming them).
+    pub fn missing(&self, max_age: Duration) -> Vec<String> {
+        let now = self.clock.now();
+        self.subscriptions
+            .iter()
+            .filter(|(info, _)| {
+                self.latest
+                    .get(info)
+                    .is_none_or(|(_, at)| now.saturating_duration_since(*at) > max_age)
+            })
+            .map(|(info, _)| info.clone())
+            .collect()
+    }
+}

@@ -1,0 +1,247 @@
+//! The host of one PEIS and its init component (the paper's PEIS-init).
+//!
+//! The init component publishes `components.C.type`, `.cost` and `.currState`
+//! for every component, and applies `components.C.reqState` requests (which
+//! other PEIS make by remote set): `on` starts the component after its
+//! start-up delay, `off` stops it. When a component is on and has `C.params`,
+//! the host runs its body with those params; new params restart it. A body
+//! that returns an error is reported as `error` with the error as `C.cause`;
+//! one that panics too, so a failing component never takes the PEIS down.
+//! Every body runs in a task the host owns and stops on shutdown.
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+
+use ecology_tuples::{
+    Clock, Key, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+};
+use tokio::task::{AbortHandle, JoinSet};
+
+use crate::component::{Component, ComponentError, Context};
+
+/// One component of a PEIS.
+pub struct ComponentSpec<S: TupleSpace> {
+    /// Its name, such as `l1`.
+    pub name: String,
+    /// Its type, such as `laser` (the `pc` fact's type).
+    pub kind: String,
+    /// Its cost: running cost when on, start-up cost when off.
+    pub cost: u64,
+    /// Whether it is on when the PEIS starts.
+    pub on: bool,
+    /// How long switching it on takes.
+    pub startup: Duration,
+    /// Its body.
+    pub body: Arc<dyn Component<S>>,
+}
+
+impl<S: TupleSpace> std::fmt::Debug for ComponentSpec<S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ComponentSpec")
+            .field("name", &self.name)
+            .field("kind", &self.kind)
+            .field("cost", &self.cost)
+            .field("on", &self.on)
+            .field("startup", &self.startup)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Why a host stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum HostError {
+    /// The tuple space failed.
+    #[error("tuple space: {0}")]
+    Space(#[from] TupleError),
+    /// A component name makes an invalid key.
+    #[error("invalid component name `{0}`")]
+    InvalidName(String),
+}
+
+struct State<S: TupleSpace> {
+    spec: ComponentSpec<S>,
+    on: bool,
+    starting_until: Option<Timestamp>,
+    params: Option<String>,
+    generation: u64,
+    task: Option<AbortHandle>,
+}
+
+type Outcome = (String, u64, Result<(), ComponentError>);
+
+fn key(text: &str) -> Result<Key, HostError> {
+    Key::new(text).map_err(|_| HostError::InvalidName(text.to_string()))
+}
+
+/// Runs one PEIS with `components` on `space` until `shutdown` completes.
+pub async fn run_host<S: TupleSpace>(
+    space: S,
+    clock: Arc<dyn Clock>,
+    components: Vec<ComponentSpec<S>>,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), HostError> {
+    let me = space.peis().clone();
+    let mut states: BTreeMap<String, State<S>> = BTreeMap::new();
+    for spec in components {
+        let c = spec.name.clone();
+        space
+            .set(
+                key(&format!("components.{c}.type"))?,
+                Value::text(&spec.kind),
+            )
+            .await?;
+        space
+            .set(
+                key(&format!("components.{c}.cost"))?,
+                Value::text(spec.cost.to_string()),
+            )
+            .await?;
+        let power = if spec.on { "on" } else { "off" };
+        space
+            .set(
+                key(&format!("components.{c}.currState"))?,
+                Value::text(power),
+            )
+            .await?;
+        space
+            .set(key(&format!("{c}.status"))?, Value::text("idle"))
+            .await?;
+        states.insert(
+            c,
+            State {
+                on: spec.on,
+                spec,
+                starting_until: None,
+                params: None,
+                generation: 0,
+                task: None,
+            },
+        );
+    }
+    let requests_pattern = TuplePattern::parse(&format!("{me}:components.*.reqState"))
+        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
+    let params_pattern = TuplePattern::parse(&format!("{me}:*.params"))
+        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
+    let mut requests = space.subscribe(requests_pattern).await?;
+    let mut params = space.subscribe(params_pattern).await?;
+    let mut tasks: JoinSet<Outcome> = JoinSet::new();
+    tokio::pin!(shutdown);
+    loop {
+        let next_start = states.values().filter_map(|s| s.starting_until).min();
+        let wake = async {
+            match next_start {
+                Some(at) => clock.sleep_until(at).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            () = &mut shutdown => break,
+            event = requests.next() => {
+                let Some(TupleEvent::Changed(t)) = event else { continue };
+                let Some(c) = t.key.as_str().strip_prefix("components.").and_then(|k| k.strip_suffix(".reqState")) else { continue };
+                let Some(state) = states.get_mut(c) else { continue };
+                match t.text().unwrap_or("") {
+                    "on" if !state.on && state.starting_until.is_none() => {
+                        state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
+                    }
+                    "off" => {
+                        state.starting_until = None;
+                        if let Some(task) = state.task.take() {
+                            task.abort();
+                        }
+                        state.generation += 1;
+                        if state.on {
+                            state.on = false;
+                            let c = c.to_string();
+                            space.set(key(&format!("components.{c}.currState"))?, Value::text("off")).await?;
+                            space.set(key(&format!("{c}.status"))?, Value::text("idle")).await?;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            event = params.next() => {
+                let Some(TupleEvent::Changed(t)) = event else { continue };
+                let Some(c) = t.key.as_str().strip_suffix(".params") else { continue };
+                let Some(state) = states.get_mut(c) else { continue };
+                state.params = t.text().ok().map(str::to_string).filter(|p| !p.is_empty());
+                if state.on {
+                    let c = c.to_string();
+                    start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                }
+            }
+            Some(joined) = tasks.join_next(), if !tasks.is_empty() => {
+                let (c, generation, result) = match joined {
+                    Ok(outcome) => outcome,
+                    // Aborted tasks are expected; a panicking body is a fault of
+                    // that component only, but its name is lost with the panic,
+                    // so find the component whose task is gone.
+                    Err(e) if e.is_cancelled() => continue,
+                    Err(e) => {
+                        let Some((c, generation)) = states.iter().find(|(_, s)| s.task.as_ref().is_some_and(|t| t.id() == e.id())).map(|(c, s)| (c.clone(), s.generation)) else { continue };
+                        (c, generation, Err(ComponentError::Fault(format!("panicked: {e}"))))
+                    }
+                };
+                let Some(state) = states.get_mut(&c) else { continue };
+                if state.generation != generation {
+                    continue;
+                }
+                state.task = None;
+                if let Err(e) = result {
+                    space.set(key(&format!("{c}.cause"))?, Value::text(e.to_string())).await?;
+                    space.set(key(&format!("{c}.status"))?, Value::text("error")).await?;
+                }
+            }
+            () = wake => {
+                let now = clock.now();
+                let ready: Vec<String> = states
+                    .iter()
+                    .filter(|(_, s)| s.starting_until.is_some_and(|at| at <= now))
+                    .map(|(c, _)| c.clone())
+                    .collect();
+                for c in ready {
+                    if let Some(state) = states.get_mut(&c) {
+                        state.starting_until = None;
+                        state.on = true;
+                    }
+                    space.set(key(&format!("components.{c}.currState"))?, Value::text("on")).await?;
+                    start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                }
+            }
+        }
+    }
+    tasks.shutdown().await;
+    Ok(())
+}
+
+/// (Re)starts component `c`'s body if it is on and has params.
+async fn start<S: TupleSpace>(
+    space: &S,
+    clock: &Arc<dyn Clock>,
+    states: &mut BTreeMap<String, State<S>>,
+    c: &str,
+    tasks: &mut JoinSet<Outcome>,
+) -> Result<(), HostError> {
+    let Some(state) = states.get_mut(c) else {
+        return Ok(());
+    };
+    if let Some(task) = state.task.take() {
+        task.abort();
+    }
+    state.generation += 1;
+    let Some(params) = state.params.clone() else {
+        return Ok(());
+    };
+    space
+        .set(key(&format!("{c}.status"))?, Value::text("initializing"))
+        .await?;
+    let ctx = Context::new(space.clone(), c.to_string(), params, clock.clone());
+    let body = state.spec.body.clone();
+    let generation = state.generation;
+    let name = c.to_string();
+    let handle = tasks.spawn(async move { (name, generation, body.run(ctx).await) });
+    state.task = Some(handle);
+    Ok(())
+}

@@ -1,0 +1,243 @@
+//! Tests of the PEIS host and the component context on the in-process tuple
+//! space, in virtual time.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use ecology_tuples::{
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Tuple, TupleSpace, Value,
+    VirtualClock,
+};
+
+use crate::{Component, ComponentError, ComponentSpec, Context, run_host};
+
+struct Fixture {
+    clock: VirtualClock,
+    space: InProcessSpace,
+    host: tokio::task::JoinHandle<Result<(), crate::HostError>>,
+    stop: tokio::sync::oneshot::Sender<()>,
+    other: InProcessPeis,
+}
+
+fn key(k: &str) -> Key {
+    Key::new(k).expect("key")
+}
+
+async fn start(components: Vec<ComponentSpec<InProcessPeis>>) -> Fixture {
+    let clock = VirtualClock::default();
+    let shared: Arc<dyn Clock> = Arc::new(clock.clone());
+    let space = InProcessSpace::new(shared.clone());
+    let robot = space
+        .join(PeisId::new("robot").expect("name"), PeisOptions::default())
+        .expect("joins");
+    let other = space
+        .join(PeisId::new("other").expect("name"), PeisOptions::default())
+        .expect("joins");
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let host = tokio::spawn(run_host(robot, shared, components, async {
+        let _ = stopped.await;
+    }));
+    Fixture {
+        clock,
+        space,
+        host,
+        stop,
+        other,
+    }
+}
+
+impl Fixture {
+    /// Lets every task run, then moves virtual time on by `d`, in small steps.
+    async fn pass(&self, d: Duration) {
+        let step = Duration::from_millis(10);
+        let mut passed = Duration::ZERO;
+        loop {
+            for _ in 0..50 {
+                tokio::task::yield_now().await;
+            }
+            if passed >= d {
+                break;
+            }
+            self.clock.advance(step);
+            passed += step;
+        }
+    }
+
+    async fn get(&self, k: &str) -> Option<String> {
+        let t: Option<Tuple> = self
+            .other
+            .get(PeisId::new("robot").expect("name"), key(k))
+            .await
+            .expect("get");
+        t.map(|t| t.text().expect("text").to_string())
+    }
+
+    async fn set(&self, k: &str, v: &str) {
+        self.other
+            .set_remote(PeisId::new("robot").expect("name"), key(k), Value::text(v))
+            .await
+            .expect("remote set");
+    }
+
+    async fn stop(self) {
+        let _ = self.stop.send(());
+        self.host.await.expect("host task").expect("clean shutdown");
+        self.space.shutdown().await;
+    }
+}
+
+fn spec(
+    name: &str,
+    on: bool,
+    body: Arc<dyn Component<InProcessPeis>>,
+) -> ComponentSpec<InProcessPeis> {
+    ComponentSpec {
+        name: name.to_string(),
+        kind: "laser".to_string(),
+        cost: 100,
+        on,
+        startup: Duration::from_secs(1),
+        body,
+    }
+}
+
+/// Runs until cancelled, publishing its params' arguments.
+fn echo() -> Arc<dyn Component<InProcessPeis>> {
+    Arc::new(|ctx: Context<InProcessPeis>| async move {
+        ctx.status("running", None).await?;
+        loop {
+            ctx.output("range-scan", Value::text(ctx.args().join(" ")))
+                .await?;
+            ctx.sleep(Duration::from_millis(100)).await;
+        }
+    })
+}
+
+#[tokio::test]
+async fn the_init_component_publishes_and_starts_components() {
+    let f = start(vec![spec("l1", false, echo())]).await;
+    f.pass(Duration::ZERO).await;
+    assert_eq!(f.get("components.l1.type").await.as_deref(), Some("laser"));
+    assert_eq!(f.get("components.l1.cost").await.as_deref(), Some("100"));
+    assert_eq!(
+        f.get("components.l1.currState").await.as_deref(),
+        Some("off")
+    );
+    assert_eq!(f.get("l1.status").await.as_deref(), Some("idle"));
+
+    f.set("l1.params", "(laser robot l1)").await;
+    f.set("components.l1.reqState", "on").await;
+    f.pass(Duration::from_millis(500)).await;
+    assert_eq!(
+        f.get("components.l1.currState").await.as_deref(),
+        Some("off"),
+        "still starting up"
+    );
+    f.pass(Duration::from_millis(600)).await;
+    assert_eq!(
+        f.get("components.l1.currState").await.as_deref(),
+        Some("on")
+    );
+    assert_eq!(f.get("l1.status").await.as_deref(), Some("running"));
+    assert_eq!(
+        f.get("l1.out.range-scan").await.as_deref(),
+        Some("robot l1")
+    );
+
+    // New params restart the body with them.
+    f.set("l1.params", "(laser robot l2)").await;
+    f.pass(Duration::from_millis(200)).await;
+    assert_eq!(
+        f.get("l1.out.range-scan").await.as_deref(),
+        Some("robot l2")
+    );
+
+    f.set("components.l1.reqState", "off").await;
+    f.pass(Duration::from_millis(100)).await;
+    assert_eq!(
+        f.get("components.l1.currState").await.as_deref(),
+        Some("off")
+    );
+    assert_eq!(f.get("l1.status").await.as_deref(), Some("idle"));
+    f.stop().await;
+}
+
+#[tokio::test]
+async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
+    let failing: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|ctx: Context<InProcessPeis>| async move {
+            ctx.status("running", None).await?;
+            ctx.sleep(Duration::from_millis(200)).await;
+            Err::<(), _>(ComponentError::Fault("lens cracked".into()))
+        });
+    let panicking: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|_ctx: Context<InProcessPeis>| async move {
+            let empty: Vec<u8> = Vec::new();
+            if empty.is_empty() {
+                panic!("a bug in the component");
+            }
+            Ok::<(), ComponentError>(())
+        });
+    let f = start(vec![
+        spec("a", true, failing),
+        spec("b", true, panicking),
+        spec("c", true, echo()),
+    ])
+    .await;
+    f.set("a.params", "(x)").await;
+    f.set("b.params", "(y)").await;
+    f.set("c.params", "(laser robot c)").await;
+    f.pass(Duration::from_millis(500)).await;
+    assert_eq!(f.get("a.status").await.as_deref(), Some("error"));
+    assert_eq!(f.get("a.cause").await.as_deref(), Some("lens cracked"));
+    assert_eq!(f.get("b.status").await.as_deref(), Some("error"));
+    assert!(
+        f.get("b.cause")
+            .await
+            .is_some_and(|c| c.contains("panicked"))
+    );
+    assert_eq!(
+        f.get("c.status").await.as_deref(),
+        Some("running"),
+        "the others go on"
+    );
+    f.stop().await;
+}
+
+#[tokio::test]
+async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
+    let consumer: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|ctx: Context<InProcessPeis>| async move {
+            let mut inputs = ctx.inputs(&["range-scan"]).await?;
+            loop {
+                inputs.poll();
+                let missing = inputs.missing(Duration::from_millis(300));
+                if missing.is_empty() {
+                    let seen = inputs
+                        .latest("range-scan")
+                        .map(|t| t.text().unwrap_or("").to_string());
+                    ctx.status("running", seen.as_deref()).await?;
+                } else {
+                    ctx.status("waiting", Some(&missing.join(" "))).await?;
+                }
+                ctx.sleep(Duration::from_millis(100)).await;
+            }
+        });
+    let f = start(vec![spec("l1", true, echo()), spec("s1", true, consumer)]).await;
+    f.set("s1.params", "(scan-matching robot s1)").await;
+    f.pass(Duration::from_millis(200)).await;
+    assert_eq!(f.get("s1.status").await.as_deref(), Some("waiting"));
+    assert_eq!(f.get("s1.cause").await.as_deref(), Some("range-scan"));
+    // Wire the input to the laser's output, as the deployer does.
+    f.set("l1.params", "(laser robot l1)").await;
+    f.set("s1.mi-range-scan", "(meta robot l1.out.range-scan)")
+        .await;
+    f.pass(Duration::from_millis(300)).await;
+    assert_eq!(f.get("s1.status").await.as_deref(), Some("running"));
+    assert_eq!(f.get("s1.cause").await.as_deref(), Some("robot l1"));
+    // The producer stops: the input goes stale.
+    f.set("components.l1.reqState", "off").await;
+    f.pass(Duration::from_millis(600)).await;
+    assert_eq!(f.get("s1.status").await.as_deref(), Some("waiting"));
+    f.stop().await;
+}
