@@ -7,6 +7,7 @@
 
 mod configure;
 mod input;
+mod plan;
 
 use std::process::ExitCode;
 
@@ -33,6 +34,8 @@ enum Command {
     Check(configure::CheckArgs),
     /// Find the cheapest admissible configuration for a goal.
     Configure(configure::ConfigureArgs),
+    /// Plan actions for a problem: a plan whose actions each carry their configuration goal.
+    Plan(plan::PlanArgs),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),
+        Command::Plan(args) => plan::plan(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),
