@@ -103,10 +103,7 @@ fn main() -> Result<(), GeneratorError> {
                 optimal_gave_up = elapsed >= OPTIMAL_CAP;
                 cell
             };
-            println!(
-                "| {:<18} | {:>9} | {sat} | {opt} |",
-                inst.name, operators
-            );
+            println!("| {:<18} | {:>9} | {sat} | {opt} |", inst.name, operators);
         }
     }
     Ok(())

@@ -365,13 +365,8 @@ impl<'t> Search<'t> {
             Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar),
         };
         let heuristic = kind.build(task, &excluded);
-        let engine = Engine::new(
-            task,
-            &request.initial,
-            excluded.clone(),
-            heuristic,
-            algorithm,
-        );
+        let initial = task.fit(&request.initial);
+        let engine = Engine::new(task, &initial, excluded.clone(), heuristic, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))
         } else if engine.initial_h.is_none() {
@@ -384,7 +379,7 @@ impl<'t> Search<'t> {
             engine,
             task,
             excluded,
-            initial: request.initial.clone(),
+            initial,
             result,
         }
     }

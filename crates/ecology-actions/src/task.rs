@@ -292,6 +292,25 @@ impl Task {
         }
     }
 
+    /// `state` cut to this task's atoms, so that a state from elsewhere (for
+    /// example another task) cannot index out of bounds.
+    pub(crate) fn fit(&self, state: &State) -> State {
+        let mut fitted = State::empty(self.atoms.len());
+        for (slot, &word) in fitted.words.iter_mut().zip(&state.words) {
+            *slot = word;
+        }
+        let bits = self.atoms.len() % 64;
+        if bits != 0
+            && let Some(last) = fitted.words.last_mut()
+        {
+            *last &= (1u64 << bits) - 1;
+        }
+        if self.atoms.is_empty() {
+            fitted.words.fill(0);
+        }
+        fitted
+    }
+
     /// The atom written `(predicate args...)`, for people.
     pub fn atom_name(&self, atom: AtomId) -> String {
         let key = &self.atoms[atom.index()];
@@ -408,6 +427,19 @@ enum CLit {
         a: Arg,
         b: Arg,
     },
+}
+
+/// A schema compiled for grounding: its precondition literals, which of them
+/// are fluent (the rest are checked while binding), its effects as
+/// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
+/// and its `:configure` goal.
+struct Schema<'a> {
+    action: &'a Action,
+    lits: Vec<CLit>,
+    dynamic: Vec<usize>,
+    effects: Vec<(bool, u32, Vec<Arg>)>,
+    costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
+    configure: Option<(&'a Call, Vec<Arg>)>,
 }
 
 struct Grounder<'a> {
@@ -704,6 +736,15 @@ impl Grounder<'_> {
                     .collect()
             })
             .collect();
+        let schema = Schema {
+            action,
+            lits,
+            dynamic,
+            effects,
+            costs,
+            configure,
+        };
+        let lits = &schema.lits;
         let mut binding = vec![0u32; n];
         if !checks[0].iter().all(|&i| self.holds(&lits[i], &binding)) {
             return Ok(());
@@ -713,9 +754,7 @@ impl Grounder<'_> {
         let mut cursor = vec![0usize; n];
         let mut depth = 0;
         if n == 0 {
-            return self.emit(
-                action, &lits, &dynamic, &effects, &costs, &configure, &binding,
-            );
+            return self.emit(&schema, &binding);
         }
         loop {
             if cursor[depth] == candidates[depth].len() {
@@ -739,9 +778,7 @@ impl Grounder<'_> {
                 depth += 1;
                 continue;
             }
-            self.emit(
-                action, &lits, &dynamic, &effects, &costs, &configure, &binding,
-            )?;
+            self.emit(&schema, &binding)?;
             cursor[depth] += 1;
         }
     }
@@ -766,17 +803,15 @@ impl Grounder<'_> {
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn emit(
-        &mut self,
-        action: &Action,
-        lits: &[CLit],
-        dynamic: &[usize],
-        effects: &[(bool, u32, Vec<Arg>)],
-        costs: &[(Option<Name>, u64, Vec<Arg>)],
-        configure: &Option<(&Call, Vec<Arg>)>,
-        binding: &[u32],
-    ) -> Result<(), GroundError> {
+    fn emit(&mut self, schema: &Schema<'_>, binding: &[u32]) -> Result<(), GroundError> {
+        let Schema {
+            action,
+            lits,
+            dynamic,
+            effects,
+            costs,
+            configure,
+        } = schema;
         if self.task.operators.len() >= MAX_OPERATORS {
             return Err(GroundError::TooLarge {
                 limit: MAX_OPERATORS,

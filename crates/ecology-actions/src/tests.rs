@@ -308,6 +308,15 @@ fn replanning_without_the_first_action() {
         &NoClock,
     );
     assert!(matches!(blocked.verdict, Verdict::Unsolvable(_)));
+    // A state of another task is cut to this one's atoms rather than panic.
+    let other = problems::gripper(40).expect("generates");
+    let other = ground(&other.domain, &other.problem).expect("grounds");
+    let foreign = plan(
+        &Request::replan(&task, other.initial().clone(), vec![]),
+        &Options::default(),
+        &NoClock,
+    );
+    assert!(!matches!(foreign.verdict, Verdict::BudgetExceeded));
     // A static fact that changed needs a new problem.
     assert!(
         task.state_from([("at", vec!["astrid", "entrance"])])
