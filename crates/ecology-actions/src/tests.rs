@@ -512,11 +512,50 @@ fn unit_costs_without_action_costs() {
     assert!(task.operators().iter().all(|o| o.cost == 1));
 }
 
+/// Along an optimal plan (from the oracle), the admissible heuristics never
+/// exceed the remaining cost, LM-cut is at least h-max, and no state is
+/// called a dead end.
+fn check_admissible_along(task: &Task, lines: &[String], cost: u64) -> Result<(), TestCaseError> {
+    let mut hmax = HeuristicKind::Max.build(task, &[]);
+    let mut lmcut = HeuristicKind::LmCut.build(task, &[]);
+    let mut state = task.initial().clone();
+    let mut remaining = cost;
+    for k in 0..=lines.len() {
+        let max = hmax.estimate(&state, &mut Vec::new());
+        let cut = lmcut.estimate(&state, &mut Vec::new());
+        let (Some(max), Some(cut)) = (max, cut) else {
+            return Err(TestCaseError::fail(format!(
+                "dead end on an optimal plan at step {k}"
+            )));
+        };
+        prop_assert!(
+            max <= cut && cut <= remaining,
+            "h-max {} LM-cut {} remaining {}",
+            max,
+            cut,
+            remaining
+        );
+        let Some(line) = lines.get(k) else { break };
+        let call = parse_goal(line).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let Ok(Some(op)) = task.find_operator(&call) else {
+            return Err(TestCaseError::fail(format!("grounding lacks {line}")));
+        };
+        prop_assert!(task.applicable(&state, op), "{} is not applicable", line);
+        remaining -= task.operator(op).cost;
+        state = task.apply(&state, op);
+    }
+    prop_assert!(task.is_goal(&state));
+    Ok(())
+}
+
 fn agree_with_oracle(inst: &Instance) -> Result<(), TestCaseError> {
     let Ok(task) = ground(&inst.domain, &inst.problem) else {
         return Err(TestCaseError::fail("does not ground"));
     };
     let expected = oracle::cheapest(&inst.domain, &inst.problem, &[], 50_000);
+    if let Cheapest::Cost(cost, lines) = &expected {
+        check_admissible_along(&task, lines, *cost)?;
+    }
     for strategy in SATISFICING.into_iter().chain(OPTIMAL) {
         let outcome = run(&task, strategy);
         match (&outcome.verdict, &expected) {
