@@ -53,3 +53,9 @@ pub fn facts(path: &Path) -> anyhow::Result<Parsed<EcologyState>> {
 pub fn goal(text: &str) -> Parsed<ecology_domain::Call> {
     ecology_domain::parse_goal(text).map_err(|d| report(Path::new("<goal>"), text.as_bytes(), &d))
 }
+
+/// Reads a problem file and checks it against `domain`.
+pub fn problem(path: &Path, domain: &Domain) -> anyhow::Result<Parsed<ecology_domain::Problem>> {
+    let bytes = read_limited(path)?;
+    Ok(ecology_domain::parse_problem_for(domain, &bytes).map_err(|d| report(path, &bytes, &d)))
+}

@@ -7,6 +7,7 @@
 
 mod configure;
 mod input;
+mod plan;
 mod tuples;
 
 use std::process::ExitCode;
@@ -36,6 +37,8 @@ enum Command {
     Configure(configure::ConfigureArgs),
     /// Watch, get and set tuples of a live ecology over Zenoh.
     Tuples(tuples::TuplesArgs),
+    /// Plan actions for a problem: a plan whose actions each carry their configuration goal.
+    Plan(plan::PlanArgs),
 }
 
 fn main() -> ExitCode {
@@ -55,6 +58,7 @@ fn main() -> ExitCode {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),
         Command::Tuples(args) => tuples::run(args).map(|code| u8::try_from(code).unwrap_or(1)),
+        Command::Plan(args) => plan::plan(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

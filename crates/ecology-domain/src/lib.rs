@@ -17,6 +17,7 @@
 mod diagnostic;
 mod model;
 mod parse;
+mod problem;
 mod state;
 pub mod syntax;
 mod validate;
@@ -30,6 +31,7 @@ pub use model::{
     Name, NumExpr, Param, PredicateDecl, Problem, Redirect, Subtask, Task, Term, TypeDecl,
 };
 pub use parse::SUPPORTED_REQUIREMENTS;
+pub use problem::check_problem;
 pub use state::{ComponentCost, EcologyState, Fact, Power};
 pub use validate::ECOLOGY_PREDICATES;
 
@@ -63,7 +65,7 @@ pub fn parse_domain(source: &[u8]) -> Result<Domain, Diagnostics> {
     finish(domain, diags)
 }
 
-/// Parses a problem file. Checking it against its domain is the action planner's job.
+/// Parses a problem file; [`parse_problem_for`] also checks it against its domain.
 pub fn parse_problem(source: &[u8]) -> Result<Problem, Diagnostics> {
     let (forms, mut parser, whole) = read(source)?;
     let Some((name, items)) = parser.define(&forms, "problem", whole) else {
@@ -71,6 +73,14 @@ pub fn parse_problem(source: &[u8]) -> Result<Problem, Diagnostics> {
     };
     let problem = parser.problem_body(name, items);
     finish(problem, parser.diags)
+}
+
+/// Parses a problem file and checks it against `domain` ([`check_problem`]),
+/// returning every diagnostic of both.
+pub fn parse_problem_for(domain: &Domain, source: &[u8]) -> Result<Problem, Diagnostics> {
+    let problem = parse_problem(source)?;
+    check_problem(domain, &problem)?;
+    Ok(problem)
 }
 
 /// Parses a `.facts` file: ground facts, one S-expression each.

@@ -423,6 +423,8 @@ pub struct Problem {
     pub name: Name,
     /// `(:domain NAME)`
     pub domain: Name,
+    /// Where the domain's name stands in the problem.
+    pub domain_span: Span,
     /// `(:objects ...)`
     pub objects: Vec<Param>,
     /// The ground atoms of `(:init ...)`.

@@ -968,6 +968,7 @@ impl Parser {
                     [_, name] => {
                         saw_domain = true;
                         problem.domain = self.symbol(name, "a domain name").unwrap_or_default();
+                        problem.domain_span = name.span;
                     }
                     _ => self.error(form.span, "expected `(:domain NAME)`"),
                 },

@@ -524,3 +524,107 @@ proptest! {
         let _ = parse_facts(&facts);
     }
 }
+
+/// Checks `problem` against the PEIS-Home domain and compares the rendered
+/// diagnostics with `expected`.
+fn check_against_home(problem: &str, expected: Expect) {
+    let home = parse_domain(PEIS_HOME.as_bytes()).expect("peis-home.eco is valid");
+    let actual = match crate::parse_problem_for(&home, problem.as_bytes()) {
+        Ok(_) => "ok".to_string(),
+        Err(diags) => diags.render("test.problem", problem.as_bytes()),
+    };
+    expected.assert_eq(&actual);
+}
+
+#[test]
+fn problems_are_checked_against_their_domain() {
+    check_against_home(
+        include_str!("../../../domains/peis-home-task.problem"),
+        expect!["ok"],
+    );
+    check_against_home(
+        r#"(define (problem p) (:domain peis-home)
+  (:objects astrid - robot hall - corridor kitchen - room astrid - robot)
+  (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+  (:goal (and (awake ?h) (= astrid ghost))))
+"#,
+        expect![[r#"
+            error: unknown type `corridor`
+              ┌─ test.problem:2:28
+              │
+            2 │   (:objects astrid - robot hall - corridor kitchen - room astrid - robot)
+              │                            ^^^^
+              │
+              = declare it in the domain's `(:types ...)`
+
+            error: duplicate object `astrid`
+              ┌─ test.problem:2:59
+              │
+            2 │   (:objects astrid - robot hall - corridor kitchen - room astrid - robot)
+              │             ------                                        ^^^^^^
+              │             │                                              
+              │             first declared here
+
+            error: `kitchen` is a `room`, but `at` expects a `robot` there
+              ┌─ test.problem:3:30
+              │
+            3 │   (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+              │                              ^^^^^^^^^^^^^^^^^^^
+              │
+              = the domain declares (at ?r - robot ?x - room)
+
+            error: `astrid` is a `robot`, but `at` expects a `room` there
+              ┌─ test.problem:3:30
+              │
+            3 │   (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+              │                              ^^^^^^^^^^^^^^^^^^^
+              │
+              = the domain declares (at ?r - robot ?x - room)
+
+            error: wrong arity: `at` takes 2 arguments, given 1
+              ┌─ test.problem:3:50
+              │
+            3 │   (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+              │                                                  ^^^^^^^^^^^
+
+            error: unknown predicate `flying`
+              ┌─ test.problem:3:62
+              │
+            3 │   (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+              │                                                              ^^^^^^^^^^^^^^^
+              │
+              = declare it in the domain's `(:predicates ...)`
+
+            error: unknown object `nowhere`
+              ┌─ test.problem:3:78
+              │
+            3 │   (:init (at astrid kitchen) (at kitchen astrid) (at astrid) (flying astrid) (at astrid nowhere))
+              │                                                                              ^^^^^^^^^^^^^^^^^^^
+              │
+              = declare it in `(:objects ...)`
+
+            error: problems are ground, but `?h` is a variable
+              ┌─ test.problem:4:15
+              │
+            4 │   (:goal (and (awake ?h) (= astrid ghost))))
+              │               ^^^^^^^^^^
+
+            error: unknown object `ghost`
+              ┌─ test.problem:4:26
+              │
+            4 │   (:goal (and (awake ?h) (= astrid ghost))))
+              │                          ^^^^^^^^^^^^^^^^
+              │
+              = declare it in `(:objects ...)`
+
+        "#]],
+    );
+    let home = parse_domain(PEIS_HOME.as_bytes()).expect("valid");
+    let wrong_domain =
+        parse_problem(b"(define (problem p) (:domain fridge) (:goal (and)))").expect("parses");
+    let diags = crate::check_problem(&home, &wrong_domain).expect_err("wrong domain");
+    assert_eq!(
+        diags.0[0].message,
+        "the problem is for domain `fridge`, but the domain is `peis-home`"
+    );
+}

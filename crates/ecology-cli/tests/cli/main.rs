@@ -271,3 +271,162 @@ fn bad_goals_and_arguments_exit_2() {
     let out = ecology(&["frobnicate"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+fn plan(extra: &[&str]) -> Output {
+    let mut args = vec![
+        "plan",
+        "--domain",
+        "domains/peis-home.eco",
+        "--problem",
+        "domains/peis-home-task.problem",
+    ];
+    args.extend_from_slice(extra);
+    ecology(&args)
+}
+
+#[test]
+fn plan_the_peis_home_task() {
+    // The paper's Section VIII: each action with the configuration goal that performs it.
+    let out = plan(&[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(
+        lines[..5],
+        [
+            "(move astrid living-room entrance)  ; configure (navigate astrid entrance)",
+            "(get astrid newspaper entrance)     ; configure (grasp astrid newspaper)",
+            "(move astrid entrance bedroom)      ; configure (navigate astrid bedroom)",
+            "(wake astrid johanna bedroom)       ; configure (wake-up astrid johanna)",
+            "; cost = 4",
+        ]
+    );
+}
+
+#[test]
+fn plan_json() {
+    let out = plan(&["--optimal", "--json"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let value = json(&out);
+    assert_eq!(
+        value["plan"],
+        serde_json::json!([
+            "(move astrid living-room entrance)",
+            "(get astrid newspaper entrance)",
+            "(move astrid entrance bedroom)",
+            "(wake astrid johanna bedroom)"
+        ])
+    );
+    assert_eq!(value["configure"][3], "(wake-up astrid johanna)");
+    assert_eq!(value["cost"], 4);
+    assert_eq!(value["optimal"], true);
+    assert!(value["stats"]["expanded"].as_u64().is_some_and(|n| n >= 4));
+    assert!(value["stats"]["micros"].is_u64());
+    let fast = json(&plan(&["--json"]));
+    assert_eq!(fast["optimal"], false);
+    assert_eq!(fast["plan"], value["plan"]);
+}
+
+#[test]
+fn plan_classic_pddl_optimally() {
+    for (domain, problem, cost) in [
+        ("gripper", "gripper-4", 11),
+        ("blocks", "blocks-sussman", 6),
+        ("blocks", "blocks-reverse-4", 8),
+        ("logistics", "logistics-2", 26),
+    ] {
+        let out = ecology(&[
+            "plan",
+            "--domain",
+            &format!("domains/pddl/{domain}.pddl"),
+            "--problem",
+            &format!("domains/pddl/{problem}.pddl"),
+            "--optimal",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        assert!(
+            stdout(&out).contains(&format!("; cost = {cost}\n; proven optimal")),
+            "{problem}: {}",
+            stdout(&out)
+        );
+    }
+}
+
+#[test]
+fn plan_without_a_plan_exits_1_with_a_reason() {
+    let out = plan(&["--exclude", "(move astrid living-room entrance)"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("no plan: the goal is unreachable"),
+        "{}",
+        stderr(&out)
+    );
+    let out = plan(&["--exclude", "(move astrid entrance bedroom)", "--json"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(json(&out)["error"], "unsolvable");
+
+    let out = ecology(&[
+        "plan",
+        "--domain",
+        "domains/pddl/blocks.pddl",
+        "--problem",
+        "domains/pddl/blocks-reverse-4.pddl",
+        "--optimal",
+        "--heuristic",
+        "blind",
+        "--max-nodes",
+        "5",
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let value = json(&out);
+    assert_eq!(value["error"], "budget exceeded");
+    assert_eq!(value["stats"]["expanded"], 5);
+}
+
+#[test]
+fn plan_bad_input_exits_2_with_positions() {
+    let dir = std::env::temp_dir().join(format!("ecology-cli-plan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let bad = dir.join("bad.problem");
+    std::fs::write(
+        &bad,
+        "(define (problem bad) (:domain peis-home)\n  (:objects astrid - robot hall - room)\n  (:init (at astrid kitchen))\n  (:goal (awake astrid)))\n",
+    )
+    .expect("write");
+    let out = plan_with_problem(bad.to_str().expect("utf-8 path"), &[]);
+    assert_eq!(out.status.code(), Some(2));
+    let text = stderr(&out);
+    assert!(text.contains("bad.problem:3:10"), "{text}");
+    assert!(text.contains("unknown object `kitchen`"), "{text}");
+    assert!(text.contains("bad.problem:4:10"), "{text}");
+    assert!(
+        text.contains("`astrid` is a `robot`, but `awake` expects a `person` there"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+
+    for exclude in [
+        "(fly astrid)",
+        "(move astrid attic bedroom)",
+        "(move astrid",
+    ] {
+        let out = plan(&["--exclude", exclude]);
+        assert_eq!(out.status.code(), Some(2), "{exclude}");
+    }
+    let out = plan(&["--optimal", "--heuristic", "ff"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("admissible"));
+}
+
+fn plan_with_problem(problem: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "plan",
+        "--domain",
+        "domains/peis-home.eco",
+        "--problem",
+        problem,
+    ];
+    args.extend_from_slice(extra);
+    ecology(&args)
+}

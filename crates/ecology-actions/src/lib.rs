@@ -1,0 +1,476 @@
+//! The action planner of Ecology (step 1 of the paper's Section III): from a
+//! domain's `:action` schemas and a problem, a plan of ground actions, each
+//! carrying the `:configure` goal the sequencer hands to the configuration
+//! planner.
+//!
+//! It speaks the STRIPS fragment of PDDL with `:typing`,
+//! `:negative-preconditions`, `:equality` and `:action-costs`. [`ground`]
+//! turns a domain and a problem into a [`Task`]; [`plan`] searches it, greedy
+//! best-first with the FF heuristic for fast plans or A* with LM-cut for
+//! optimal ones, under a [`Budget`]. [`Request`] says where to start and
+//! which action instances are unavailable, which is how the executive
+//! replans. [`validate`] checks any plan against the schemas.
+//!
+//! The planner is sans-IO: time comes from a [`Clock`] the caller passes in.
+//!
+//! ```
+//! use ecology_actions::{ground, plan, NoClock, Options, Request, Verdict};
+//! let domain = ecology_domain::parse_domain(br#"(define (domain d)
+//!   (:requirements :strips :typing)
+//!   (:types room)
+//!   (:predicates (at ?x - room) (door ?x ?y - room))
+//!   (:action go :parameters (?x ?y - room)
+//!     :precondition (and (at ?x) (door ?x ?y))
+//!     :effect (and (at ?y) (not (at ?x)))))"#).unwrap();
+//! let problem = ecology_domain::parse_problem(b"(define (problem p) (:domain d)
+//!   (:objects a b c - room)
+//!   (:init (at a) (door a b) (door b c))
+//!   (:goal (at c)))").unwrap();
+//! let task = ground(&domain, &problem).unwrap();
+//! let outcome = plan(&Request::new(&task), &Options::default(), &NoClock);
+//! let Verdict::Found(found) = &outcome.verdict else { panic!() };
+//! assert_eq!(found.to_string(), "(go a b)\n(go b c)\n; cost = 2\n");
+//! ```
+
+mod heuristic;
+pub mod oracle;
+pub mod problems;
+mod search;
+mod task;
+mod validate;
+
+#[cfg(test)]
+mod tests;
+
+use std::fmt;
+use std::time::Duration;
+
+use ecology_domain::{Call, Name};
+
+pub use heuristic::{Heuristic, HeuristicKind};
+pub use task::{
+    AtomId, GroundError, InstanceError, MAX_OPERATORS, OpId, Operator, State, StateError, Task,
+    ground,
+};
+pub use validate::{PlanError, validate};
+
+use search::{Algorithm, Engine, StepResult};
+
+/// Limits on one search; `None` means unlimited.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Budget {
+    /// Nodes expanded at most.
+    pub max_expansions: Option<u64>,
+    /// Time at most, as measured by the caller's [`Clock`].
+    pub max_time: Option<Duration>,
+}
+
+/// Time since the search started, from the caller (the planner reads no clock).
+pub trait Clock {
+    /// Time elapsed since the planner was called.
+    fn elapsed(&self) -> Duration;
+}
+
+/// A clock that never advances: no time budget, and `micros` reads 0.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoClock;
+
+impl Clock for NoClock {
+    fn elapsed(&self) -> Duration {
+        Duration::ZERO
+    }
+}
+
+/// Which search runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Strategy {
+    /// Greedy best-first search: fast, not optimal. With `preferred`, the
+    /// heuristic's preferred operators get their own queue.
+    Greedy {
+        /// The heuristic.
+        heuristic: HeuristicKind,
+        /// Whether to use preferred operators (only FF offers them).
+        preferred: bool,
+    },
+    /// A*: optimal when the heuristic is admissible.
+    AStar {
+        /// The heuristic.
+        heuristic: HeuristicKind,
+    },
+}
+
+impl Strategy {
+    /// Greedy best-first search with FF and preferred operators.
+    pub const SATISFICING: Strategy = Strategy::Greedy {
+        heuristic: HeuristicKind::Ff,
+        preferred: true,
+    };
+    /// A* with LM-cut.
+    pub const OPTIMAL: Strategy = Strategy::AStar {
+        heuristic: HeuristicKind::LmCut,
+    };
+}
+
+/// How to search.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    /// The search and its heuristic.
+    pub strategy: Strategy,
+    /// When to stop early.
+    pub budget: Budget,
+}
+
+impl Default for Options {
+    fn default() -> Options {
+        Options {
+            strategy: Strategy::SATISFICING,
+            budget: Budget::default(),
+        }
+    }
+}
+
+impl Options {
+    /// Options for an optimal plan (A* with LM-cut).
+    pub fn optimal() -> Options {
+        Options {
+            strategy: Strategy::OPTIMAL,
+            budget: Budget::default(),
+        }
+    }
+}
+
+/// What to plan for: a task, the state to start from, and the action
+/// instances not to use.
+#[derive(Debug, Clone)]
+pub struct Request<'t> {
+    /// The ground task.
+    pub task: &'t Task,
+    /// Where the world is now (the problem's init, unless replanning).
+    pub initial: State,
+    /// Operators that are unavailable, for example because no configuration
+    /// can perform them.
+    pub excluded: Vec<OpId>,
+}
+
+impl<'t> Request<'t> {
+    /// Plans from the task's initial state with every operator available.
+    pub fn new(task: &'t Task) -> Request<'t> {
+        Request {
+            task,
+            initial: task.initial().clone(),
+            excluded: Vec::new(),
+        }
+    }
+
+    /// Plans again from `state`, without the `excluded` operators: the
+    /// executive's action-level recovery.
+    pub fn replan(task: &'t Task, state: State, excluded: Vec<OpId>) -> Request<'t> {
+        Request {
+            task,
+            initial: state,
+            excluded,
+        }
+    }
+}
+
+/// One action of a plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    /// The operator.
+    pub op: OpId,
+    /// The action schema's name.
+    pub action: Name,
+    /// Its arguments.
+    pub args: Vec<Name>,
+    /// What it costs.
+    pub cost: u64,
+    /// The ground configuration goal that performs it, if the schema has one.
+    pub configure: Option<Call>,
+}
+
+impl fmt::Display for Step {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "({}", self.action)?;
+        for arg in &self.args {
+            write!(f, " {arg}")?;
+        }
+        f.write_str(")")
+    }
+}
+
+/// A plan: actions in order and their total cost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// The actions.
+    pub steps: Vec<Step>,
+    /// Their total cost.
+    pub cost: u64,
+}
+
+impl Plan {
+    /// The plan made of `ops` in `task`.
+    pub fn from_ops(task: &Task, ops: &[OpId]) -> Plan {
+        let steps: Vec<Step> = ops
+            .iter()
+            .map(|&op| {
+                let o = task.operator(op);
+                Step {
+                    op,
+                    action: o.action.clone(),
+                    args: o.args.clone(),
+                    cost: o.cost,
+                    configure: o.configure.clone(),
+                }
+            })
+            .collect();
+        Plan {
+            cost: steps.iter().map(|s| s.cost).fold(0, u64::saturating_add),
+            steps,
+        }
+    }
+
+    /// The steps as ground calls `(action args...)`, as [`validate`] takes them.
+    pub fn calls(&self) -> Vec<Call> {
+        self.steps
+            .iter()
+            .map(|s| Call {
+                name: s.action.clone(),
+                args: s
+                    .args
+                    .iter()
+                    .map(|a| ecology_domain::Term::Const(a.clone()))
+                    .collect(),
+                span: ecology_domain::Span::default(),
+            })
+            .collect()
+    }
+}
+
+impl fmt::Display for Plan {
+    /// One action per line, then `; cost = N`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for step in &self.steps {
+            writeln!(f, "{step}")?;
+        }
+        writeln!(f, "; cost = {}", self.cost)
+    }
+}
+
+/// Why there is no plan, as proven by the planner.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Unsolvable {
+    /// Goal literals that no plan can achieve even when deletes are ignored
+    /// (including static facts and equalities that are false).
+    Unreachable {
+        /// The literals, as written.
+        goals: Vec<String>,
+    },
+    /// Every state reachable from the start was explored.
+    Exhausted {
+        /// How many states.
+        states: u64,
+    },
+}
+
+impl fmt::Display for Unsolvable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Unsolvable::Unreachable { goals } => write!(
+                f,
+                "the goal is unreachable: no sequence of available actions achieves {}",
+                goals.join(" ")
+            ),
+            Unsolvable::Exhausted { states } => write!(
+                f,
+                "no plan exists: all {states} reachable states were explored"
+            ),
+        }
+    }
+}
+
+/// What the search concluded.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// A plan.
+    Found(Plan),
+    /// Proven: no plan exists.
+    Unsolvable(Unsolvable),
+    /// The budget ran out before a plan was found or ruled out.
+    BudgetExceeded,
+}
+
+/// Counts of one search.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stats {
+    /// Nodes expanded.
+    pub expanded: u64,
+    /// Successors generated.
+    pub generated: u64,
+    /// Heuristic evaluations.
+    pub evaluated: u64,
+    /// Distinct states stored.
+    pub states: u64,
+    /// The heuristic's estimate of the start state (`None`: a dead end).
+    pub initial_h: Option<u64>,
+    /// Time spent, by the caller's clock.
+    pub micros: u64,
+}
+
+/// The result of a search.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// The plan, or why there is none.
+    pub verdict: Verdict,
+    /// Whether the plan is proven cheapest (A* with an admissible heuristic).
+    pub optimal: bool,
+    /// Counts.
+    pub stats: Stats,
+}
+
+/// What one call of [`Search::step`] reached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    /// More work remains.
+    InProgress,
+    /// The search is over; [`Search::finish`] has the result.
+    Done,
+}
+
+/// A search that can be run in steps under an outside budget.
+#[derive(Debug)]
+pub struct Search<'t> {
+    engine: Engine<'t>,
+    task: &'t Task,
+    excluded: Vec<bool>,
+    initial: State,
+    optimal_search: bool,
+    result: Option<StepResult>,
+}
+
+impl<'t> Search<'t> {
+    /// Prepares a search: builds the heuristic and evaluates the start state.
+    pub fn new(request: &Request<'t>, strategy: Strategy) -> Search<'t> {
+        let task = request.task;
+        let mut excluded = vec![false; task.operators().len()];
+        for op in &request.excluded {
+            if let Some(slot) = excluded.get_mut(op.index()) {
+                *slot = true;
+            }
+        }
+        let (kind, algorithm) = match strategy {
+            Strategy::Greedy {
+                heuristic,
+                preferred,
+            } => (heuristic, Algorithm::Greedy { preferred }),
+            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar),
+        };
+        let heuristic = kind.build(task, &excluded);
+        let initial = task.fit(&request.initial);
+        let engine = Engine::new(task, &initial, excluded.clone(), heuristic, algorithm);
+        let result = if engine.initial_is_goal() {
+            Some(StepResult::Solved(0))
+        } else if engine.initial_h.is_none() {
+            Some(StepResult::Exhausted)
+        } else {
+            None
+        };
+        Search {
+            optimal_search: algorithm == Algorithm::AStar && engine.is_admissible(),
+            engine,
+            task,
+            excluded,
+            initial,
+            result,
+        }
+    }
+
+    /// Runs at most `expansions` expansions.
+    pub fn step(&mut self, expansions: u64) -> Progress {
+        for _ in 0..expansions {
+            if self.result.is_some() {
+                return Progress::Done;
+            }
+            match self.engine.step() {
+                StepResult::Continue => {}
+                done => self.result = Some(done),
+            }
+        }
+        if self.result.is_some() {
+            Progress::Done
+        } else {
+            Progress::InProgress
+        }
+    }
+
+    /// Nodes expanded so far.
+    pub fn expanded(&self) -> u64 {
+        self.engine.expanded
+    }
+
+    /// Ends the search; before [`Progress::Done`] the verdict is
+    /// [`Verdict::BudgetExceeded`].
+    pub fn finish(self, elapsed: Duration) -> Outcome {
+        let stats = Stats {
+            expanded: self.engine.expanded,
+            generated: self.engine.generated,
+            evaluated: self.engine.evaluated,
+            states: self.engine.states() as u64,
+            initial_h: self.engine.initial_h,
+            micros: elapsed.as_micros() as u64,
+        };
+        let (verdict, optimal) = match self.result {
+            None | Some(StepResult::Continue) => (Verdict::BudgetExceeded, false),
+            Some(StepResult::Solved(node)) => {
+                let ops = self.engine.path(node);
+                (
+                    Verdict::Found(Plan::from_ops(self.task, &ops)),
+                    self.optimal_search,
+                )
+            }
+            Some(StepResult::Exhausted) => {
+                let goals = heuristic::unreachable_goals(self.task, &self.excluded, &self.initial);
+                let why = if goals.is_empty() {
+                    Unsolvable::Exhausted {
+                        states: stats.states,
+                    }
+                } else {
+                    Unsolvable::Unreachable { goals }
+                };
+                (Verdict::Unsolvable(why), false)
+            }
+        };
+        Outcome {
+            verdict,
+            optimal,
+            stats,
+        }
+    }
+}
+
+/// How many expansions [`plan`] runs between two readings of the clock.
+pub const TIME_CHECK_EXPANSIONS: u64 = 64;
+
+/// Plans for `request`, stopping when the budget runs out.
+pub fn plan(request: &Request<'_>, options: &Options, clock: &dyn Clock) -> Outcome {
+    const SLICE: u64 = TIME_CHECK_EXPANSIONS;
+    let mut search = Search::new(request, options.strategy);
+    loop {
+        let slice = match options.budget.max_expansions {
+            Some(max) => SLICE.min(max.saturating_sub(search.expanded())),
+            None => SLICE,
+        };
+        let over_time = options
+            .budget
+            .max_time
+            .is_some_and(|t| clock.elapsed() >= t);
+        if search.result.is_some() {
+            return search.finish(clock.elapsed());
+        }
+        if slice == 0 || over_time {
+            return search.finish(clock.elapsed());
+        }
+        if search.step(slice) == Progress::Done {
+            return search.finish(clock.elapsed());
+        }
+    }
+}

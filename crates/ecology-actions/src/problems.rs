@@ -1,0 +1,367 @@
+//! Problem generators for tests and benchmarks: the classic domains of
+//! `domains/pddl/` at growing sizes, and random small domains for property
+//! tests against the [`crate::oracle`].
+//!
+//! Each generator writes PDDL text and parses it back, so the parser is
+//! exercised too. Randomness comes from a seeded generator: the same seed
+//! gives the same problem everywhere.
+
+use std::fmt::Write;
+
+use ecology_domain::{Diagnostics, Domain, Problem};
+
+/// The gripper domain's source.
+pub const GRIPPER: &str = include_str!("../../../domains/pddl/gripper.pddl");
+/// The blocks world domain's source.
+pub const BLOCKS: &str = include_str!("../../../domains/pddl/blocks.pddl");
+/// The logistics domain's source (with action costs).
+pub const LOGISTICS: &str = include_str!("../../../domains/pddl/logistics.pddl");
+
+/// SplitMix64: a tiny, well-mixed, seedable generator.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// A generator from a seed.
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// A number in `0..n` (`n` > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+
+    /// True with probability `p`.
+    pub fn chance(&mut self, p: f64) -> bool {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 <= p
+    }
+}
+
+/// A generated problem, as text and parsed.
+#[derive(Debug, Clone)]
+pub struct Instance {
+    /// A short name such as `gripper-10`.
+    pub name: String,
+    /// The domain's source.
+    pub domain_text: String,
+    /// The problem's source.
+    pub problem_text: String,
+    /// The parsed domain.
+    pub domain: Domain,
+    /// The parsed problem.
+    pub problem: Problem,
+    /// The optimal plan cost, when known in closed form.
+    pub optimal_cost: Option<u64>,
+}
+
+/// A generated text did not parse: a generator bug, with the text.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("generated {what} does not parse: {diagnostics}\n{text}")]
+pub struct GeneratorError {
+    /// `domain` or `problem`.
+    pub what: &'static str,
+    /// The parser's diagnostics.
+    pub diagnostics: Diagnostics,
+    /// The text.
+    pub text: String,
+}
+
+fn instance(
+    name: String,
+    domain_text: String,
+    problem_text: String,
+    optimal_cost: Option<u64>,
+) -> Result<Instance, GeneratorError> {
+    let domain =
+        ecology_domain::parse_domain(domain_text.as_bytes()).map_err(|d| GeneratorError {
+            what: "domain",
+            diagnostics: d,
+            text: domain_text.clone(),
+        })?;
+    let problem =
+        ecology_domain::parse_problem(problem_text.as_bytes()).map_err(|d| GeneratorError {
+            what: "problem",
+            diagnostics: d,
+            text: problem_text.clone(),
+        })?;
+    Ok(Instance {
+        name,
+        domain_text,
+        problem_text,
+        domain,
+        problem,
+        optimal_cost,
+    })
+}
+
+/// Gripper with `balls` balls, all from `rooma` to `roomb`. The optimum is
+/// known: each trip carries two balls, so `2n + 2⌈n/2⌉ - 1` actions.
+pub fn gripper(balls: usize) -> Result<Instance, GeneratorError> {
+    let mut p = String::new();
+    let _ = writeln!(p, "(define (problem gripper-{balls}) (:domain gripper)");
+    p.push_str("  (:objects rooma roomb - room left right - gripper");
+    for b in 1..=balls {
+        let _ = write!(p, " ball{b}");
+    }
+    p.push_str(" - ball)\n  (:init (at-robby rooma) (free left) (free right)");
+    for b in 1..=balls {
+        let _ = write!(p, " (at ball{b} rooma)");
+    }
+    p.push_str(")\n  (:goal (and");
+    for b in 1..=balls {
+        let _ = write!(p, " (at ball{b} roomb)");
+    }
+    p.push_str(")))\n");
+    let optimum = (2 * balls + 2 * balls.div_ceil(2)).saturating_sub(1) as u64;
+    instance(
+        format!("gripper-{balls}"),
+        GRIPPER.to_string(),
+        p,
+        Some(optimum),
+    )
+}
+
+/// Random towers of `blocks` blocks, as `(below, above)` pairs and bottoms.
+fn towers(blocks: usize, rng: &mut Rng) -> Vec<Vec<usize>> {
+    let mut order: Vec<usize> = (0..blocks).collect();
+    for i in (1..order.len()).rev() {
+        order.swap(i, rng.below(i + 1));
+    }
+    let mut towers: Vec<Vec<usize>> = Vec::new();
+    for b in order {
+        match towers.last_mut() {
+            Some(t) if !rng.chance(0.3) => t.push(b),
+            _ => towers.push(vec![b]),
+        }
+    }
+    towers
+}
+
+/// Blocks world: a random start and a random goal tower arrangement of
+/// `blocks` blocks, from `seed`.
+pub fn blocks(blocks: usize, seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed);
+    let start = towers(blocks, &mut rng);
+    let goal = towers(blocks, &mut rng);
+    let mut p = String::new();
+    let _ = writeln!(p, "(define (problem blocks-{blocks}) (:domain blocks)");
+    p.push_str("  (:objects");
+    for b in 0..blocks {
+        let _ = write!(p, " b{b}");
+    }
+    p.push_str(" - block)\n  (:init (handempty)");
+    for t in &start {
+        let _ = write!(p, " (ontable b{})", t[0]);
+        for w in t.windows(2) {
+            let _ = write!(p, " (on b{} b{})", w[1], w[0]);
+        }
+        let _ = write!(p, " (clear b{})", t[t.len() - 1]);
+    }
+    p.push_str(")\n  (:goal (and");
+    for t in &goal {
+        let _ = write!(p, " (ontable b{})", t[0]);
+        for w in t.windows(2) {
+            let _ = write!(p, " (on b{} b{})", w[1], w[0]);
+        }
+    }
+    p.push_str(")))\n");
+    instance(format!("blocks-{blocks}"), BLOCKS.to_string(), p, None)
+}
+
+/// Logistics with `cities` cities (an airport and a post office each, one
+/// truck each), `cities / 3 + 1` airplanes and `packages` packages with
+/// random origins and destinations, from `seed`. Flights cost 5 to 14.
+pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed);
+    let planes = cities / 3 + 1;
+    let mut p = String::new();
+    let _ = writeln!(
+        p,
+        "(define (problem logistics-{cities}-{packages}) (:domain logistics)"
+    );
+    p.push_str("  (:objects");
+    for c in 0..cities {
+        let _ = write!(
+            p,
+            " c{c} - city ap{c} - airport po{c} - location t{c} - truck"
+        );
+    }
+    for a in 0..planes {
+        let _ = write!(p, " plane{a} - airplane");
+    }
+    for k in 0..packages {
+        let _ = write!(p, " p{k} - package");
+    }
+    p.push_str(")\n  (:init");
+    for c in 0..cities {
+        let _ = write!(
+            p,
+            " (in-city ap{c} c{c}) (in-city po{c} c{c}) (at t{c} po{c})"
+        );
+    }
+    for a in 0..planes {
+        let _ = write!(p, " (at plane{a} ap{})", rng.below(cities));
+    }
+    for from in 0..cities {
+        for to in 0..cities {
+            let cost = if from == to { 0 } else { 5 + rng.below(10) };
+            let _ = write!(p, " (= (flight-cost ap{from} ap{to}) {cost})");
+        }
+    }
+    let place = |rng: &mut Rng| {
+        let c = rng.below(cities);
+        if rng.chance(0.5) {
+            format!("ap{c}")
+        } else {
+            format!("po{c}")
+        }
+    };
+    let mut goal = String::new();
+    for k in 0..packages {
+        let _ = write!(p, " (at p{k} {})", place(&mut rng));
+        let _ = write!(goal, " (at p{k} {})", place(&mut rng));
+    }
+    let _ = write!(
+        p,
+        ")\n  (:goal (and{goal}))\n  (:metric minimize (total-cost)))\n"
+    );
+    instance(
+        format!("logistics-{cities}-{packages}"),
+        LOGISTICS.to_string(),
+        p,
+        None,
+    )
+}
+
+/// A random small domain and problem: two types, four predicates, four
+/// actions with positive, negative and equality preconditions and costs,
+/// three or four objects. Small enough for [`crate::oracle::cheapest`].
+pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed);
+    let action_costs = rng.chance(0.5);
+    let mut d = String::new();
+    let _ = writeln!(
+        d,
+        "(define (domain random-{seed})\n  (:requirements :strips :typing :negative-preconditions :equality{})",
+        if action_costs { " :action-costs" } else { "" }
+    );
+    d.push_str(
+        "  (:types t0 t1)\n  (:predicates (p0 ?a - t0) (p1 ?a - t0 ?b - t1) (p2 ?b - t1) (flag))\n",
+    );
+    if action_costs {
+        d.push_str("  (:functions (total-cost) - number (weight ?b - t1) - number)\n");
+    }
+    for k in 0..4 {
+        // Parameters: ?x - t0 and ?y ?z - t1.
+        let vars = [("x", "t0"), ("y", "t1"), ("z", "t1")];
+        let arg = |rng: &mut Rng, ty: &str| -> &'static str {
+            match (ty, rng.below(2)) {
+                ("t0", _) => "?x",
+                (_, 0) => "?y",
+                _ => "?z",
+            }
+        };
+        let atom = |rng: &mut Rng| -> String {
+            match rng.below(8) {
+                0 | 1 => format!("(p0 {})", arg(rng, "t0")),
+                2..=4 => format!("(p1 {} {})", arg(rng, "t0"), arg(rng, "t1")),
+                5 | 6 => format!("(p2 {})", arg(rng, "t1")),
+                _ => "(flag)".to_string(),
+            }
+        };
+        let mut pre = Vec::new();
+        for _ in 0..1 + rng.below(2) {
+            let a = atom(&mut rng);
+            pre.push(if rng.chance(0.25) {
+                format!("(not {a})")
+            } else {
+                a
+            });
+        }
+        if rng.chance(0.3) {
+            pre.push("(not (= ?y ?z))".to_string());
+        }
+        let mut eff = Vec::new();
+        for _ in 0..2 + rng.below(2) {
+            let a = atom(&mut rng);
+            eff.push(if rng.chance(0.25) {
+                format!("(not {a})")
+            } else {
+                a
+            });
+        }
+        if action_costs {
+            if rng.chance(0.5) {
+                eff.push(format!("(increase (total-cost) {})", rng.below(4)));
+            } else {
+                eff.push("(increase (total-cost) (weight ?y))".to_string());
+            }
+        }
+        let params: Vec<String> = vars.iter().map(|(v, t)| format!("?{v} - {t}")).collect();
+        let _ = writeln!(
+            d,
+            "  (:action a{k} :parameters ({}) :precondition (and {}) :effect (and {}))",
+            params.join(" "),
+            pre.join(" "),
+            eff.join(" ")
+        );
+    }
+    d.push_str(")\n");
+    let t0 = 1 + rng.below(2);
+    let t1 = 2;
+    let mut p = String::new();
+    let _ = writeln!(p, "(define (problem random-{seed}) (:domain random-{seed})");
+    p.push_str("  (:objects");
+    for i in 0..t0 {
+        let _ = write!(p, " o{i}");
+    }
+    p.push_str(" - t0");
+    for i in 0..t1 {
+        let _ = write!(p, " u{i}");
+    }
+    p.push_str(" - t1)\n  (:init");
+    let mut ground: Vec<String> = vec!["(flag)".to_string()];
+    for i in 0..t0 {
+        ground.push(format!("(p0 o{i})"));
+        for j in 0..t1 {
+            ground.push(format!("(p1 o{i} u{j})"));
+        }
+    }
+    for j in 0..t1 {
+        ground.push(format!("(p2 u{j})"));
+    }
+    let mut initial = vec![false; ground.len()];
+    for (g, holds) in ground.iter().zip(&mut initial) {
+        if rng.chance(0.5) {
+            *holds = true;
+            let _ = write!(p, " {g}");
+        }
+    }
+    if action_costs {
+        for j in 0..t1 {
+            let _ = write!(p, " (= (weight u{j}) {})", rng.below(5));
+        }
+    }
+    p.push_str(")\n  (:goal (and");
+    // Goals that do not hold yet, so that most problems need a plan.
+    for _ in 0..1 + rng.below(2) {
+        let k = rng.below(ground.len());
+        if initial[k] {
+            let _ = write!(p, " (not {})", ground[k]);
+        } else {
+            let _ = write!(p, " {}", ground[k]);
+        }
+    }
+    p.push_str(")))\n");
+    instance(format!("random-{seed}"), d, p, None)
+}

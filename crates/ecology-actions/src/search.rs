@@ -1,0 +1,314 @@
+//! The search engines: greedy best-first search (with preferred operators)
+//! and A*, as loops of expansion steps over an arena of nodes.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap};
+
+use crate::heuristic::Heuristic;
+use crate::task::{OpId, State, Task};
+
+/// States stored once, flat, with a hash index: node `i` has state `i`.
+#[derive(Debug, Default)]
+struct Registry {
+    words: usize,
+    data: Vec<u64>,
+    /// First node of each hash value; collisions chain through `next`.
+    first: HashMap<u64, u32>,
+    next: Vec<u32>,
+}
+
+fn hash_words(words: &[u64]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &w in words {
+        h = (h ^ w).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(29);
+        h = h.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    }
+    h
+}
+
+impl Registry {
+    fn get(&self, id: u32) -> &[u64] {
+        let start = id as usize * self.words;
+        &self.data[start..start + self.words]
+    }
+
+    /// The node of `state`, inserting it as node `len` if new; `true` if new.
+    fn insert(&mut self, state: &[u64]) -> (u32, bool) {
+        let hash = hash_words(state);
+        let mut at = self.first.get(&hash).copied();
+        while let Some(id) = at {
+            if self.get(id) == state {
+                return (id, false);
+            }
+            at = match self.next[id as usize] {
+                u32::MAX => None,
+                n => Some(n),
+            };
+        }
+        let id = self.next.len() as u32;
+        self.data.extend_from_slice(state);
+        let previous = self.first.insert(hash, id);
+        self.next.push(previous.unwrap_or(u32::MAX));
+        (id, true)
+    }
+}
+
+const NONE: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    parent: u32,
+    op: u32,
+    g: u64,
+    /// `None`: a dead end.
+    h: Option<u64>,
+    closed: bool,
+}
+
+/// Which algorithm runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Algorithm {
+    Greedy { preferred: bool },
+    AStar,
+}
+
+/// The result of one step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum StepResult {
+    Continue,
+    Solved(u32),
+    Exhausted,
+}
+
+pub(crate) struct Engine<'t> {
+    task: &'t Task,
+    excluded: Vec<bool>,
+    heuristic: Box<dyn Heuristic + 't>,
+    algorithm: Algorithm,
+    registry: Registry,
+    nodes: Vec<Node>,
+    /// (priority, tie-break, counter, node); the tie-break is h under A*.
+    open: BinaryHeap<Reverse<(u64, u64, u64, u32)>>,
+    preferred_open: BinaryHeap<Reverse<(u64, u64, u64, u32)>>,
+    counter: u64,
+    /// Expansions left from the preferred queue before alternating again.
+    boost: u64,
+    best_h: u64,
+    turn: bool,
+    scratch: State,
+    preferred: Vec<OpId>,
+    successors: Vec<OpId>,
+    pub(crate) expanded: u64,
+    pub(crate) generated: u64,
+    pub(crate) evaluated: u64,
+    pub(crate) initial_h: Option<u64>,
+}
+
+impl std::fmt::Debug for Engine<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine")
+            .field("heuristic", &self.heuristic.name())
+            .field("algorithm", &self.algorithm)
+            .field("expanded", &self.expanded)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'t> Engine<'t> {
+    pub(crate) fn new(
+        task: &'t Task,
+        initial: &State,
+        excluded: Vec<bool>,
+        heuristic: Box<dyn Heuristic + 't>,
+        algorithm: Algorithm,
+    ) -> Engine<'t> {
+        let mut engine = Engine {
+            task,
+            excluded,
+            heuristic,
+            algorithm,
+            registry: Registry {
+                words: initial.words.len(),
+                ..Registry::default()
+            },
+            nodes: Vec::new(),
+            open: BinaryHeap::new(),
+            preferred_open: BinaryHeap::new(),
+            counter: 0,
+            boost: 0,
+            best_h: u64::MAX,
+            turn: false,
+            scratch: initial.clone(),
+            preferred: Vec::new(),
+            successors: Vec::new(),
+            expanded: 0,
+            generated: 0,
+            evaluated: 0,
+            initial_h: None,
+        };
+        let (id, _) = engine.registry.insert(&initial.words);
+        let h = engine.evaluate(initial);
+        engine.initial_h = h;
+        engine.nodes.push(Node {
+            parent: NONE,
+            op: NONE,
+            g: 0,
+            h,
+            closed: false,
+        });
+        if let Some(h) = h {
+            engine.best_h = h;
+            engine.push(id, 0, h, false);
+        }
+        engine
+    }
+
+    fn evaluate(&mut self, state: &State) -> Option<u64> {
+        self.evaluated += 1;
+        self.preferred.clear();
+        let mut sink = Vec::new();
+        self.heuristic.estimate(state, &mut sink)
+    }
+
+    fn push(&mut self, id: u32, g: u64, h: u64, preferred: bool) {
+        self.counter += 1;
+        let entry = match self.algorithm {
+            Algorithm::AStar => Reverse((g.saturating_add(h), h, self.counter, id)),
+            Algorithm::Greedy { .. } => Reverse((h, 0, self.counter, id)),
+        };
+        if preferred {
+            self.preferred_open.push(entry);
+        }
+        self.open.push(entry);
+    }
+
+    /// Whether the initial state is already a goal: the empty plan.
+    pub(crate) fn initial_is_goal(&self) -> bool {
+        self.task.is_goal(&State::from_words(self.registry.get(0)))
+    }
+
+    fn pop(&mut self) -> Option<u32> {
+        loop {
+            let use_preferred = !self.preferred_open.is_empty() && (self.boost > 0 || self.turn);
+            self.turn = !self.turn;
+            let entry = if use_preferred {
+                self.boost = self.boost.saturating_sub(1);
+                self.preferred_open.pop()
+            } else {
+                self.open.pop()
+            };
+            let Reverse((priority, _, _, id)) = match entry {
+                Some(e) => e,
+                None if self.open.is_empty() && self.preferred_open.is_empty() => return None,
+                None => continue,
+            };
+            let node = self.nodes[id as usize];
+            if node.closed {
+                continue;
+            }
+            if self.algorithm == Algorithm::AStar
+                && node.g.saturating_add(node.h.unwrap_or(u64::MAX)) != priority
+            {
+                continue;
+            }
+            return Some(id);
+        }
+    }
+
+    /// Expands one node.
+    pub(crate) fn step(&mut self) -> StepResult {
+        let Some(id) = self.pop() else {
+            return StepResult::Exhausted;
+        };
+        self.scratch.words.copy_from_slice(self.registry.get(id));
+        if self.algorithm == Algorithm::AStar && self.task.is_goal(&self.scratch) {
+            return StepResult::Solved(id);
+        }
+        self.nodes[id as usize].closed = true;
+        self.expanded += 1;
+        let g = self.nodes[id as usize].g;
+        let use_preferred = matches!(self.algorithm, Algorithm::Greedy { preferred: true });
+        let mut preferred = Vec::new();
+        if use_preferred {
+            // Recomputed here rather than stored for every generated node.
+            let state = self.scratch.clone();
+            self.heuristic.estimate(&state, &mut preferred);
+            preferred.sort_unstable();
+        }
+        let mut successors = std::mem::take(&mut self.successors);
+        successors.clear();
+        let excluded = &self.excluded;
+        self.task.for_each_applicable(&self.scratch, |op| {
+            if !excluded.get(op.index()).copied().unwrap_or(false) {
+                successors.push(op);
+            }
+        });
+        let parent_state = self.scratch.clone();
+        let mut result = StepResult::Continue;
+        for &op in &successors {
+            self.generated += 1;
+            self.scratch.words.copy_from_slice(&parent_state.words);
+            self.task.apply_in_place(&mut self.scratch, op);
+            let new_g = g.saturating_add(self.task.operator(op).cost);
+            let (child, is_new) = self.registry.insert(&self.scratch.words);
+            if is_new {
+                let state = self.scratch.clone();
+                let h = self.evaluate(&state);
+                self.nodes.push(Node {
+                    parent: id,
+                    op: op.0,
+                    g: new_g,
+                    h,
+                    closed: false,
+                });
+                let Some(h) = h else { continue };
+                if let Algorithm::Greedy { .. } = self.algorithm {
+                    if self.task.is_goal(&state) {
+                        result = StepResult::Solved(child);
+                        break;
+                    }
+                    if h < self.best_h {
+                        self.best_h = h;
+                        self.boost += 1000;
+                    }
+                }
+                let is_preferred = preferred.binary_search(&op).is_ok();
+                self.push(child, new_g, h, is_preferred);
+            } else if self.algorithm == Algorithm::AStar {
+                let node = &mut self.nodes[child as usize];
+                if let Some(h) = node.h
+                    && new_g < node.g
+                {
+                    node.g = new_g;
+                    node.parent = id;
+                    node.op = op.0;
+                    node.closed = false;
+                    self.push(child, new_g, h, false);
+                }
+            }
+        }
+        self.successors = successors;
+        result
+    }
+
+    /// The operators from the initial state to node `id`.
+    pub(crate) fn path(&self, mut id: u32) -> Vec<OpId> {
+        let mut ops = Vec::new();
+        while self.nodes[id as usize].parent != NONE {
+            ops.push(OpId(self.nodes[id as usize].op));
+            id = self.nodes[id as usize].parent;
+        }
+        ops.reverse();
+        ops
+    }
+
+    /// Whether the heuristic is admissible.
+    pub(crate) fn is_admissible(&self) -> bool {
+        self.heuristic.is_admissible()
+    }
+
+    /// States stored.
+    pub(crate) fn states(&self) -> usize {
+        self.nodes.len()
+    }
+}

@@ -1,0 +1,905 @@
+//! Grounding: typed action schemas over a problem's objects become operators
+//! on STRIPS states, which are bitsets of ground atoms.
+//!
+//! Predicates that no action changes are *static*: their literals are decided
+//! while grounding (an operator whose static precondition fails is never
+//! built), and they are left out of the state. Everything else is a fluent,
+//! interned as an [`AtomId`] on first use.
+
+use std::collections::{HashMap, HashSet};
+use std::fmt;
+
+use ecology_domain::{Action, Call, Domain, Effect, Literal, Name, NumExpr, Problem, Term};
+
+/// A ground fluent atom such as `(at astrid entrance)`, by index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct AtomId(pub u32);
+
+/// A ground action instance (an operator) of a [`Task`], by index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct OpId(pub u32);
+
+impl AtomId {
+    fn index(self) -> usize {
+        self.0 as usize
+    }
+}
+
+impl OpId {
+    /// The index into [`Task::operators`].
+    pub fn index(self) -> usize {
+        self.0 as usize
+    }
+}
+
+/// A world state: the set of fluent atoms that hold (closed world).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct State {
+    pub(crate) words: Vec<u64>,
+}
+
+impl State {
+    pub(crate) fn empty(atoms: usize) -> State {
+        State {
+            words: vec![0; atoms.div_ceil(64).max(1)],
+        }
+    }
+
+    pub(crate) fn from_words(words: &[u64]) -> State {
+        State {
+            words: words.to_vec(),
+        }
+    }
+
+    /// Whether `atom` holds.
+    pub fn holds(&self, atom: AtomId) -> bool {
+        self.words
+            .get(atom.index() / 64)
+            .is_some_and(|w| w >> (atom.index() % 64) & 1 == 1)
+    }
+
+    pub(crate) fn set(&mut self, atom: AtomId) {
+        self.words[atom.index() / 64] |= 1 << (atom.index() % 64);
+    }
+
+    pub(crate) fn clear(&mut self, atom: AtomId) {
+        self.words[atom.index() / 64] &= !(1 << (atom.index() % 64));
+    }
+
+    /// The atoms that hold, in increasing order.
+    pub fn atoms(&self) -> impl Iterator<Item = AtomId> + '_ {
+        self.words.iter().enumerate().flat_map(|(i, &word)| {
+            let mut w = word;
+            std::iter::from_fn(move || {
+                if w == 0 {
+                    return None;
+                }
+                let bit = w.trailing_zeros();
+                w &= w - 1;
+                Some(AtomId(i as u32 * 64 + bit))
+            })
+        })
+    }
+}
+
+/// A ground action: an action schema with its parameters bound to objects.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Operator {
+    /// The action schema's name.
+    pub action: Name,
+    /// The objects bound to its parameters, in order.
+    pub args: Vec<Name>,
+    /// Fluent atoms that must hold.
+    pub pre: Vec<AtomId>,
+    /// Fluent atoms that must not hold.
+    pub pre_neg: Vec<AtomId>,
+    /// Atoms it makes true.
+    pub add: Vec<AtomId>,
+    /// Atoms it makes false (none of them also in `add`: adding wins).
+    pub del: Vec<AtomId>,
+    /// What it costs: 1 without `:action-costs`, else its `(increase (total-cost) ...)`.
+    pub cost: u64,
+    /// Its ground `:configure` goal, if the schema has one.
+    pub configure: Option<Call>,
+}
+
+impl fmt::Display for Operator {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "({}", self.action)?;
+        for arg in &self.args {
+            write!(f, " {arg}")?;
+        }
+        f.write_str(")")
+    }
+}
+
+/// Grounding failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum GroundError {
+    /// A schema mentions a variable that is not one of its parameters
+    /// (validated domains never do).
+    #[error("action `{action}` uses `?{var}`, which is not one of its parameters")]
+    UnboundVariable {
+        /// The action schema.
+        action: String,
+        /// The variable, without `?`.
+        var: String,
+    },
+    /// The goal has a variable.
+    #[error("the goal must be ground, but it mentions `?{0}`")]
+    VariableInGoal(String),
+    /// Grounding would build more operators than the limit.
+    #[error("grounding builds more than {limit} operators; the problem is too large")]
+    TooLarge {
+        /// The limit that was reached.
+        limit: usize,
+    },
+}
+
+/// A ground action instance could not be found from its name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum InstanceError {
+    /// No action schema has that name.
+    #[error("unknown action `{0}`")]
+    UnknownAction(String),
+    /// Wrong number of arguments.
+    #[error("wrong arity: `{action}` takes {expected} arguments, given {given}")]
+    Arity {
+        /// The action schema.
+        action: String,
+        /// Its parameter count.
+        expected: usize,
+        /// Arguments given.
+        given: usize,
+    },
+    /// An argument is a variable.
+    #[error("an action instance is ground, but `?{0}` is a variable")]
+    NotGround(String),
+    /// An argument names no object or constant.
+    #[error("unknown object `{0}`")]
+    UnknownObject(String),
+}
+
+/// A state could not be built from atoms.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum StateError {
+    /// The atom is of a static predicate and disagrees with the problem's
+    /// `:init`; the task must be grounded again from a new problem.
+    #[error("`{0}` is static (no action changes it) and differs from the problem's init")]
+    StaticChanged(String),
+}
+
+/// The most operators grounding builds before giving up.
+pub const MAX_OPERATORS: usize = 4_000_000;
+
+/// A ground planning task: fluent atoms, operators, an initial state, a goal.
+#[derive(Debug, Clone)]
+pub struct Task {
+    predicates: Vec<Name>,
+    objects: Vec<Name>,
+    object_ids: HashMap<Name, u32>,
+    /// `[predicate, args...]` for each atom.
+    atoms: Vec<Vec<u32>>,
+    atom_ids: HashMap<Vec<u32>, AtomId>,
+    static_predicate: Vec<bool>,
+    statics: HashSet<Vec<u32>>,
+    operators: Vec<Operator>,
+    initial: State,
+    goal: Vec<AtomId>,
+    goal_neg: Vec<AtomId>,
+    goal_false: Vec<String>,
+    arities: HashMap<Name, usize>,
+    /// For each atom, the operators whose first precondition it is.
+    by_first_pre: Vec<Vec<OpId>>,
+    /// Operators without positive preconditions.
+    no_pre: Vec<OpId>,
+    action_costs: bool,
+}
+
+impl Task {
+    /// Every operator, indexed by [`OpId`].
+    pub fn operators(&self) -> &[Operator] {
+        &self.operators
+    }
+
+    /// The operator `op`.
+    pub fn operator(&self, op: OpId) -> &Operator {
+        &self.operators[op.index()]
+    }
+
+    /// How many fluent atoms the state has.
+    pub fn atom_count(&self) -> usize {
+        self.atoms.len()
+    }
+
+    /// The problem's initial state.
+    pub fn initial(&self) -> &State {
+        &self.initial
+    }
+
+    /// Atoms the goal requires to hold.
+    pub fn goal(&self) -> &[AtomId] {
+        &self.goal
+    }
+
+    /// Atoms the goal requires not to hold.
+    pub fn goal_neg(&self) -> &[AtomId] {
+        &self.goal_neg
+    }
+
+    /// Goal literals over static predicates or equality that are false, so no
+    /// plan exists (empty for a goal that might be reachable).
+    pub fn goal_false(&self) -> &[String] {
+        &self.goal_false
+    }
+
+    /// Whether costs come from `(increase (total-cost) ...)` (`:action-costs`)
+    /// rather than one per action.
+    pub fn has_action_costs(&self) -> bool {
+        self.action_costs
+    }
+
+    /// Whether the goal holds in `state`.
+    pub fn is_goal(&self, state: &State) -> bool {
+        self.goal_false.is_empty()
+            && self.goal.iter().all(|&a| state.holds(a))
+            && !self.goal_neg.iter().any(|&a| state.holds(a))
+    }
+
+    /// Whether `op` can be applied in `state`.
+    pub fn applicable(&self, state: &State, op: OpId) -> bool {
+        let o = &self.operators[op.index()];
+        o.pre.iter().all(|&a| state.holds(a)) && !o.pre_neg.iter().any(|&a| state.holds(a))
+    }
+
+    /// The state after applying `op` (whose preconditions are not checked).
+    pub fn apply(&self, state: &State, op: OpId) -> State {
+        let mut next = state.clone();
+        self.apply_in_place(&mut next, op);
+        next
+    }
+
+    pub(crate) fn apply_in_place(&self, state: &mut State, op: OpId) {
+        let o = &self.operators[op.index()];
+        for &a in &o.del {
+            state.clear(a);
+        }
+        for &a in &o.add {
+            state.set(a);
+        }
+    }
+
+    /// Calls `f` with every operator applicable in `state`.
+    pub fn for_each_applicable(&self, state: &State, mut f: impl FnMut(OpId)) {
+        let check = |op: OpId, f: &mut dyn FnMut(OpId)| {
+            let o = &self.operators[op.index()];
+            if o.pre[1..].iter().all(|&a| state.holds(a))
+                && !o.pre_neg.iter().any(|&a| state.holds(a))
+            {
+                f(op);
+            }
+        };
+        for atom in state.atoms() {
+            for &op in &self.by_first_pre[atom.index()] {
+                check(op, &mut f);
+            }
+        }
+        for &op in &self.no_pre {
+            let o = &self.operators[op.index()];
+            if !o.pre_neg.iter().any(|&a| state.holds(a)) {
+                f(op);
+            }
+        }
+    }
+
+    /// `state` cut to this task's atoms, so that a state from elsewhere (for
+    /// example another task) cannot index out of bounds.
+    pub(crate) fn fit(&self, state: &State) -> State {
+        let mut fitted = State::empty(self.atoms.len());
+        for (slot, &word) in fitted.words.iter_mut().zip(&state.words) {
+            *slot = word;
+        }
+        let bits = self.atoms.len() % 64;
+        if bits != 0
+            && let Some(last) = fitted.words.last_mut()
+        {
+            *last &= (1u64 << bits) - 1;
+        }
+        if self.atoms.is_empty() {
+            fitted.words.fill(0);
+        }
+        fitted
+    }
+
+    /// The atom written `(predicate args...)`, for people.
+    pub fn atom_name(&self, atom: AtomId) -> String {
+        let key = &self.atoms[atom.index()];
+        let mut out = format!("({}", self.predicates[key[0] as usize]);
+        for &o in &key[1..] {
+            out.push(' ');
+            out.push_str(&self.objects[o as usize]);
+        }
+        out.push(')');
+        out
+    }
+
+    /// The fluent atom `(predicate args...)`, if grounding built it.
+    pub fn atom(&self, predicate: &str, args: &[&str]) -> Option<AtomId> {
+        let key = self.key(predicate, args)?;
+        self.atom_ids.get(&key).copied()
+    }
+
+    fn key(&self, predicate: &str, args: &[&str]) -> Option<Vec<u32>> {
+        let p = self.predicates.iter().position(|q| &**q == predicate)?;
+        let mut key = vec![p as u32];
+        for a in args {
+            key.push(*self.object_ids.get(*a)?);
+        }
+        Some(key)
+    }
+
+    /// A state from the ground atoms that hold (closed world), for replanning
+    /// from where the world is now. Fluent atoms no operator or goal mentions
+    /// cannot matter and are ignored; static atoms must agree with the
+    /// problem's `:init`.
+    pub fn state_from<'s>(
+        &self,
+        atoms: impl IntoIterator<Item = (&'s str, Vec<&'s str>)>,
+    ) -> Result<State, StateError> {
+        let mut state = State::empty(self.atoms.len());
+        let mut statics_seen = HashSet::new();
+        for (predicate, args) in atoms {
+            let key = self.key(predicate, &args);
+            let is_static = key
+                .as_ref()
+                .is_some_and(|k| self.static_predicate[k[0] as usize]);
+            if is_static {
+                let k = key.unwrap_or_default();
+                if !self.statics.contains(&k) {
+                    return Err(StateError::StaticChanged(format!(
+                        "({predicate} {})",
+                        args.join(" ")
+                    )));
+                }
+                statics_seen.insert(k);
+            } else if let Some(&id) = key.as_ref().and_then(|k| self.atom_ids.get(k)) {
+                state.set(id);
+            }
+        }
+        if let Some(missing) = self.statics.iter().find(|k| !statics_seen.contains(*k)) {
+            let mut text = format!("({}", self.predicates[missing[0] as usize]);
+            for &o in &missing[1..] {
+                text.push(' ');
+                text.push_str(&self.objects[o as usize]);
+            }
+            text.push(')');
+            return Err(StateError::StaticChanged(text));
+        }
+        Ok(state)
+    }
+
+    /// The ground operator written `(action args...)`: `Ok(None)` when the
+    /// instance is well formed but can never apply (grounding pruned it).
+    pub fn find_operator(&self, call: &Call) -> Result<Option<OpId>, InstanceError> {
+        let Some(&arity) = self.arities.get(&call.name) else {
+            return Err(InstanceError::UnknownAction(call.name.to_string()));
+        };
+        if arity != call.args.len() {
+            return Err(InstanceError::Arity {
+                action: call.name.to_string(),
+                expected: arity,
+                given: call.args.len(),
+            });
+        }
+        let mut args = Vec::new();
+        for t in &call.args {
+            match t {
+                Term::Var(v) => return Err(InstanceError::NotGround(v.to_string())),
+                Term::Const(c) if self.object_ids.contains_key(c) => args.push(c.clone()),
+                Term::Const(c) => return Err(InstanceError::UnknownObject(c.to_string())),
+            }
+        }
+        Ok(self
+            .operators
+            .iter()
+            .position(|o| o.action == call.name && o.args == args)
+            .map(|i| OpId(i as u32)))
+    }
+}
+
+/// An argument of a compiled literal: a parameter's position or an object.
+#[derive(Debug, Clone, Copy)]
+enum Arg {
+    Param(usize),
+    Obj(u32),
+}
+
+/// A literal of a schema with names resolved.
+#[derive(Debug, Clone)]
+enum CLit {
+    Atom {
+        positive: bool,
+        predicate: u32,
+        args: Vec<Arg>,
+    },
+    Eq {
+        positive: bool,
+        a: Arg,
+        b: Arg,
+    },
+}
+
+/// A schema compiled for grounding: its precondition literals, which of them
+/// are fluent (the rest are checked while binding), its effects as
+/// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
+/// and its `:configure` goal.
+struct Schema<'a> {
+    action: &'a Action,
+    lits: Vec<CLit>,
+    dynamic: Vec<usize>,
+    effects: Vec<(bool, u32, Vec<Arg>)>,
+    costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
+    configure: Option<(&'a Call, Vec<Arg>)>,
+}
+
+struct Grounder<'a> {
+    problem: &'a Problem,
+    task: Task,
+    /// Each object's declared type.
+    object_types: Vec<Name>,
+    parents: HashMap<Name, Name>,
+    fluent_values: HashMap<(Name, Vec<u32>), u64>,
+}
+
+/// Grounds `domain`'s actions over `problem`'s objects and the domain's
+/// constants.
+///
+/// The problem is assumed to be checked against the domain
+/// ([`ecology_domain::check_problem`]); names it does not declare are taken
+/// as untyped objects.
+pub fn ground(domain: &Domain, problem: &Problem) -> Result<Task, GroundError> {
+    let mut fluent_predicates: HashSet<&str> = HashSet::new();
+    for action in &domain.actions {
+        for effect in &action.effects {
+            if let Effect::Add(a) | Effect::Del(a) = effect {
+                fluent_predicates.insert(&a.predicate);
+            }
+        }
+    }
+    let task = Task {
+        predicates: Vec::new(),
+        objects: Vec::new(),
+        object_ids: HashMap::new(),
+        atoms: Vec::new(),
+        atom_ids: HashMap::new(),
+        static_predicate: Vec::new(),
+        statics: HashSet::new(),
+        operators: Vec::new(),
+        initial: State::empty(0),
+        goal: Vec::new(),
+        goal_neg: Vec::new(),
+        goal_false: Vec::new(),
+        arities: domain
+            .actions
+            .iter()
+            .map(|a| (a.name.clone(), a.params.len()))
+            .collect(),
+        by_first_pre: Vec::new(),
+        no_pre: Vec::new(),
+        action_costs: domain.requires("action-costs"),
+    };
+    let mut g = Grounder {
+        problem,
+        task,
+        object_types: Vec::new(),
+        parents: domain
+            .types
+            .iter()
+            .map(|t| (t.name.clone(), t.parent.clone()))
+            .collect(),
+        fluent_values: HashMap::new(),
+    };
+    for p in &domain.predicates {
+        g.predicate(&p.name, &fluent_predicates);
+    }
+    for object in domain.constants.iter().chain(&problem.objects) {
+        let id = g.object(&object.name);
+        g.object_types[id as usize] = object.ty.clone().unwrap_or_else(|| "object".into());
+    }
+    let mut initial_keys = Vec::new();
+    for atom in &problem.init {
+        let p = g.predicate(&atom.predicate, &fluent_predicates);
+        let mut key = vec![p];
+        for t in &atom.args {
+            match t {
+                Term::Const(c) => key.push(g.object(c)),
+                Term::Var(v) => return Err(GroundError::VariableInGoal(v.to_string())),
+            }
+        }
+        if g.task.static_predicate[p as usize] {
+            g.task.statics.insert(key);
+        } else {
+            initial_keys.push(key);
+        }
+    }
+    for (call, value) in &problem.numeric_init {
+        let mut args = Vec::new();
+        for t in &call.args {
+            if let Term::Const(c) = t {
+                args.push(g.object(c));
+            }
+        }
+        g.fluent_values.insert((call.name.clone(), args), *value);
+    }
+    let initial_atoms: Vec<AtomId> = initial_keys.into_iter().map(|k| g.intern(k)).collect();
+    g.goal(&fluent_predicates)?;
+    for action in &domain.actions {
+        g.action(action, &fluent_predicates)?;
+    }
+    let mut task = g.task;
+    let mut initial = State::empty(task.atoms.len());
+    for a in initial_atoms {
+        initial.set(a);
+    }
+    task.initial = initial;
+    task.by_first_pre = vec![Vec::new(); task.atoms.len()];
+    for (i, o) in task.operators.iter().enumerate() {
+        match o.pre.first() {
+            Some(a) => task.by_first_pre[a.index()].push(OpId(i as u32)),
+            None => task.no_pre.push(OpId(i as u32)),
+        }
+    }
+    Ok(task)
+}
+
+impl Grounder<'_> {
+    fn predicate(&mut self, name: &Name, fluent: &HashSet<&str>) -> u32 {
+        if let Some(i) = self.task.predicates.iter().position(|p| p == name) {
+            return i as u32;
+        }
+        self.task.predicates.push(name.clone());
+        self.task.static_predicate.push(!fluent.contains(&**name));
+        (self.task.predicates.len() - 1) as u32
+    }
+
+    fn object(&mut self, name: &Name) -> u32 {
+        if let Some(&id) = self.task.object_ids.get(name) {
+            return id;
+        }
+        let id = self.task.objects.len() as u32;
+        self.task.objects.push(name.clone());
+        self.task.object_ids.insert(name.clone(), id);
+        self.object_types.push("object".into());
+        id
+    }
+
+    fn intern(&mut self, key: Vec<u32>) -> AtomId {
+        if let Some(&id) = self.task.atom_ids.get(&key) {
+            return id;
+        }
+        let id = AtomId(self.task.atoms.len() as u32);
+        self.task.atoms.push(key.clone());
+        self.task.atom_ids.insert(key, id);
+        id
+    }
+
+    /// Whether type `ty` is `ancestor` or one of its subtypes.
+    fn is_a(&self, ty: &Name, ancestor: &str) -> bool {
+        if ancestor == "object" {
+            return true;
+        }
+        let mut t = ty;
+        // The depth bound guards against cycles in a malformed hierarchy.
+        for _ in 0..64 {
+            if &**t == ancestor {
+                return true;
+            }
+            match self.parents.get(t) {
+                Some(p) => t = p,
+                None => return false,
+            }
+        }
+        false
+    }
+
+    fn goal(&mut self, fluent: &HashSet<&str>) -> Result<(), GroundError> {
+        let problem = self.problem;
+        for literal in &problem.goal {
+            let mut objects = Vec::new();
+            for t in literal.terms() {
+                match t {
+                    Term::Const(c) => objects.push(self.object(c)),
+                    Term::Var(v) => return Err(GroundError::VariableInGoal(v.to_string())),
+                }
+            }
+            match literal {
+                Literal::Pos(atom) | Literal::Neg(atom) => {
+                    let positive = matches!(literal, Literal::Pos(_));
+                    let p = self.predicate(&atom.predicate, fluent);
+                    let mut key = vec![p];
+                    key.extend(&objects);
+                    if self.task.static_predicate[p as usize] {
+                        if self.task.statics.contains(&key) != positive {
+                            self.task.goal_false.push(literal.to_string());
+                        }
+                    } else {
+                        let id = self.intern(key);
+                        if positive {
+                            self.task.goal.push(id);
+                        } else {
+                            self.task.goal_neg.push(id);
+                        }
+                    }
+                }
+                Literal::Eq(..) | Literal::Neq(..) => {
+                    let equal = objects[0] == objects[1];
+                    if equal != matches!(literal, Literal::Eq(..)) {
+                        self.task.goal_false.push(literal.to_string());
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn resolve(&mut self, action: &Action, term: &Term) -> Result<Arg, GroundError> {
+        match term {
+            Term::Const(c) => Ok(Arg::Obj(self.object(c))),
+            Term::Var(v) => action
+                .params
+                .iter()
+                .position(|p| p.name == *v)
+                .map(Arg::Param)
+                .ok_or_else(|| GroundError::UnboundVariable {
+                    action: action.name.to_string(),
+                    var: v.to_string(),
+                }),
+        }
+    }
+
+    fn resolve_all(&mut self, action: &Action, terms: &[Term]) -> Result<Vec<Arg>, GroundError> {
+        terms.iter().map(|t| self.resolve(action, t)).collect()
+    }
+
+    fn action(&mut self, action: &Action, fluent: &HashSet<&str>) -> Result<(), GroundError> {
+        // Compile the precondition; static and equality literals are checked
+        // as soon as their last parameter is bound.
+        let mut lits = Vec::new();
+        for literal in &action.precondition {
+            lits.push(match literal {
+                Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
+                    positive: matches!(literal, Literal::Pos(_)),
+                    predicate: self.predicate(&atom.predicate, fluent),
+                    args: self.resolve_all(action, &atom.args)?,
+                },
+                Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => CLit::Eq {
+                    positive: matches!(literal, Literal::Eq(..)),
+                    a: self.resolve(action, a)?,
+                    b: self.resolve(action, b)?,
+                },
+            });
+        }
+        let mut effects = Vec::new();
+        let mut costs = Vec::new();
+        for effect in &action.effects {
+            match effect {
+                Effect::Add(atom) | Effect::Del(atom) => {
+                    let p = self.predicate(&atom.predicate, fluent);
+                    let args = self.resolve_all(action, &atom.args)?;
+                    effects.push((matches!(effect, Effect::Add(_)), p, args));
+                }
+                Effect::IncreaseCost(NumExpr::Number(n), _) => costs.push((None, *n, Vec::new())),
+                Effect::IncreaseCost(NumExpr::Function(call), _) => {
+                    let args = self.resolve_all(action, &call.args)?;
+                    costs.push((Some(call.name.clone()), 0, args));
+                }
+            }
+        }
+        let configure = match &action.configure {
+            Some(call) => Some((call, self.resolve_all(action, &call.args)?)),
+            None => None,
+        };
+        let n = action.params.len();
+        let mut checks: Vec<Vec<usize>> = vec![Vec::new(); n + 1];
+        let mut dynamic = Vec::new();
+        for (i, lit) in lits.iter().enumerate() {
+            let (is_static, args): (bool, Vec<Arg>) = match lit {
+                CLit::Atom {
+                    predicate, args, ..
+                } => (
+                    self.task.static_predicate[*predicate as usize],
+                    args.clone(),
+                ),
+                CLit::Eq { a, b, .. } => (true, vec![*a, *b]),
+            };
+            if is_static {
+                let level = args
+                    .iter()
+                    .filter_map(|a| match a {
+                        Arg::Param(p) => Some(p + 1),
+                        Arg::Obj(_) => None,
+                    })
+                    .max()
+                    .unwrap_or(0);
+                checks[level].push(i);
+            } else {
+                dynamic.push(i);
+            }
+        }
+        let candidates: Vec<Vec<u32>> = action
+            .params
+            .iter()
+            .map(|p| {
+                let ty: &str = p.ty.as_deref().unwrap_or("object");
+                (0..self.task.objects.len() as u32)
+                    .filter(|&o| self.is_a(&self.object_types[o as usize], ty))
+                    .collect()
+            })
+            .collect();
+        let schema = Schema {
+            action,
+            lits,
+            dynamic,
+            effects,
+            costs,
+            configure,
+        };
+        let lits = &schema.lits;
+        let mut binding = vec![0u32; n];
+        if !checks[0].iter().all(|&i| self.holds(&lits[i], &binding)) {
+            return Ok(());
+        }
+        // An odometer over the candidates, iterative so that no schema can
+        // overflow the stack.
+        let mut cursor = vec![0usize; n];
+        let mut depth = 0;
+        if n == 0 {
+            return self.emit(&schema, &binding);
+        }
+        loop {
+            if cursor[depth] == candidates[depth].len() {
+                if depth == 0 {
+                    return Ok(());
+                }
+                cursor[depth] = 0;
+                depth -= 1;
+                cursor[depth] += 1;
+                continue;
+            }
+            binding[depth] = candidates[depth][cursor[depth]];
+            if !checks[depth + 1]
+                .iter()
+                .all(|&i| self.holds(&lits[i], &binding))
+            {
+                cursor[depth] += 1;
+                continue;
+            }
+            if depth + 1 < n {
+                depth += 1;
+                continue;
+            }
+            self.emit(&schema, &binding)?;
+            cursor[depth] += 1;
+        }
+    }
+
+    fn holds(&self, lit: &CLit, binding: &[u32]) -> bool {
+        let value = |a: &Arg| match *a {
+            Arg::Param(p) => binding[p],
+            Arg::Obj(o) => o,
+        };
+        match lit {
+            CLit::Atom {
+                positive,
+                predicate,
+                args,
+            } => {
+                let mut key = Vec::with_capacity(args.len() + 1);
+                key.push(*predicate);
+                key.extend(args.iter().map(value));
+                self.task.statics.contains(&key) == *positive
+            }
+            CLit::Eq { positive, a, b } => (value(a) == value(b)) == *positive,
+        }
+    }
+
+    fn emit(&mut self, schema: &Schema<'_>, binding: &[u32]) -> Result<(), GroundError> {
+        let Schema {
+            action,
+            lits,
+            dynamic,
+            effects,
+            costs,
+            configure,
+        } = schema;
+        if self.task.operators.len() >= MAX_OPERATORS {
+            return Err(GroundError::TooLarge {
+                limit: MAX_OPERATORS,
+            });
+        }
+        let value = |a: &Arg| match *a {
+            Arg::Param(p) => binding[p],
+            Arg::Obj(o) => o,
+        };
+        let cost = if self.task.action_costs {
+            let mut total = 0u64;
+            for (function, n, args) in costs {
+                match function {
+                    None => total = total.saturating_add(*n),
+                    Some(name) => {
+                        let key = (name.clone(), args.iter().map(value).collect());
+                        // An undefined fluent makes the action inapplicable (PDDL).
+                        let Some(&v) = self.fluent_values.get(&key) else {
+                            return Ok(());
+                        };
+                        total = total.saturating_add(v);
+                    }
+                }
+            }
+            total
+        } else {
+            1
+        };
+        let mut pre = Vec::new();
+        let mut pre_neg = Vec::new();
+        for &i in dynamic {
+            if let CLit::Atom {
+                positive,
+                predicate,
+                args,
+            } = &lits[i]
+            {
+                let mut key = vec![*predicate];
+                key.extend(args.iter().map(value));
+                let id = self.intern(key);
+                if *positive {
+                    pre.push(id);
+                } else {
+                    pre_neg.push(id);
+                }
+            }
+        }
+        pre.sort_unstable();
+        pre.dedup();
+        pre_neg.sort_unstable();
+        pre_neg.dedup();
+        if pre.iter().any(|a| pre_neg.contains(a)) {
+            return Ok(());
+        }
+        let mut add = Vec::new();
+        let mut del = Vec::new();
+        for (is_add, predicate, args) in effects {
+            let mut key = vec![*predicate];
+            key.extend(args.iter().map(value));
+            let id = self.intern(key);
+            if *is_add { &mut add } else { &mut del }.push(id);
+        }
+        add.sort_unstable();
+        add.dedup();
+        del.sort_unstable();
+        del.dedup();
+        del.retain(|a| !add.contains(a));
+        let configure = configure.as_ref().map(|(call, args)| Call {
+            name: call.name.clone(),
+            args: args
+                .iter()
+                .map(|a| Term::Const(self.task.objects[value(a) as usize].clone()))
+                .collect(),
+            span: call.span,
+        });
+        self.task.operators.push(Operator {
+            action: action.name.clone(),
+            args: binding
+                .iter()
+                .map(|&o| self.task.objects[o as usize].clone())
+                .collect(),
+            pre,
+            pre_neg,
+            add,
+            del,
+            cost,
+            configure,
+        });
+        Ok(())
+    }
+}

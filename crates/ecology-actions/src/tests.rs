@@ -1,0 +1,594 @@
+//! Tests of the action planner through its public face: domains and problems
+//! as text in, plans out, and every plan checked by the validator.
+
+use std::cell::Cell;
+use std::time::Duration;
+
+use ecology_domain::{Domain, Problem, parse_domain, parse_goal, parse_problem_for};
+use proptest::prelude::*;
+
+use crate::oracle::{self, Cheapest};
+use crate::problems::{self, Instance};
+use crate::{
+    Budget, Clock, HeuristicKind, NoClock, Options, Outcome, Plan, PlanError, Request, Strategy,
+    Task, Unsolvable, Verdict, ground, plan, validate,
+};
+
+const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
+const PEIS_HOME_TASK: &str = include_str!("../../../domains/peis-home-task.problem");
+
+/// Every strategy the tests exercise: the satisficing ones, then the optimal ones.
+const SATISFICING: [Strategy; 3] = [
+    Strategy::SATISFICING,
+    Strategy::Greedy {
+        heuristic: HeuristicKind::Add,
+        preferred: false,
+    },
+    Strategy::Greedy {
+        heuristic: HeuristicKind::Ff,
+        preferred: false,
+    },
+];
+const OPTIMAL: [Strategy; 3] = [
+    Strategy::OPTIMAL,
+    Strategy::AStar {
+        heuristic: HeuristicKind::Max,
+    },
+    Strategy::AStar {
+        heuristic: HeuristicKind::Blind,
+    },
+];
+
+fn load(domain: &str, problem: &str) -> (Domain, Problem) {
+    let domain = parse_domain(domain.as_bytes()).expect("the domain is valid");
+    let problem = parse_problem_for(&domain, problem.as_bytes()).expect("the problem is valid");
+    (domain, problem)
+}
+
+fn run(task: &Task, strategy: Strategy) -> Outcome {
+    let options = Options {
+        strategy,
+        budget: Budget::default(),
+    };
+    plan(&Request::new(task), &options, &NoClock)
+}
+
+/// Plans with `strategy`, validates the plan and returns it.
+fn solve(domain: &Domain, problem: &Problem, strategy: Strategy) -> Plan {
+    let task = ground(domain, problem).expect("grounds");
+    let outcome = run(&task, strategy);
+    let Verdict::Found(plan) = outcome.verdict else {
+        panic!("no plan with {strategy:?}: {outcome:?}");
+    };
+    assert_eq!(
+        validate(domain, problem, &plan.calls()),
+        Ok(plan.cost),
+        "{strategy:?} returned an invalid plan:\n{plan}"
+    );
+    assert_eq!(
+        outcome.optimal,
+        matches!(strategy, Strategy::AStar { .. })
+            && !matches!(
+                strategy,
+                Strategy::AStar {
+                    heuristic: HeuristicKind::Add | HeuristicKind::Ff
+                }
+            )
+    );
+    plan
+}
+
+/// Checks that every strategy plans validly and the optimal ones cost `optimum`.
+fn check_optimum(domain: &Domain, problem: &Problem, optimum: u64) {
+    for strategy in SATISFICING {
+        let plan = solve(domain, problem, strategy);
+        assert!(
+            plan.cost >= optimum,
+            "{strategy:?} beat the optimum: {plan}"
+        );
+    }
+    for strategy in OPTIMAL {
+        assert_eq!(
+            solve(domain, problem, strategy).cost,
+            optimum,
+            "{strategy:?}"
+        );
+    }
+}
+
+#[test]
+fn peis_home_task_gives_the_papers_plan() {
+    // Section VIII: move to the entrance, get the newspaper, move to the
+    // bedroom, wake Johanna; each with the configuration goal that performs it.
+    let (domain, problem) = load(PEIS_HOME, PEIS_HOME_TASK);
+    for strategy in [Strategy::SATISFICING, Strategy::OPTIMAL] {
+        let plan = solve(&domain, &problem, strategy);
+        let lines: Vec<String> = plan
+            .steps
+            .iter()
+            .map(|s| {
+                let configure = s.configure.as_ref().map(ToString::to_string);
+                format!("{s} {}", configure.unwrap_or_default())
+            })
+            .collect();
+        assert_eq!(
+            lines,
+            [
+                "(move astrid living-room entrance) (navigate astrid entrance)",
+                "(get astrid newspaper entrance) (grasp astrid newspaper)",
+                "(move astrid entrance bedroom) (navigate astrid bedroom)",
+                "(wake astrid johanna bedroom) (wake-up astrid johanna)",
+            ]
+        );
+        assert_eq!(plan.to_string().lines().last(), Some("; cost = 4"));
+    }
+}
+
+#[test]
+fn classic_problems_have_their_known_optimal_costs() {
+    let pddl = |name: &str| {
+        std::fs::read_to_string(format!(
+            "{}/../../domains/pddl/{name}.pddl",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .expect("the file exists")
+    };
+    for (domain, problem, optimum) in [
+        ("gripper", "gripper-4", 11),
+        ("blocks", "blocks-sussman", 6),
+        ("blocks", "blocks-reverse-4", 8),
+        ("logistics", "logistics-2", 26),
+    ] {
+        let (domain, problem) = load(&pddl(domain), &pddl(problem));
+        check_optimum(&domain, &problem, optimum);
+        match oracle::cheapest(&domain, &problem, &[], 200_000) {
+            Cheapest::Cost(cost, _) => assert_eq!(cost, optimum, "the oracle disagrees"),
+            other => panic!("oracle: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn gripper_optimum_follows_the_formula() {
+    for balls in 1..=5 {
+        let inst = problems::gripper(balls).expect("generates");
+        let optimum = inst.optimal_cost.expect("known");
+        assert_eq!(
+            solve(&inst.domain, &inst.problem, Strategy::OPTIMAL).cost,
+            optimum
+        );
+        if balls <= 3 {
+            assert_eq!(
+                solve(
+                    &inst.domain,
+                    &inst.problem,
+                    Strategy::AStar {
+                        heuristic: HeuristicKind::Max
+                    }
+                )
+                .cost,
+                optimum
+            );
+        }
+    }
+}
+
+#[test]
+fn satisficing_plans_larger_problems_validly() {
+    let instances: Vec<Instance> = vec![
+        problems::gripper(20).expect("generates"),
+        problems::blocks(10, 1).expect("generates"),
+        problems::blocks(12, 2).expect("generates"),
+        problems::logistics(4, 5, 3).expect("generates"),
+    ];
+    for inst in &instances {
+        let plan = solve(&inst.domain, &inst.problem, Strategy::SATISFICING);
+        if let Some(optimum) = inst.optimal_cost {
+            assert!(plan.cost >= optimum);
+        }
+    }
+}
+
+#[test]
+fn lm_cut_dominates_h_max_and_is_admissible_on_the_start_state() {
+    for inst in [
+        problems::gripper(4).expect("generates"),
+        problems::blocks(5, 7).expect("generates"),
+        problems::logistics(2, 2, 5).expect("generates"),
+    ] {
+        let task = ground(&inst.domain, &inst.problem).expect("grounds");
+        let h = |kind: HeuristicKind| {
+            kind.build(&task, &[])
+                .estimate(task.initial(), &mut Vec::new())
+                .expect("not a dead end")
+        };
+        let optimum = solve(&inst.domain, &inst.problem, Strategy::OPTIMAL).cost;
+        let (hmax, lmcut) = (h(HeuristicKind::Max), h(HeuristicKind::LmCut));
+        assert!(
+            hmax <= lmcut,
+            "{}: h-max {hmax} > LM-cut {lmcut}",
+            inst.name
+        );
+        assert!(
+            lmcut <= optimum,
+            "{}: LM-cut {lmcut} > {optimum}",
+            inst.name
+        );
+        assert!(lmcut > 0);
+    }
+}
+
+/// The cheapest plan's first action, excluded: either a valid plan without
+/// it that costs what the oracle says, or unsolvable when the oracle says so.
+fn check_replanning(domain: &Domain, problem: &Problem) {
+    let task = ground(domain, problem).expect("grounds");
+    let Verdict::Found(cheapest) = run(&task, Strategy::OPTIMAL).verdict else {
+        return;
+    };
+    let Some(first) = cheapest.steps.first() else {
+        return;
+    };
+    let request = Request::replan(&task, task.initial().clone(), vec![first.op]);
+    let expected = oracle::cheapest(domain, problem, &[first.to_string()], 100_000);
+    for options in [Options::default(), Options::optimal()] {
+        let outcome = plan(&request, &options, &NoClock);
+        match (&outcome.verdict, &expected) {
+            (Verdict::Found(plan), Cheapest::Cost(cost, _)) => {
+                assert!(plan.steps.iter().all(|s| s.op != first.op), "{plan}");
+                assert_eq!(validate(domain, problem, &plan.calls()), Ok(plan.cost));
+                assert!(plan.cost >= cheapest.cost);
+                if outcome.optimal {
+                    assert_eq!(plan.cost, *cost);
+                }
+            }
+            (Verdict::Unsolvable(_), Cheapest::Unsolvable) => {}
+            (got, want) => panic!("planner {got:?}, oracle {want:?}"),
+        }
+    }
+}
+
+#[test]
+fn replanning_without_the_first_action() {
+    let (domain, problem) = load(PEIS_HOME, PEIS_HOME_TASK);
+    check_replanning(&domain, &problem);
+    let task = ground(&domain, &problem).expect("grounds");
+    // Without the move to the entrance, the newspaper is out of reach.
+    let call = parse_goal("(move astrid living-room entrance)").expect("parses");
+    let op = task
+        .find_operator(&call)
+        .expect("well formed")
+        .expect("exists");
+    let outcome = plan(
+        &Request::replan(&task, task.initial().clone(), vec![op]),
+        &Options::default(),
+        &NoClock,
+    );
+    assert_eq!(
+        outcome.verdict,
+        Verdict::Unsolvable(Unsolvable::Unreachable {
+            goals: vec![
+                "(holding astrid newspaper)".to_string(),
+                "(awake johanna)".to_string()
+            ]
+        })
+    );
+    // From the entrance holding the newspaper (the executive's view after two
+    // steps), with the bedroom move failed, no plan exists.
+    let state = task
+        .state_from([
+            ("at", vec!["astrid", "entrance"]),
+            ("holding", vec!["astrid", "newspaper"]),
+            ("person-in", vec!["johanna", "bedroom"]),
+            ("asleep", vec!["johanna"]),
+            ("connected", vec!["living-room", "entrance"]),
+            ("connected", vec!["entrance", "living-room"]),
+            ("connected", vec!["entrance", "bedroom"]),
+            ("connected", vec!["bedroom", "entrance"]),
+        ])
+        .expect("a state");
+    let bedroom = task
+        .find_operator(&parse_goal("(move astrid entrance bedroom)").expect("parses"))
+        .expect("well formed")
+        .expect("exists");
+    let free = plan(
+        &Request::replan(&task, state.clone(), vec![]),
+        &Options::optimal(),
+        &NoClock,
+    );
+    let Verdict::Found(rest) = free.verdict else {
+        panic!("{free:?}")
+    };
+    assert_eq!(
+        rest.to_string(),
+        "(move astrid entrance bedroom)\n(wake astrid johanna bedroom)\n; cost = 2\n"
+    );
+    let blocked = plan(
+        &Request::replan(&task, state, vec![bedroom]),
+        &Options::optimal(),
+        &NoClock,
+    );
+    assert!(matches!(blocked.verdict, Verdict::Unsolvable(_)));
+    // A state of another task is cut to this one's atoms rather than panic.
+    let other = problems::gripper(40).expect("generates");
+    let other = ground(&other.domain, &other.problem).expect("grounds");
+    let foreign = plan(
+        &Request::replan(&task, other.initial().clone(), vec![]),
+        &Options::default(),
+        &NoClock,
+    );
+    assert!(!matches!(foreign.verdict, Verdict::BudgetExceeded));
+    // A static fact that changed needs a new problem.
+    assert!(
+        task.state_from([("at", vec!["astrid", "entrance"])])
+            .is_err()
+    );
+
+    for inst in [
+        problems::gripper(3).expect("generates"),
+        problems::blocks(4, 11).expect("generates"),
+        problems::logistics(2, 1, 4).expect("generates"),
+    ] {
+        check_replanning(&inst.domain, &inst.problem);
+    }
+}
+
+#[test]
+fn finding_operators_by_name() {
+    let (domain, problem) = load(PEIS_HOME, PEIS_HOME_TASK);
+    let task = ground(&domain, &problem).expect("grounds");
+    let find = |text: &str| {
+        task.find_operator(&parse_goal(text).expect("parses"))
+            .map(|op| op.map(|op| task.operator(op).to_string()))
+            .map_err(|e| e.to_string())
+    };
+    assert_eq!(
+        find("(move astrid living-room entrance)"),
+        Ok(Some("(move astrid living-room entrance)".to_string()))
+    );
+    // Well formed, but the rooms are not connected: grounding pruned it.
+    assert_eq!(find("(move astrid living-room bedroom)"), Ok(None));
+    assert_eq!(
+        find("(fly astrid bedroom)"),
+        Err("unknown action `fly`".to_string())
+    );
+    assert_eq!(
+        find("(move astrid bedroom)"),
+        Err("wrong arity: `move` takes 3 arguments, given 2".to_string())
+    );
+    assert_eq!(
+        find("(move astrid attic bedroom)"),
+        Err("unknown object `attic`".to_string())
+    );
+}
+
+#[test]
+fn budgets_are_distinct_from_unsolvable() {
+    let inst = problems::blocks(8, 3).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let options = Options {
+        strategy: Strategy::OPTIMAL,
+        budget: Budget {
+            max_expansions: Some(3),
+            max_time: None,
+        },
+    };
+    let outcome = plan(&Request::new(&task), &options, &NoClock);
+    assert_eq!(outcome.verdict, Verdict::BudgetExceeded);
+    assert_eq!(outcome.stats.expanded, 3);
+
+    /// A clock that advances one millisecond each time it is read.
+    struct Ticking(Cell<u64>);
+    impl Clock for Ticking {
+        fn elapsed(&self) -> Duration {
+            self.0.set(self.0.get() + 1);
+            Duration::from_millis(self.0.get())
+        }
+    }
+    // Blind A* needs thousands of expansions here; the clock is read
+    // between slices of expansions, so the search stops after the first.
+    let options = Options {
+        strategy: Strategy::AStar {
+            heuristic: HeuristicKind::Blind,
+        },
+        budget: Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_millis(2)),
+        },
+    };
+    let outcome = plan(&Request::new(&task), &options, &Ticking(Cell::new(0)));
+    assert_eq!(outcome.verdict, Verdict::BudgetExceeded);
+    assert_eq!(outcome.stats.expanded, crate::TIME_CHECK_EXPANSIONS);
+    assert!(outcome.stats.micros >= 2000);
+
+    // Unsolvable, but only search can tell: a on b and b on a.
+    let (domain, problem) = load(
+        problems::BLOCKS,
+        "(define (problem cycle) (:domain blocks) (:objects a b - block)
+           (:init (handempty) (ontable a) (ontable b) (clear a) (clear b))
+           (:goal (and (on a b) (on b a))))",
+    );
+    let task = ground(&domain, &problem).expect("grounds");
+    for strategy in SATISFICING.into_iter().chain(OPTIMAL) {
+        let outcome = run(&task, strategy);
+        assert!(
+            matches!(
+                outcome.verdict,
+                Verdict::Unsolvable(Unsolvable::Exhausted { states }) if states > 1
+            ),
+            "{strategy:?}: {outcome:?}"
+        );
+    }
+    assert_eq!(
+        oracle::cheapest(&domain, &problem, &[], 10_000),
+        Cheapest::Unsolvable
+    );
+}
+
+#[test]
+fn the_validator_finds_each_kind_of_error() {
+    let (domain, problem) = load(PEIS_HOME, PEIS_HOME_TASK);
+    let check = |text: &str| {
+        let calls: Vec<_> = text
+            .lines()
+            .map(|l| parse_goal(l).expect("parses"))
+            .collect();
+        validate(&domain, &problem, &calls).map_err(|e| e.to_string())
+    };
+    assert_eq!(
+        check(
+            "(move astrid living-room entrance)\n(get astrid newspaper entrance)\n\
+             (move astrid entrance bedroom)\n(wake astrid johanna bedroom)"
+        ),
+        Ok(4)
+    );
+    assert_eq!(
+        check("(move astrid living-room bedroom)"),
+        Err("step 1: precondition (connected living-room bedroom) of \
+             (move astrid living-room bedroom) does not hold"
+            .to_string())
+    );
+    assert_eq!(
+        check("(move astrid living-room entrance)\n(move astrid living-room entrance)"),
+        Err("step 2: precondition (at astrid living-room) of \
+             (move astrid living-room entrance) does not hold"
+            .to_string())
+    );
+    assert_eq!(
+        check("(move astrid living-room entrance)"),
+        Err(
+            "the goal does not hold at the end: (holding astrid newspaper) (awake johanna)"
+                .to_string()
+        )
+    );
+    assert_eq!(
+        check("(move johanna living-room entrance)"),
+        Err("step 1: `johanna` is not an object of type `robot`".to_string())
+    );
+    assert!(matches!(
+        validate(
+            &domain,
+            &problem,
+            &[parse_goal("(teleport astrid)").expect("parses")]
+        ),
+        Err(PlanError::UnknownAction { step: 1, .. })
+    ));
+}
+
+#[test]
+fn grounding_prunes_static_preconditions_and_follows_types() {
+    let inst = problems::logistics(3, 2, 9).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let drives = task
+        .operators()
+        .iter()
+        .filter(|o| &*o.action == "drive-truck")
+        .count();
+    // Three trucks, each between the two locations of each city in either
+    // direction or staying: 3 × 3 × 4. Cross-city drives are pruned.
+    assert_eq!(drives, 36);
+    // An airport is a location, so trucks may load at airports too.
+    assert!(
+        task.operators()
+            .iter()
+            .any(|o| o.to_string() == "(load-truck p0 t0 ap0)")
+    );
+    // Flights cost what `:init` says.
+    let flight = task
+        .operators()
+        .iter()
+        .find(|o| &*o.action == "fly-airplane" && o.args[1] != o.args[2])
+        .expect("a flight");
+    assert!((5..15).contains(&flight.cost));
+    // In `in-city` (static) there is no state atom.
+    assert!(task.atom("in-city", &["ap0", "c0"]).is_none());
+    assert!(task.atom("at", &["t0", "po0"]).is_some());
+}
+
+#[test]
+fn unit_costs_without_action_costs() {
+    let inst = problems::gripper(2).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    assert!(!task.has_action_costs());
+    assert!(task.operators().iter().all(|o| o.cost == 1));
+}
+
+/// Along an optimal plan (from the oracle), the admissible heuristics never
+/// exceed the remaining cost, LM-cut is at least h-max, and no state is
+/// called a dead end.
+fn check_admissible_along(task: &Task, lines: &[String], cost: u64) -> Result<(), TestCaseError> {
+    let mut hmax = HeuristicKind::Max.build(task, &[]);
+    let mut lmcut = HeuristicKind::LmCut.build(task, &[]);
+    let mut state = task.initial().clone();
+    let mut remaining = cost;
+    for k in 0..=lines.len() {
+        let max = hmax.estimate(&state, &mut Vec::new());
+        let cut = lmcut.estimate(&state, &mut Vec::new());
+        let (Some(max), Some(cut)) = (max, cut) else {
+            return Err(TestCaseError::fail(format!(
+                "dead end on an optimal plan at step {k}"
+            )));
+        };
+        prop_assert!(
+            max <= cut && cut <= remaining,
+            "h-max {} LM-cut {} remaining {}",
+            max,
+            cut,
+            remaining
+        );
+        let Some(line) = lines.get(k) else { break };
+        let call = parse_goal(line).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let Ok(Some(op)) = task.find_operator(&call) else {
+            return Err(TestCaseError::fail(format!("grounding lacks {line}")));
+        };
+        prop_assert!(task.applicable(&state, op), "{} is not applicable", line);
+        remaining -= task.operator(op).cost;
+        state = task.apply(&state, op);
+    }
+    prop_assert!(task.is_goal(&state));
+    Ok(())
+}
+
+fn agree_with_oracle(inst: &Instance) -> Result<(), TestCaseError> {
+    let Ok(task) = ground(&inst.domain, &inst.problem) else {
+        return Err(TestCaseError::fail("does not ground"));
+    };
+    let expected = oracle::cheapest(&inst.domain, &inst.problem, &[], 50_000);
+    if let Cheapest::Cost(cost, lines) = &expected {
+        check_admissible_along(&task, lines, *cost)?;
+    }
+    for strategy in SATISFICING.into_iter().chain(OPTIMAL) {
+        let outcome = run(&task, strategy);
+        match (&outcome.verdict, &expected) {
+            (Verdict::Found(plan), Cheapest::Cost(cost, _)) => {
+                prop_assert_eq!(
+                    validate(&inst.domain, &inst.problem, &plan.calls()),
+                    Ok(plan.cost)
+                );
+                if outcome.optimal {
+                    prop_assert_eq!(plan.cost, *cost, "{:?}\n{}", strategy, plan);
+                } else {
+                    prop_assert!(plan.cost >= *cost);
+                }
+            }
+            (Verdict::Unsolvable(_), Cheapest::Unsolvable) => {}
+            (got, want) => {
+                return Err(TestCaseError::fail(format!(
+                    "{strategy:?}: planner {got:?}, oracle {want:?}\n{}\n{}",
+                    inst.domain_text, inst.problem_text
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+    #[test]
+    fn optimal_plans_match_brute_force(seed in any::<u64>()) {
+        let inst = problems::random_small(seed).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        agree_with_oracle(&inst)?;
+        check_replanning(&inst.domain, &inst.problem);
+    }
+}

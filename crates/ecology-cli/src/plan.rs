@@ -1,0 +1,190 @@
+//! `ecology plan`: the action planner, from a domain and a problem file to a
+//! plan whose actions carry their configuration goals.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use ecology_actions::{
+    Budget, HeuristicKind, OpId, Options, Outcome, Plan, Request, Stats, Strategy, Verdict,
+};
+use serde_json::{Value, json};
+
+use crate::configure::WallClock;
+use crate::input;
+use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+
+/// Arguments of `ecology plan`.
+#[derive(Debug, Args)]
+pub struct PlanArgs {
+    /// The domain file (.eco or PDDL) with `:action` schemas.
+    #[arg(long)]
+    pub domain: PathBuf,
+    /// The problem file: `(define (problem NAME) (:domain NAME) ...)`.
+    #[arg(long)]
+    pub problem: PathBuf,
+    /// Find a cheapest plan (A* with an admissible heuristic) instead of a fast one.
+    #[arg(long)]
+    pub optimal: bool,
+    /// The heuristic: ff, add, max, lmcut or blind (default: ff, or lmcut with --optimal).
+    #[arg(long, value_name = "NAME")]
+    pub heuristic: Option<HeuristicKind>,
+    /// An unavailable action instance, such as '(move astrid living-room bedroom)'; repeatable.
+    #[arg(long, value_name = "ACTION")]
+    pub exclude: Vec<String>,
+    /// Stop after expanding this many search nodes.
+    #[arg(long, value_name = "N")]
+    pub max_nodes: Option<u64>,
+    /// Stop after this many milliseconds.
+    #[arg(long, value_name = "MS")]
+    pub max_millis: Option<u64>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl ecology_actions::Clock for WallClock {
+    fn elapsed(&self) -> Duration {
+        self.0.elapsed()
+    }
+}
+
+/// `ecology plan ...`
+pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
+    let clock = WallClock(Instant::now());
+    let Ok(domain) = input::domain(&args.domain)? else {
+        return Ok(EXIT_BAD_INPUT);
+    };
+    let Ok(problem) = input::problem(&args.problem, &domain)? else {
+        return Ok(EXIT_BAD_INPUT);
+    };
+    let task = match ecology_actions::ground(&domain, &problem) {
+        Ok(task) => task,
+        Err(err) => {
+            eprintln!("error: {}: {err}", args.problem.display());
+            return Ok(EXIT_BAD_INPUT);
+        }
+    };
+    let mut excluded: Vec<OpId> = Vec::new();
+    for text in &args.exclude {
+        let Ok(call) = input::goal(text) else {
+            return Ok(EXIT_BAD_INPUT);
+        };
+        match task.find_operator(&call) {
+            Ok(Some(op)) => excluded.push(op),
+            // Well formed, but it can never apply: excluding it changes nothing.
+            Ok(None) => {}
+            Err(err) => {
+                eprintln!("error: --exclude '{text}': {err}");
+                return Ok(EXIT_BAD_INPUT);
+            }
+        }
+    }
+    let strategy = match (args.optimal, args.heuristic) {
+        (false, None) => Strategy::SATISFICING,
+        (false, Some(heuristic)) => Strategy::Greedy {
+            heuristic,
+            preferred: heuristic == HeuristicKind::Ff,
+        },
+        (true, None) => Strategy::OPTIMAL,
+        (true, Some(heuristic)) if heuristic.is_admissible() => Strategy::AStar { heuristic },
+        (true, Some(_)) => {
+            eprintln!("error: --optimal needs an admissible heuristic: max, lmcut or blind");
+            return Ok(EXIT_BAD_INPUT);
+        }
+    };
+    let options = Options {
+        strategy,
+        budget: Budget {
+            max_expansions: args.max_nodes,
+            max_time: args.max_millis.map(Duration::from_millis),
+        },
+    };
+    let request = Request::replan(&task, task.initial().clone(), excluded);
+    let outcome = ecology_actions::plan(&request, &options, &clock);
+    match &outcome.verdict {
+        Verdict::Found(plan) => {
+            if args.json {
+                println!("{}", plan_json(plan, &outcome));
+            } else {
+                print_plan(plan, &outcome);
+            }
+            Ok(EXIT_OK)
+        }
+        Verdict::Unsolvable(why) => {
+            if args.json {
+                println!(
+                    "{}",
+                    json!({"error": "unsolvable", "reason": why.to_string(), "stats": stats_json(&outcome.stats)})
+                );
+            } else {
+                eprintln!("no plan: {why}");
+            }
+            Ok(EXIT_NO_SOLUTION)
+        }
+        Verdict::BudgetExceeded => {
+            let reason = format!(
+                "no plan found within the budget ({} nodes expanded in {} ms); the problem may still be solvable",
+                outcome.stats.expanded,
+                outcome.stats.micros / 1000
+            );
+            if args.json {
+                println!(
+                    "{}",
+                    json!({"error": "budget exceeded", "reason": reason, "stats": stats_json(&outcome.stats)})
+                );
+            } else {
+                eprintln!("{reason}");
+            }
+            Ok(EXIT_NO_SOLUTION)
+        }
+    }
+}
+
+fn print_plan(plan: &Plan, outcome: &Outcome) {
+    let width = plan
+        .steps
+        .iter()
+        .map(|s| s.to_string().len())
+        .max()
+        .unwrap_or(0);
+    for step in &plan.steps {
+        match &step.configure {
+            Some(goal) => println!("{:width$}  ; configure {goal}", step.to_string()),
+            None => println!("{step}"),
+        }
+    }
+    println!("; cost = {}", plan.cost);
+    println!(
+        "; {}, {} nodes expanded, {} µs",
+        if outcome.optimal {
+            "proven optimal"
+        } else {
+            "not proven optimal"
+        },
+        outcome.stats.expanded,
+        outcome.stats.micros
+    );
+}
+
+fn stats_json(stats: &Stats) -> Value {
+    json!({
+        "expanded": stats.expanded,
+        "generated": stats.generated,
+        "micros": stats.micros,
+    })
+}
+
+fn plan_json(plan: &Plan, outcome: &Outcome) -> Value {
+    json!({
+        "plan": plan.steps.iter().map(ToString::to_string).collect::<Vec<_>>(),
+        "configure": plan
+            .steps
+            .iter()
+            .map(|s| s.configure.as_ref().map(ToString::to_string))
+            .collect::<Vec<_>>(),
+        "cost": plan.cost,
+        "optimal": outcome.optimal,
+        "stats": stats_json(&outcome.stats),
+    })
+}
