@@ -21,7 +21,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
-use ecology_config::{Configuration, Exclusion, NoClock, Options, Request};
+use ecology_config::{Clock as PlannerClock, Configuration, Exclusion, NoClock, Options, Request};
 use ecology_domain::{Call, Domain, EcologyState};
 
 use crate::log::{LogEntry, LogEvent};
@@ -135,6 +135,10 @@ pub enum RunStatus {
 
 type ComponentKey = (String, String);
 
+fn micros(d: Duration) -> u64 {
+    u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
+}
+
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Phase {
     /// Waiting for the components of the new configuration to run.
@@ -156,9 +160,20 @@ struct ActionRun {
     done: BTreeSet<ComponentKey>,
 }
 
+/// Measures how long acquisition and planning take, for the log. The
+/// executive reads no clock of its own: without one, they log as 0 µs.
+struct Stopwatch(Box<dyn PlannerClock + Send>);
+
+impl std::fmt::Debug for Stopwatch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Stopwatch")
+    }
+}
+
 /// The executive. See the module documentation.
 #[derive(Debug)]
 pub struct Executive {
+    stopwatch: Stopwatch,
     domain: Domain,
     world: EcologyState,
     plan: Vec<PlannedAction>,
@@ -187,6 +202,7 @@ impl Executive {
         config: ExecConfig,
     ) -> Executive {
         Executive {
+            stopwatch: Stopwatch(Box::new(NoClock)),
             domain,
             world,
             plan,
@@ -201,6 +217,13 @@ impl Executive {
             now: Duration::ZERO,
             log: Vec::new(),
         }
+    }
+
+    /// Times state acquisition and planning with `clock`, so the log says
+    /// how long each took (`StateAcquired::micros`, `Configuration::micros`).
+    pub fn with_stopwatch(mut self, clock: Box<dyn PlannerClock + Send>) -> Executive {
+        self.stopwatch = Stopwatch(clock);
+        self
     }
 
     /// Where the run stands.
@@ -311,9 +334,15 @@ impl Executive {
         let Some(goal) = self.plan[index].goal.clone() else {
             return;
         };
+        let before = self.stopwatch.0.elapsed();
         let state = self.mirror.state(&self.world);
         let (peis, components) = self.mirror.counts();
-        self.record(LogEvent::StateAcquired { peis, components });
+        let acquired = self.stopwatch.0.elapsed();
+        self.record(LogEvent::StateAcquired {
+            peis,
+            components,
+            micros: micros(acquired.saturating_sub(before)),
+        });
         let request = Request {
             domain: &self.domain,
             state: &state,
@@ -338,7 +367,9 @@ impl Executive {
             self.fail_action(reason, out);
             return;
         };
+        let planned = self.stopwatch.0.elapsed();
         self.record(LogEvent::Configuration {
+            micros: micros(planned.saturating_sub(acquired)),
             goal: goal.to_string(),
             cost: chosen.cost,
             optimal: chosen.optimal,

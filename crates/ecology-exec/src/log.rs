@@ -37,6 +37,8 @@ pub enum LogEvent {
         peis: usize,
         /// Components known on them.
         components: usize,
+        /// How long building the state took (0 without a stopwatch).
+        micros: u64,
     },
     /// A configuration was chosen.
     Configuration {
@@ -52,6 +54,8 @@ pub enum LogEvent {
         alternatives: Vec<u64>,
         /// Whether this replaces a failed configuration.
         reconfiguration: bool,
+        /// How long planning took (0 without a stopwatch).
+        micros: u64,
     },
     /// Deploy commands were sent.
     Deployed {
@@ -133,7 +137,9 @@ impl LogEntry {
             LogEvent::ActionStarted { index, action } => {
                 json!({ "index": index, "action": action })
             }
-            LogEvent::StateAcquired { peis, components } => {
+            LogEvent::StateAcquired {
+                peis, components, ..
+            } => {
                 json!({ "peis": peis, "components": components })
             }
             LogEvent::Configuration {
@@ -143,7 +149,9 @@ impl LogEntry {
                 functionalities,
                 alternatives,
                 reconfiguration,
+                micros,
             } => json!({
+                "micros": micros,
                 "goal": goal,
                 "cost": cost,
                 "optimal": optimal,
@@ -191,7 +199,9 @@ impl fmt::Display for LogEntry {
             LogEvent::ActionStarted { index, action } => {
                 write!(f, "action {}: {action}", index + 1)
             }
-            LogEvent::StateAcquired { peis, components } => {
+            LogEvent::StateAcquired {
+                peis, components, ..
+            } => {
                 write!(f, "  state acquired: {peis} PEIS, {components} components")
             }
             LogEvent::Configuration {
@@ -201,6 +211,7 @@ impl fmt::Display for LogEntry {
                 functionalities,
                 alternatives,
                 reconfiguration,
+                ..
             } => {
                 let what = if *reconfiguration {
                     "reconfigured"

@@ -214,6 +214,44 @@ impl Inputs {
         }
     }
 
+    /// Waits for the next update of any input and takes it in; `false` when
+    /// every subscription has ended.
+    pub async fn changed(&mut self) -> bool {
+        let now = self.clock.now();
+        let event = std::future::poll_fn(|cx| {
+            let mut open = false;
+            for (i, (_, sub)) in self.subscriptions.iter_mut().enumerate() {
+                match sub.poll_event(cx) {
+                    std::task::Poll::Ready(Some(event)) => {
+                        return std::task::Poll::Ready(Some((i, event)));
+                    }
+                    std::task::Poll::Ready(None) => {}
+                    std::task::Poll::Pending => open = true,
+                }
+            }
+            if open {
+                std::task::Poll::Pending
+            } else {
+                std::task::Poll::Ready(None)
+            }
+        })
+        .await;
+        let Some((i, event)) = event else {
+            return false;
+        };
+        let info = self.subscriptions[i].0.clone();
+        match event {
+            TupleEvent::Changed(t) => {
+                self.latest.insert(info, (t, now));
+            }
+            TupleEvent::Removed { .. } | TupleEvent::Retargeted { .. } => {
+                self.latest.remove(&info);
+            }
+        }
+        self.poll();
+        true
+    }
+
     /// The latest value of `info`, if any.
     pub fn latest(&self, info: &str) -> Option<&Tuple> {
         self.latest.get(info).map(|(t, _)| t)
