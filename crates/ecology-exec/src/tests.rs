@@ -717,7 +717,16 @@ mod on_the_tuple_space {
         })
     }
 
-    async fn run(break_tracking_at: Option<Duration>) -> Executive {
+    #[derive(Clone, Copy, PartialEq)]
+    enum Fault {
+        None,
+        /// The tracking system reports an error at this time.
+        BreakTracking(Duration),
+        /// The home security monitor vanishes (crashes) at this time.
+        VanishMonitor(Duration),
+    }
+
+    async fn run(fault: Fault) -> Executive {
         let clock = VirtualClock::default();
         let shared: Arc<dyn Clock> = Arc::new(clock.clone());
         let space = InProcessSpace::new(shared.clone());
@@ -726,10 +735,14 @@ mod on_the_tuple_space {
         let healthy = Arc::new(AtomicBool::new(false));
         let mut hosts = Vec::new();
         let mut stops = Vec::new();
+        let mut monitor = None;
         for peis in ["astrid", "hsm", "pippi"] {
             let handle = space
                 .join(PeisId::new(peis).expect("name"), PeisOptions::default())
                 .expect("joins");
+            if peis == "hsm" {
+                monitor = Some(handle.clone());
+            }
             let mut specs = Vec::new();
             for f in facts.with_predicate("pc").filter(|f| &*f.args[0] == peis) {
                 let c = f.args[2].to_string();
@@ -772,6 +785,7 @@ mod on_the_tuple_space {
             let clock = clock.clone();
             let broken = tracking_broken.clone();
             let start = shared.now();
+            let mut monitor = monitor;
             tokio::spawn(async move {
                 while ticking.load(Ordering::Relaxed) {
                     for _ in 0..50 {
@@ -779,8 +793,16 @@ mod on_the_tuple_space {
                     }
                     clock.advance(Duration::from_millis(20));
                     let now = clock_now(&clock).saturating_duration_since(start);
-                    if break_tracking_at.is_some_and(|at| now >= at) {
-                        broken.store(true, Ordering::Relaxed);
+                    match fault {
+                        Fault::BreakTracking(at) if now >= at => {
+                            broken.store(true, Ordering::Relaxed)
+                        }
+                        Fault::VanishMonitor(at) if now >= at => {
+                            if let Some(hsm) = monitor.take() {
+                                hsm.vanish();
+                            }
+                        }
+                        _ => {}
                     }
                 }
             })
@@ -799,8 +821,11 @@ mod on_the_tuple_space {
         for stop in stops {
             let _ = stop.send(());
         }
-        for host in hosts {
-            host.await.expect("host task").expect("host ran cleanly");
+        for (i, host) in hosts.into_iter().enumerate() {
+            let result = host.await.expect("host task");
+            // A vanished PEIS's host finds the space closed to it; the others stop cleanly.
+            let vanished = i == 1 && matches!(fault, Fault::VanishMonitor(_));
+            assert!(vanished || result.is_ok(), "host {i}: {result:?}");
         }
         space.shutdown().await;
         exec
@@ -813,7 +838,7 @@ mod on_the_tuple_space {
     // The paper's Section VIII on the real middleware (in-process), no failure.
     #[tokio::test]
     async fn a_plan_runs_on_the_tuple_space() {
-        let exec = run(None).await;
+        let exec = run(Fault::None).await;
         assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
         assert_eq!(
             costs(&exec),
@@ -825,13 +850,23 @@ mod on_the_tuple_space {
     // The paper's Section VIII step 6: the tracking system fails on the way to the bedroom.
     #[tokio::test]
     async fn a_failure_on_the_tuple_space_is_reconfigured() {
-        let exec = run(Some(Duration::from_secs(6))).await;
+        let exec = run(Fault::BreakTracking(Duration::from_secs(6))).await;
         assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
         let text = timeline(&exec);
         assert!(
             text.contains("FAILURE hsm:tr1: camera ca1 stopped producing images"),
             "{text}"
         );
+        assert!(costs(&exec).contains(&(170, true)), "{text}");
+    }
+
+    // A PEIS that crashes (no goodbye) is reported as left after its lease (2 s).
+    #[tokio::test]
+    async fn a_vanishing_peis_on_the_tuple_space_is_reconfigured() {
+        let exec = run(Fault::VanishMonitor(Duration::from_secs(6))).await;
+        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        let text = timeline(&exec);
+        assert!(text.contains("PEIS hsm left the ecology"), "{text}");
         assert!(costs(&exec).contains(&(170, true)), "{text}");
     }
 }
