@@ -514,24 +514,28 @@ fn a_component_that_never_runs_times_out_and_is_replaced() {
     );
 }
 
-#[test]
-fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
-    let mut exec = executive(plan()[..1].to_vec());
-    let tuple = |owner: &str, key: &str, value: &str, seq: u64| Event::Tuple {
+fn tuple(owner: &str, key: &str, value: &str, seq: u64) -> Event {
+    Event::Tuple {
         owner: owner.to_string(),
         key: key.to_string(),
         value: value.to_string(),
         seq,
-    };
-    // Boot: every component on (so nothing is switched on) and idle.
+    }
+}
+
+/// An executive for the first action, fed the init tuples of every component
+/// (all on, so nothing is switched on), started, with the ceiling-camera
+/// configuration running at one second.
+fn running_first_action() -> Executive {
+    let mut exec = executive(plan()[..1].to_vec());
     let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
     for f in state.with_predicate("pc") {
         let (p, ty, c) = (&*f.args[0], &*f.args[1], &*f.args[2]);
+        let cost = state.component_cost(p, c).map_or(10, |c| c.amount);
         exec.handle(
             Duration::ZERO,
             tuple(p, &format!("components.{c}.type"), ty, 1),
         );
-        let cost = state.component_cost(p, c).map_or(10, |c| c.amount);
         exec.handle(
             Duration::ZERO,
             tuple(p, &format!("components.{c}.cost"), &cost.to_string(), 1),
@@ -550,6 +554,12 @@ fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
     ] {
         exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
     }
+    exec
+}
+
+#[test]
+fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
+    let mut exec = running_first_action();
     assert_eq!(costs(&exec), [(80, false)]);
     // tr1 fails; the same tuple arrives twice, then an older one late.
     exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 4));
@@ -578,39 +588,7 @@ fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
 
 #[test]
 fn waiting_too_long_is_a_failure() {
-    let mut exec = executive(plan()[..1].to_vec());
-    let tuple = |owner: &str, key: &str, value: &str, seq: u64| Event::Tuple {
-        owner: owner.to_string(),
-        key: key.to_string(),
-        value: value.to_string(),
-        seq,
-    };
-    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
-    for f in state.with_predicate("pc") {
-        let (p, ty, c) = (&*f.args[0], &*f.args[1], &*f.args[2]);
-        exec.handle(
-            Duration::ZERO,
-            tuple(p, &format!("components.{c}.type"), ty, 1),
-        );
-        let cost = state.component_cost(p, c).map_or(10, |c| c.amount);
-        exec.handle(
-            Duration::ZERO,
-            tuple(p, &format!("components.{c}.cost"), &cost.to_string(), 1),
-        );
-        exec.handle(
-            Duration::ZERO,
-            tuple(p, &format!("components.{c}.currState"), "on", 1),
-        );
-    }
-    exec.handle(Duration::ZERO, Event::Start);
-    for (p, c) in [
-        ("astrid", "tc1"),
-        ("astrid", "s1"),
-        ("hsm", "ca1"),
-        ("hsm", "tr1"),
-    ] {
-        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
-    }
+    let mut exec = running_first_action();
     exec.handle(
         secs(2.0),
         tuple("astrid", "s1.cause", "(global-pos astrid)", 1),
