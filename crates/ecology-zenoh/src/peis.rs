@@ -1,6 +1,6 @@
 //! `ZenohPeis`: one PEIS's handle on a tuple space carried by Zenoh.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -53,6 +53,33 @@ struct Core {
     malformed: Arc<AtomicU64>,
     query_timeout: std::time::Duration,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
+    route_hints: Arc<RouteHints>,
+}
+
+/// Key expressions of tuples this PEIS's subscriptions receive, to be declared to Zenoh.
+///
+/// Zenoh caches the route of incoming data only on a key expression its routing tables know; a
+/// sample on any other key has its route computed again against every declaration in the session,
+/// which was most of the cost of receiving. So the first sample of each tuple asks the service task
+/// to declare its key expression; the samples after it take the cached route. A subscriber callback
+/// runs inside Zenoh's routing and cannot declare there itself.
+#[derive(Debug)]
+struct RouteHints {
+    requested: Mutex<HashSet<String>>,
+    declare: mpsc::UnboundedSender<String>,
+}
+
+/// At most this many key expressions are declared for routing; past it, routes are computed per sample.
+const MAX_ROUTE_HINTS: usize = 4096;
+
+impl RouteHints {
+    fn request(&self, key_expr: &str) {
+        let mut requested = lock(&self.requested);
+        if requested.len() < MAX_ROUTE_HINTS && !requested.contains(key_expr) {
+            requested.insert(key_expr.to_owned());
+            let _ = self.declare.send(key_expr.to_owned());
+        }
+    }
 }
 
 impl std::fmt::Debug for Core {
@@ -127,6 +154,7 @@ impl ZenohPeis {
             .map_err(|e| ZenohError::Open {
                 message: e.to_string(),
             })?;
+        let (declare, declare_rx) = mpsc::unbounded_channel();
         let core = Arc::new(Core {
             store: Mutex::new(OwnedTuples::new(me.clone())),
             me,
@@ -138,12 +166,17 @@ impl ZenohPeis {
             malformed: Arc::new(AtomicU64::new(0)),
             query_timeout: options.query_timeout,
             token: Mutex::new(Some(token)),
+            route_hints: Arc::new(RouteHints {
+                requested: Mutex::new(HashSet::new()),
+                declare,
+            }),
         });
         let (shutdown, shutdown_rx) = watch::channel(false);
         let service = tokio::spawn(serve(
             core.clone(),
             get_queryable,
             set_queryable,
+            declare_rx,
             shutdown_rx,
         ));
         Ok(Self {
@@ -286,8 +319,11 @@ async fn serve(
     core: Arc<Core>,
     get_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
     set_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    mut route_hints: mpsc::UnboundedReceiver<String>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    // Declared for routing only; the session undeclares them when it closes.
+    let mut declared = Vec::new();
     loop {
         let notified = core.expiry_changed.notified();
         tokio::pin!(notified);
@@ -313,6 +349,12 @@ async fn serve(
                 for event in &events {
                     // A failed publication of an expiry leaves the tuple removed locally; `get` agrees.
                     let _ = publish_removal(&core, &mut publishers, event);
+                }
+            }
+            Some(key_expr) = route_hints.recv() => {
+                // Without the declaration the samples still arrive, by the slower route.
+                if let Ok(ke) = core.session.declare_keyexpr(key_expr).await {
+                    declared.push(ke);
                 }
             }
             _ = &mut notified => {}
@@ -393,6 +435,7 @@ struct Recent {
     key_expr: String,
     subject: Option<(PeisId, Key)>,
     mimetype: Option<Mimetype>,
+    route_hints: Option<Arc<RouteHints>>,
 }
 
 impl Recent {
@@ -401,6 +444,9 @@ impl Recent {
             return Ok(subject.clone());
         }
         let subject = wire::parse_tuple_key_expr(key_expr)?;
+        if let Some(hints) = &self.route_hints {
+            hints.request(key_expr);
+        }
         key_expr.clone_into(&mut self.key_expr);
         self.subject = Some(subject.clone());
         Ok(subject)
@@ -564,7 +610,10 @@ impl TupleSpace for ZenohPeis {
         let (tx, rx) = mpsc::unbounded_channel();
         let merge = Arc::new(Mutex::new(Merge {
             events: tx,
-            recent: Recent::default(),
+            recent: Recent {
+                route_hints: Some(core.route_hints.clone()),
+                ..Recent::default()
+            },
             snapshot_done: false,
             buffered: Vec::new(),
             snapshot_seq: HashMap::new(),
