@@ -3,6 +3,8 @@
 //!
 //! Run with `cargo bench -p ecology-zenoh --bench loopback`. The bench re-runs itself as the subscriber
 //! process (`loopback sub ...`). Latency is publisher send time (wall clock, in the payload) to receipt.
+//! For profiling one side alone, `LOOPBACK_ONLY=raw` or `LOOPBACK_ONLY=ecology` runs only its phases
+//! (the other side's figures then read 0 and the ratios are meaningless).
 
 use std::io::{BufRead, Write};
 use std::process::{Command, Stdio};
@@ -33,6 +35,11 @@ fn sent_at(data: &[u8]) -> u64 {
     let mut b = [0u8; 8];
     b.copy_from_slice(&data[..8]);
     u64::from_le_bytes(b)
+}
+
+/// Whether the phases of `side` (`raw` or `ecology`) run; both do unless `LOOPBACK_ONLY` names one.
+fn runs(side: &str) -> bool {
+    std::env::var("LOOPBACK_ONLY").map_or(true, |only| only == side)
 }
 
 fn free_endpoint() -> String {
@@ -145,10 +152,8 @@ async fn subscriber(ecology_endpoint: &str, raw_endpoint: &str) {
     loop {
         let done = {
             let ph = phases.lock().expect("lock");
-            ph[0].count >= THROUGHPUT
-                && ph[1].count >= LATENCY
-                && ph[2].count >= THROUGHPUT
-                && ph[3].count >= LATENCY
+            (!runs("raw") || ph[0].count >= THROUGHPUT && ph[1].count >= LATENCY)
+                && (!runs("ecology") || ph[2].count >= THROUGHPUT && ph[3].count >= LATENCY)
         };
         if done || Instant::now() > deadline {
             break;
@@ -231,10 +236,14 @@ async fn publisher() {
             }
         }
     };
-    paced(THROUGHPUT, None, raw_put("bench/raw/tp")).await;
-    paced(LATENCY, gap, raw_put("bench/raw/lat")).await;
-    paced(THROUGHPUT, None, set(tp)).await;
-    paced(LATENCY, gap, set(lat)).await;
+    if runs("raw") {
+        paced(THROUGHPUT, None, raw_put("bench/raw/tp")).await;
+        paced(LATENCY, gap, raw_put("bench/raw/lat")).await;
+    }
+    if runs("ecology") {
+        paced(THROUGHPUT, None, set(tp)).await;
+        paced(LATENCY, gap, set(lat)).await;
+    }
 
     let mut results = std::collections::BTreeMap::new();
     for line in lines.map_while(Result::ok).take(4) {

@@ -1,6 +1,6 @@
 //! `ZenohPeis`: one PEIS's handle on a tuple space carried by Zenoh.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -11,7 +11,9 @@ use ecology_tuples::{
 };
 use tokio::sync::{Notify, mpsc, watch};
 use tokio::task::JoinHandle;
+use zenoh::Wait;
 use zenoh::key_expr::KeyExpr;
+use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, Query};
 use zenoh::sample::{Sample, SampleKind};
@@ -44,11 +46,40 @@ struct Core {
     clock: Arc<dyn Clock>,
     store: Mutex<OwnedTuples>,
     // Held from assigning a seq to handing the sample to Zenoh, so samples of a key leave in seq order.
-    publishing: tokio::sync::Mutex<()>,
+    // A plain mutex: Zenoh's put is synchronous (its future is `ready(wait())`), so nothing awaits
+    // while it is held; it blocks only while another set hands its sample over.
+    publishers: Mutex<Publishers>,
     expiry_changed: Notify,
     malformed: Arc<AtomicU64>,
     query_timeout: std::time::Duration,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
+    route_hints: Arc<RouteHints>,
+}
+
+/// Key expressions of tuples this PEIS's subscriptions receive, to be declared to Zenoh.
+///
+/// Zenoh caches the route of incoming data only on a key expression its routing tables know; a
+/// sample on any other key has its route computed again against every declaration in the session,
+/// which was most of the cost of receiving. So the first sample of each tuple asks the service task
+/// to declare its key expression; the samples after it take the cached route. A subscriber callback
+/// runs inside Zenoh's routing and cannot declare there itself.
+#[derive(Debug)]
+struct RouteHints {
+    requested: Mutex<HashSet<String>>,
+    declare: mpsc::UnboundedSender<String>,
+}
+
+/// At most this many key expressions are declared for routing; past it, routes are computed per sample.
+const MAX_ROUTE_HINTS: usize = 4096;
+
+impl RouteHints {
+    fn request(&self, key_expr: &str) {
+        let mut requested = lock(&self.requested);
+        if requested.len() < MAX_ROUTE_HINTS && !requested.contains(key_expr) {
+            requested.insert(key_expr.to_owned());
+            let _ = self.declare.send(key_expr.to_owned());
+        }
+    }
 }
 
 impl std::fmt::Debug for Core {
@@ -123,23 +154,29 @@ impl ZenohPeis {
             .map_err(|e| ZenohError::Open {
                 message: e.to_string(),
             })?;
+        let (declare, declare_rx) = mpsc::unbounded_channel();
         let core = Arc::new(Core {
             store: Mutex::new(OwnedTuples::new(me.clone())),
             me,
             options: options.peis,
             session,
             clock: options.clock,
-            publishing: tokio::sync::Mutex::new(()),
+            publishers: Mutex::new(Publishers::default()),
             expiry_changed: Notify::new(),
             malformed: Arc::new(AtomicU64::new(0)),
             query_timeout: options.query_timeout,
             token: Mutex::new(Some(token)),
+            route_hints: Arc::new(RouteHints {
+                requested: Mutex::new(HashSet::new()),
+                declare,
+            }),
         });
         let (shutdown, shutdown_rx) = watch::channel(false);
         let service = tokio::spawn(serve(
             core.clone(),
             get_queryable,
             set_queryable,
+            declare_rx,
             shutdown_rx,
         ));
         Ok(Self {
@@ -182,9 +219,10 @@ impl ZenohPeis {
             .await
             .map_err(transport("get"))?;
         let mut tuples = Vec::new();
+        let mut recent = Recent::default();
         while let Ok(reply) = replies.recv_async().await {
             if let Ok(sample) = reply.result() {
-                match decode_sample(sample, &core.options, core.clock.as_ref()) {
+                match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
                     Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => {
                         tuples.push(t)
                     }
@@ -201,26 +239,58 @@ impl ZenohPeis {
     }
 }
 
+/// The declared Zenoh publisher of each tuple this PEIS has published and not removed.
+///
+/// A declared publisher resolves its key expression and its route once; a put on a plain key
+/// expression string validates the string and computes the route again every time.
+#[derive(Default)]
+struct Publishers(HashMap<Key, Publisher<'static>>);
+
+impl Publishers {
+    fn get_or_declare(
+        &mut self,
+        session: &zenoh::Session,
+        owner: &PeisId,
+        key: &Key,
+    ) -> Result<&Publisher<'static>, TupleError> {
+        use std::collections::hash_map::Entry;
+        match self.0.entry(key.clone()) {
+            Entry::Occupied(e) => Ok(e.into_mut()),
+            Entry::Vacant(e) => {
+                let publisher = session
+                    .declare_publisher(wire::tuple_key_expr(owner, key))
+                    .congestion_control(CongestionControl::Block)
+                    .wait()
+                    .map_err(transport("put"))?;
+                Ok(e.insert(publisher))
+            }
+        }
+    }
+}
+
 /// Publishes `value` as this PEIS's tuple `key`: the one path for local sets, remote sets applied, and expiry.
-async fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
-    let _order = core.publishing.lock().await;
+fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
+    let mut publishers = lock(&core.publishers);
+    // Declared before the store changes, so a failure leaves neither a new tuple nor a used seq.
+    let publisher = publishers.get_or_declare(&core.session, &core.me, &key)?;
     let tuple = lock(&core.store).set(key, value, core.clock.now());
     if tuple.expiry.is_some() {
         core.expiry_changed.notify_one();
     }
-    core.session
-        .put(
-            wire::tuple_key_expr(&core.me, &tuple.key),
-            tuple.data.clone(),
-        )
+    publisher
+        .put(tuple.data.clone())
         .attachment(Metadata::of_tuple(&tuple).encode())
-        .congestion_control(CongestionControl::Block)
-        .await
+        .wait()
         .map_err(transport("put"))?;
     Ok(tuple)
 }
 
-async fn publish_removal(core: &Core, event: &TupleEvent) -> Result<(), TupleError> {
+/// Publishes a removal of this PEIS's tuple; the caller holds `publishers` since the seq was assigned.
+fn publish_removal(
+    core: &Core,
+    publishers: &mut Publishers,
+    event: &TupleEvent,
+) -> Result<(), TupleError> {
     if let TupleEvent::Removed {
         owner,
         key,
@@ -229,12 +299,17 @@ async fn publish_removal(core: &Core, event: &TupleEvent) -> Result<(), TupleErr
     } = event
     {
         let meta = Metadata::of_removal(*seq, core.clock.now(), *reason == RemovalReason::Expired);
-        core.session
-            .delete(wire::tuple_key_expr(owner, key))
-            .attachment(meta.encode())
-            .congestion_control(CongestionControl::Block)
-            .await
-            .map_err(transport("delete"))?;
+        // The publisher goes with the tuple, so the cache holds only live tuples.
+        let result = match publishers.0.remove(key) {
+            Some(publisher) => publisher.delete().attachment(meta.encode()).wait(),
+            None => core
+                .session
+                .delete(wire::tuple_key_expr(owner, key))
+                .attachment(meta.encode())
+                .congestion_control(CongestionControl::Block)
+                .wait(),
+        };
+        result.map_err(transport("delete"))?;
     }
     Ok(())
 }
@@ -244,8 +319,11 @@ async fn serve(
     core: Arc<Core>,
     get_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
     set_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    mut route_hints: mpsc::UnboundedReceiver<String>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    // Declared for routing only; the session undeclares them when it closes.
+    let mut declared = Vec::new();
     loop {
         let notified = core.expiry_changed.notified();
         tokio::pin!(notified);
@@ -266,11 +344,17 @@ async fn serve(
                 Err(_) => return,
             },
             _ = sleep => {
-                let _order = core.publishing.lock().await;
+                let mut publishers = lock(&core.publishers);
                 let events = lock(&core.store).expire_due(core.clock.now());
                 for event in &events {
                     // A failed publication of an expiry leaves the tuple removed locally; `get` agrees.
-                    let _ = publish_removal(&core, event).await;
+                    let _ = publish_removal(&core, &mut publishers, event);
+                }
+            }
+            Some(key_expr) = route_hints.recv() => {
+                // Without the declaration the samples still arrive, by the slower route.
+                if let Ok(ke) = core.session.declare_keyexpr(key_expr).await {
+                    declared.push(ke);
                 }
             }
             _ = &mut notified => {}
@@ -306,7 +390,7 @@ async fn answer_get(core: &Core, query: Query) {
 async fn apply_remote_set(core: &Core, query: Query) {
     let result = remote_set_value(core, &query);
     let outcome = match result {
-        Ok((key, value)) => publish(core, key, value).await.map_err(|e| e.to_string()),
+        Ok((key, value)) => publish(core, key, value).map_err(|e| e.to_string()),
         Err(reason) => Err(reason),
     };
     let _ = match outcome {
@@ -342,15 +426,51 @@ fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> 
     Ok((key, value))
 }
 
+/// What the previous sample of a subscription was about, reused when the next one repeats it.
+///
+/// A subscriber mostly sees the same few keys and mimetypes; reusing them spares parsing and
+/// validating the key expression and allocating the names for every sample.
+#[derive(Default)]
+struct Recent {
+    key_expr: String,
+    subject: Option<(PeisId, Key)>,
+    mimetype: Option<Mimetype>,
+    route_hints: Option<Arc<RouteHints>>,
+}
+
+impl Recent {
+    fn subject(&mut self, key_expr: &str) -> Result<(PeisId, Key), WireError> {
+        if let Some(subject) = self.subject.as_ref().filter(|_| self.key_expr == key_expr) {
+            return Ok(subject.clone());
+        }
+        let subject = wire::parse_tuple_key_expr(key_expr)?;
+        if let Some(hints) = &self.route_hints {
+            hints.request(key_expr);
+        }
+        key_expr.clone_into(&mut self.key_expr);
+        self.subject = Some(subject.clone());
+        Ok(subject)
+    }
+
+    fn metadata(&mut self, attachment: &[u8]) -> Result<Metadata, WireError> {
+        let meta = Metadata::decode_reusing(attachment, self.mimetype.as_ref())?;
+        if self.mimetype.as_ref() != Some(&meta.mimetype) {
+            self.mimetype = Some(meta.mimetype.clone());
+        }
+        Ok(meta)
+    }
+}
+
 /// Reads a sample as a tuple event. A sample with no attachment gets default metadata.
 fn decode_sample(
     sample: &Sample,
     options: &PeisOptions,
     clock: &dyn Clock,
+    recent: &mut Recent,
 ) -> Result<TupleEvent, WireError> {
-    let (owner, key) = wire::parse_tuple_key_expr(sample.key_expr().as_str())?;
+    let (owner, key) = recent.subject(sample.key_expr().as_str())?;
     let meta = match sample.attachment() {
-        Some(att) => Some(Metadata::decode(&att.to_bytes())?),
+        Some(att) => Some(recent.metadata(&att.to_bytes())?),
         None => None,
     };
     match sample.kind() {
@@ -362,7 +482,7 @@ fn decode_sample(
                     limit: options.limits.max_value_bytes,
                 });
             }
-            let data = Bytes::from(sample.payload().to_bytes().into_owned());
+            let data = Bytes::copy_from_slice(&sample.payload().to_bytes());
             let meta = meta.unwrap_or_else(|| Metadata {
                 seq: 0,
                 ts_write: clock.now(),
@@ -401,6 +521,7 @@ fn default_mimetype(sample: &Sample) -> Mimetype {
 /// Merges a subscription's snapshot with live samples that arrive while the snapshot is taken.
 struct Merge {
     events: mpsc::UnboundedSender<TupleEvent>,
+    recent: Recent,
     snapshot_done: bool,
     buffered: Vec<TupleEvent>,
     // Per key, the seq the snapshot delivered; live samples at or below it are duplicates or stale.
@@ -455,16 +576,16 @@ impl TupleSpace for ZenohPeis {
 
     async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
         self.inner.core.options.limits.check(&key, &value)?;
-        publish(&self.inner.core, key, value).await
+        publish(&self.inner.core, key, value)
     }
 
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {
         let core = &self.inner.core;
-        let _order = core.publishing.lock().await;
+        let mut publishers = lock(&core.publishers);
         let removal = lock(&core.store).delete(&key);
         match removal {
             Some(event) => {
-                publish_removal(core, &event).await?;
+                publish_removal(core, &mut publishers, &event)?;
                 Ok(true)
             }
             None => Ok(false),
@@ -489,6 +610,10 @@ impl TupleSpace for ZenohPeis {
         let (tx, rx) = mpsc::unbounded_channel();
         let merge = Arc::new(Mutex::new(Merge {
             events: tx,
+            recent: Recent {
+                route_hints: Some(core.route_hints.clone()),
+                ..Recent::default()
+            },
             snapshot_done: false,
             buffered: Vec::new(),
             snapshot_seq: HashMap::new(),
@@ -502,19 +627,21 @@ impl TupleSpace for ZenohPeis {
         let subscriber = core
             .session
             .declare_subscriber(wire::pattern_key_expr(&pattern))
-            .callback(
-                move |sample| match decode_sample(&sample, &options, clock.as_ref()) {
+            .callback(move |sample| {
+                let mut merge = lock(&live);
+                let merge = &mut *merge;
+                match decode_sample(&sample, &options, clock.as_ref(), &mut merge.recent) {
                     Ok(event) => {
                         let (owner, key) = event.subject();
                         if filter.matches(owner, key) {
-                            lock(&live).live(event);
+                            merge.live(event);
                         }
                     }
                     Err(_) => {
                         malformed.fetch_add(1, Ordering::Relaxed);
                     }
-                },
-            )
+                }
+            })
             .await
             .map_err(transport("subscribe"))?;
         let snapshot = self.query_tuples(&pattern).await?;
@@ -526,7 +653,7 @@ impl TupleSpace for ZenohPeis {
         let core = &self.inner.core;
         core.options.limits.check(&key, &value)?;
         if owner == core.me {
-            return publish(core, key, value).await;
+            return publish(core, key, value);
         }
         let replies = core
             .session

@@ -233,6 +233,12 @@ impl Metadata {
 
     /// Parses an attachment; any deviation from the layout is an error.
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
+        Self::decode_reusing(bytes, None)
+    }
+
+    /// Parses an attachment like [`Metadata::decode`], taking `known` instead of a new mimetype when the
+    /// attachment names the same one (a subscriber sees the same few mimetypes over and over).
+    pub fn decode_reusing(bytes: &[u8], known: Option<&Mimetype>) -> Result<Self, WireError> {
         let mut r = Reader(bytes);
         if r.u8()? != VERSION {
             return Err(WireError::Attachment("unknown version"));
@@ -255,10 +261,14 @@ impl Metadata {
         if !r.0.is_empty() {
             return Err(WireError::Attachment("trailing bytes"));
         }
-        let mime = std::str::from_utf8(mime)
-            .map_err(|_| WireError::Attachment("mimetype is not UTF-8"))?;
-        let mimetype =
-            Mimetype::new(mime).map_err(|_| WireError::Attachment("invalid mimetype"))?;
+        let mimetype = match known {
+            Some(known) if known.as_str().as_bytes() == mime => known.clone(),
+            _ => {
+                let mime = std::str::from_utf8(mime)
+                    .map_err(|_| WireError::Attachment("mimetype is not UTF-8"))?;
+                Mimetype::new(mime).map_err(|_| WireError::Attachment("invalid mimetype"))?
+            }
+        };
         Ok(Self {
             seq,
             ts_write,
