@@ -6,6 +6,7 @@
 //! - 2: bad input or usage, with `file:line:col` diagnostics on stderr.
 
 mod configure;
+mod demo;
 mod input;
 mod plan;
 mod tuples;
@@ -39,6 +40,10 @@ enum Command {
     Tuples(tuples::TuplesArgs),
     /// Plan actions for a problem: a plan whose actions each carry their configuration goal.
     Plan(plan::PlanArgs),
+    /// Run the paper's experiment (Section VIII) in the simulated PEIS-Home.
+    Demo(demo::RunArgs),
+    /// Run a scenario file (TOML) in the simulated PEIS-Home.
+    Run(demo::ScenarioArgs),
 }
 
 fn main() -> ExitCode {
@@ -59,6 +64,8 @@ fn main() -> ExitCode {
         Command::Configure(args) => configure::configure(&args),
         Command::Tuples(args) => tuples::run(args).map(|code| u8::try_from(code).unwrap_or(1)),
         Command::Plan(args) => plan::plan(&args),
+        Command::Demo(args) => demo::demo(&args),
+        Command::Run(args) => demo::run(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

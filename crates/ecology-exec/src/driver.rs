@@ -15,6 +15,7 @@ use ecology_tuples::{
 };
 
 use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
+use crate::log::LogEntry;
 
 /// How the driver runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,6 +42,19 @@ pub async fn drive<S: TupleSpace>(
     exec: &mut Executive,
     config: DriverConfig,
 ) -> Result<RunStatus, TupleError> {
+    drive_observed(space, clock, exec, config, |_| {}).await
+}
+
+/// [`drive`], calling `observe` with every log entry as soon as the executive
+/// writes it (a live timeline, or fault injection keyed to executive events).
+pub async fn drive_observed<S: TupleSpace>(
+    space: &S,
+    clock: Arc<dyn Clock>,
+    exec: &mut Executive,
+    config: DriverConfig,
+    mut observe: impl FnMut(&LogEntry),
+) -> Result<RunStatus, TupleError> {
+    let mut observed = exec.log().len();
     let start = clock.now();
     let elapsed = |clock: &Arc<dyn Clock>| clock.now().saturating_duration_since(start);
     let mut tuples = space.subscribe(TuplePattern::everything()).await?;
@@ -108,6 +122,10 @@ pub async fn drive<S: TupleSpace>(
                 }
             }
         };
+        for entry in &exec.log()[observed..] {
+            observe(entry);
+        }
+        observed = exec.log().len();
         for command in commands {
             match command {
                 Command::StartTimer { id, after } => {

@@ -276,6 +276,10 @@ impl Executive {
             Event::PeisJoined(peis) => self.mirror.joined(&peis),
             Event::PeisLeft(peis) => {
                 self.mirror.left(&peis);
+                // A PEIS that comes back starts afresh: forget what was
+                // written to its components, so a new deploy writes it again.
+                self.params.retain(|(p, _), _| *p != peis);
+                self.started.retain(|(p, _)| *p != peis);
                 self.on_peis_left(&peis, &mut out);
             }
             Event::Timer(id) => self.on_timer(id, &mut out),

@@ -15,7 +15,7 @@ mod mirror;
 #[cfg(test)]
 mod tests;
 
-pub use driver::{DriverConfig, drive};
+pub use driver::{DriverConfig, drive, drive_observed};
 pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};

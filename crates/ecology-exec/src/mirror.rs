@@ -86,6 +86,8 @@ impl Mirror {
         if let Some(view) = self.peis.get_mut(peis) {
             view.present = false;
         }
+        // Its tuples are gone with it; if it comes back, it numbers them afresh.
+        self.last_seq.retain(|(owner, _), _| owner != peis);
     }
 
     /// Applies a tuple update; `None` when it is a duplicate or out of order.

@@ -430,3 +430,62 @@ fn plan_with_problem(problem: &str, extra: &[&str]) -> Output {
     args.extend_from_slice(extra);
     ecology(&args)
 }
+
+// The paper's Section VIII in simulation: the timeline names every step.
+#[test]
+fn demo_runs_the_papers_experiment() {
+    let out = ecology(&["demo"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    for line in [
+        "plan: (move astrid living-room entrance) → (get astrid newspaper entrance) → (move astrid entrance bedroom) → (wake astrid johanna bedroom)",
+        "configuration for (navigate astrid entrance): cost 80 (optimal; alternatives 80, 170, 190)",
+        "[simulation] hsm:ca1 stalls (stops publishing)",
+        "FAILURE hsm:tr1: no images from the cameras",
+        "reconfigured for (navigate astrid bedroom): cost 170 (optimal; alternatives 170, 190)",
+        "deploy: switch on astrid:l1; 3 channels",
+        "task done",
+    ] {
+        assert!(text.contains(line), "missing `{line}` in\n{text}");
+    }
+    assert!(stderr(&out).contains("of wall time"), "{}", stderr(&out));
+}
+
+#[test]
+fn demo_json_prints_the_event_log() {
+    let out = ecology(&["demo", "--json", "--seed", "3"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let events: Vec<Value> = stdout(&out)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+        .collect();
+    let names: Vec<&str> = events.iter().filter_map(|e| e["event"].as_str()).collect();
+    assert_eq!(names.first(), Some(&"plan"));
+    assert_eq!(names.last(), Some(&"task_done"));
+    let costs: Vec<u64> = events
+        .iter()
+        .filter(|e| e["event"] == "configuration")
+        .filter_map(|e| e["cost"].as_u64())
+        .collect();
+    assert_eq!(costs, [80, 100, 80, 170, 20]);
+    assert!(events.iter().all(|e| e["t"].is_number()));
+}
+
+#[test]
+fn run_takes_a_scenario_file_and_reports_bad_ones() {
+    let out = ecology(&["run", "scenarios/kitchen.toml"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(stdout(&out).contains("PEIS hsm left the ecology"));
+
+    let dir = std::env::temp_dir().join(format!("ecology-cli-run-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "name = \"bad\"\n[task]\ndomain = 3\n").expect("writes");
+    let out = ecology(&["run", bad.to_str().expect("utf-8 path")]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("bad.toml:3:10"), "{}", stderr(&out));
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let out = ecology(&["demo", "--speed", "0"]);
+    assert_eq!(out.status.code(), Some(2));
+}

@@ -1,0 +1,160 @@
+//! `ecology demo` and `ecology run SCENARIO`: a scenario of the simulated
+//! PEIS-Home, in-process, with the executive's timeline printed as it happens.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use ecology_exec::RunStatus;
+use ecology_sim::{Pace, RunOptions, Scenario, Update};
+
+use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+
+/// The paper's experiment, built in so that `ecology demo` runs anywhere.
+const DEMO_SCENARIO: &str = include_str!("../../../scenarios/peis-home.toml");
+const DEMO_FILES: &[(&str, &str)] = &[
+    (
+        "../domains/peis-home.eco",
+        include_str!("../../../domains/peis-home.eco"),
+    ),
+    (
+        "../domains/peis-home-task.problem",
+        include_str!("../../../domains/peis-home-task.problem"),
+    ),
+];
+
+/// Options of `ecology demo` and `ecology run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Simulated seconds per wall-clock second (default: as fast as possible).
+    #[arg(long, value_name = "X", conflicts_with = "realtime")]
+    pub speed: Option<f64>,
+    /// Run in real time (the same as --speed 1).
+    #[arg(long)]
+    pub realtime: bool,
+    /// Print the executive's event log as JSON lines instead of the timeline.
+    #[arg(long)]
+    pub json: bool,
+    /// The seed of the simulation's noise (default: the scenario's).
+    #[arg(long, value_name = "N")]
+    pub seed: Option<u64>,
+}
+
+/// Arguments of `ecology run`.
+#[derive(Debug, Args)]
+pub struct ScenarioArgs {
+    /// The scenario file (TOML), such as scenarios/peis-home.toml.
+    pub scenario: PathBuf,
+    #[command(flatten)]
+    pub options: RunArgs,
+}
+
+/// `ecology demo`: the paper's Section VIII.
+pub fn demo(args: &RunArgs) -> anyhow::Result<u8> {
+    let read = |path: &Path| -> Result<Vec<u8>, String> {
+        DEMO_FILES
+            .iter()
+            .find(|(name, _)| Path::new(name) == path)
+            .map(|(_, text)| text.as_bytes().to_vec())
+            .ok_or_else(|| "not built into the demo".to_string())
+    };
+    match Scenario::parse(DEMO_SCENARIO, "scenarios/peis-home.toml", &read) {
+        Ok(scenario) => simulate(&scenario, args),
+        Err(e) => {
+            eprintln!("error: {e}");
+            Ok(EXIT_BAD_INPUT)
+        }
+    }
+}
+
+/// `ecology run SCENARIO`.
+pub fn run(args: &ScenarioArgs) -> anyhow::Result<u8> {
+    match Scenario::load(&args.scenario) {
+        Ok(scenario) => simulate(&scenario, &args.options),
+        Err(e) => {
+            eprintln!("error: {e}");
+            Ok(EXIT_BAD_INPUT)
+        }
+    }
+}
+
+fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
+    let pace = match (args.realtime, args.speed) {
+        (true, _) => Pace::Speed(1.0),
+        (false, Some(x)) if x.is_finite() && x > 0.0 => Pace::Speed(x),
+        (false, Some(x)) => {
+            eprintln!("error: --speed must be a positive number, not {x}");
+            return Ok(EXIT_BAD_INPUT);
+        }
+        (false, None) => Pace::Unpaced,
+    };
+    let options = RunOptions {
+        pace,
+        ..RunOptions::seeded(args.seed.unwrap_or(scenario.seed))
+    };
+    // One thread: the run is reproducible from its seed.
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .context("cannot start the runtime")?;
+    let json = args.json;
+    let progress = std::io::stderr().is_terminal();
+    if !json {
+        println!(
+            "scenario {}: {} (seed {})",
+            scenario.name, scenario.description, options.seed
+        );
+    }
+    let observer = Box::new(move |update: Update| {
+        let mut out = std::io::stdout().lock();
+        if progress {
+            eprint!("\r\x1b[K");
+        }
+        match update {
+            Update::Log(entry) if json => {
+                let _ = writeln!(out, "{}", entry.json_line());
+            }
+            Update::Log(entry) => {
+                let _ = writeln!(out, "{entry}");
+            }
+            Update::Injected { t, what } if !json => {
+                let _ = writeln!(out, "{:>8.3}s  [simulation] {what}", t.as_secs_f64());
+            }
+            Update::Injected { .. } => {}
+            Update::Progress { t } => {
+                if progress {
+                    eprint!("  … simulated {:.0} s", t.as_secs_f64());
+                }
+            }
+        }
+        let _ = out.flush();
+    });
+    let wall = Instant::now();
+    let report = runtime
+        .block_on(ecology_sim::run(scenario, &options, observer))
+        .context("the simulation failed")?;
+    let wall = wall.elapsed();
+    if progress {
+        eprint!("\r\x1b[K");
+    }
+    let sim = report.sim_time;
+    eprintln!(
+        "simulated {:.1} s in {:.2} s of wall time ({:.0}x real time)",
+        sim.as_secs_f64(),
+        wall.as_secs_f64(),
+        sim.as_secs_f64() / wall.as_secs_f64().max(1e-9)
+    );
+    Ok(match report.status {
+        RunStatus::Done => EXIT_OK,
+        RunStatus::Failed { .. } => EXIT_NO_SOLUTION,
+        RunStatus::Idle | RunStatus::Running { .. } => {
+            eprintln!(
+                "error: the task did not finish within the scenario's time limit ({} s)",
+                scenario.time_limit.as_secs_f64()
+            );
+            EXIT_NO_SOLUTION
+        }
+    })
+}

@@ -1,0 +1,677 @@
+//! Simulated PEIS-components, one for every component type of the
+//! PEIS-Home (DESIGN section 8), following the component contract of
+//! DESIGN section 6.
+//!
+//! Sensors read ground truth from the `world` PEIS through the tuple space
+//! (its `robots.NAME.pose`, `map`, `things.…` and `residents.…` tuples) and
+//! add seeded noise; processors read their inputs through `mi-` meta-tuples;
+//! actuators act on the world by publishing outputs the world subscribes to
+//! (`C.out.velocity`, `C.out.grasp`, `C.out.sound`). Each reports its own
+//! status: `waiting` naming what is missing, `running`, `done`, or `error`
+//! with a cause. Injected faults make a component fail (`error`) or stall
+//! (stay `running` but fall silent, as a dead camera does).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use ecology_peis::{BoxFuture, Component, ComponentError, Context, Inputs};
+use ecology_tuples::{Subscription, TupleEvent, TuplePattern, TupleSpace, Value};
+
+use crate::rng::Rng;
+use crate::world::{MAX_SPEED, MAX_TURN, Map, Pose, wrap_angle};
+
+/// The name of the PEIS that holds the world's ground truth.
+pub const WORLD: &str = "world";
+
+/// The component types the simulator provides (the `pc` facts' types).
+pub const KINDS: &[&str] = &[
+    "cams", "tr-sys", "cam", "obj-loc", "laser", "odomet", "self-loc", "tc", "gripp", "speak",
+    "player",
+];
+
+/// How often sensors sample, and how long processors wait for an input
+/// before checking staleness.
+const PERIOD: Duration = Duration::from_millis(50);
+/// An input older than this is stale.
+const STALE: Duration = Duration::from_millis(500);
+/// A tracking system whose images stopped for this long reports `error`.
+const IMAGES_LOST: Duration = Duration::from_secs(1);
+
+/// An injected fault of one component.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct FaultState {
+    /// The component fails with this cause (reports `error`).
+    pub failed: Option<String>,
+    /// The component falls silent: it keeps its status but publishes nothing.
+    pub stalled: bool,
+}
+
+/// The injected faults of every component, shared by the fault schedule and
+/// the component bodies.
+#[derive(Debug, Clone, Default)]
+pub struct Faults(Arc<Mutex<BTreeMap<(String, String), FaultState>>>);
+
+impl Faults {
+    /// The fault state of `peis:component`.
+    pub fn get(&self, peis: &str, component: &str) -> FaultState {
+        let map = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        map.get(&(peis.to_string(), component.to_string()))
+            .cloned()
+            .unwrap_or_default()
+    }
+
+    /// Changes the fault state of `peis:component`.
+    pub fn update(&self, peis: &str, component: &str, change: impl FnOnce(&mut FaultState)) {
+        let mut map = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        change(
+            map.entry((peis.to_string(), component.to_string()))
+                .or_default(),
+        );
+    }
+}
+
+/// A simulated component of one type.
+#[derive(Debug, Clone)]
+pub struct Simulated {
+    kind: String,
+    faults: Faults,
+    seed: u64,
+}
+
+impl Simulated {
+    /// The simulated component of type `kind` (one of [`KINDS`]), or `None`
+    /// for a type the simulator does not know.
+    pub fn new(kind: &str, faults: Faults, seed: u64) -> Option<Simulated> {
+        KINDS.contains(&kind).then(|| Simulated {
+            kind: kind.to_string(),
+            faults,
+            seed,
+        })
+    }
+}
+
+impl<S: TupleSpace> Component<S> for Simulated {
+    fn run(&self, ctx: Context<S>) -> BoxFuture<Result<(), ComponentError>> {
+        let sim = self.clone();
+        Box::pin(async move {
+            let functionality = ctx
+                .params()
+                .trim_start_matches('(')
+                .split_whitespace()
+                .next()
+                .unwrap_or("")
+                .trim_end_matches(')')
+                .to_string();
+            let name = format!(
+                "{}:{}:{}",
+                ctx.peis(),
+                ctx.component(),
+                ctx.clock().now().as_nanos()
+            );
+            let rng = Rng::derive(sim.seed, &name);
+            let mut body = Body {
+                ctx,
+                faults: sim.faults.clone(),
+                rng,
+                shown: None,
+            };
+            match (sim.kind.as_str(), functionality.as_str()) {
+                ("cams", _) => body.cameras(None).await,
+                ("cam", _) => body.cameras(Some(3.5)).await,
+                ("tr-sys", _) => body.tracker(true).await,
+                ("obj-loc", _) => body.tracker(false).await,
+                ("laser", _) => body.laser().await,
+                ("odomet", _) => body.odometry().await,
+                ("self-loc", "scan-matching") => body.scan_matching().await,
+                ("self-loc", "pose-tracking") => body.pose_tracking().await,
+                ("tc", "navigation") => body.navigation().await,
+                ("gripp", _) => body.gripper().await,
+                ("speak", _) => body.speaker().await,
+                ("player", _) => body.idle().await,
+                (kind, f) => Err(ComponentError::Fault(format!(
+                    "a {kind} component cannot run {f}"
+                ))),
+            }
+        })
+    }
+}
+
+/// The world's ground truth as one component sees it, through the tuple space.
+struct Truth {
+    subscription: Subscription,
+    latest: BTreeMap<String, String>,
+}
+
+impl Truth {
+    async fn follow<S: TupleSpace>(space: &S) -> Result<Truth, ComponentError> {
+        let pattern = TuplePattern::parse(&format!("{WORLD}:**"))
+            .map_err(|e| ComponentError::Space(e.to_string()))?;
+        Ok(Truth {
+            subscription: space.subscribe(pattern).await?,
+            latest: BTreeMap::new(),
+        })
+    }
+
+    fn poll(&mut self) {
+        while let Some(event) = self.subscription.try_next() {
+            match event {
+                TupleEvent::Changed(t) => {
+                    if let Ok(text) = t.text() {
+                        self.latest.insert(t.key.to_string(), text.to_string());
+                    }
+                }
+                TupleEvent::Removed { key, .. } => {
+                    self.latest.remove(key.as_str());
+                }
+                TupleEvent::Retargeted { .. } => {}
+            }
+        }
+    }
+
+    fn text(&self, key: &str) -> Option<&str> {
+        self.latest.get(key).map(String::as_str)
+    }
+
+    fn robot(&self, name: &str) -> Option<Pose> {
+        self.text(&format!("robots.{name}.pose"))
+            .and_then(Pose::parse)
+    }
+
+    fn robots(&self) -> Vec<(String, Pose)> {
+        self.latest
+            .iter()
+            .filter_map(|(k, v)| {
+                let name = k.strip_prefix("robots.")?.strip_suffix(".pose")?;
+                Some((name.to_string(), Pose::parse(v)?))
+            })
+            .collect()
+    }
+
+    fn map(&self) -> Option<Map> {
+        self.text("map").and_then(Map::parse)
+    }
+}
+
+struct Body<S: TupleSpace> {
+    ctx: Context<S>,
+    faults: Faults,
+    rng: Rng,
+    shown: Option<(String, String)>,
+}
+
+fn fault(text: impl Into<String>) -> ComponentError {
+    ComponentError::Fault(text.into())
+}
+
+impl<S: TupleSpace> Body<S> {
+    /// Applies injected faults: `Err` when failed, `Ok(true)` when stalled.
+    fn injected(&self) -> Result<bool, ComponentError> {
+        let state = self
+            .faults
+            .get(self.ctx.peis().as_str(), self.ctx.component());
+        match state.failed {
+            Some(cause) => Err(fault(cause)),
+            None => Ok(state.stalled),
+        }
+    }
+
+    /// Reports a status and cause, only when they change.
+    async fn report(&mut self, status: &str, cause: &str) -> Result<(), ComponentError> {
+        let now = (status.to_string(), cause.to_string());
+        if self.shown.as_ref() != Some(&now) {
+            let cause = (!cause.is_empty()).then_some(cause);
+            self.ctx.status(status, cause).await?;
+            self.shown = Some(now);
+        }
+        Ok(())
+    }
+
+    async fn output(&self, info: &str, text: String) -> Result<(), ComponentError> {
+        self.ctx.output(info, Value::text(text)).await?;
+        Ok(())
+    }
+
+    /// Waits for the next input update, or one period.
+    async fn next(&self, inputs: &mut Inputs) {
+        tokio::select! {
+            open = inputs.changed() => if !open { self.ctx.sleep(PERIOD).await },
+            () = self.ctx.sleep(PERIOD) => {}
+        }
+    }
+
+    fn arg(&self, i: usize) -> Result<String, ComponentError> {
+        self.ctx
+            .args()
+            .get(i)
+            .map(|s| s.to_string())
+            .ok_or_else(|| {
+                fault(format!(
+                    "params {} lack argument {}",
+                    self.ctx.params(),
+                    i + 1
+                ))
+            })
+    }
+
+    /// Ceiling cameras (`range = None`: they see the whole home) or a robot's
+    /// camera (sees robots within `range` metres in the same room): `image`
+    /// holds the robots seen, as `NAME X Y THETA; …`.
+    async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let me = self.ctx.peis().to_string();
+        loop {
+            let stalled = self.injected()?;
+            truth.poll();
+            let robots = truth.robots();
+            if robots.is_empty() {
+                self.report("waiting", "ground truth").await?;
+            } else {
+                self.report("running", "").await?;
+                if !stalled {
+                    let map = truth.map().unwrap_or_default();
+                    let viewpoint = truth.robot(&me);
+                    let mut image = Vec::new();
+                    for (name, pose) in robots {
+                        if let (Some(range), Some(eye)) = (range, viewpoint) {
+                            let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
+                                == map.room_at(pose.x, pose.y).map(|r| &r.name);
+                            if name == me || !same_room || eye.distance_to(pose.x, pose.y) > range {
+                                continue;
+                            }
+                        }
+                        let seen = Pose::new(
+                            pose.x + self.rng.gaussian(0.02),
+                            pose.y + self.rng.gaussian(0.02),
+                            wrap_angle(pose.theta + self.rng.gaussian(0.01)),
+                        );
+                        image.push(format!("{name} {}", seen.to_text()));
+                    }
+                    self.output("image", image.join("; ")).await?;
+                }
+            }
+            self.ctx.sleep(PERIOD).await;
+        }
+    }
+
+    /// The tracking system (`strict`: images that stop are an error) or an
+    /// object localizer: finds robot `?o` in the images, outputs `global-pos`.
+    async fn tracker(&mut self, strict: bool) -> Result<(), ComponentError> {
+        let target = self.arg(2)?;
+        let mut inputs = self.ctx.inputs(&["image"]).await?;
+        let mut ever = false;
+        loop {
+            let stalled = self.injected()?;
+            inputs.poll();
+            let image = inputs.latest("image").and_then(|t| t.text().ok());
+            ever |= image.is_some();
+            if strict && ever && !inputs.missing(IMAGES_LOST).is_empty() {
+                return Err(fault(format!(
+                    "no images from the cameras for {} s: a camera stopped producing images",
+                    IMAGES_LOST.as_secs_f64()
+                )));
+            }
+            if !inputs.missing(STALE).is_empty() {
+                self.report("waiting", "image").await?;
+            } else {
+                let seen = image.and_then(|image| {
+                    image.split(';').find_map(|entry| {
+                        let (name, pose) = entry.trim().split_once(' ')?;
+                        (name == target).then(|| Pose::parse(pose)).flatten()
+                    })
+                });
+                match seen {
+                    None => {
+                        self.report("waiting", &format!("{target} not in view"))
+                            .await?
+                    }
+                    Some(pose) => {
+                        self.report("running", "").await?;
+                        if !stalled {
+                            self.output("global-pos", pose.to_text()).await?;
+                        }
+                    }
+                }
+            }
+            self.next(&mut inputs).await;
+        }
+    }
+
+    /// The laser: 8 ranges, every 45°, from the robot's true pose, with noise.
+    async fn laser(&mut self) -> Result<(), ComponentError> {
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let me = self.ctx.peis().to_string();
+        loop {
+            let stalled = self.injected()?;
+            truth.poll();
+            match (truth.robot(&me), truth.map()) {
+                (Some(pose), Some(map)) => {
+                    self.report("running", "").await?;
+                    if !stalled {
+                        let scan: Vec<String> = scan(&map, pose)
+                            .into_iter()
+                            .map(|r| format!("{:.3}", r + self.rng.gaussian(0.01)))
+                            .collect();
+                        self.output("range-scan", scan.join(" ")).await?;
+                    }
+                }
+                _ => self.report("waiting", "ground truth").await?,
+            }
+            self.ctx.sleep(PERIOD).await;
+        }
+    }
+
+    /// Odometry: integrates the wheels' motion with a seeded scale error and
+    /// heading drift, so that it wanders off the truth as the robot moves.
+    async fn odometry(&mut self) -> Result<(), ComponentError> {
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let me = self.ctx.peis().to_string();
+        let scale = 1.0 + 0.03 + self.rng.gaussian(0.01);
+        let drift = 0.02 + self.rng.gaussian(0.005);
+        let mut last: Option<Pose> = None;
+        let mut estimate: Option<Pose> = None;
+        loop {
+            let stalled = self.injected()?;
+            truth.poll();
+            let Some(now) = truth.robot(&me) else {
+                self.report("waiting", "ground truth").await?;
+                self.ctx.sleep(PERIOD).await;
+                continue;
+            };
+            let mut est = estimate.unwrap_or(now);
+            if let Some(before) = last {
+                let forward = (now.x - before.x) * before.theta.cos()
+                    + (now.y - before.y) * before.theta.sin();
+                let turn = wrap_angle(now.theta - before.theta);
+                let d = forward * scale + self.rng.gaussian(0.0005);
+                let dth = turn + drift * forward.abs() + self.rng.gaussian(0.0005);
+                let mid = est.theta + dth / 2.0;
+                est = Pose::new(
+                    est.x + d * mid.cos(),
+                    est.y + d * mid.sin(),
+                    wrap_angle(est.theta + dth),
+                );
+            }
+            last = Some(now);
+            estimate = Some(est);
+            self.report("running", "").await?;
+            if !stalled {
+                self.output("odometry", est.to_text()).await?;
+            }
+            self.ctx.sleep(PERIOD).await;
+        }
+    }
+
+    /// Self-localization by scan matching: odometry corrected by matching
+    /// the laser's ranges against the map around the odometry's guess.
+    async fn scan_matching(&mut self) -> Result<(), ComponentError> {
+        let mut inputs = self.ctx.inputs(&["range-scan", "odometry"]).await?;
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut correction = (0.0, 0.0, 0.0);
+        // Match once per new pair of readings, whichever arrives first, so
+        // that the result does not depend on the order of their arrival.
+        let mut used = (0u64, 0u64);
+        loop {
+            let stalled = self.injected()?;
+            inputs.poll();
+            truth.poll();
+            let missing = inputs.missing(STALE);
+            let Some(map) = truth.map() else {
+                self.report("waiting", "map").await?;
+                self.next(&mut inputs).await;
+                continue;
+            };
+            if !missing.is_empty() {
+                self.report("waiting", &missing.join(" ")).await?;
+                self.next(&mut inputs).await;
+                continue;
+            }
+            let seqs = (
+                inputs.latest("range-scan").map_or(0, |t| t.seq),
+                inputs.latest("odometry").map_or(0, |t| t.seq),
+            );
+            if seqs.0 == used.0 || seqs.1 == used.1 {
+                self.next(&mut inputs).await;
+                continue;
+            }
+            used = seqs;
+            let odometry = inputs
+                .latest("odometry")
+                .and_then(|t| t.text().ok())
+                .and_then(Pose::parse);
+            let ranges: Option<Vec<f64>> = inputs
+                .latest("range-scan")
+                .and_then(|t| t.text().ok())
+                .map(|s| {
+                    s.split_whitespace()
+                        .filter_map(|r| r.parse().ok())
+                        .collect()
+                });
+            let (Some(odometry), Some(ranges)) = (odometry, ranges) else {
+                return Err(fault("malformed odometry or range scan"));
+            };
+            let guess = Pose::new(
+                odometry.x + correction.0,
+                odometry.y + correction.1,
+                wrap_angle(odometry.theta + correction.2),
+            );
+            let best = match_scan(&map, guess, &ranges);
+            correction = (
+                best.x - odometry.x,
+                best.y - odometry.y,
+                wrap_angle(best.theta - odometry.theta),
+            );
+            self.report("running", "").await?;
+            if !stalled {
+                self.output("position", best.to_text()).await?;
+            }
+            self.next(&mut inputs).await;
+        }
+    }
+
+    /// Pose tracking: the robot's position from a global position measured
+    /// elsewhere (ceiling cameras, another robot).
+    async fn pose_tracking(&mut self) -> Result<(), ComponentError> {
+        let mut inputs = self.ctx.inputs(&["global-pos"]).await?;
+        loop {
+            let stalled = self.injected()?;
+            inputs.poll();
+            let pose = inputs
+                .latest("global-pos")
+                .and_then(|t| t.text().ok())
+                .and_then(Pose::parse);
+            match pose {
+                Some(pose) if inputs.missing(STALE).is_empty() => {
+                    self.report("running", "").await?;
+                    if !stalled {
+                        self.output("position", pose.to_text()).await?;
+                    }
+                }
+                _ => self.report("waiting", "global-pos").await?,
+            }
+            self.next(&mut inputs).await;
+        }
+    }
+
+    /// Navigation on the thinking cap: drives to the room in its params
+    /// through the doors on the way, steering by its `position` input, and
+    /// reports `done` on arrival. When the position goes stale it stops the
+    /// base and reports `waiting`.
+    async fn navigation(&mut self) -> Result<(), ComponentError> {
+        let destination = self.arg(2)?;
+        let mut inputs = self.ctx.inputs(&["position"]).await?;
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut route: Option<Vec<(f64, f64)>> = None;
+        loop {
+            let stalled = self.injected()?;
+            inputs.poll();
+            truth.poll();
+            let position = inputs
+                .latest("position")
+                .and_then(|t| t.text().ok())
+                .and_then(Pose::parse);
+            let Some(pose) = position.filter(|_| inputs.missing(STALE).is_empty()) else {
+                if !stalled {
+                    self.output("velocity", "0 0".into()).await?;
+                }
+                self.report("waiting", "position").await?;
+                self.next(&mut inputs).await;
+                continue;
+            };
+            let Some(map) = truth.map() else {
+                self.report("waiting", "map").await?;
+                self.next(&mut inputs).await;
+                continue;
+            };
+            if route.is_none() {
+                let here = map.room_at(pose.x, pose.y).ok_or_else(|| {
+                    fault(format!("position {} is outside the map", pose.to_text()))
+                })?;
+                route =
+                    Some(map.route(&here.name, &destination).ok_or_else(|| {
+                        fault(format!("no way from {} to {destination}", here.name))
+                    })?);
+            }
+            let waypoints = route.as_mut().ok_or_else(|| fault("no route"))?;
+            while waypoints.len() > 1 && pose.distance_to(waypoints[0].0, waypoints[0].1) < 0.2 {
+                waypoints.remove(0);
+            }
+            let Some(&(wx, wy)) = waypoints.first() else {
+                return Err(fault("empty route"));
+            };
+            let distance = pose.distance_to(wx, wy);
+            if waypoints.len() == 1 && distance < 0.15 {
+                self.output("velocity", "0 0".into()).await?;
+                self.report("done", "").await?;
+                return Ok(());
+            }
+            let error = wrap_angle((wy - pose.y).atan2(wx - pose.x) - pose.theta);
+            let w = (2.5 * error).clamp(-MAX_TURN, MAX_TURN);
+            let v = if error.abs() > 0.7 {
+                0.0
+            } else {
+                (0.8 * distance).min(0.8 * MAX_SPEED) * error.cos()
+            };
+            self.report("running", "").await?;
+            if !stalled {
+                self.output("velocity", format!("{v:.4} {w:.4}")).await?;
+            }
+            self.next(&mut inputs).await;
+        }
+    }
+
+    /// Waits up to `limit` for world tuple `key` to read `want`.
+    async fn await_world(
+        &mut self,
+        truth: &mut Truth,
+        key: &str,
+        want: &str,
+        limit: Duration,
+    ) -> Result<bool, ComponentError> {
+        let mut waited = Duration::ZERO;
+        while waited <= limit {
+            self.injected()?;
+            truth.poll();
+            if truth.text(key) == Some(want) {
+                return Ok(true);
+            }
+            self.ctx.sleep(PERIOD).await;
+            waited += PERIOD;
+        }
+        Ok(false)
+    }
+
+    /// The gripper: reaches out, grasps the thing in its params if it is
+    /// within reach, and reports `done` holding it.
+    async fn gripper(&mut self) -> Result<(), ComponentError> {
+        let thing = self.arg(2)?;
+        let me = self.ctx.peis().to_string();
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        self.report("running", "").await?;
+        let holder = format!("things.{thing}.holder");
+        if !self
+            .await_world(&mut truth, &holder, &me, Duration::from_secs(1))
+            .await?
+        {
+            if !self.injected()? {
+                self.output("grasp", thing.clone()).await?;
+            }
+            if !self
+                .await_world(&mut truth, &holder, &me, Duration::from_secs(2))
+                .await?
+            {
+                return Err(fault(format!("{thing} is out of reach")));
+            }
+        }
+        self.report("done", "").await?;
+        Ok(())
+    }
+
+    /// The speaker: gives the wake-up signal and reports `done` once the
+    /// person in its params is awake.
+    async fn speaker(&mut self) -> Result<(), ComponentError> {
+        let person = self.arg(2)?;
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        self.report("running", "").await?;
+        self.ctx.sleep(Duration::from_millis(500)).await;
+        if !self.injected()? {
+            self.output("sound", format!("wake up, {person}")).await?;
+        }
+        let state = format!("residents.{person}.state");
+        if !self
+            .await_world(&mut truth, &state, "awake", Duration::from_secs(2))
+            .await?
+        {
+            return Err(fault(format!("{person} did not wake up")));
+        }
+        self.report("done", "").await?;
+        Ok(())
+    }
+
+    /// A component with no functionality in the domain (the Player servers).
+    async fn idle(&mut self) -> Result<(), ComponentError> {
+        loop {
+            self.injected()?;
+            self.report("running", "").await?;
+            self.ctx.sleep(Duration::from_secs(1)).await;
+        }
+    }
+}
+
+/// The 8 ranges a laser at `pose` measures in `map`, every 45° from its heading.
+pub fn scan(map: &Map, pose: Pose) -> Vec<f64> {
+    (0..8)
+        .map(|k| {
+            let angle = pose.theta + f64::from(k) * std::f64::consts::FRAC_PI_4;
+            map.ray(pose.x, pose.y, angle)
+        })
+        .collect()
+}
+
+/// The pose near `guess` whose expected scan best matches `ranges`: a grid
+/// search over ±0.3 m and ±0.06 rad, with residuals capped at 1 m so that
+/// one bad ray cannot dominate.
+pub fn match_scan(map: &Map, guess: Pose, ranges: &[f64]) -> Pose {
+    let mut best = (f64::INFINITY, guess);
+    for i in -6i32..=6 {
+        for j in -6i32..=6 {
+            for k in -2i32..=2 {
+                let candidate = Pose::new(
+                    guess.x + f64::from(i) * 0.05,
+                    guess.y + f64::from(j) * 0.05,
+                    wrap_angle(guess.theta + f64::from(k) * 0.03),
+                );
+                let error: f64 = scan(map, candidate)
+                    .iter()
+                    .zip(ranges)
+                    .map(|(e, m)| (e - m).abs().min(1.0).powi(2))
+                    .sum::<f64>()
+                    + 0.001 * f64::from(i * i + j * j + k * k);
+                if error < best.0 {
+                    best = (error, candidate);
+                }
+            }
+        }
+    }
+    best.1
+}

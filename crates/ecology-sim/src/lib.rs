@@ -1,0 +1,29 @@
+//! A simulated PEIS-Home for Ecology (the paper's Section VIII): a small,
+//! deterministic kinematic world of rooms, doors, differential-drive robots,
+//! things and residents; simulated components for every component type of
+//! the reference ecology; scenario files; fault injection; and [`run`], which
+//! runs a scenario's plan with the executive on the in-process tuple space in
+//! virtual time.
+//!
+//! The world is a PEIS of its own (`world`): it publishes ground truth
+//! (`map`, `robots.NAME.pose`, `things.NAME.holder`, `residents.NAME.state`)
+//! and reads the robots' motor commands, grasps and sounds from component
+//! outputs, so every sensor and actuator goes through the real middleware.
+
+mod components;
+mod rng;
+mod run;
+mod scenario;
+mod world;
+
+#[cfg(test)]
+mod tests;
+
+pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
+pub use rng::Rng;
+pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
+pub use scenario::{ComponentDef, FaultKind, FaultSpec, PeisDef, Scenario, ScenarioError, Trigger};
+pub use world::{
+    Door, MAX_RANGE, MAX_SPEED, MAX_TURN, Map, Pose, REACH, Resident, Robot, Room, Thing, World,
+    wrap_angle,
+};

@@ -1,0 +1,549 @@
+//! Running a scenario: the world as a PEIS stepping in virtual time, one host
+//! per PEIS with simulated components, fault injection, and the executive
+//! driving the plan, all in one process on the in-process tuple space.
+//!
+//! The simulation loop owns virtual time: each step it lets every task run
+//! until the ecology has settled, applies the motor commands, grasps and
+//! sounds the components published, injects the faults that are due, moves
+//! the robots, publishes the new ground truth and advances the clock by one
+//! fixed step. With [`Pace::Speed`] it also waits on the wall clock so that
+//! simulated time runs at that multiple of real time.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use ecology_domain::EcologyState;
+use ecology_exec::{
+    DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, RunStatus, drive_observed,
+};
+use ecology_peis::{ComponentSpec, HostError, run_host};
+use ecology_tuples::{
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Timestamp, TupleError,
+    TupleEvent, TuplePattern, TupleSpace, Value, VirtualClock,
+};
+use tokio::sync::watch;
+use tokio::task::{AbortHandle, JoinSet};
+
+use crate::components::{Faults, Simulated, WORLD};
+use crate::rng::Rng;
+use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, Trigger};
+use crate::world::World;
+
+/// How fast simulated time runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// As fast as the machine can step it.
+    Unpaced,
+    /// This many simulated seconds per wall-clock second (1.0 = real time).
+    Speed(f64),
+}
+
+/// How to run a scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunOptions {
+    /// The seed of every noise source.
+    pub seed: u64,
+    /// How fast.
+    pub pace: Pace,
+    /// The simulation's fixed time step.
+    pub step: Duration,
+}
+
+impl RunOptions {
+    /// Unpaced, 50 ms steps, with `seed`.
+    pub fn seeded(seed: u64) -> RunOptions {
+        RunOptions {
+            seed,
+            pace: Pace::Unpaced,
+            step: Duration::from_millis(50),
+        }
+    }
+}
+
+/// What a run reports while it goes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Update {
+    /// The executive logged this.
+    Log(LogEntry),
+    /// A fault was injected at simulated time `t`.
+    Injected {
+        /// Simulated time since the start.
+        t: Duration,
+        /// What, such as `hsm:ca1 stalls`.
+        what: String,
+    },
+    /// Another simulated second passed.
+    Progress {
+        /// Simulated time since the start.
+        t: Duration,
+    },
+}
+
+/// Receives [`Update`]s as they happen.
+pub type Observer = Box<dyn FnMut(Update) + Send>;
+
+/// How a run ended.
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// The executive's final status (`Running` when the time limit hit).
+    pub status: RunStatus,
+    /// The executive's whole log.
+    pub log: Vec<LogEntry>,
+    /// The faults injected, with their simulated times.
+    pub injected: Vec<(Duration, String)>,
+    /// Simulated time at the end.
+    pub sim_time: Duration,
+    /// Whether the scenario's time limit stopped the run.
+    pub timed_out: bool,
+    /// The world at the end (ground truth).
+    pub world: World,
+}
+
+/// Why a run could not take place.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The tuple space refused something.
+    #[error("tuple space: {0}")]
+    Space(#[from] TupleError),
+    /// A PEIS host stopped with an error.
+    #[error("PEIS {peis}: {error}")]
+    Host {
+        /// The PEIS.
+        peis: String,
+        /// The error.
+        error: HostError,
+    },
+    /// A task of the run panicked or was lost.
+    #[error("simulation task: {0}")]
+    Task(String),
+}
+
+/// Settling passes per step: enough for a sensor reading to travel through
+/// the longest chain of components (camera → tracking → pose tracking →
+/// navigation → world) and for the executive to take in every change.
+const SETTLE_PASSES: usize = 48;
+
+type Schedule = Arc<Mutex<Vec<(Timestamp, FaultSpec)>>>;
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Runs `scenario` to the end of its task (or its time limit), reporting to
+/// `observer` as it goes. Needs a current-thread tokio runtime for
+/// reproducible runs (any runtime works, but only one thread is deterministic).
+pub async fn run(
+    scenario: &Scenario,
+    options: &RunOptions,
+    observer: Observer,
+) -> Result<Report, RunError> {
+    let observer = Arc::new(Mutex::new(observer));
+    let clock = VirtualClock::default();
+    let shared: Arc<dyn Clock> = Arc::new(clock.clone());
+    let start = shared.now();
+    let space = Arc::new(InProcessSpace::new(shared.clone()));
+    let world_peis = space.join(
+        PeisId::new(WORLD).map_err(TupleError::Invalid)?,
+        PeisOptions::default(),
+    )?;
+
+    let schedule: Schedule = Arc::new(Mutex::new(
+        scenario
+            .faults
+            .iter()
+            .filter_map(|f| match f.trigger {
+                Trigger::At(at) => Some((start.saturating_add(at), f.clone())),
+                Trigger::After { .. } => None,
+            })
+            .collect(),
+    ));
+    let (stop, stopped) = watch::channel(false);
+    let injected = Arc::new(Mutex::new(Vec::new()));
+    let simulation = Simulation {
+        space: space.clone(),
+        clock: clock.clone(),
+        shared: shared.clone(),
+        start,
+        world: scenario.world.clone(),
+        peis: scenario.peis.clone(),
+        faults: Faults::default(),
+        schedule: schedule.clone(),
+        seed: options.seed,
+        pace: options.pace,
+        step: options.step,
+        observer: observer.clone(),
+        injected: injected.clone(),
+    };
+    let mut tasks = JoinSet::new();
+    tasks.spawn(simulation.run(world_peis, stopped));
+
+    let me = space.join(
+        PeisId::new("executive").map_err(TupleError::Invalid)?,
+        PeisOptions::default(),
+    )?;
+    let mut exec = Executive::new(
+        scenario.domain.clone(),
+        EcologyState::new(),
+        scenario.plan.clone(),
+        ExecConfig {
+            action_timeout: scenario.action_timeout,
+            ..ExecConfig::default()
+        },
+    );
+    let config = DriverConfig {
+        limit: Some(scenario.time_limit),
+        ..DriverConfig::default()
+    };
+    let mut triggers: Vec<(FaultSpec, bool)> = scenario
+        .faults
+        .iter()
+        .filter(|f| matches!(f.trigger, Trigger::After { .. }))
+        .map(|f| (f.clone(), false))
+        .collect();
+    let mut current_action: Option<usize> = None;
+    let driven = {
+        let observer = observer.clone();
+        let shared = shared.clone();
+        drive_observed(&me, shared.clone(), &mut exec, config, |entry| {
+            let index = match &entry.event {
+                LogEvent::ActionStarted { index, .. }
+                | LogEvent::ActionDone { index, .. }
+                | LogEvent::ActionFailed { index, .. } => Some(*index),
+                _ => current_action,
+            };
+            if let LogEvent::ActionStarted { index, .. } = entry.event {
+                current_action = Some(index);
+            }
+            for (fault, fired) in &mut triggers {
+                let Trigger::After {
+                    event,
+                    action,
+                    delay,
+                } = &fault.trigger
+                else {
+                    continue;
+                };
+                let action_matches = action.is_none_or(|a| index == Some(a - 1));
+                if !*fired && event == entry.event.name() && action_matches {
+                    *fired = true;
+                    lock(&schedule).push((shared.now().saturating_add(*delay), fault.clone()));
+                }
+            }
+            (lock(&observer))(Update::Log(entry.clone()));
+        })
+        .await
+    };
+    // No action-level recovery here: a failed action fails the task, logged
+    // as such, with the planner's explanation in the action's failure.
+    if matches!(exec.status(), RunStatus::Failed { .. }) {
+        exec.abandon(shared.now().saturating_duration_since(start));
+        if let Some(entry) = exec.log().last() {
+            (lock(&observer))(Update::Log(entry.clone()));
+        }
+    }
+    let _ = stop.send(true);
+    let mut outcome = Ok(scenario.world.clone());
+    while let Some(joined) = tasks.join_next().await {
+        outcome = match joined {
+            Ok(result) => result,
+            Err(e) => Err(RunError::Task(e.to_string())),
+        };
+    }
+    let sim_time = shared.now().saturating_duration_since(start);
+    drop(me);
+    if let Ok(space) = Arc::try_unwrap(space) {
+        space.shutdown().await;
+    }
+    let status = driven?;
+    let world = outcome?;
+    let injected = lock(&injected).clone();
+    Ok(Report {
+        timed_out: matches!(status, RunStatus::Running { .. } | RunStatus::Idle),
+        status,
+        log: exec.log().to_vec(),
+        injected,
+        sim_time,
+        world,
+    })
+}
+
+/// The simulation loop and what it owns.
+struct Simulation {
+    space: Arc<InProcessSpace>,
+    clock: VirtualClock,
+    shared: Arc<dyn Clock>,
+    start: Timestamp,
+    world: World,
+    peis: Vec<PeisDef>,
+    faults: Faults,
+    schedule: Schedule,
+    seed: u64,
+    pace: Pace,
+    step: Duration,
+    observer: Arc<Mutex<Observer>>,
+    injected: Arc<Mutex<Vec<(Duration, String)>>>,
+}
+
+/// A running PEIS host: its handle (to crash it) and its task.
+struct Hosted {
+    handle: InProcessPeis,
+    task: AbortHandle,
+}
+
+fn key(text: &str) -> Result<Key, TupleError> {
+    Key::new(text).map_err(TupleError::Invalid)
+}
+
+impl Simulation {
+    fn specs(&self, def: &PeisDef) -> Vec<ComponentSpec<InProcessPeis>> {
+        def.components
+            .iter()
+            .filter_map(|c| {
+                let body = Simulated::new(&c.kind, self.faults.clone(), self.seed)?;
+                Some(ComponentSpec {
+                    name: c.id.clone(),
+                    kind: c.kind.clone(),
+                    cost: c.cost,
+                    on: c.on,
+                    startup: c.startup,
+                    body: Arc::new(body),
+                })
+            })
+            .collect()
+    }
+
+    fn start_host(
+        &self,
+        def: &PeisDef,
+        hosts: &mut JoinSet<(String, Result<(), HostError>)>,
+        stop: &watch::Receiver<bool>,
+    ) -> Result<Hosted, TupleError> {
+        let handle = self.space.join(
+            PeisId::new(&def.name).map_err(TupleError::Invalid)?,
+            PeisOptions::default(),
+        )?;
+        let mut stop = stop.clone();
+        let name = def.name.clone();
+        let host = run_host(
+            handle.clone(),
+            self.shared.clone(),
+            self.specs(def),
+            async move {
+                let _ = stop.wait_for(|s| *s).await;
+            },
+        );
+        let task = hosts.spawn(async move { (name, host.await) });
+        Ok(Hosted { handle, task })
+    }
+
+    async fn publish_truth(&self, space: &InProcessPeis, all: bool) -> Result<(), TupleError> {
+        if all {
+            space
+                .set(key("map")?, Value::text(self.world.map.to_text()))
+                .await?;
+        }
+        for (name, robot) in &self.world.robots {
+            space
+                .set(
+                    key(&format!("robots.{name}.pose"))?,
+                    Value::text(robot.pose.to_text()),
+                )
+                .await?;
+        }
+        Ok(())
+    }
+
+    async fn publish_things(&self, space: &InProcessPeis) -> Result<(), TupleError> {
+        for (name, thing) in &self.world.things {
+            let holder = thing.holder.clone().unwrap_or_default();
+            space
+                .set(key(&format!("things.{name}.holder"))?, Value::text(holder))
+                .await?;
+        }
+        for (name, resident) in &self.world.residents {
+            let state = if resident.awake { "awake" } else { "asleep" };
+            space
+                .set(key(&format!("residents.{name}.state"))?, Value::text(state))
+                .await?;
+        }
+        Ok(())
+    }
+
+    fn note(&self, t: Duration, what: String) {
+        lock(&self.injected).push((t, what.clone()));
+        (lock(&self.observer))(Update::Injected { t, what });
+    }
+
+    async fn run(
+        mut self,
+        space: InProcessPeis,
+        stop: watch::Receiver<bool>,
+    ) -> Result<World, RunError> {
+        let subscribe = |what: &str| {
+            TuplePattern::parse(&format!("*:*.out.{what}")).map_err(TupleError::Invalid)
+        };
+        let mut velocities = space.subscribe(subscribe("velocity")?).await?;
+        let mut grasps = space.subscribe(subscribe("grasp")?).await?;
+        let mut sounds = space.subscribe(subscribe("sound")?).await?;
+        self.publish_truth(&space, true).await?;
+        self.publish_things(&space).await?;
+
+        let (stop_hosts, hosts_stopped) = watch::channel(false);
+        let mut hosts = JoinSet::new();
+        let mut running: BTreeMap<String, Hosted> = BTreeMap::new();
+        for def in self.peis.clone() {
+            let hosted = self.start_host(&def, &mut hosts, &hosts_stopped)?;
+            running.insert(def.name.clone(), hosted);
+        }
+        let mut rng = Rng::derive(self.seed, WORLD);
+        let dt = self.step.as_secs_f64();
+        let wall_start = Instant::now();
+        let mut next_progress = Duration::from_secs(1);
+        let mut failure = None;
+        'steps: loop {
+            for _ in 0..SETTLE_PASSES {
+                tokio::task::yield_now().await;
+            }
+            if *stop.borrow() {
+                break;
+            }
+            let now = self.shared.now();
+            let t = now.saturating_duration_since(self.start);
+
+            // A host that stopped on its own failed (a crashed PEIS's host is aborted).
+            while let Some(joined) = hosts.try_join_next() {
+                if let Ok((peis, Err(error))) = joined
+                    && running.contains_key(&peis)
+                {
+                    failure = Some(RunError::Host { peis, error });
+                    break 'steps;
+                }
+            }
+
+            // What the components asked of the world.
+            while let Some(event) = velocities.try_next() {
+                if let TupleEvent::Changed(tuple) = event
+                    && let Some(robot) = self.world.robots.get_mut(tuple.owner.as_str())
+                {
+                    let mut numbers = tuple
+                        .text()
+                        .unwrap_or("")
+                        .split_whitespace()
+                        .map(str::parse::<f64>);
+                    if let (Some(Ok(v)), Some(Ok(w))) = (numbers.next(), numbers.next())
+                        && v.is_finite()
+                        && w.is_finite()
+                    {
+                        robot.command = (v, w);
+                        robot.command_age = 0.0;
+                    }
+                }
+            }
+            let mut changed = false;
+            while let Some(event) = grasps.try_next() {
+                if let TupleEvent::Changed(tuple) = event {
+                    let thing = tuple.text().unwrap_or("").trim().to_string();
+                    changed |= self.world.grasp(tuple.owner.as_str(), &thing);
+                }
+            }
+            while let Some(event) = sounds.try_next() {
+                if let TupleEvent::Changed(tuple) = event {
+                    changed |= !self.world.sound(tuple.owner.as_str()).is_empty();
+                }
+            }
+
+            // Faults that are due.
+            let due: Vec<FaultSpec> = {
+                let mut schedule = lock(&self.schedule);
+                let (due, later): (Vec<_>, Vec<_>) =
+                    schedule.drain(..).partition(|(at, _)| *at <= now);
+                *schedule = later;
+                due.into_iter().map(|(_, f)| f).collect()
+            };
+            for fault in due {
+                let component = fault.component.clone().unwrap_or_default();
+                let target = format!("{}:{component}", fault.peis);
+                match fault.kind {
+                    FaultKind::Fail => {
+                        self.faults.update(&fault.peis, &component, |s| {
+                            s.failed = Some(fault.cause.clone());
+                        });
+                        self.note(t, format!("{target} fails: {}", fault.cause));
+                    }
+                    FaultKind::Stall => {
+                        self.faults
+                            .update(&fault.peis, &component, |s| s.stalled = true);
+                        self.note(t, format!("{target} stalls (stops publishing)"));
+                    }
+                    FaultKind::Recover => {
+                        self.faults
+                            .update(&fault.peis, &component, |s| *s = Default::default());
+                        self.note(t, format!("{target} recovers"));
+                    }
+                    FaultKind::Kill => {
+                        if let Some(hosted) = running.remove(&fault.peis) {
+                            hosted.task.abort();
+                            hosted.handle.vanish();
+                            self.note(t, format!("PEIS {} crashes", fault.peis));
+                        }
+                    }
+                    FaultKind::Revive => {
+                        if running.contains_key(&fault.peis) {
+                            continue;
+                        }
+                        let Some(def) = self.peis.iter().find(|p| p.name == fault.peis).cloned()
+                        else {
+                            continue;
+                        };
+                        match self.start_host(&def, &mut hosts, &hosts_stopped) {
+                            Ok(hosted) => {
+                                running.insert(def.name.clone(), hosted);
+                                self.note(t, format!("PEIS {} starts again", fault.peis));
+                            }
+                            // Still present until its lease runs out: try again shortly.
+                            Err(TupleError::AlreadyPresent(_)) => lock(&self.schedule)
+                                .push((now.saturating_add(Duration::from_millis(500)), fault)),
+                            Err(e) => {
+                                failure = Some(RunError::Space(e));
+                                break 'steps;
+                            }
+                        }
+                    }
+                }
+            }
+
+            // One step of the world, published, then time moves on.
+            self.world.step(dt, &mut rng);
+            self.publish_truth(&space, false).await?;
+            if changed {
+                self.publish_things(&space).await?;
+            }
+            self.clock.advance(self.step);
+            let t = t + self.step;
+            if t >= next_progress {
+                next_progress += Duration::from_secs(1);
+                (lock(&self.observer))(Update::Progress { t });
+            }
+            if let Pace::Speed(speed) = self.pace
+                && speed > 0.0
+            {
+                let due = wall_start + t.div_f64(speed);
+                tokio::time::sleep_until(due.into()).await;
+            }
+        }
+        let _ = stop_hosts.send(true);
+        while let Some(joined) = hosts.join_next().await {
+            if let Ok((peis, Err(error))) = joined
+                && running.contains_key(&peis)
+                && failure.is_none()
+            {
+                failure = Some(RunError::Host { peis, error });
+            }
+        }
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(self.world),
+        }
+    }
+}

@@ -1,0 +1,666 @@
+//! Scenario files (TOML): the PEIS and their components, the map, the task,
+//! and fault injections. TOML and serde stay here, at the edge: the file is
+//! read into private serde types, checked, and turned into a [`Scenario`]
+//! of plain simulator types. Every error names the file, line and column.
+
+use std::collections::BTreeSet;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use ecology_domain::{Domain, parse_domain, parse_goal, parse_problem_for};
+use ecology_exec::PlannedAction;
+use serde::Deserialize;
+use toml::Spanned;
+
+use crate::components::KINDS;
+use crate::world::{Door, Map, Pose, Resident, Robot, Room, Thing, World};
+
+/// Why a scenario could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    /// The scenario file is malformed or inconsistent at a place in it.
+    #[error("{file}:{line}:{col}: {message}")]
+    Invalid {
+        /// The scenario file.
+        file: String,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        col: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A file could not be read.
+    #[error("cannot read {path}: {message}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The reason.
+        message: String,
+    },
+    /// The domain or problem the scenario names has errors (rendered with
+    /// their own `file:line:col`).
+    #[error("{0}")]
+    Task(String),
+    /// The action planner found no plan for the task.
+    #[error("no plan for the scenario's task: {0}")]
+    NoPlan(String),
+}
+
+/// What happens to a component or a PEIS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// The component reports `error` with the fault's cause.
+    Fail,
+    /// The component falls silent (keeps running, publishes nothing): a dead camera.
+    Stall,
+    /// The component's fault is cleared.
+    Recover,
+    /// The PEIS crashes: it stops without leaving, with all its components.
+    Kill,
+    /// A killed PEIS starts again, with its components as at the start.
+    Revive,
+}
+
+/// When a fault happens.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Trigger {
+    /// At this simulated time since the start.
+    At(Duration),
+    /// `delay` after the executive logs `event` (such as `action_started`),
+    /// for action `action` (1-based) when given.
+    After {
+        /// The executive's event name (JSON-lines name).
+        event: String,
+        /// Which action's event, 1-based; any when `None`.
+        action: Option<usize>,
+        /// How long after.
+        delay: Duration,
+    },
+}
+
+/// One fault injection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultSpec {
+    /// What happens.
+    pub kind: FaultKind,
+    /// To which PEIS.
+    pub peis: String,
+    /// To which component (for fail, stall and recover).
+    pub component: Option<String>,
+    /// When.
+    pub trigger: Trigger,
+    /// The cause a failing component reports.
+    pub cause: String,
+}
+
+/// One component of a PEIS in a scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ComponentDef {
+    /// Its name, such as `l1`.
+    pub id: String,
+    /// Its type, such as `laser` (one of [`KINDS`]).
+    pub kind: String,
+    /// Running cost when on, start-up cost when off.
+    pub cost: u64,
+    /// Whether it is on at the start.
+    pub on: bool,
+    /// How long it takes to switch on.
+    pub startup: Duration,
+}
+
+/// One PEIS of a scenario.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PeisDef {
+    /// Its name.
+    pub name: String,
+    /// Its components.
+    pub components: Vec<ComponentDef>,
+}
+
+/// A loaded, checked scenario.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    /// Its name.
+    pub name: String,
+    /// What it shows.
+    pub description: String,
+    /// The seed used when the run gives none.
+    pub seed: u64,
+    /// Simulated time after which a run is stopped.
+    pub time_limit: Duration,
+    /// How long one action may take before it fails.
+    pub action_timeout: Duration,
+    /// The domain the executive configures with.
+    pub domain: Domain,
+    /// The plan to execute.
+    pub plan: Vec<PlannedAction>,
+    /// The world at the start.
+    pub world: World,
+    /// The PEIS and their components.
+    pub peis: Vec<PeisDef>,
+    /// The fault injections.
+    pub faults: Vec<FaultSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    name: String,
+    #[serde(default)]
+    description: String,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default = "default_time_limit")]
+    time_limit: f64,
+    #[serde(default = "default_action_timeout")]
+    action_timeout: f64,
+    task: TaskFile,
+    map: MapFile,
+    #[serde(default, rename = "robot")]
+    robots: Vec<Spanned<RobotFile>>,
+    #[serde(default, rename = "thing")]
+    things: Vec<Spanned<PlacedFile>>,
+    #[serde(default, rename = "resident")]
+    residents: Vec<Spanned<ResidentFile>>,
+    #[serde(default, rename = "peis")]
+    peis: Vec<PeisFile>,
+    #[serde(default, rename = "fault")]
+    faults: Vec<Spanned<FaultFile>>,
+}
+
+fn default_time_limit() -> f64 {
+    300.0
+}
+
+fn default_action_timeout() -> f64 {
+    120.0
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TaskFile {
+    domain: Spanned<String>,
+    problem: Option<Spanned<String>>,
+    plan: Option<Vec<Spanned<StepFile>>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StepFile {
+    action: String,
+    configure: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MapFile {
+    rooms: Vec<Spanned<RoomFile>>,
+    #[serde(default)]
+    doors: Vec<Spanned<DoorFile>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RoomFile {
+    name: String,
+    x: [f64; 2],
+    y: [f64; 2],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DoorFile {
+    between: [String; 2],
+    at: [f64; 2],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RobotFile {
+    name: String,
+    at: [f64; 3],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlacedFile {
+    name: String,
+    at: [f64; 2],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ResidentFile {
+    name: String,
+    at: [f64; 2],
+    #[serde(default = "yes")]
+    asleep: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PeisFile {
+    name: Spanned<String>,
+    #[serde(default)]
+    components: Vec<Spanned<ComponentFile>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ComponentFile {
+    id: String,
+    #[serde(rename = "type")]
+    kind: String,
+    cost: u64,
+    #[serde(default)]
+    on: bool,
+    #[serde(default)]
+    startup: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FaultFile {
+    what: String,
+    peis: String,
+    component: Option<String>,
+    at: Option<f64>,
+    after: Option<AfterFile>,
+    #[serde(default)]
+    delay: f64,
+    cause: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AfterFile {
+    event: String,
+    action: Option<usize>,
+}
+
+/// The executive's event names a fault may follow.
+const EVENTS: &[&str] = &[
+    "plan",
+    "action_started",
+    "state_acquired",
+    "configuration",
+    "deployed",
+    "running",
+    "failure",
+    "reconfiguration",
+    "action_done",
+    "action_failed",
+];
+
+/// 1-based line and column of byte `offset` in `text`.
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text.as_bytes()[..offset.min(text.len())];
+    let line = before.iter().filter(|b| **b == b'\n').count() + 1;
+    let start = before
+        .iter()
+        .rposition(|b| *b == b'\n')
+        .map_or(0, |p| p + 1);
+    let col = String::from_utf8_lossy(&before[start..]).chars().count() + 1;
+    (line, col)
+}
+
+struct Checker<'a> {
+    file: &'a str,
+    text: &'a str,
+}
+
+impl Checker<'_> {
+    fn at(&self, span: Range<usize>, message: impl Into<String>) -> ScenarioError {
+        let (line, col) = line_col(self.text, span.start);
+        ScenarioError::Invalid {
+            file: self.file.to_string(),
+            line,
+            col,
+            message: message.into(),
+        }
+    }
+}
+
+fn seconds(s: f64) -> Option<Duration> {
+    (s.is_finite() && s >= 0.0).then(|| Duration::from_secs_f64(s))
+}
+
+impl Scenario {
+    /// Loads the scenario file at `path`; the task's domain and problem are
+    /// read relative to the scenario file's folder.
+    pub fn load(path: &Path) -> Result<Scenario, ScenarioError> {
+        let base = path.parent().unwrap_or(Path::new("")).to_path_buf();
+        let read = |p: &Path| -> Result<Vec<u8>, String> {
+            std::fs::read(base.join(p)).map_err(|e| e.to_string())
+        };
+        let text = std::fs::read(path).map_err(|e| ScenarioError::Read {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        let text = String::from_utf8(text).map_err(|_| ScenarioError::Read {
+            path: path.display().to_string(),
+            message: "not UTF-8".to_string(),
+        })?;
+        Scenario::parse(&text, &path.display().to_string(), &read)
+    }
+
+    /// Parses scenario `text` (named `file` in errors); `read` gives the
+    /// bytes of the files it names (domain, problem), by their path as written.
+    pub fn parse(
+        text: &str,
+        file: &str,
+        read: &dyn Fn(&Path) -> Result<Vec<u8>, String>,
+    ) -> Result<Scenario, ScenarioError> {
+        let check = Checker { file, text };
+        let parsed: File = toml::from_str(text).map_err(|e| {
+            let span = e.span().unwrap_or(0..0);
+            check.at(span, e.message().trim().to_string())
+        })?;
+        let read_named = |p: &Spanned<String>| -> Result<Vec<u8>, ScenarioError> {
+            read(&PathBuf::from(p.get_ref()))
+                .map_err(|e| check.at(p.span(), format!("cannot read {}: {e}", p.get_ref())))
+        };
+
+        // The task: a domain, and a problem to plan for or a plan.
+        let domain_bytes = read_named(&parsed.task.domain)?;
+        let domain = parse_domain(&domain_bytes).map_err(|d| {
+            ScenarioError::Task(d.render(parsed.task.domain.get_ref(), &domain_bytes))
+        })?;
+        let plan = match (&parsed.task.problem, &parsed.task.plan) {
+            (Some(problem), None) => plan_for(&domain, problem, &read_named)?,
+            (None, Some(steps)) => {
+                let mut plan = Vec::new();
+                for step in steps {
+                    let goal = match &step.get_ref().configure {
+                        None => None,
+                        Some(text) => Some(parse_goal(text).map_err(|d| {
+                            check.at(
+                                step.span(),
+                                format!("configure goal: {}", d.render("<goal>", text.as_bytes())),
+                            )
+                        })?),
+                    };
+                    plan.push(PlannedAction {
+                        action: step.get_ref().action.clone(),
+                        goal,
+                    });
+                }
+                plan
+            }
+            _ => {
+                return Err(check.at(
+                    parsed.task.domain.span(),
+                    "[task] needs exactly one of `problem` (to plan for) or `plan`",
+                ));
+            }
+        };
+
+        // The map.
+        let mut map = Map::default();
+        for room in &parsed.map.rooms {
+            let r = room.get_ref();
+            if r.x[1] <= r.x[0]
+                || r.y[1] <= r.y[0]
+                || !r.x.iter().chain(&r.y).all(|v| v.is_finite())
+            {
+                return Err(check.at(room.span(), format!("room {} has no area", r.name)));
+            }
+            if map.room(&r.name).is_some() {
+                return Err(check.at(room.span(), format!("room {} is defined twice", r.name)));
+            }
+            map.rooms.push(Room {
+                name: r.name.clone(),
+                x0: r.x[0],
+                y0: r.y[0],
+                x1: r.x[1],
+                y1: r.y[1],
+            });
+        }
+        for door in &parsed.map.doors {
+            let d = door.get_ref();
+            for name in &d.between {
+                if map.room(name).is_none() {
+                    return Err(check.at(door.span(), format!("door to unknown room {name}")));
+                }
+            }
+            map.doors.push(Door {
+                a: d.between[0].clone(),
+                b: d.between[1].clone(),
+                x: d.at[0],
+                y: d.at[1],
+            });
+        }
+        let inside = |x: f64, y: f64, span: Range<usize>, what: &str| {
+            if map.room_at(x, y).is_some() {
+                Ok(())
+            } else {
+                Err(check.at(span, format!("{what} at ({x}, {y}) is in no room")))
+            }
+        };
+        let mut world = World {
+            map: map.clone(),
+            robots: Default::default(),
+            things: Default::default(),
+            residents: Default::default(),
+        };
+        for robot in &parsed.robots {
+            let r = robot.get_ref();
+            inside(r.at[0], r.at[1], robot.span(), &r.name)?;
+            world.robots.insert(
+                r.name.clone(),
+                Robot {
+                    name: r.name.clone(),
+                    pose: Pose::new(r.at[0], r.at[1], r.at[2]),
+                    command: (0.0, 0.0),
+                    command_age: 0.0,
+                },
+            );
+        }
+        for thing in &parsed.things {
+            let t = thing.get_ref();
+            inside(t.at[0], t.at[1], thing.span(), &t.name)?;
+            world.things.insert(
+                t.name.clone(),
+                Thing {
+                    name: t.name.clone(),
+                    at: (t.at[0], t.at[1]),
+                    holder: None,
+                },
+            );
+        }
+        for resident in &parsed.residents {
+            let r = resident.get_ref();
+            inside(r.at[0], r.at[1], resident.span(), &r.name)?;
+            world.residents.insert(
+                r.name.clone(),
+                Resident {
+                    name: r.name.clone(),
+                    at: (r.at[0], r.at[1]),
+                    awake: !r.asleep,
+                },
+            );
+        }
+
+        // The PEIS.
+        let mut peis = Vec::new();
+        let mut names = BTreeSet::new();
+        for p in &parsed.peis {
+            let name = p.name.get_ref();
+            if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
+                return Err(check.at(p.name.span(), format!("`{name}` cannot name a PEIS")));
+            }
+            if !names.insert(name.clone()) {
+                return Err(check.at(p.name.span(), format!("PEIS {name} is defined twice")));
+            }
+            let mut components: Vec<ComponentDef> = Vec::new();
+            for c in &p.components {
+                let def = c.get_ref();
+                if !KINDS.contains(&def.kind.as_str()) {
+                    return Err(check.at(
+                        c.span(),
+                        format!(
+                            "no simulated component of type `{}` (known: {})",
+                            def.kind,
+                            KINDS.join(", ")
+                        ),
+                    ));
+                }
+                if ecology_tuples::Key::new(&format!("components.{}.type", def.id)).is_err() {
+                    return Err(check.at(c.span(), format!("`{}` cannot name a component", def.id)));
+                }
+                if components.iter().any(|other| other.id == def.id) {
+                    return Err(check.at(
+                        c.span(),
+                        format!("component {} is defined twice on {name}", def.id),
+                    ));
+                }
+                let startup = seconds(def.startup)
+                    .ok_or_else(|| check.at(c.span(), "startup must be a number of seconds"))?;
+                components.push(ComponentDef {
+                    id: def.id.clone(),
+                    kind: def.kind.clone(),
+                    cost: def.cost,
+                    on: def.on,
+                    startup,
+                });
+            }
+            peis.push(PeisDef {
+                name: name.clone(),
+                components,
+            });
+        }
+
+        // The faults.
+        let mut faults = Vec::new();
+        for fault in &parsed.faults {
+            let f = fault.get_ref();
+            let here = |message: String| check.at(fault.span(), message);
+            let kind = match f.what.as_str() {
+                "fail" => FaultKind::Fail,
+                "stall" => FaultKind::Stall,
+                "recover" => FaultKind::Recover,
+                "kill" => FaultKind::Kill,
+                "revive" => FaultKind::Revive,
+                other => {
+                    return Err(here(format!(
+                        "unknown fault `{other}` (known: fail, stall, recover, kill, revive)"
+                    )));
+                }
+            };
+            let Some(target) = peis.iter().find(|p| p.name == f.peis) else {
+                return Err(here(format!("fault on unknown PEIS {}", f.peis)));
+            };
+            let needs_component = matches!(
+                kind,
+                FaultKind::Fail | FaultKind::Stall | FaultKind::Recover
+            );
+            match (&f.component, needs_component) {
+                (Some(c), true) if !target.components.iter().any(|d| &d.id == c) => {
+                    return Err(here(format!("{} has no component {c}", f.peis)));
+                }
+                (None, true) => return Err(here(format!("`{}` needs a component", f.what))),
+                (Some(_), false) => {
+                    return Err(here(format!(
+                        "`{}` acts on a whole PEIS: drop `component`",
+                        f.what
+                    )));
+                }
+                _ => {}
+            }
+            let delay = seconds(f.delay).ok_or_else(|| here("delay must be seconds".into()))?;
+            let trigger = match (f.at, &f.after) {
+                (Some(at), None) => Trigger::At(
+                    seconds(at).ok_or_else(|| here("`at` must be seconds".into()))? + delay,
+                ),
+                (None, Some(after)) => {
+                    if !EVENTS.contains(&after.event.as_str()) {
+                        return Err(here(format!(
+                            "unknown event `{}` (known: {})",
+                            after.event,
+                            EVENTS.join(", ")
+                        )));
+                    }
+                    if after.action.is_some_and(|a| a == 0 || a > plan.len()) {
+                        return Err(here(format!("the plan has actions 1 to {}", plan.len())));
+                    }
+                    Trigger::After {
+                        event: after.event.clone(),
+                        action: after.action,
+                        delay,
+                    }
+                }
+                _ => return Err(here("a fault needs exactly one of `at` or `after`".into())),
+            };
+            faults.push(FaultSpec {
+                kind,
+                peis: f.peis.clone(),
+                component: f.component.clone(),
+                trigger,
+                cause: f
+                    .cause
+                    .clone()
+                    .unwrap_or_else(|| "injected failure".to_string()),
+            });
+        }
+
+        let time_limit = seconds(parsed.time_limit)
+            .ok_or_else(|| check.at(0..0, "time_limit must be a positive number of seconds"))?;
+        let action_timeout = seconds(parsed.action_timeout)
+            .ok_or_else(|| check.at(0..0, "action_timeout must be a positive number of seconds"))?;
+        Ok(Scenario {
+            name: parsed.name,
+            description: parsed.description,
+            seed: parsed.seed,
+            time_limit,
+            action_timeout,
+            domain,
+            plan,
+            world,
+            peis,
+            faults,
+        })
+    }
+}
+
+/// Reads a file the scenario names, with the name's place for errors.
+type ReadNamed<'a> = dyn Fn(&Spanned<String>) -> Result<Vec<u8>, ScenarioError> + 'a;
+
+/// Plans for the problem file with the action planner; each action's
+/// `:configure` goal becomes its configuration goal.
+fn plan_for(
+    domain: &Domain,
+    problem: &Spanned<String>,
+    read: &ReadNamed<'_>,
+) -> Result<Vec<PlannedAction>, ScenarioError> {
+    let bytes = read(problem)?;
+    let parsed = parse_problem_for(domain, &bytes)
+        .map_err(|d| ScenarioError::Task(d.render(problem.get_ref(), &bytes)))?;
+    let task = ecology_actions::ground(domain, &parsed)
+        .map_err(|e| ScenarioError::Task(format!("{}: {e}", problem.get_ref())))?;
+    let request = ecology_actions::Request::new(&task);
+    let outcome = ecology_actions::plan(
+        &request,
+        &ecology_actions::Options::default(),
+        &ecology_actions::NoClock,
+    );
+    match outcome.verdict {
+        ecology_actions::Verdict::Found(plan) => Ok(plan
+            .steps
+            .iter()
+            .map(|step| PlannedAction {
+                action: step.to_string(),
+                goal: step.configure.clone(),
+            })
+            .collect()),
+        ecology_actions::Verdict::Unsolvable(why) => Err(ScenarioError::NoPlan(why.to_string())),
+        ecology_actions::Verdict::BudgetExceeded => {
+            Err(ScenarioError::NoPlan("the planner's budget ran out".into()))
+        }
+    }
+}

@@ -1,0 +1,353 @@
+//! Tests of the simulator: the world's geometry and kinematics, scenario
+//! files, and whole runs of the paper's experiment (Section VIII) and of
+//! other scenarios in virtual time.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use ecology_exec::{LogEntry, LogEvent, RunStatus};
+
+use crate::{
+    FaultKind, FaultSpec, Map, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, Trigger,
+    match_scan, run, scan,
+};
+
+fn scenario_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenarios")
+        .join(name)
+}
+
+fn load(name: &str) -> Scenario {
+    Scenario::load(&scenario_path(name)).expect("the scenario loads")
+}
+
+async fn run_seeded(scenario: &Scenario, seed: u64) -> Report {
+    run(scenario, &RunOptions::seeded(seed), Box::new(|_| {}))
+        .await
+        .expect("the run completes")
+}
+
+fn timeline(report: &Report) -> String {
+    let mut text = String::new();
+    for (t, what) in &report.injected {
+        text.push_str(&format!("{:>8.3}s  [sim] {what}\n", t.as_secs_f64()));
+    }
+    for entry in &report.log {
+        text.push_str(&format!("{entry}\n"));
+    }
+    text
+}
+
+/// The configurations chosen, in order: (cost, reconfiguration, functionalities).
+fn configurations(report: &Report) -> Vec<(u64, bool, Vec<String>)> {
+    report
+        .log
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Configuration {
+                cost,
+                reconfiguration,
+                functionalities,
+                ..
+            } => Some((*cost, *reconfiguration, functionalities.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+fn house() -> Map {
+    let scenario = load("peis-home.toml");
+    scenario.world.map
+}
+
+// --- the world -------------------------------------------------------------
+
+#[test]
+fn the_home_is_about_25_square_metres_and_routes_go_through_doors() {
+    let map = house();
+    let area: f64 = map.rooms.iter().map(|r| r.area()).sum();
+    assert!((area - 25.0).abs() < 1e-9, "{area}");
+    assert_eq!(
+        map.route("living-room", "bedroom"),
+        Some(vec![(2.75, 3.0), (2.5, 4.0), (1.25, 4.0)])
+    );
+    assert_eq!(map.route("bedroom", "bedroom"), Some(vec![(1.25, 4.0)]));
+    assert_eq!(map.route("living-room", "garage"), None);
+    assert_eq!(Map::parse(&map.to_text()), Some(map));
+}
+
+#[test]
+fn scan_matching_pulls_a_drifted_guess_back_to_the_truth() {
+    let map = house();
+    let truth = Pose::new(1.2, 1.9, 0.3);
+    let ranges = scan(&map, truth);
+    let drifted = Pose::new(1.4, 1.75, 0.33);
+    let found = match_scan(&map, drifted, &ranges);
+    assert!(found.distance_to(truth.x, truth.y) < 0.06, "{found:?}");
+    assert!(drifted.distance_to(truth.x, truth.y) > 0.2);
+}
+
+#[test]
+fn a_robot_drives_its_commanded_arc_with_bounded_noise() {
+    let mut world = load("peis-home.toml").world;
+    let mut rng = Rng::new(3);
+    let robot = world.robots.get_mut("astrid").expect("astrid");
+    let start = robot.pose;
+    for _ in 0..20 {
+        robot.command = (0.4, 0.0);
+        robot.command_age = 0.0;
+        robot.step(0.05, &mut rng);
+    }
+    let travelled = robot.pose.distance_to(start.x, start.y);
+    assert!((travelled - 0.4).abs() < 0.03, "{travelled}");
+    // Without commands the watchdog stops the base.
+    let stopped = robot.pose;
+    for _ in 0..40 {
+        robot.step(0.05, &mut rng);
+    }
+    assert!(robot.pose.distance_to(stopped.x, stopped.y) < 0.25);
+    assert_eq!(robot.command, (0.0, 0.0));
+}
+
+// --- scenario files ----------------------------------------------------------
+
+fn parse(text: &str) -> Result<Scenario, ScenarioError> {
+    let base = scenario_path("");
+    Scenario::parse(text, "bad.toml", &|p: &Path| {
+        std::fs::read(base.join(p)).map_err(|e| e.to_string())
+    })
+}
+
+fn error_of(text: &str) -> String {
+    match parse(text) {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn bad_scenario_files_are_reported_with_their_line() {
+    let good = std::fs::read_to_string(scenario_path("kitchen.toml")).expect("reads");
+    assert!(parse(&good).is_ok());
+
+    let syntax = good.replace("seed = 11", "seed = = 11");
+    let e = error_of(&syntax);
+    assert!(e.starts_with("bad.toml:10:"), "{e}");
+
+    let unknown_type = good.replace("type = \"laser\"", "type = \"lazer\"");
+    let e = error_of(&unknown_type);
+    assert!(e.starts_with("bad.toml:41:"), "{e}");
+    assert!(e.contains("no simulated component of type `lazer`"), "{e}");
+
+    let unknown_room = good.replace("[\"entrance\", \"bedroom\"]", "[\"entrance\", \"attic\"]");
+    assert!(error_of(&unknown_room).starts_with("bad.toml:31:"));
+    assert!(error_of(&unknown_room).contains("door to unknown room attic"));
+
+    let unknown_peis = good.replace("peis = \"hsm\"\nafter", "peis = \"hms\"\nafter");
+    let e = error_of(&unknown_peis);
+    assert!(e.contains("fault on unknown PEIS hms"), "{e}");
+
+    let unknown_field = good.replace("seed = 11", "sed = 11");
+    assert!(error_of(&unknown_field).contains("unknown field `sed`"));
+
+    let missing_domain = good.replace("../domains/peis-home.eco", "../domains/nowhere.eco");
+    let e = error_of(&missing_domain);
+    assert!(
+        e.starts_with("bad.toml:15:") && e.contains("cannot read"),
+        "{e}"
+    );
+}
+
+// --- whole runs ---------------------------------------------------------------
+
+// The paper's Section VIII, steps 1 to 7.
+#[tokio::test]
+async fn the_demo_reproduces_the_papers_experiment() {
+    let report = run_seeded(&load("peis-home.toml"), 2007).await;
+    let text = timeline(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    // Step 1: the plan.
+    let Some(LogEvent::Plan { actions }) = report.log.first().map(|e| &e.event) else {
+        panic!("no plan first:\n{text}");
+    };
+    assert_eq!(
+        actions,
+        &[
+            "(move astrid living-room entrance)",
+            "(get astrid newspaper entrance)",
+            "(move astrid entrance bedroom)",
+            "(wake astrid johanna bedroom)",
+        ]
+    );
+    // Steps 2 to 7: 80, the gripper, 80, the failure, 170 with the laser, the speaker.
+    let configs = configurations(&report);
+    let costs: Vec<(u64, bool)> = configs.iter().map(|(c, r, _)| (*c, *r)).collect();
+    assert_eq!(
+        costs,
+        [
+            (80, false),
+            (100, false),
+            (80, false),
+            (170, true),
+            (20, false)
+        ],
+        "{text}"
+    );
+    assert!(configs[1].2[0].contains("on astrid:gr1"), "{text}");
+    assert!(configs[4].2[0].contains("on astrid:sp1"), "{text}");
+    let failures: Vec<&LogEvent> = report
+        .log
+        .iter()
+        .map(|e| &e.event)
+        .filter(|e| matches!(e, LogEvent::Failure { .. }))
+        .collect();
+    assert!(
+        matches!(failures.as_slice(), [LogEvent::Failure { peis, component, cause }]
+            if peis == "hsm" && component == "tr1" && cause.contains("camera")),
+        "{text}"
+    );
+    let switched_on_laser = report.log.iter().any(|e| {
+        matches!(&e.event, LogEvent::Deployed { switched_on, .. }
+            if switched_on.iter().any(|c| c == "astrid:l1"))
+    });
+    assert!(switched_on_laser, "{text}");
+    assert_eq!(report.log.last().map(|e| e.event.name()), Some("task_done"));
+    // And the world agrees: Astrid is in the bedroom holding the newspaper, Johanna awake.
+    let astrid = report.world.robots["astrid"].pose;
+    let room = report
+        .world
+        .map
+        .room_at(astrid.x, astrid.y)
+        .map(|r| r.name.clone());
+    assert_eq!(room.as_deref(), Some("bedroom"), "{astrid:?}");
+    assert_eq!(
+        report.world.things["newspaper"].holder.as_deref(),
+        Some("astrid")
+    );
+    assert!(report.world.residents["johanna"].awake);
+    assert!(!report.timed_out);
+}
+
+// Without the fault, the tracking system never fails and the laser stays off.
+#[tokio::test]
+async fn without_the_fault_the_cameras_serve_both_moves() {
+    let mut scenario = load("peis-home.toml");
+    scenario.faults.clear();
+    let report = run_seeded(&scenario, 5).await;
+    let costs: Vec<u64> = configurations(&report).iter().map(|c| c.0).collect();
+    assert_eq!(costs, [80, 100, 80, 20], "{}", timeline(&report));
+    assert_eq!(report.status, RunStatus::Done);
+}
+
+// A second scenario: a PEIS crashes and comes back.
+#[tokio::test]
+async fn the_kitchen_scenario_survives_a_crash_of_the_monitor() {
+    let report = run_seeded(&load("kitchen.toml"), 11).await;
+    let text = timeline(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    assert!(text.contains("PEIS hsm left the ecology"), "{text}");
+    let costs: Vec<(u64, bool)> = configurations(&report).iter().map(|c| (c.0, c.1)).collect();
+    assert_eq!(costs, [(80, false), (170, true), (80, false)], "{text}");
+    let astrid = report.world.robots["astrid"].pose;
+    let room = report
+        .world
+        .map
+        .room_at(astrid.x, astrid.y)
+        .map(|r| r.name.clone());
+    assert_eq!(room.as_deref(), Some("bedroom"));
+}
+
+/// A random fault schedule on the paper's scenario, from `seed`.
+fn random_faults(scenario: &Scenario, seed: u64) -> Vec<FaultSpec> {
+    let mut rng = Rng::new(seed);
+    let components: Vec<(String, String)> = scenario
+        .peis
+        .iter()
+        .flat_map(|p| p.components.iter().map(|c| (p.name.clone(), c.id.clone())))
+        .collect();
+    let n = 1 + rng.below(3);
+    (0..n)
+        .map(|_| {
+            let (peis, component) = components[rng.below(components.len() as u64) as usize].clone();
+            let kind = match rng.below(5) {
+                0 | 1 => FaultKind::Fail,
+                2 => FaultKind::Stall,
+                3 => FaultKind::Kill,
+                _ => FaultKind::Recover,
+            };
+            let at = Duration::from_millis(rng.below(30_000));
+            FaultSpec {
+                kind,
+                component: (kind != FaultKind::Kill).then_some(component),
+                peis,
+                trigger: Trigger::At(at),
+                cause: format!("random fault {seed}"),
+            }
+        })
+        .collect()
+}
+
+// Random fault schedules never leave the executive stuck: each run ends with
+// the task done or failed with a reason, within the time limit, and the same
+// seed gives the same run.
+#[tokio::test]
+async fn random_fault_schedules_always_end_and_are_reproducible() {
+    let base = load("peis-home.toml");
+    let mut outcomes = Vec::new();
+    for seed in 0..10 {
+        let mut scenario = base.clone();
+        scenario.faults = random_faults(&scenario, seed);
+        let report = run_seeded(&scenario, seed).await;
+        let text = timeline(&report);
+        assert!(!report.timed_out, "seed {seed} is stuck:\n{text}");
+        match &report.status {
+            RunStatus::Done => {}
+            RunStatus::Failed { reason, .. } => {
+                assert!(!reason.is_empty(), "seed {seed}:\n{text}")
+            }
+            other => panic!("seed {seed}: {other:?}\n{text}"),
+        }
+        let last = report.log.last().map(|e| e.event.name());
+        assert!(
+            matches!(last, Some("task_done" | "task_failed")),
+            "seed {seed}:\n{text}"
+        );
+        assert!(report.sim_time <= scenario.time_limit + Duration::from_secs(1));
+        outcomes.push((seed, report.status.clone()));
+        if seed < 3 {
+            let again = run_seeded(&scenario, seed).await;
+            // The same events in the same order; times may differ by a step,
+            // since tokio's `select!` breaks ties between ready branches at random.
+            let lines = |r: &Report| {
+                r.log
+                    .iter()
+                    .map(|e| {
+                        LogEntry {
+                            t: Duration::ZERO,
+                            event: e.event.clone(),
+                        }
+                        .json_line()
+                    })
+                    .collect::<Vec<_>>()
+            };
+            let (first, second) = (lines(&report), lines(&again));
+            let differ = first.iter().zip(&second).find(|(a, b)| a != b);
+            assert!(
+                differ.is_none() && first.len() == second.len(),
+                "seed {seed} is not reproducible: {differ:?}\n{text}"
+            );
+        }
+    }
+    // The schedules are varied enough to exercise both endings.
+    assert!(
+        outcomes.iter().any(|(_, s)| *s == RunStatus::Done),
+        "{outcomes:?}"
+    );
+    assert!(
+        outcomes
+            .iter()
+            .any(|(_, s)| matches!(s, RunStatus::Failed { .. })),
+        "{outcomes:?}"
+    );
+}
