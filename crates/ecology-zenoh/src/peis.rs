@@ -693,22 +693,8 @@ impl TupleSpace for ZenohPeis {
 
     async fn peers(&self) -> Result<Vec<PeisId>, TupleError> {
         let core = &self.inner.core;
-        let replies = core
-            .session
-            .liveliness()
-            .get(wire::ALL_ALIVE)
-            .timeout(core.query_timeout)
-            .await
-            .map_err(transport("peers"))?;
-        let mut peers = BTreeSet::new();
+        let mut peers = alive_peis(core).await?;
         peers.insert(core.me.clone());
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
-                    peers.insert(id);
-                }
-            }
-        }
         Ok(peers.into_iter().collect())
     }
 
@@ -760,6 +746,18 @@ impl Presence {
 
 /// Asks for every liveliness token and reports PEIS not yet seen as joined.
 async fn reconcile_presence(core: &Core, presence: &Mutex<Presence>) -> Result<(), TupleError> {
+    let alive = alive_peis(core).await?;
+    // Only joins are reconciled: a reply missing from a slow query must not read as a PEIS lost;
+    // departures arrive as token deletions (or when the transport lease runs out).
+    let mut presence = lock(presence);
+    for id in alive {
+        presence.observe(id, true);
+    }
+    Ok(())
+}
+
+/// Every PEIS whose liveliness token answers a query now.
+async fn alive_peis(core: &Core) -> Result<BTreeSet<PeisId>, TupleError> {
     let replies = core
         .session
         .liveliness()
@@ -769,17 +767,11 @@ async fn reconcile_presence(core: &Core, presence: &Mutex<Presence>) -> Result<(
         .map_err(transport("peers"))?;
     let mut alive = BTreeSet::new();
     while let Ok(reply) = replies.recv_async().await {
-        if let Ok(sample) = reply.result() {
-            if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
-                alive.insert(id);
-            }
+        if let Ok(sample) = reply.result()
+            && let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str())
+        {
+            alive.insert(id);
         }
     }
-    // Only joins are reconciled: a reply missing from a slow query must not read as a PEIS lost;
-    // departures arrive as token deletions (or when the transport lease runs out).
-    let mut presence = lock(presence);
-    for id in alive {
-        presence.observe(id, true);
-    }
-    Ok(())
+    Ok(alive)
 }
