@@ -357,6 +357,7 @@ fn event_json(event: &TupleEvent, clock: &dyn Clock) -> String {
                 "key": t.key.as_str(),
                 "mimetype": t.mimetype.as_str(),
                 "seq": t.seq,
+                "epoch": t.epoch,
                 "ts_write_ns": t.ts_write.as_nanos(),
                 "age_ms": u64::try_from(age(t, clock).as_millis()).unwrap_or(u64::MAX),
             });
@@ -380,6 +381,7 @@ fn event_json(event: &TupleEvent, clock: &dyn Clock) -> String {
             key,
             seq,
             reason,
+            ..
         } => serde_json::json!({
             "event": "removed",
             "owner": owner.as_str(),

@@ -5,9 +5,12 @@
 //! space's clock), and returns when the run is over. It spawns nothing: the
 //! whole loop is one future the caller owns.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
+
+use tokio::task::JoinSet;
 
 use ecology_tuples::{
     Clock, Key, PeisId, PresenceEvent, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace,
@@ -42,7 +45,7 @@ pub async fn drive<S: TupleSpace>(
     exec: &mut Executive,
     config: DriverConfig,
 ) -> Result<RunStatus, TupleError> {
-    drive_observed(space, clock, exec, config, |_| {}).await
+    drive_until(space, clock, exec, config, |_| {}, std::future::pending()).await
 }
 
 /// [`drive`], calling `observe` with every log entry as soon as the executive
@@ -52,7 +55,27 @@ pub async fn drive_observed<S: TupleSpace>(
     clock: Arc<dyn Clock>,
     exec: &mut Executive,
     config: DriverConfig,
+    observe: impl FnMut(&LogEntry),
+) -> Result<RunStatus, TupleError> {
+    drive_until(space, clock, exec, config, observe, std::future::pending()).await
+}
+
+/// [`drive_observed`], stopping the task when `stop` completes (an operator's
+/// interrupt): the executive releases what the task used, and the driver
+/// carries that out before it returns.
+///
+/// Remote sets go out concurrently to different PEIS and in order to each
+/// one; one that fails comes back to the executive as
+/// [`Event::RemoteSetFailed`]. When an action fails, the task is abandoned
+/// ([`Executive::abandon`]). Before returning, the driver waits for every
+/// remote set it sent (each is bounded by the space's own timeout).
+pub async fn drive_until<S: TupleSpace>(
+    space: &S,
+    clock: Arc<dyn Clock>,
+    exec: &mut Executive,
+    config: DriverConfig,
     mut observe: impl FnMut(&LogEntry),
+    stop: impl Future<Output = ()>,
 ) -> Result<RunStatus, TupleError> {
     let mut observed = exec.log().len();
     let start = clock.now();
@@ -60,68 +83,85 @@ pub async fn drive_observed<S: TupleSpace>(
     let mut tuples = space.subscribe(TuplePattern::everything()).await?;
     let mut presence = space.subscribe_presence().await?;
     let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
+    let mut sets = RemoteSets::new(space.clone());
     let settle_until = start.saturating_add(config.settle);
     let mut started = false;
+    tokio::pin!(stop);
+    let mut stopped = false;
     loop {
-        if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
+        let mut commands = Vec::new();
+        if matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
+            commands = exec.abandon(elapsed(&clock));
+        } else if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
+            sets.flush(exec, &clock, start).await;
+            for entry in &exec.log()[observed..] {
+                observe(entry);
+            }
+            return Ok(exec.status().clone());
+        } else if config.limit.is_some_and(|limit| elapsed(&clock) >= limit) {
+            sets.flush(exec, &clock, start).await;
             return Ok(exec.status().clone());
         }
-        if config.limit.is_some_and(|limit| elapsed(&clock) >= limit) {
-            return Ok(exec.status().clone());
+        if commands.is_empty() {
+            let next_timer = timers
+                .iter()
+                .min_by_key(|(_, at)| **at)
+                .map(|(id, at)| (*id, *at));
+            let wake_at = match (started, next_timer) {
+                (false, _) => Some(settle_until),
+                (true, Some((_, at))) => Some(at),
+                (true, None) => None,
+            };
+            let wake_at = match (wake_at, config.limit) {
+                (Some(at), Some(limit)) => Some(at.min(start.saturating_add(limit))),
+                (None, Some(limit)) => Some(start.saturating_add(limit)),
+                (at, None) => at,
+            };
+            let sleep = async {
+                match wake_at {
+                    Some(at) => clock.sleep_until(at).await,
+                    None => std::future::pending().await,
+                }
+            };
+            commands = tokio::select! {
+                event = tuples.next() => match event {
+                    Some(TupleEvent::Changed(t)) => {
+                        let value = t.text().unwrap_or_default().to_string();
+                        exec.handle(elapsed(&clock), Event::Tuple {
+                            owner: t.owner.to_string(),
+                            key: t.key.to_string(),
+                            value,
+                            epoch: t.epoch,
+                            seq: t.seq,
+                        })
+                    }
+                    Some(_) => Vec::new(),
+                    None => return Ok(exec.status().clone()),
+                },
+                event = presence.next() => match event {
+                    Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string())),
+                    Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
+                    None => Vec::new(),
+                },
+                Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
+                () = &mut stop, if !stopped => {
+                    stopped = true;
+                    exec.stop(elapsed(&clock), "stopped by the operator")
+                }
+                () = sleep => {
+                    let now = clock.now();
+                    if !started && now >= settle_until {
+                        started = true;
+                        exec.handle(elapsed(&clock), Event::Start)
+                    } else if let Some((id, _)) = next_timer.filter(|(_, at)| *at <= now) {
+                        timers.remove(&id);
+                        exec.handle(elapsed(&clock), Event::Timer(id))
+                    } else {
+                        Vec::new()
+                    }
+                }
+            };
         }
-        let next_timer = timers
-            .iter()
-            .min_by_key(|(_, at)| **at)
-            .map(|(id, at)| (*id, *at));
-        let wake_at = match (started, next_timer) {
-            (false, _) => Some(settle_until),
-            (true, Some((_, at))) => Some(at),
-            (true, None) => None,
-        };
-        let wake_at = match (wake_at, config.limit) {
-            (Some(at), Some(limit)) => Some(at.min(start.saturating_add(limit))),
-            (None, Some(limit)) => Some(start.saturating_add(limit)),
-            (at, None) => at,
-        };
-        let sleep = async {
-            match wake_at {
-                Some(at) => clock.sleep_until(at).await,
-                None => std::future::pending().await,
-            }
-        };
-        let commands = tokio::select! {
-            event = tuples.next() => match event {
-                Some(TupleEvent::Changed(t)) => {
-                    let value = t.text().unwrap_or_default().to_string();
-                    exec.handle(elapsed(&clock), Event::Tuple {
-                        owner: t.owner.to_string(),
-                        key: t.key.to_string(),
-                        value,
-                        seq: t.seq,
-                    })
-                }
-                Some(_) => Vec::new(),
-                None => return Ok(exec.status().clone()),
-            },
-            event = presence.next() => match event {
-                Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string())),
-                Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
-                None => Vec::new(),
-            },
-            () = sleep => {
-                let now = clock.now();
-                if !started && now >= settle_until {
-                    started = true;
-                    exec.handle(elapsed(&clock), Event::Start)
-                } else if let Some((id, at)) = next_timer.filter(|(_, at)| *at <= now) {
-                    let _ = at;
-                    timers.remove(&id);
-                    exec.handle(elapsed(&clock), Event::Timer(id))
-                } else {
-                    Vec::new()
-                }
-            }
-        };
         for entry in &exec.log()[observed..] {
             observe(entry);
         }
@@ -134,19 +174,95 @@ pub async fn drive_observed<S: TupleSpace>(
                 Command::CancelTimer(id) => {
                     timers.remove(&id);
                 }
-                Command::RemoteSet { owner, key, value } => {
-                    let (Ok(owner), Ok(key)) = (PeisId::new(&owner), Key::new(&key)) else {
-                        continue;
-                    };
-                    // An unreachable owner shows up as a failure through presence
-                    // or a deploy timeout; the executive handles both.
-                    let _ = if owner == *space.peis() {
-                        space.set(key, Value::text(value)).await
-                    } else {
-                        space.set_remote(owner, key, Value::text(value)).await
-                    };
-                }
+                Command::RemoteSet { owner, key, value } => sets.send(owner, key, value),
             }
+        }
+    }
+}
+
+type SetOutcome = (PeisId, Option<Event>);
+
+/// The remote sets in flight: one at a time to each PEIS, in the order asked,
+/// and concurrently to different PEIS, so one unreachable PEIS delays no other.
+struct RemoteSets<S: TupleSpace> {
+    space: S,
+    queued: BTreeMap<PeisId, VecDeque<(Key, String)>>,
+    busy: BTreeSet<PeisId>,
+    tasks: JoinSet<SetOutcome>,
+}
+
+impl<S: TupleSpace> RemoteSets<S> {
+    fn new(space: S) -> Self {
+        RemoteSets {
+            space,
+            queued: BTreeMap::new(),
+            busy: BTreeSet::new(),
+            tasks: JoinSet::new(),
+        }
+    }
+
+    fn send(&mut self, owner: String, key: String, value: String) {
+        let (Ok(owner), Ok(key)) = (PeisId::new(&owner), Key::new(&key)) else {
+            // The executive builds these from names it read from the space, so they are valid.
+            return;
+        };
+        self.queued
+            .entry(owner.clone())
+            .or_default()
+            .push_back((key, value));
+        self.start_next(&owner);
+    }
+
+    fn start_next(&mut self, owner: &PeisId) {
+        if self.busy.contains(owner) {
+            return;
+        }
+        let Some((key, value)) = self.queued.get_mut(owner).and_then(VecDeque::pop_front) else {
+            self.queued.remove(owner);
+            return;
+        };
+        self.busy.insert(owner.clone());
+        let space = self.space.clone();
+        let owner = owner.clone();
+        self.tasks.spawn(async move {
+            let result = if owner == *space.peis() {
+                space.set(key.clone(), Value::text(&value)).await
+            } else {
+                space
+                    .set_remote(owner.clone(), key.clone(), Value::text(&value))
+                    .await
+            };
+            let failure = result.err().map(|e| Event::RemoteSetFailed {
+                owner: owner.to_string(),
+                key: key.to_string(),
+                reason: e.to_string(),
+            });
+            (owner, failure)
+        });
+    }
+
+    /// The next remote set that failed, as an event; `None` when none is in flight.
+    async fn next_failure(&mut self) -> Option<Event> {
+        while let Some(joined) = self.tasks.join_next().await {
+            let Ok((owner, failure)) = joined else {
+                // A set task cannot panic short of a bug in the space; nothing to report then.
+                continue;
+            };
+            self.busy.remove(&owner);
+            self.start_next(&owner);
+            if failure.is_some() {
+                return failure;
+            }
+        }
+        None
+    }
+
+    /// Waits until every queued set has been carried out, handing failures to
+    /// the executive (which may only log them now).
+    async fn flush(&mut self, exec: &mut Executive, clock: &Arc<dyn Clock>, start: Timestamp) {
+        while let Some(failed) = self.next_failure().await {
+            let now = clock.now().saturating_duration_since(start);
+            let _ = exec.handle(now, failed);
         }
     }
 }

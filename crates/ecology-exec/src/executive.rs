@@ -44,8 +44,19 @@ pub enum Event {
         key: String,
         /// The value, as text.
         value: String,
-        /// The tuple's sequence number.
+        /// The run of the owner that wrote it (0 when unknown); a greater epoch means the owner restarted.
+        epoch: u64,
+        /// The tuple's sequence number within the owner's run.
         seq: u64,
+    },
+    /// A remote set the executive asked for failed (the owner refused it or could not be reached).
+    RemoteSetFailed {
+        /// The PEIS that owns the tuple.
+        owner: String,
+        /// The dotted key.
+        key: String,
+        /// Why.
+        reason: String,
     },
     /// A PEIS appeared.
     PeisJoined(String),
@@ -124,7 +135,7 @@ pub enum RunStatus {
     },
     /// Every action is done.
     Done,
-    /// An action failed and nothing replanned around it.
+    /// An action failed and nothing replanned around it, or the task was stopped.
     Failed {
         /// The failed action's index.
         index: usize,
@@ -187,6 +198,8 @@ pub struct Executive {
     started: BTreeSet<ComponentKey>,
     /// The `params` last written to each component.
     params: BTreeMap<ComponentKey, String>,
+    /// Whether the task has ended and what it used has been released.
+    finished: bool,
     next_timer: u64,
     now: Duration,
     log: Vec<LogEntry>,
@@ -213,6 +226,7 @@ impl Executive {
             running: None,
             started: BTreeSet::new(),
             params: BTreeMap::new(),
+            finished: false,
             next_timer: 0,
             now: Duration::ZERO,
             log: Vec::new(),
@@ -262,29 +276,56 @@ impl Executive {
                 owner,
                 key,
                 value,
+                epoch,
                 seq,
             } => {
-                if let Some(Change::Status {
-                    peis,
-                    component,
-                    status,
-                }) = self.mirror.apply(&owner, &key, &value, seq)
-                {
-                    self.on_status((peis, component), &status, &mut out);
+                for change in self.mirror.apply(&owner, &key, &value, epoch, seq) {
+                    match change {
+                        Change::Status {
+                            peis,
+                            component,
+                            status,
+                        } => self.on_status((peis, component), &status, &mut out),
+                        Change::Restarted { peis } => {
+                            if self.run.is_some() {
+                                self.record(LogEvent::PeisRestarted { peis: peis.clone() });
+                            }
+                            self.forget(&peis);
+                            self.on_peis_gone(&peis, format!("PEIS {peis} restarted"), &mut out);
+                        }
+                        Change::Other => {}
+                    }
                 }
             }
-            Event::PeisJoined(peis) => self.mirror.joined(&peis),
+            Event::RemoteSetFailed { owner, key, reason } => {
+                self.on_remote_set_failed(owner, key, reason, &mut out);
+            }
+            Event::PeisJoined(peis) => {
+                let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
+                self.mirror.joined(&peis);
+                if !was_present && self.run.is_some() {
+                    self.record(LogEvent::PeisJoined { peis });
+                }
+            }
             Event::PeisLeft(peis) => {
+                let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
                 self.mirror.left(&peis);
-                // A PEIS that comes back starts afresh: forget what was
-                // written to its components, so a new deploy writes it again.
-                self.params.retain(|(p, _), _| *p != peis);
-                self.started.retain(|(p, _)| *p != peis);
-                self.on_peis_left(&peis, &mut out);
+                if was_present && self.run.is_some() {
+                    self.record(LogEvent::PeisLeft { peis: peis.clone() });
+                }
+                self.forget(&peis);
+                self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), &mut out);
             }
             Event::Timer(id) => self.on_timer(id, &mut out),
         }
         out
+    }
+
+    /// A PEIS that comes back starts afresh: forget what was written to its
+    /// components, so a new deploy writes it again.
+    fn forget(&mut self, peis: &str) {
+        self.params.retain(|(p, _), _| p != peis);
+        self.started.retain(|(p, _)| p != peis);
     }
 
     fn record(&mut self, event: LogEvent) {
@@ -302,6 +343,7 @@ impl Executive {
         if index >= self.plan.len() {
             self.status = RunStatus::Done;
             self.run = None;
+            self.release(out);
             self.record(LogEvent::TaskDone);
             return;
         }
@@ -554,7 +596,8 @@ impl Executive {
         }
     }
 
-    fn on_peis_left(&mut self, peis: &str, out: &mut Vec<Command>) {
+    /// A PEIS left or restarted: every component of the configuration on it failed.
+    fn on_peis_gone(&mut self, peis: &str, cause: String, out: &mut Vec<Command>) {
         let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
             return;
         };
@@ -565,7 +608,37 @@ impl Executive {
             .map(|f| (f.peis.clone(), f.component.clone()))
             .collect();
         if !lost.is_empty() {
-            self.failure(lost, format!("PEIS {peis} left the ecology"), out);
+            self.failure(lost, cause, out);
+        }
+    }
+
+    /// A remote set failed: logged, and when it deployed a component of the
+    /// configuration, that component failed (it cannot be switched on or wired).
+    fn on_remote_set_failed(
+        &mut self,
+        owner: String,
+        key: String,
+        reason: String,
+        out: &mut Vec<Command>,
+    ) {
+        let component = key
+            .strip_prefix("components.")
+            .and_then(|k| k.strip_suffix(".reqState"))
+            .or_else(|| key.split_once('.').map(|(c, _)| c))
+            .map(str::to_string);
+        self.record(LogEvent::RemoteSetFailed {
+            owner: owner.clone(),
+            key: key.clone(),
+            reason: reason.clone(),
+        });
+        if let Some(component) = component {
+            let target = (owner, component);
+            if self.in_current_config(&target) {
+                // Whatever the executive believed it wrote there is unknown now.
+                self.params.remove(&target);
+                let cause = format!("could not set {key}: {reason}");
+                self.failure(vec![target], cause, out);
+            }
         }
     }
 
@@ -582,11 +655,27 @@ impl Executive {
         if run.deploy_timer == Some(id) {
             run.deploy_timer = None;
             if let Phase::Deploying { pending } = &run.phase {
-                let late: Vec<ComponentKey> = pending.iter().cloned().collect();
-                let cause = format!(
-                    "did not report running within {:?}",
-                    self.config.deploy_timeout
-                );
+                // Components still switching on are to blame; only when every
+                // pending one is on (and so waits for something) are all blamed.
+                let starting: Vec<ComponentKey> = pending
+                    .iter()
+                    .filter(|(p, c)| !self.mirror.component(p, c).is_some_and(|v| v.on))
+                    .cloned()
+                    .collect();
+                let (late, cause) = if starting.is_empty() {
+                    let late = pending.iter().cloned().collect();
+                    let cause = format!(
+                        "did not report running within {:?}",
+                        self.config.deploy_timeout
+                    );
+                    (late, cause)
+                } else {
+                    let cause = format!(
+                        "did not finish switching on within {:?}",
+                        self.config.deploy_timeout
+                    );
+                    (starting, cause)
+                };
                 self.failure(late, cause, out);
             }
             return;
@@ -694,6 +783,47 @@ impl Executive {
         };
     }
 
+    /// Leaves the ecology as the task found it: switches off every component
+    /// this task switched on, and clears the `params` of components it only
+    /// borrowed (their bodies stop; they report `idle`). Logged once.
+    fn release(&mut self, out: &mut Vec<Command>) {
+        if self.finished {
+            return;
+        }
+        self.finished = true;
+        let mut switched_off = Vec::new();
+        for (p, c) in std::mem::take(&mut self.started) {
+            out.push(Command::RemoteSet {
+                owner: p.clone(),
+                key: format!("components.{c}.reqState"),
+                value: "off".to_string(),
+            });
+            self.params.remove(&(p.clone(), c.clone()));
+            switched_off.push(format!("{p}:{c}"));
+        }
+        let mut stopped = Vec::new();
+        for ((p, c), _) in std::mem::take(&mut self.params) {
+            out.push(Command::RemoteSet {
+                owner: p.clone(),
+                key: format!("{c}.params"),
+                value: String::new(),
+            });
+            stopped.push(format!("{p}:{c}"));
+        }
+        self.running = None;
+        if !switched_off.is_empty() || !stopped.is_empty() {
+            self.record(LogEvent::Released {
+                switched_off,
+                stopped,
+            });
+        }
+    }
+
+    /// Whether the task has ended and everything it used has been released.
+    pub fn finished(&self) -> bool {
+        self.finished
+    }
+
     /// Action-level recovery: after an action failed, continue with a new
     /// plan (from the action planner, without the failed action).
     pub fn replan(&mut self, now: Duration, plan: Vec<PlannedAction>) -> Vec<Command> {
@@ -709,12 +839,45 @@ impl Executive {
         out
     }
 
-    /// Gives up after a failed action: the task fails.
-    pub fn abandon(&mut self, now: Duration) {
+    /// Gives up after a failed action: the task fails, and what it used is released.
+    pub fn abandon(&mut self, now: Duration) -> Vec<Command> {
         self.now = self.now.max(now);
+        let mut out = Vec::new();
+        if self.finished {
+            return out;
+        }
         if let RunStatus::Failed { index, .. } = &self.status {
             let reason = format!("action {} failed", self.plan[*index].action);
+            self.release(&mut out);
             self.record(LogEvent::TaskFailed { reason });
         }
+        out
+    }
+
+    /// Stops the task where it stands (the operator interrupted it): the
+    /// current action fails with `reason`, what the task used is released,
+    /// and the task fails.
+    pub fn stop(&mut self, now: Duration, reason: &str) -> Vec<Command> {
+        self.now = self.now.max(now);
+        let mut out = Vec::new();
+        if self.finished {
+            return out;
+        }
+        if self.run.is_some() {
+            self.fail_action(reason.to_string(), &mut out);
+        }
+        let index = match &self.status {
+            RunStatus::Failed { index, .. } | RunStatus::Running { index } => *index,
+            RunStatus::Idle | RunStatus::Done => 0,
+        };
+        self.status = RunStatus::Failed {
+            index,
+            reason: reason.to_string(),
+        };
+        self.release(&mut out);
+        self.record(LogEvent::TaskFailed {
+            reason: reason.to_string(),
+        });
+        out
     }
 }

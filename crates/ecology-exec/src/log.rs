@@ -78,6 +78,37 @@ pub enum LogEvent {
         /// Why.
         cause: String,
     },
+    /// A PEIS joined while the task ran.
+    PeisJoined {
+        /// The PEIS.
+        peis: String,
+    },
+    /// A PEIS left (withdrew its presence, or its lease ran out) while the task ran.
+    PeisLeft {
+        /// The PEIS.
+        peis: String,
+    },
+    /// A PEIS started a new run (it restarted) while the task ran.
+    PeisRestarted {
+        /// The PEIS.
+        peis: String,
+    },
+    /// A remote set the executive asked for failed.
+    RemoteSetFailed {
+        /// The owner of the tuple.
+        owner: String,
+        /// The key.
+        key: String,
+        /// Why.
+        reason: String,
+    },
+    /// The task ended and released what it used.
+    Released {
+        /// Components the task had switched on, now switched off.
+        switched_off: Vec<String>,
+        /// Components it only borrowed (on before), whose params were cleared.
+        stopped: Vec<String>,
+    },
     /// The action is being reconfigured without what failed.
     Reconfiguration {
         /// Everything excluded for this action so far.
@@ -120,6 +151,11 @@ impl LogEvent {
             LogEvent::Running { .. } => "running",
             LogEvent::Failure { .. } => "failure",
             LogEvent::Reconfiguration { .. } => "reconfiguration",
+            LogEvent::PeisJoined { .. } => "peis_joined",
+            LogEvent::PeisLeft { .. } => "peis_left",
+            LogEvent::PeisRestarted { .. } => "peis_restarted",
+            LogEvent::RemoteSetFailed { .. } => "remote_set_failed",
+            LogEvent::Released { .. } => "released",
             LogEvent::ActionDone { .. } => "action_done",
             LogEvent::ActionFailed { .. } => "action_failed",
             LogEvent::TaskDone => "task_done",
@@ -172,6 +208,16 @@ impl LogEntry {
                 json!({ "peis": peis, "component": component, "cause": cause })
             }
             LogEvent::Reconfiguration { excluded } => json!({ "excluded": excluded }),
+            LogEvent::PeisJoined { peis }
+            | LogEvent::PeisLeft { peis }
+            | LogEvent::PeisRestarted { peis } => json!({ "peis": peis }),
+            LogEvent::RemoteSetFailed { owner, key, reason } => {
+                json!({ "owner": owner, "key": key, "reason": reason })
+            }
+            LogEvent::Released {
+                switched_off,
+                stopped,
+            } => json!({ "switched_off": switched_off, "stopped": stopped }),
             LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
             LogEvent::ActionFailed {
                 index,
@@ -258,6 +304,25 @@ impl fmt::Display for LogEntry {
             } => write!(f, "  FAILURE {peis}:{component}: {cause}"),
             LogEvent::Reconfiguration { excluded } => {
                 write!(f, "  reconfiguring without {}", excluded.join(", "))
+            }
+            LogEvent::PeisJoined { peis } => write!(f, "  PEIS {peis} joined"),
+            LogEvent::PeisLeft { peis } => write!(f, "  PEIS {peis} left"),
+            LogEvent::PeisRestarted { peis } => write!(f, "  PEIS {peis} restarted"),
+            LogEvent::RemoteSetFailed { owner, key, reason } => {
+                write!(f, "  remote set of {owner}:{key} failed: {reason}")
+            }
+            LogEvent::Released {
+                switched_off,
+                stopped,
+            } => {
+                let mut parts = Vec::new();
+                if !switched_off.is_empty() {
+                    parts.push(format!("switched off {}", switched_off.join(", ")));
+                }
+                if !stopped.is_empty() {
+                    parts.push(format!("stopped {}", stopped.join(", ")));
+                }
+                write!(f, "released: {}", parts.join("; "))
             }
             LogEvent::ActionDone { index, action } => {
                 write!(f, "action {} done: {action}", index + 1)

@@ -3,9 +3,12 @@
 //!
 //! Each PEIS's init component publishes `components.C.type`, `.cost` and
 //! `.currState`; each component publishes `C.status` and `C.cause` (DESIGN
-//! section 6). Updates carry the tuple's per-key sequence number: an update
-//! whose number is not newer than the last one seen is a duplicate or arrived
-//! out of order, and is dropped.
+//! section 6). Updates carry the tuple's version, `(epoch, seq)`: the epoch
+//! names one run of the owner and the sequence number counts per key within
+//! it. An update whose version is not newer than the last one seen is a
+//! duplicate, arrived out of order, or comes from an earlier run, and is
+//! dropped. An update from a later run means the PEIS restarted: what was
+//! known of its components is forgotten, since the new run starts afresh.
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -33,6 +36,10 @@ pub struct ComponentView {
 pub struct PeisView {
     /// Whether it is present (joined, or publishing, and not left since).
     pub present: bool,
+    /// The run of the PEIS whose tuples the mirror holds (0: unknown).
+    pub epoch: u64,
+    /// The run that was current when it last left: its late tuples do not make it present again.
+    left_epoch: Option<u64>,
     /// Its components, by name.
     pub components: BTreeMap<String, ComponentView>,
 }
@@ -48,6 +55,11 @@ pub enum Change {
         component: String,
         /// The new status.
         status: String,
+    },
+    /// The PEIS started a new run (it restarted): its components start afresh.
+    Restarted {
+        /// The PEIS.
+        peis: String,
     },
     /// Anything else (types, costs, on/off, causes).
     Other,
@@ -78,67 +90,66 @@ impl Mirror {
 
     /// A PEIS joined.
     pub fn joined(&mut self, peis: &str) {
-        self.peis.entry(peis.to_string()).or_default().present = true;
+        let view = self.peis.entry(peis.to_string()).or_default();
+        view.present = true;
+        view.left_epoch = None;
     }
 
-    /// A PEIS left: it is absent until it publishes or joins again.
+    /// A PEIS left: it is absent until it joins again or publishes from a later run.
+    ///
+    /// The versions seen are kept: a PEIS that was only cut off (frozen, or its network lost) comes
+    /// back with the same run and continues its numbering, so its old tuples still read as old.
     pub fn left(&mut self, peis: &str) {
         if let Some(view) = self.peis.get_mut(peis) {
             view.present = false;
+            view.left_epoch = Some(view.epoch);
         }
-        // Its tuples are gone with it; if it comes back, it numbers them afresh.
-        self.last_seq.retain(|(owner, _), _| owner != peis);
     }
 
-    /// Applies a tuple update; `None` when it is a duplicate or out of order.
-    pub fn apply(&mut self, owner: &str, key: &str, value: &str, seq: u64) -> Option<Change> {
+    /// Applies a tuple update of version (`epoch`, `seq`); returns what changed, nothing when the
+    /// update is a duplicate, out of order or from an earlier run of its owner.
+    pub fn apply(
+        &mut self,
+        owner: &str,
+        key: &str,
+        value: &str,
+        epoch: u64,
+        seq: u64,
+    ) -> Vec<Change> {
+        let mut changes = Vec::new();
+        let view = self.peis.entry(owner.to_string()).or_default();
+        // Epoch 0 is a writer that does not say (a plain Zenoh put): its updates are not ordered by run.
+        if epoch != 0 && view.epoch != 0 && epoch < view.epoch {
+            return changes;
+        }
+        if epoch != 0 && epoch > view.epoch {
+            if view.epoch != 0 {
+                view.components.clear();
+                self.last_seq.retain(|(o, _), _| o != owner);
+                changes.push(Change::Restarted {
+                    peis: owner.to_string(),
+                });
+            }
+            view.epoch = epoch;
+        }
         let slot = self
             .last_seq
             .entry((owner.to_string(), key.to_string()))
             .or_insert(0);
         if seq <= *slot && *slot != 0 {
-            return None;
+            return changes;
         }
         *slot = seq;
-        let view = self.peis.entry(owner.to_string()).or_default();
-        view.present = true;
-        let value = value.trim();
-        if let Some(rest) = key.strip_prefix("components.") {
-            let Some((component, field)) = rest.rsplit_once('.') else {
-                return Some(Change::Other);
-            };
-            let c = view.components.entry(component.to_string()).or_default();
-            match field {
-                "type" => c.ty = Some(value.to_string()),
-                "cost" => c.cost = value.parse().ok(),
-                "currState" => c.on = value == "on",
-                _ => {}
-            }
-            return Some(Change::Other);
-        }
-        let Some((component, field)) = key.split_once('.') else {
-            return Some(Change::Other);
+        let Some(view) = self.peis.get_mut(owner) else {
+            return changes;
         };
-        let c = view.components.entry(component.to_string()).or_default();
-        match field {
-            "status" => {
-                c.status = Some(value.to_string());
-                Some(Change::Status {
-                    peis: owner.to_string(),
-                    component: component.to_string(),
-                    status: value.to_string(),
-                })
-            }
-            "cause" => {
-                c.cause = Some(value.to_string());
-                Some(Change::Other)
-            }
-            "params" => {
-                c.params = Some(value.to_string());
-                Some(Change::Other)
-            }
-            _ => Some(Change::Other),
+        // A late tuple of a run that has left does not bring the PEIS back; presence or a new run does.
+        if view.left_epoch.is_none_or(|left| epoch > left) {
+            view.present = true;
+            view.left_epoch = None;
         }
+        changes.extend(view.update(owner, key, value));
+        changes
     }
 
     /// The ecology state: `(peis P)` for present PEIS, and for each of their
@@ -177,5 +188,48 @@ impl Mirror {
             .map(|v| v.components.values().filter(|c| c.ty.is_some()).count())
             .sum();
         (present.len(), components)
+    }
+}
+
+impl PeisView {
+    /// Takes in tuple `key` = `value` of this PEIS (`owner`).
+    fn update(&mut self, owner: &str, key: &str, value: &str) -> Option<Change> {
+        let value = value.trim();
+        if let Some(rest) = key.strip_prefix("components.") {
+            let Some((component, field)) = rest.rsplit_once('.') else {
+                return Some(Change::Other);
+            };
+            let c = self.components.entry(component.to_string()).or_default();
+            match field {
+                "type" => c.ty = Some(value.to_string()),
+                "cost" => c.cost = value.parse().ok(),
+                "currState" => c.on = value == "on",
+                _ => {}
+            }
+            return Some(Change::Other);
+        }
+        let Some((component, field)) = key.split_once('.') else {
+            return Some(Change::Other);
+        };
+        let c = self.components.entry(component.to_string()).or_default();
+        match field {
+            "status" => {
+                c.status = Some(value.to_string());
+                Some(Change::Status {
+                    peis: owner.to_string(),
+                    component: component.to_string(),
+                    status: value.to_string(),
+                })
+            }
+            "cause" => {
+                c.cause = Some(value.to_string());
+                Some(Change::Other)
+            }
+            "params" => {
+                c.params = Some(value.to_string());
+                Some(Change::Other)
+            }
+            _ => Some(Change::Other),
+        }
     }
 }

@@ -258,6 +258,7 @@ impl Ecology {
                             owner,
                             key,
                             value,
+                            epoch: 1,
                             seq,
                         },
                     ),
@@ -491,7 +492,7 @@ fn no_configuration_fails_the_action_with_the_explanation() {
     assert!(reason.contains("input (position astrid)"), "{reason}");
     assert!(reason.contains("component hsm:tr1 is excluded"), "{reason}");
     assert_eq!(names(&exec).last(), Some(&"action_failed"));
-    exec.abandon(secs(3.0));
+    let _ = exec.abandon(secs(3.0));
     assert_eq!(names(&exec).last(), Some(&"task_failed"));
 }
 
@@ -519,6 +520,7 @@ fn tuple(owner: &str, key: &str, value: &str, seq: u64) -> Event {
         owner: owner.to_string(),
         key: key.to_string(),
         value: value.to_string(),
+        epoch: 1,
         seq,
     }
 }

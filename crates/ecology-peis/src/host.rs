@@ -4,10 +4,13 @@
 //! for every component, and applies `components.C.reqState` requests (which
 //! other PEIS make by remote set): `on` starts the component after its
 //! start-up delay, `off` stops it. When a component is on and has `C.params`,
-//! the host runs its body with those params; new params restart it. A body
-//! that returns an error is reported as `error` with the error as `C.cause`;
-//! one that panics too, so a failing component never takes the PEIS down.
-//! Every body runs in a task the host owns and stops on shutdown.
+//! the host runs its body with those params; new params restart it, and
+//! empty params stop it (`idle`). A body that returns an error is reported as
+//! `error` with the error as `C.cause`; one that panics too, so a failing
+//! component never takes the PEIS down. Every body runs in a task the host
+//! owns. On shutdown the host stops every body and reports every component
+//! that was on as switched off, so the ecology sees it go before the PEIS
+//! leaves.
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -166,10 +169,14 @@ pub async fn run_host<S: TupleSpace>(
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some(c) = t.key.as_str().strip_suffix(".params") else { continue };
                 let Some(state) = states.get_mut(c) else { continue };
-                state.params = t.text().ok().map(str::to_string).filter(|p| !p.is_empty());
+                state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
+                let stopping = state.params.is_none() && state.task.is_some();
                 if state.on {
                     let c = c.to_string();
                     start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                    if stopping {
+                        space.set(key(&format!("{c}.status"))?, Value::text("idle")).await?;
+                    }
                 }
             }
             Some(joined) = tasks.join_next(), if !tasks.is_empty() => {
@@ -213,6 +220,19 @@ pub async fn run_host<S: TupleSpace>(
         }
     }
     tasks.shutdown().await;
+    for (c, state) in &states {
+        if state.on {
+            space
+                .set(
+                    key(&format!("components.{c}.currState"))?,
+                    Value::text("off"),
+                )
+                .await?;
+            space
+                .set(key(&format!("{c}.status"))?, Value::text("idle"))
+                .await?;
+        }
+    }
     Ok(())
 }
 

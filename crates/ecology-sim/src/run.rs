@@ -234,14 +234,8 @@ pub async fn run(
         })
         .await
     };
-    // No action-level recovery here: a failed action fails the task, logged
-    // as such, with the planner's explanation in the action's failure.
-    if matches!(exec.status(), RunStatus::Failed { .. }) {
-        exec.abandon(shared.now().saturating_duration_since(start));
-        if let Some(entry) = exec.log().last() {
-            (lock(&observer))(Update::Log(entry.clone()));
-        }
-    }
+    // No action-level recovery here: a failed action fails the task (the
+    // driver abandons it), with the planner's explanation in the action's failure.
     let _ = stop.send(true);
     let mut outcome = Ok(scenario.world.clone());
     while let Some(joined) = tasks.join_next().await {

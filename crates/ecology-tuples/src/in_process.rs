@@ -34,6 +34,8 @@ struct Shared {
     // Wakes the timer task when an earlier deadline may have appeared.
     wake: Notify,
     generations: AtomicU64,
+    // The epoch of the latest join: epochs are the join time in ns, made strictly increasing.
+    last_epoch: AtomicU64,
 }
 
 #[derive(Debug, Default)]
@@ -68,6 +70,7 @@ impl InProcessSpace {
             state: Mutex::new(State::default()),
             wake: Notify::new(),
             generations: AtomicU64::new(0),
+            last_epoch: AtomicU64::new(0),
         });
         let (shutdown, shutdown_rx) = watch::channel(false);
         let timer = tokio::spawn(run_timer(shared.clone(), shutdown_rx));
@@ -85,10 +88,14 @@ impl InProcessSpace {
         if state.peers.contains_key(&peis) {
             return Err(TupleError::AlreadyPresent(peis));
         }
+        // Under the state lock, so two joins cannot take the same epoch.
+        let now = self.shared.clock.now().as_nanos();
+        let epoch = now.max(self.shared.last_epoch.load(Ordering::Relaxed) + 1);
+        self.shared.last_epoch.store(epoch, Ordering::Relaxed);
         state.peers.insert(
             peis.clone(),
             Peer {
-                tuples: OwnedTuples::new(peis.clone()),
+                tuples: OwnedTuples::new(peis.clone(), epoch),
                 options,
                 generation,
                 lease_end: None,

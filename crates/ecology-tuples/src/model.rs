@@ -290,6 +290,9 @@ pub struct Tuple {
     pub expiry: Option<Timestamp>,
     /// Version of (owner, key): increases with every set, delete and expiry. 0 means unknown (a sample without metadata).
     pub seq: u64,
+    /// The run of the owner that wrote it: chosen when the PEIS joins, greater for a later run. A PEIS
+    /// that restarts numbers its tuples from 1 again, so versions compare as `(epoch, seq)`. 0 means unknown.
+    pub epoch: u64,
 }
 
 impl Tuple {
@@ -340,6 +343,8 @@ pub enum TupleEvent {
         key: Key,
         /// Version of the removal (0 when unknown).
         seq: u64,
+        /// The owner's run that removed it (see [`Tuple::epoch`]).
+        epoch: u64,
         /// Deleted or expired.
         reason: RemovalReason,
     },

@@ -9,6 +9,7 @@ use crate::pattern::KeyPattern;
 #[derive(Debug)]
 pub struct OwnedTuples {
     owner: PeisId,
+    epoch: u64,
     tuples: BTreeMap<Key, Tuple>,
     // Sequence numbers outlive deletes, so a key set again after a delete keeps increasing.
     seqs: HashMap<Key, u64>,
@@ -17,10 +18,11 @@ pub struct OwnedTuples {
 }
 
 impl OwnedTuples {
-    /// An empty store for `owner`.
-    pub fn new(owner: PeisId) -> Self {
+    /// An empty store for run `epoch` of `owner` (see [`Tuple::epoch`]).
+    pub fn new(owner: PeisId, epoch: u64) -> Self {
         Self {
             owner,
+            epoch,
             tuples: BTreeMap::new(),
             seqs: HashMap::new(),
             expiry: BTreeSet::new(),
@@ -30,6 +32,11 @@ impl OwnedTuples {
     /// The owner of the tuples.
     pub fn owner(&self) -> &PeisId {
         &self.owner
+    }
+
+    /// The owner's run these tuples belong to.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
     }
 
     fn next_seq(&mut self, key: &Key) -> u64 {
@@ -51,6 +58,7 @@ impl OwnedTuples {
             ts_user: value.ts_user,
             expiry,
             seq,
+            epoch: self.epoch,
         };
         if let Some(at) = expiry {
             self.expiry.insert((at, key.clone()));
@@ -66,6 +74,7 @@ impl OwnedTuples {
             owner: self.owner.clone(),
             key: key.clone(),
             seq: self.next_seq(key),
+            epoch: self.epoch,
             reason: RemovalReason::Deleted,
         })
     }
@@ -106,6 +115,7 @@ impl OwnedTuples {
                     owner: self.owner.clone(),
                     key: key.clone(),
                     seq: self.next_seq(&key),
+                    epoch: self.epoch,
                     reason: RemovalReason::Expired,
                 });
             }

@@ -156,7 +156,11 @@ impl ZenohPeis {
             })?;
         let (declare, declare_rx) = mpsc::unbounded_channel();
         let core = Arc::new(Core {
-            store: Mutex::new(OwnedTuples::new(me.clone())),
+            // This run's epoch: later runs of the same PEIS start later, so their epochs are greater.
+            store: Mutex::new(OwnedTuples::new(
+                me.clone(),
+                options.clock.now().as_nanos().max(1),
+            )),
             me,
             options: options.peis,
             session,
@@ -295,10 +299,16 @@ fn publish_removal(
         owner,
         key,
         seq,
+        epoch,
         reason,
     } = event
     {
-        let meta = Metadata::of_removal(*seq, core.clock.now(), *reason == RemovalReason::Expired);
+        let meta = Metadata::of_removal(
+            *seq,
+            *epoch,
+            core.clock.now(),
+            *reason == RemovalReason::Expired,
+        );
         // The publisher goes with the tuple, so the cache holds only live tuples.
         let result = match publishers.0.remove(key) {
             Some(publisher) => publisher.delete().attachment(meta.encode()).wait(),
@@ -489,16 +499,18 @@ fn decode_sample(
                 ts_user: None,
                 expiry: None,
                 expired: false,
+                epoch: 0,
                 mimetype: default_mimetype(sample),
             });
             Ok(TupleEvent::Changed(meta.into_tuple(owner, key, data)))
         }
         SampleKind::Delete => {
-            let (seq, expired) = meta.map_or((0, false), |m| (m.seq, m.expired));
+            let (seq, epoch, expired) = meta.map_or((0, 0, false), |m| (m.seq, m.epoch, m.expired));
             Ok(TupleEvent::Removed {
                 owner,
                 key,
                 seq,
+                epoch,
                 reason: if expired {
                     RemovalReason::Expired
                 } else {
@@ -524,8 +536,8 @@ struct Merge {
     recent: Recent,
     snapshot_done: bool,
     buffered: Vec<TupleEvent>,
-    // Per key, the seq the snapshot delivered; live samples at or below it are duplicates or stale.
-    snapshot_seq: HashMap<(PeisId, Key), u64>,
+    // Per key, the (epoch, seq) the snapshot delivered; live samples at or below it are duplicates or stale.
+    snapshot_seq: HashMap<(PeisId, Key), (u64, u64)>,
 }
 
 impl Merge {
@@ -538,16 +550,16 @@ impl Merge {
     }
 
     fn deliver(&mut self, event: TupleEvent) {
-        let seq = match &event {
-            TupleEvent::Changed(t) => t.seq,
-            TupleEvent::Removed { seq, .. } => *seq,
-            TupleEvent::Retargeted { .. } => 0,
+        let (epoch, seq) = match &event {
+            TupleEvent::Changed(t) => (t.epoch, t.seq),
+            TupleEvent::Removed { seq, epoch, .. } => (*epoch, *seq),
+            TupleEvent::Retargeted { .. } => (0, 0),
         };
         if seq > 0 && !self.snapshot_seq.is_empty() {
             let (owner, key) = event.subject();
             let id = (owner.clone(), key.clone());
             if let Some(&seen) = self.snapshot_seq.get(&id) {
-                if seq <= seen {
+                if (epoch, seq) <= seen {
                     return;
                 }
                 self.snapshot_seq.remove(&id);
@@ -558,8 +570,10 @@ impl Merge {
 
     fn finish_snapshot(&mut self, tuples: Vec<Tuple>) {
         for tuple in tuples {
-            self.snapshot_seq
-                .insert((tuple.owner.clone(), tuple.key.clone()), tuple.seq);
+            self.snapshot_seq.insert(
+                (tuple.owner.clone(), tuple.key.clone()),
+                (tuple.epoch, tuple.seq),
+            );
             let _ = self.events.send(TupleEvent::Changed(tuple));
         }
         self.snapshot_done = true;

@@ -7,11 +7,12 @@
 //! | bytes | field |
 //! | --- | --- |
 //! | 1 | version, `1` |
-//! | 1 | flags: bit 0 `ts_user` present, bit 1 `expiry` present, bit 2 removal by expiry (on deletes); other bits ignored |
+//! | 1 | flags: bit 0 `ts_user` present, bit 1 `expiry` present, bit 2 removal by expiry (on deletes), bit 3 `epoch` present; other bits ignored |
 //! | 8 | `seq` (u64) |
 //! | 8 | `ts_write`, nanoseconds since the UNIX epoch (u64) |
 //! | 8 | `ts_user` (u64), only if flag bit 0 |
 //! | 8 | `expiry` (u64, ns since epoch), only if flag bit 1; in a remote-set request: time to live in ns |
+//! | 8 | `epoch` (u64): the owner's run, only if flag bit 3; absent means 0 |
 //! | 1 | mimetype length `n` |
 //! | n | mimetype, printable ASCII |
 //!
@@ -32,6 +33,7 @@ pub const VERSION: u8 = 1;
 const FLAG_TS_USER: u8 = 1;
 const FLAG_EXPIRY: u8 = 1 << 1;
 const FLAG_EXPIRED: u8 = 1 << 2;
+const FLAG_EPOCH: u8 = 1 << 3;
 
 /// Why bytes from the network could not be read as a tuple.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -158,6 +160,8 @@ pub struct Metadata {
     pub expiry: Option<u64>,
     /// Whether a delete sample reports an expiry rather than a delete.
     pub expired: bool,
+    /// The owner's run (0: unknown).
+    pub epoch: u64,
     /// Mimetype of the data.
     pub mimetype: Mimetype,
 }
@@ -171,6 +175,7 @@ impl Metadata {
             ts_user: tuple.ts_user,
             expiry: tuple.expiry.map(Timestamp::as_nanos),
             expired: false,
+            epoch: tuple.epoch,
             mimetype: tuple.mimetype.clone(),
         }
     }
@@ -185,18 +190,20 @@ impl Metadata {
                 .time_to_live
                 .map(|ttl| u64::try_from(ttl.as_nanos()).unwrap_or(u64::MAX)),
             expired: false,
+            epoch: 0,
             mimetype: value.mimetype.clone(),
         }
     }
 
     /// Metadata for a delete sample.
-    pub fn of_removal(seq: u64, ts_write: Timestamp, expired: bool) -> Self {
+    pub fn of_removal(seq: u64, epoch: u64, ts_write: Timestamp, expired: bool) -> Self {
         Self {
             seq,
             ts_write,
             ts_user: None,
             expiry: None,
             expired,
+            epoch,
             mimetype: Mimetype::octet_stream(),
         }
     }
@@ -204,7 +211,7 @@ impl Metadata {
     /// Serializes the metadata in the layout of the module documentation.
     pub fn encode(&self) -> Vec<u8> {
         let mime = self.mimetype.as_str().as_bytes();
-        let mut out = Vec::with_capacity(2 + 8 * 4 + 1 + mime.len());
+        let mut out = Vec::with_capacity(2 + 8 * 5 + 1 + mime.len());
         let mut flags = 0;
         if self.ts_user.is_some() {
             flags |= FLAG_TS_USER;
@@ -215,6 +222,9 @@ impl Metadata {
         if self.expired {
             flags |= FLAG_EXPIRED;
         }
+        if self.epoch != 0 {
+            flags |= FLAG_EPOCH;
+        }
         out.push(VERSION);
         out.push(flags);
         out.extend_from_slice(&self.seq.to_le_bytes());
@@ -224,6 +234,9 @@ impl Metadata {
         }
         if let Some(expiry) = self.expiry {
             out.extend_from_slice(&expiry.to_le_bytes());
+        }
+        if self.epoch != 0 {
+            out.extend_from_slice(&self.epoch.to_le_bytes());
         }
         // Mimetypes are at most 255 bytes (checked by `Mimetype::new`).
         out.push(u8::try_from(mime.len()).unwrap_or(u8::MAX));
@@ -256,6 +269,7 @@ impl Metadata {
         } else {
             None
         };
+        let epoch = if flags & FLAG_EPOCH != 0 { r.u64()? } else { 0 };
         let len = usize::from(r.u8()?);
         let mime = r.take(len)?;
         if !r.0.is_empty() {
@@ -275,6 +289,7 @@ impl Metadata {
             ts_user,
             expiry,
             expired: flags & FLAG_EXPIRED != 0,
+            epoch,
             mimetype,
         })
     }
@@ -290,6 +305,7 @@ impl Metadata {
             ts_user: self.ts_user,
             expiry: self.expiry.map(Timestamp),
             seq: self.seq,
+            epoch: self.epoch,
         }
     }
 

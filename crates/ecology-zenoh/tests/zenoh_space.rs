@@ -495,10 +495,12 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
         ts_user: Some(Timestamp(2)),
         expiry: Some(Timestamp(3)),
         seq: 42,
+        epoch: 7,
     };
     let encoded = Metadata::of_tuple(&tuple).encode();
-    assert_eq!(encoded.len(), 2 + 8 * 4 + 1 + "application/json".len());
-    assert_eq!(&encoded[..2], &[wire::VERSION, 0b011]);
+    assert_eq!(encoded.len(), 2 + 8 * 5 + 1 + "application/json".len());
+    assert_eq!(&encoded[..2], &[wire::VERSION, 0b1011]);
+    assert_eq!(&encoded[34..42], &7u64.to_le_bytes());
     assert_eq!(&encoded[2..10], &42u64.to_le_bytes());
     let decoded = Metadata::decode(&encoded).expect("decodes");
     assert_eq!(
@@ -508,7 +510,7 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
         tuple
     );
 
-    let minimal = Metadata::of_removal(5, Timestamp(9), true).encode();
+    let minimal = Metadata::of_removal(5, 0, Timestamp(9), true).encode();
     assert_eq!(minimal.len(), 2 + 16 + 1 + Mimetype::OCTET_STREAM.len());
     assert!(Metadata::decode(&minimal).is_ok_and(|m| m.expired && m.seq == 5));
 
