@@ -11,15 +11,18 @@
 //! outputs, so every sensor and actuator goes through the real middleware.
 
 mod components;
+mod host;
 mod rng;
 mod run;
 mod scenario;
 mod world;
+mod world_peis;
 
 #[cfg(test)]
 mod tests;
 
 pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
+pub use host::{host_peis, parse_fault, simulated_components};
 pub use rng::Rng;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
 pub use scenario::{ComponentDef, FaultKind, FaultSpec, PeisDef, Scenario, ScenarioError, Trigger};
@@ -27,3 +30,4 @@ pub use world::{
     Door, MAX_RANGE, MAX_SPEED, MAX_TURN, Map, Pose, REACH, Resident, Robot, Room, Thing, World,
     wrap_angle,
 };
+pub use world_peis::{WorldPeis, run_world};

@@ -17,18 +17,18 @@ use ecology_domain::EcologyState;
 use ecology_exec::{
     DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, RunStatus, drive_observed,
 };
-use ecology_peis::{ComponentSpec, HostError, run_host};
+use ecology_peis::{HostError, run_host};
 use ecology_tuples::{
-    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Timestamp, TupleError,
-    TupleEvent, TuplePattern, TupleSpace, Value, VirtualClock,
+    Clock, InProcessPeis, InProcessSpace, PeisId, PeisOptions, Timestamp, TupleError, VirtualClock,
 };
 use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinSet};
 
-use crate::components::{Faults, Simulated, WORLD};
-use crate::rng::Rng;
+use crate::components::{Faults, WORLD};
+use crate::host::simulated_components;
 use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, Trigger};
 use crate::world::World;
+use crate::world_peis::WorldPeis;
 
 /// How fast simulated time runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -285,28 +285,7 @@ struct Hosted {
     task: AbortHandle,
 }
 
-fn key(text: &str) -> Result<Key, TupleError> {
-    Key::new(text).map_err(TupleError::Invalid)
-}
-
 impl Simulation {
-    fn specs(&self, def: &PeisDef) -> Vec<ComponentSpec<InProcessPeis>> {
-        def.components
-            .iter()
-            .filter_map(|c| {
-                let body = Simulated::new(&c.kind, self.faults.clone(), self.seed)?;
-                Some(ComponentSpec {
-                    name: c.id.clone(),
-                    kind: c.kind.clone(),
-                    cost: c.cost,
-                    on: c.on,
-                    startup: c.startup,
-                    body: Arc::new(body),
-                })
-            })
-            .collect()
-    }
-
     fn start_host(
         &self,
         def: &PeisDef,
@@ -322,7 +301,7 @@ impl Simulation {
         let host = run_host(
             handle.clone(),
             self.shared.clone(),
-            self.specs(def),
+            simulated_components(def, &self.faults, self.seed),
             async move {
                 let _ = stop.wait_for(|s| *s).await;
             },
@@ -331,57 +310,17 @@ impl Simulation {
         Ok(Hosted { handle, task })
     }
 
-    async fn publish_truth(&self, space: &InProcessPeis, all: bool) -> Result<(), TupleError> {
-        if all {
-            space
-                .set(key("map")?, Value::text(self.world.map.to_text()))
-                .await?;
-        }
-        for (name, robot) in &self.world.robots {
-            space
-                .set(
-                    key(&format!("robots.{name}.pose"))?,
-                    Value::text(robot.pose.to_text()),
-                )
-                .await?;
-        }
-        Ok(())
-    }
-
-    async fn publish_things(&self, space: &InProcessPeis) -> Result<(), TupleError> {
-        for (name, thing) in &self.world.things {
-            let holder = thing.holder.clone().unwrap_or_default();
-            space
-                .set(key(&format!("things.{name}.holder"))?, Value::text(holder))
-                .await?;
-        }
-        for (name, resident) in &self.world.residents {
-            let state = if resident.awake { "awake" } else { "asleep" };
-            space
-                .set(key(&format!("residents.{name}.state"))?, Value::text(state))
-                .await?;
-        }
-        Ok(())
-    }
-
     fn note(&self, t: Duration, what: String) {
         lock(&self.injected).push((t, what.clone()));
         (lock(&self.observer))(Update::Injected { t, what });
     }
 
     async fn run(
-        mut self,
+        self,
         space: InProcessPeis,
         stop: watch::Receiver<bool>,
     ) -> Result<World, RunError> {
-        let subscribe = |what: &str| {
-            TuplePattern::parse(&format!("*:*.out.{what}")).map_err(TupleError::Invalid)
-        };
-        let mut velocities = space.subscribe(subscribe("velocity")?).await?;
-        let mut grasps = space.subscribe(subscribe("grasp")?).await?;
-        let mut sounds = space.subscribe(subscribe("sound")?).await?;
-        self.publish_truth(&space, true).await?;
-        self.publish_things(&space).await?;
+        let mut world = WorldPeis::join(&space, self.world.clone(), self.seed).await?;
 
         let (stop_hosts, hosts_stopped) = watch::channel(false);
         let mut hosts = JoinSet::new();
@@ -390,8 +329,6 @@ impl Simulation {
             let hosted = self.start_host(&def, &mut hosts, &hosts_stopped)?;
             running.insert(def.name.clone(), hosted);
         }
-        let mut rng = Rng::derive(self.seed, WORLD);
-        let dt = self.step.as_secs_f64();
         let wall_start = Instant::now();
         let mut next_progress = Duration::from_secs(1);
         let mut failure = None;
@@ -412,38 +349,6 @@ impl Simulation {
                 {
                     failure = Some(RunError::Host { peis, error });
                     break 'steps;
-                }
-            }
-
-            // What the components asked of the world.
-            while let Some(event) = velocities.try_next() {
-                if let TupleEvent::Changed(tuple) = event
-                    && let Some(robot) = self.world.robots.get_mut(tuple.owner.as_str())
-                {
-                    let mut numbers = tuple
-                        .text()
-                        .unwrap_or("")
-                        .split_whitespace()
-                        .map(str::parse::<f64>);
-                    if let (Some(Ok(v)), Some(Ok(w))) = (numbers.next(), numbers.next())
-                        && v.is_finite()
-                        && w.is_finite()
-                    {
-                        robot.command = (v, w);
-                        robot.command_age = 0.0;
-                    }
-                }
-            }
-            let mut changed = false;
-            while let Some(event) = grasps.try_next() {
-                if let TupleEvent::Changed(tuple) = event {
-                    let thing = tuple.text().unwrap_or("").trim().to_string();
-                    changed |= self.world.grasp(tuple.owner.as_str(), &thing);
-                }
-            }
-            while let Some(event) = sounds.try_next() {
-                if let TupleEvent::Changed(tuple) = event {
-                    changed |= !self.world.sound(tuple.owner.as_str()).is_empty();
                 }
             }
 
@@ -508,11 +413,7 @@ impl Simulation {
             }
 
             // One step of the world, published, then time moves on.
-            self.world.step(dt, &mut rng);
-            self.publish_truth(&space, false).await?;
-            if changed {
-                self.publish_things(&space).await?;
-            }
+            world.step(&space, self.step).await?;
             self.clock.advance(self.step);
             let t = t + self.step;
             if t >= next_progress {
@@ -537,7 +438,7 @@ impl Simulation {
         }
         match failure {
             Some(e) => Err(e),
-            None => Ok(self.world),
+            None => Ok(world.into_world()),
         }
     }
 }

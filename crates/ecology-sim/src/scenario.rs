@@ -339,14 +339,7 @@ impl Scenario {
         let read = |p: &Path| -> Result<Vec<u8>, String> {
             std::fs::read(base.join(p)).map_err(|e| e.to_string())
         };
-        let text = std::fs::read(path).map_err(|e| ScenarioError::Read {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        let text = String::from_utf8(text).map_err(|_| ScenarioError::Read {
-            path: path.display().to_string(),
-            message: "not UTF-8".to_string(),
-        })?;
+        let text = read_text(path)?;
         Scenario::parse(&text, &path.display().to_string(), &read)
     }
 
@@ -488,53 +481,7 @@ impl Scenario {
         }
 
         // The PEIS.
-        let mut peis = Vec::new();
-        let mut names = BTreeSet::new();
-        for p in &parsed.peis {
-            let name = p.name.get_ref();
-            if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
-                return Err(check.at(p.name.span(), format!("`{name}` cannot name a PEIS")));
-            }
-            if !names.insert(name.clone()) {
-                return Err(check.at(p.name.span(), format!("PEIS {name} is defined twice")));
-            }
-            let mut components: Vec<ComponentDef> = Vec::new();
-            for c in &p.components {
-                let def = c.get_ref();
-                if !KINDS.contains(&def.kind.as_str()) {
-                    return Err(check.at(
-                        c.span(),
-                        format!(
-                            "no simulated component of type `{}` (known: {})",
-                            def.kind,
-                            KINDS.join(", ")
-                        ),
-                    ));
-                }
-                if ecology_tuples::Key::new(&format!("components.{}.type", def.id)).is_err() {
-                    return Err(check.at(c.span(), format!("`{}` cannot name a component", def.id)));
-                }
-                if components.iter().any(|other| other.id == def.id) {
-                    return Err(check.at(
-                        c.span(),
-                        format!("component {} is defined twice on {name}", def.id),
-                    ));
-                }
-                let startup = seconds(def.startup)
-                    .ok_or_else(|| check.at(c.span(), "startup must be a number of seconds"))?;
-                components.push(ComponentDef {
-                    id: def.id.clone(),
-                    kind: def.kind.clone(),
-                    cost: def.cost,
-                    on: def.on,
-                    startup,
-                });
-            }
-            peis.push(PeisDef {
-                name: name.clone(),
-                components,
-            });
-        }
+        let peis = check_peis(&check, &parsed.peis)?;
 
         // The faults.
         let mut faults = Vec::new();
@@ -626,6 +573,100 @@ impl Scenario {
             faults,
         })
     }
+}
+
+/// Checks the `[[peis]]` tables of a file.
+fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, ScenarioError> {
+    let mut peis = Vec::new();
+    let mut names = BTreeSet::new();
+    for p in files {
+        let name = p.name.get_ref();
+        if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
+            return Err(check.at(p.name.span(), format!("`{name}` cannot name a PEIS")));
+        }
+        if !names.insert(name.clone()) {
+            return Err(check.at(p.name.span(), format!("PEIS {name} is defined twice")));
+        }
+        let mut components: Vec<ComponentDef> = Vec::new();
+        for c in &p.components {
+            let def = c.get_ref();
+            if !KINDS.contains(&def.kind.as_str()) {
+                return Err(check.at(
+                    c.span(),
+                    format!(
+                        "no simulated component of type `{}` (known: {})",
+                        def.kind,
+                        KINDS.join(", ")
+                    ),
+                ));
+            }
+            if ecology_tuples::Key::new(&format!("components.{}.type", def.id)).is_err() {
+                return Err(check.at(c.span(), format!("`{}` cannot name a component", def.id)));
+            }
+            if components.iter().any(|other| other.id == def.id) {
+                return Err(check.at(
+                    c.span(),
+                    format!("component {} is defined twice on {name}", def.id),
+                ));
+            }
+            let startup = seconds(def.startup)
+                .ok_or_else(|| check.at(c.span(), "startup must be a number of seconds"))?;
+            components.push(ComponentDef {
+                id: def.id.clone(),
+                kind: def.kind.clone(),
+                cost: def.cost,
+                on: def.on,
+                startup,
+            });
+        }
+        peis.push(PeisDef {
+            name: name.clone(),
+            components,
+        });
+    }
+    Ok(peis)
+}
+
+/// A file read only for its `[[peis]]` tables (a scenario file, or a file of PEIS alone).
+#[derive(Debug, Deserialize)]
+struct PeisOnlyFile {
+    #[serde(default, rename = "peis")]
+    peis: Vec<PeisFile>,
+}
+
+impl PeisDef {
+    /// The PEIS of the `[[peis]]` tables in `text` (named `file` in errors):
+    /// a whole scenario file, or a file of nothing but `[[peis]]` tables.
+    pub fn parse_all(text: &str, file: &str) -> Result<Vec<PeisDef>, ScenarioError> {
+        let check = Checker { file, text };
+        let parsed: PeisOnlyFile = toml::from_str(text).map_err(|e| {
+            let span = e.span().unwrap_or(0..0);
+            check.at(span, e.message().trim().to_string())
+        })?;
+        let peis = check_peis(&check, &parsed.peis)?;
+        if peis.is_empty() {
+            return Err(check.at(0..0, "no PEIS here: describe each in a [[peis]] table"));
+        }
+        Ok(peis)
+    }
+
+    /// [`PeisDef::parse_all`] of the file at `path`.
+    pub fn load_all(path: &Path) -> Result<Vec<PeisDef>, ScenarioError> {
+        let text = read_text(path)?;
+        PeisDef::parse_all(&text, &path.display().to_string())
+    }
+}
+
+/// The text of the file at `path`.
+fn read_text(path: &Path) -> Result<String, ScenarioError> {
+    let bytes = std::fs::read(path).map_err(|e| ScenarioError::Read {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })?;
+    String::from_utf8(bytes).map_err(|_| ScenarioError::Read {
+        path: path.display().to_string(),
+        message: "not UTF-8".to_string(),
+    })
 }
 
 /// Reads a file the scenario names, with the name's place for errors.

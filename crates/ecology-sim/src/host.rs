@@ -1,0 +1,113 @@
+//! One simulated PEIS on any tuple space: its init component with simulated
+//! component bodies, and faults injected by tuples.
+//!
+//! A fault reaches a PEIS that runs as a process of its own as its tuple
+//! `C.fault`, set by remote set from anywhere (`ecology tuples set hsm
+//! ca1.fault stall`): `stall` (the component falls silent), `fail CAUSE` (it
+//! reports `error` with CAUSE), `recover` or an empty value (the fault is
+//! cleared).
+
+use std::future::Future;
+use std::sync::Arc;
+
+use ecology_peis::{ComponentSpec, HostError, run_host};
+use ecology_tuples::{Clock, TupleError, TupleEvent, TuplePattern, TupleSpace};
+
+use crate::components::{FaultState, Faults, Simulated};
+use crate::scenario::PeisDef;
+
+/// The component specs of PEIS `def`, with simulated bodies sharing `faults`.
+pub fn simulated_components<S: TupleSpace>(
+    def: &PeisDef,
+    faults: &Faults,
+    seed: u64,
+) -> Vec<ComponentSpec<S>> {
+    def.components
+        .iter()
+        .filter_map(|c| {
+            let body = Simulated::new(&c.kind, faults.clone(), seed)?;
+            Some(ComponentSpec {
+                name: c.id.clone(),
+                kind: c.kind.clone(),
+                cost: c.cost,
+                on: c.on,
+                startup: c.startup,
+                body: Arc::new(body),
+            })
+        })
+        .collect()
+}
+
+/// A fault as written in a `C.fault` tuple; `None` when the text is none of them.
+pub fn parse_fault(text: &str) -> Option<FaultState> {
+    let text = text.trim();
+    let (word, rest) = text.split_once(char::is_whitespace).unwrap_or((text, ""));
+    match word {
+        "" | "recover" => Some(FaultState::default()),
+        "stall" => Some(FaultState {
+            failed: None,
+            stalled: true,
+        }),
+        "fail" => Some(FaultState {
+            failed: Some(match rest.trim() {
+                "" => "injected failure".to_string(),
+                cause => cause.to_string(),
+            }),
+            stalled: false,
+        }),
+        _ => None,
+    }
+}
+
+/// Runs PEIS `def` on `space` (which acts as that PEIS) with simulated
+/// components until `shutdown` completes, applying `C.fault` tuples as they
+/// are set and telling `note` about each (`ca1 stalls`).
+pub async fn host_peis<S: TupleSpace>(
+    space: S,
+    clock: Arc<dyn Clock>,
+    def: &PeisDef,
+    seed: u64,
+    mut note: impl FnMut(String) + Send,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), HostError> {
+    let faults = Faults::default();
+    let me = space.peis().clone();
+    let pattern = TuplePattern::parse(&format!("{me}:*.fault"))
+        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
+    let mut fault_tuples = space.subscribe(pattern).await?;
+    let host = run_host(
+        space,
+        clock,
+        simulated_components(def, &faults, seed),
+        shutdown,
+    );
+    tokio::pin!(host);
+    loop {
+        tokio::select! {
+            result = &mut host => return result,
+            Some(event) = fault_tuples.next() => {
+                let TupleEvent::Changed(tuple) = event else { continue };
+                let Some(component) = tuple.key.as_str().strip_suffix(".fault") else { continue };
+                if !def.components.iter().any(|c| c.id == component) {
+                    note(format!("fault for unknown component {component} ignored"));
+                    continue;
+                }
+                let text = tuple.text().unwrap_or("");
+                match parse_fault(text) {
+                    Some(state) => {
+                        let what = match (&state.failed, state.stalled) {
+                            (Some(cause), _) => format!("{component} fails: {cause}"),
+                            (None, true) => format!("{component} stalls (stops publishing)"),
+                            (None, false) => format!("{component} recovers"),
+                        };
+                        faults.update(me.as_str(), component, |s| *s = state);
+                        note(what);
+                    }
+                    None => note(format!(
+                        "fault `{text}` for {component} ignored (known: stall, fail CAUSE, recover)"
+                    )),
+                }
+            }
+        }
+    }
+}
