@@ -8,7 +8,12 @@
 mod configure;
 mod demo;
 mod input;
+mod network;
+mod peis;
 mod plan;
+mod processes;
+mod router;
+mod task;
 mod tuples;
 
 use std::process::ExitCode;
@@ -44,6 +49,14 @@ enum Command {
     Demo(demo::RunArgs),
     /// Run a scenario file (TOML) in the simulated PEIS-Home.
     Run(demo::ScenarioArgs),
+    /// Run one PEIS of a TOML file as a process on Zenoh: its init component, components and presence.
+    Peis(peis::PeisArgs),
+    /// Run the simulated world of a scenario as a PEIS process on Zenoh, in real time.
+    World(peis::WorldArgs),
+    /// Plan a task and execute it over Zenoh with whatever PEIS are present (the executive).
+    Task(task::TaskArgs),
+    /// Run a Zenoh router, for PEIS that cannot reach each other directly.
+    Router(router::RouterArgs),
 }
 
 fn main() -> ExitCode {
@@ -66,6 +79,10 @@ fn main() -> ExitCode {
         Command::Plan(args) => plan::plan(&args),
         Command::Demo(args) => demo::demo(&args),
         Command::Run(args) => demo::run(&args),
+        Command::Peis(args) => peis::peis(&args),
+        Command::World(args) => peis::world(&args),
+        Command::Task(args) => task::task(&args),
+        Command::Router(args) => router::router(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -11,11 +11,13 @@ mod driver;
 mod executive;
 mod log;
 mod mirror;
+mod plan_file;
 
 #[cfg(test)]
 mod tests;
 
-pub use driver::{DriverConfig, drive, drive_observed};
+pub use driver::{DriverConfig, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};
+pub use plan_file::{PlanFileError, parse_plan};

@@ -25,7 +25,10 @@ pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, sc
 pub use host::{host_peis, parse_fault, simulated_components};
 pub use rng::Rng;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
-pub use scenario::{ComponentDef, FaultKind, FaultSpec, PeisDef, Scenario, ScenarioError, Trigger};
+pub use scenario::{
+    ComponentDef, FaultKind, FaultSpec, PeisDef, PlanError, Scenario, ScenarioError, Trigger,
+    plan_actions,
+};
 pub use world::{
     Door, MAX_RANGE, MAX_SPEED, MAX_TURN, Map, Pose, REACH, Resident, Robot, Room, Thing, World,
     wrap_angle,

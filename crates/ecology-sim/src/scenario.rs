@@ -8,7 +8,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use ecology_domain::{Domain, parse_domain, parse_goal, parse_problem_for};
+use ecology_domain::{Domain, Problem, parse_domain, parse_goal, parse_problem_for};
 use ecology_exec::PlannedAction;
 use serde::Deserialize;
 use toml::Spanned;
@@ -682,8 +682,30 @@ fn plan_for(
     let bytes = read(problem)?;
     let parsed = parse_problem_for(domain, &bytes)
         .map_err(|d| ScenarioError::Task(d.render(problem.get_ref(), &bytes)))?;
-    let task = ecology_actions::ground(domain, &parsed)
-        .map_err(|e| ScenarioError::Task(format!("{}: {e}", problem.get_ref())))?;
+    plan_actions(domain, &parsed).map_err(|e| match e {
+        PlanError::Task(message) => {
+            ScenarioError::Task(format!("{}: {message}", problem.get_ref()))
+        }
+        PlanError::NoPlan(why) => ScenarioError::NoPlan(why),
+    })
+}
+
+/// Why a problem has no plan of actions.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PlanError {
+    /// The problem cannot be grounded in the domain.
+    #[error("{0}")]
+    Task(String),
+    /// The action planner found no plan (or ran out of budget), and why.
+    #[error("no plan: {0}")]
+    NoPlan(String),
+}
+
+/// A plan for `problem` from the action planner (its default, satisficing
+/// search); each action carries its `:configure` goal.
+pub fn plan_actions(domain: &Domain, problem: &Problem) -> Result<Vec<PlannedAction>, PlanError> {
+    let task =
+        ecology_actions::ground(domain, problem).map_err(|e| PlanError::Task(e.to_string()))?;
     let request = ecology_actions::Request::new(&task);
     let outcome = ecology_actions::plan(
         &request,
@@ -699,9 +721,9 @@ fn plan_for(
                 goal: step.configure.clone(),
             })
             .collect()),
-        ecology_actions::Verdict::Unsolvable(why) => Err(ScenarioError::NoPlan(why.to_string())),
+        ecology_actions::Verdict::Unsolvable(why) => Err(PlanError::NoPlan(why.to_string())),
         ecology_actions::Verdict::BudgetExceeded => {
-            Err(ScenarioError::NoPlan("the planner's budget ran out".into()))
+            Err(PlanError::NoPlan("the planner's budget ran out".into()))
         }
     }
 }

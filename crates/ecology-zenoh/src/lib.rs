@@ -8,10 +8,12 @@
 
 mod config;
 mod peis;
+mod router;
 pub mod wire;
 
 pub use config::ZenohOptions;
 pub use peis::ZenohPeis;
+pub use router::{RouterOptions, run_router};
 
 use ecology_tuples::TupleError;
 

@@ -1,0 +1,115 @@
+//! What every networked command shares: the options to join an ecology over
+//! Zenoh, the runtime Zenoh needs, and the signals that stop a process.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use ecology_tuples::{PeisId, TupleError};
+use ecology_zenoh::{ZenohError, ZenohOptions, ZenohPeis};
+
+/// How to reach the ecology.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct NetArgs {
+    /// Endpoint to listen on, such as tcp/127.0.0.1:7447 (repeatable).
+    #[arg(long, global = true, value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable).
+    #[arg(long, global = true, value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// A Zenoh configuration file (JSON5); --listen and --connect override it.
+    #[arg(long, global = true, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
+    /// Find peers by UDP multicast scouting (off by default).
+    #[arg(long, global = true)]
+    pub multicast: bool,
+    /// Presence lease in seconds: when this process freezes or its network is cut, the others
+    /// notice within this long (default 2).
+    #[arg(long, global = true, value_name = "SECONDS")]
+    pub lease: Option<f64>,
+}
+
+impl NetArgs {
+    /// The Zenoh options of PEIS `name`.
+    pub fn options(&self, name: PeisId) -> anyhow::Result<ZenohOptions> {
+        let mut options = ZenohOptions::new(name);
+        options.listen = self.listen.clone();
+        options.connect = self.connect.clone();
+        options.zenoh_config = self.zenoh_config.clone();
+        options.multicast_scouting = self.multicast;
+        if let Some(lease) = self.lease {
+            options.peis.lease = seconds(lease, "--lease")?;
+        }
+        Ok(options)
+    }
+
+    /// The endpoints, for a readiness line: `listening on …; connected to …`.
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if !self.listen.is_empty() {
+            parts.push(format!("listening on {}", self.listen.join(", ")));
+        }
+        if !self.connect.is_empty() {
+            parts.push(format!("connected to {}", self.connect.join(", ")));
+        }
+        if parts.is_empty() {
+            parts.push("no endpoints".to_string());
+        }
+        parts.join("; ")
+    }
+}
+
+/// A positive, finite number of seconds.
+pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
+    if value.is_finite() && value > 0.0 && value < 1e9 {
+        Ok(Duration::from_secs_f64(value))
+    } else {
+        anyhow::bail!("{what} must be a positive number of seconds, not {value}")
+    }
+}
+
+/// Why a process could not join.
+#[derive(Debug)]
+pub enum JoinFailure {
+    /// Its name is taken: exit 2 (bad usage).
+    NameTaken(PeisId),
+    /// Anything else: the error.
+    Other(anyhow::Error),
+}
+
+/// Joins the ecology as `name`.
+pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure> {
+    let options = net.options(name).map_err(JoinFailure::Other)?;
+    match ZenohPeis::open(options).await {
+        Ok(peis) => Ok(peis),
+        Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => Err(JoinFailure::NameTaken(id)),
+        Err(e) => Err(JoinFailure::Other(
+            anyhow::Error::new(e).context("joining the ecology"),
+        )),
+    }
+}
+
+/// The multi-thread runtime Zenoh needs.
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}
+
+/// Completes on SIGINT or SIGTERM, with the signal's name.
+pub async fn stop_signal() -> &'static str {
+    use tokio::signal::unix::{SignalKind, signal};
+    let (Ok(mut interrupt), Ok(mut terminate)) = (
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::terminate()),
+    ) else {
+        // Without signal handlers the default ones stay: the process still stops, only abruptly.
+        return std::future::pending().await;
+    };
+    tokio::select! {
+        _ = interrupt.recv() => "SIGINT",
+        _ = terminate.recv() => "SIGTERM",
+    }
+}

@@ -1,0 +1,226 @@
+//! `ecology peis FILE --name P`: one PEIS as a process of its own on Zenoh,
+//! with its init component, its simulated components and its presence; and
+//! `ecology world SCENARIO`: the simulated world as a PEIS process.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use clap::Args;
+use ecology_sim::{PeisDef, Scenario, WORLD};
+use ecology_tuples::{PeisId, SystemClock, TupleSpace};
+
+use crate::network::{self, JoinFailure, NetArgs};
+use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+
+/// Arguments of `ecology peis`.
+#[derive(Debug, Args)]
+pub struct PeisArgs {
+    /// A TOML file with [[peis]] tables (a scenario file, or PEIS alone).
+    pub file: PathBuf,
+    /// Which PEIS of the file to run (needed when it describes several).
+    #[arg(long, value_name = "PEIS")]
+    pub name: Option<String>,
+    /// The seed of the simulated components' noise.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub net: NetArgs,
+}
+
+/// Arguments of `ecology world`.
+#[derive(Debug, Args)]
+pub struct WorldArgs {
+    /// The scenario file (TOML) whose map, robots, things and residents to simulate.
+    pub scenario: PathBuf,
+    /// The seed of the world's noise (default: the scenario's).
+    #[arg(long, value_name = "N")]
+    pub seed: Option<u64>,
+    /// The simulation's time step, in milliseconds.
+    #[arg(long, value_name = "MS", default_value_t = 50)]
+    pub step_ms: u64,
+    #[command(flatten)]
+    pub net: NetArgs,
+}
+
+fn say(line: &str) {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+/// `ecology peis FILE [--name P]`.
+pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
+    let defs = match PeisDef::load_all(&args.file) {
+        Ok(defs) => defs,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Ok(EXIT_BAD_INPUT);
+        }
+    };
+    let def = match (&args.name, defs.as_slice()) {
+        (None, [only]) => only.clone(),
+        (None, _) => {
+            let names: Vec<&str> = defs.iter().map(|d| d.name.as_str()).collect();
+            eprintln!(
+                "error: {} describes {} PEIS ({}): choose one with --name",
+                args.file.display(),
+                defs.len(),
+                names.join(", ")
+            );
+            return Ok(EXIT_BAD_INPUT);
+        }
+        (Some(name), _) => match defs.iter().find(|d| &d.name == name) {
+            Some(def) => def.clone(),
+            None => {
+                let names: Vec<&str> = defs.iter().map(|d| d.name.as_str()).collect();
+                eprintln!(
+                    "error: {} has no PEIS {name} (it has {})",
+                    args.file.display(),
+                    names.join(", ")
+                );
+                return Ok(EXIT_BAD_INPUT);
+            }
+        },
+    };
+    let id = PeisId::new(&def.name)?;
+    network::runtime()?.block_on(async {
+        let space = match network::join(id.clone(), &args.net).await {
+            Ok(space) => space,
+            Err(failure) => return Ok(join_failed(failure)),
+        };
+        let components: Vec<String> = def
+            .components
+            .iter()
+            .map(|c| {
+                let power = if c.on { "on" } else { "off" };
+                format!("{} ({}, {power})", c.id, c.kind)
+            })
+            .collect();
+        say(&format!(
+            "{id} ready: components {}; {}",
+            components.join(", "),
+            args.net.describe()
+        ));
+        let stopped = Arc::new(std::sync::Mutex::new(None));
+        let signal = stopped.clone();
+        let name = id.clone();
+        let result = ecology_sim::host_peis(
+            space.clone(),
+            Arc::new(SystemClock),
+            &def,
+            args.seed,
+            move |note| say(&format!("{name}: {note}")),
+            async move {
+                let which = network::stop_signal().await;
+                if let Ok(mut slot) = signal.lock() {
+                    *slot = Some(which);
+                }
+            },
+        )
+        .await;
+        space.close().await;
+        match result {
+            Ok(()) => {
+                let which = stopped.lock().ok().and_then(|s| *s).unwrap_or("shutdown");
+                say(&format!(
+                    "{id}: {which}: components switched off, presence withdrawn"
+                ));
+                Ok(EXIT_OK)
+            }
+            Err(e) => {
+                eprintln!("error: PEIS {id}: {e}");
+                Ok(EXIT_NO_SOLUTION)
+            }
+        }
+    })
+}
+
+/// `ecology world SCENARIO`.
+pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
+    let scenario = match Scenario::load(&args.scenario) {
+        Ok(scenario) => scenario,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Ok(EXIT_BAD_INPUT);
+        }
+    };
+    if args.step_ms == 0 || args.step_ms > 10_000 {
+        eprintln!("error: --step-ms must be between 1 and 10000");
+        return Ok(EXIT_BAD_INPUT);
+    }
+    let id = PeisId::new(WORLD)?;
+    let seed = args.seed.unwrap_or(scenario.seed);
+    network::runtime()?.block_on(async {
+        let space = match network::join(id, &args.net).await {
+            Ok(space) => space,
+            Err(failure) => return Ok(join_failed(failure)),
+        };
+        let world = &scenario.world;
+        let robots: Vec<&str> = world.robots.keys().map(String::as_str).collect();
+        say(&format!(
+            "world ready: {} rooms, robots {}, {} things, {} residents; {}",
+            world.map.rooms.len(),
+            robots.join(", "),
+            world.things.len(),
+            world.residents.len(),
+            args.net.describe()
+        ));
+        let result = ecology_sim::run_world(
+            &space,
+            Arc::new(SystemClock),
+            scenario.world.clone(),
+            seed,
+            Duration::from_millis(args.step_ms),
+            async {
+                network::stop_signal().await;
+            },
+        )
+        .await;
+        space.close().await;
+        match result {
+            Ok(world) => {
+                for (name, robot) in &world.robots {
+                    let room = world
+                        .map
+                        .room_at(robot.pose.x, robot.pose.y)
+                        .map_or("no room", |r| r.name.as_str());
+                    say(&format!(
+                        "world: {name} ends at {} in {room}",
+                        robot.pose.to_text()
+                    ));
+                }
+                Ok(EXIT_OK)
+            }
+            Err(e) => {
+                eprintln!("error: world: {e}");
+                Ok(EXIT_NO_SOLUTION)
+            }
+        }
+    })
+}
+
+/// Reports a failure to join and returns the exit code.
+pub fn join_failed(failure: JoinFailure) -> u8 {
+    match failure {
+        JoinFailure::NameTaken(id) => {
+            eprintln!("error: a PEIS named {id} is already present in the ecology");
+            EXIT_BAD_INPUT
+        }
+        JoinFailure::Other(e) => {
+            eprintln!("error: {e:#}");
+            EXIT_NO_SOLUTION
+        }
+    }
+}
+
+/// The PEIS of `names` that `space` cannot see now.
+pub async fn missing_peis<S: TupleSpace>(space: &S, names: &[PeisId]) -> Vec<PeisId> {
+    let present = space.peers().await.unwrap_or_default();
+    names
+        .iter()
+        .filter(|n| !present.contains(n))
+        .cloned()
+        .collect()
+}

@@ -1,0 +1,58 @@
+//! `ecology router`: a Zenoh router for PEIS that cannot reach each other
+//! directly. Each PEIS then connects to it (`--connect tcp/ROUTER:7447`).
+
+use std::io::Write;
+
+use clap::Args;
+use ecology_zenoh::RouterOptions;
+
+use crate::network::{self, NetArgs};
+use crate::{EXIT_NO_SOLUTION, EXIT_OK};
+
+/// Arguments of `ecology router`.
+#[derive(Debug, Args)]
+pub struct RouterArgs {
+    #[command(flatten)]
+    pub net: NetArgs,
+}
+
+/// `ecology router --listen tcp/0.0.0.0:7447`.
+pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
+    if args.net.listen.is_empty() {
+        eprintln!("error: a router needs --listen ENDPOINT, such as tcp/0.0.0.0:7447");
+        return Ok(crate::EXIT_BAD_INPUT);
+    }
+    let mut options = RouterOptions {
+        listen: args.net.listen.clone(),
+        connect: args.net.connect.clone(),
+        multicast_scouting: args.net.multicast,
+        zenoh_config: args.net.zenoh_config.clone(),
+        ..RouterOptions::default()
+    };
+    if let Some(lease) = args.net.lease {
+        options.lease = network::seconds(lease, "--lease")?;
+    }
+    let describe = args.net.describe();
+    network::runtime()?.block_on(async {
+        let result = ecology_zenoh::run_router(
+            options,
+            |zid| {
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "router ready: zenoh id {zid}; {describe}");
+                let _ = out.flush();
+            },
+            async {
+                let which = network::stop_signal().await;
+                println!("router: {which}: closing");
+            },
+        )
+        .await;
+        match result {
+            Ok(()) => Ok(EXIT_OK),
+            Err(e) => {
+                eprintln!("error: {e}");
+                Ok(EXIT_NO_SOLUTION)
+            }
+        }
+    })
+}

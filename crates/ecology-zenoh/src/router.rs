@@ -1,0 +1,82 @@
+//! A Zenoh router for PEIS that cannot reach each other directly (other
+//! subnets, NAT, a robot on Wi-Fi that only reaches a base station): each
+//! PEIS connects to the router, which routes tuples, queries and presence
+//! between them. It is plain Zenoh in router mode; it is no PEIS and holds
+//! no tuples.
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::ZenohError;
+use crate::config::{json_array, json_string, millis};
+
+/// Options of [`run_router`].
+#[derive(Clone, Debug)]
+pub struct RouterOptions {
+    /// Endpoints to listen on, such as `tcp/0.0.0.0:7447`.
+    pub listen: Vec<String>,
+    /// Other routers to connect to.
+    pub connect: Vec<String>,
+    /// Whether to answer UDP multicast scouting (off unless asked for).
+    pub multicast_scouting: bool,
+    /// A Zenoh configuration file (JSON5) to start from; the fields above override it.
+    pub zenoh_config: Option<PathBuf>,
+    /// The transport lease: how long a silent PEIS stays connected.
+    pub lease: Duration,
+}
+
+impl Default for RouterOptions {
+    fn default() -> Self {
+        Self {
+            listen: Vec::new(),
+            connect: Vec::new(),
+            multicast_scouting: false,
+            zenoh_config: None,
+            lease: Duration::from_secs(2),
+        }
+    }
+}
+
+/// Runs a Zenoh router until `shutdown` completes. `ready` is called once it
+/// listens, with its Zenoh id.
+pub async fn run_router(
+    options: RouterOptions,
+    ready: impl FnOnce(String),
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), ZenohError> {
+    let mut config = match &options.zenoh_config {
+        Some(path) => zenoh::Config::from_file(path).map_err(|e| ZenohError::Config {
+            what: format!("reading {}", path.display()),
+            message: e.to_string(),
+        })?,
+        None => zenoh::Config::default(),
+    };
+    let mut insert = |key: &str, value: String| {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| ZenohError::Config {
+                what: format!("{key} = {value}"),
+                message: e.to_string(),
+            })
+    };
+    insert("mode", json_string("router"))?;
+    if !options.listen.is_empty() {
+        insert("listen/endpoints", json_array(&options.listen))?;
+    }
+    if !options.connect.is_empty() {
+        insert("connect/endpoints", json_array(&options.connect))?;
+    }
+    insert(
+        "scouting/multicast/enabled",
+        options.multicast_scouting.to_string(),
+    )?;
+    insert("transport/link/tx/lease", millis(options.lease))?;
+    let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
+        message: e.to_string(),
+    })?;
+    ready(session.zid().to_string());
+    shutdown.await;
+    let _ = session.close().await;
+    Ok(())
+}
