@@ -40,6 +40,10 @@ pub struct RunArgs {
     /// The seed of the simulation's noise (default: the scenario's).
     #[arg(long, value_name = "N")]
     pub seed: Option<u64>,
+    /// Run as separate processes over Zenoh on 127.0.0.1 (the world, each PEIS, the executive),
+    /// in real time, with faults injected into the processes themselves.
+    #[arg(long, conflicts_with_all = ["speed", "realtime"])]
+    pub processes: bool,
 }
 
 /// Arguments of `ecology run`.
@@ -60,6 +64,9 @@ pub fn demo(args: &RunArgs) -> anyhow::Result<u8> {
             .map(|(_, text)| text.as_bytes().to_vec())
             .ok_or_else(|| "not built into the demo".to_string())
     };
+    if args.processes {
+        return demo_processes(args);
+    }
     match Scenario::parse(DEMO_SCENARIO, "scenarios/peis-home.toml", &read) {
         Ok(scenario) => simulate(&scenario, args),
         Err(e) => {
@@ -69,8 +76,45 @@ pub fn demo(args: &RunArgs) -> anyhow::Result<u8> {
     }
 }
 
+/// `ecology demo --processes`: the built-in files are written to a temporary
+/// folder, since every process reads them.
+fn demo_processes(args: &RunArgs) -> anyhow::Result<u8> {
+    let folder = std::env::temp_dir().join(format!("ecology-demo-{}", std::process::id()));
+    let scenario = folder.join("scenarios/peis-home.toml");
+    let write = |path: &Path, text: &str| -> anyhow::Result<()> {
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("creating {}", parent.display()))?;
+        }
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+    };
+    let written = (|| {
+        write(&scenario, DEMO_SCENARIO)?;
+        for (name, text) in DEMO_FILES {
+            write(&folder.join("scenarios").join(name), text)?;
+        }
+        Ok::<_, anyhow::Error>(())
+    })();
+    let code = written.and_then(|()| {
+        crate::processes::run(&crate::processes::Launch {
+            scenario: scenario.clone(),
+            seed: args.seed,
+            json: args.json,
+        })
+    });
+    let _ = std::fs::remove_dir_all(&folder);
+    code
+}
+
 /// `ecology run SCENARIO`.
 pub fn run(args: &ScenarioArgs) -> anyhow::Result<u8> {
+    if args.options.processes {
+        return crate::processes::run(&crate::processes::Launch {
+            scenario: args.scenario.clone(),
+            seed: args.options.seed,
+            json: args.options.json,
+        });
+    }
     match Scenario::load(&args.scenario) {
         Ok(scenario) => simulate(&scenario, &args.options),
         Err(e) => {

@@ -134,6 +134,8 @@ pub struct Scenario {
     pub action_timeout: Duration,
     /// The domain the executive configures with.
     pub domain: Domain,
+    /// The domain file, as the scenario names it (relative to the scenario file's folder).
+    pub domain_file: PathBuf,
     /// The plan to execute.
     pub plan: Vec<PlannedAction>,
     /// The world at the start.
@@ -561,6 +563,7 @@ impl Scenario {
         let action_timeout = seconds(parsed.action_timeout)
             .ok_or_else(|| check.at(0..0, "action_timeout must be a positive number of seconds"))?;
         Ok(Scenario {
+            domain_file: PathBuf::from(parsed.task.domain.get_ref()),
             name: parsed.name,
             description: parsed.description,
             seed: parsed.seed,
