@@ -23,6 +23,9 @@ pub struct NetArgs {
     /// Find peers by UDP multicast scouting (off by default).
     #[arg(long, global = true)]
     pub multicast: bool,
+    /// Join as a client of the router given by --connect (all traffic through it) instead of as a peer.
+    #[arg(long, global = true)]
+    pub client: bool,
     /// Presence lease in seconds: when this process freezes or its network is cut, the others
     /// notice within this long (default 2).
     #[arg(long, global = true, value_name = "SECONDS")]
@@ -37,6 +40,9 @@ impl NetArgs {
         options.connect = self.connect.clone();
         options.zenoh_config = self.zenoh_config.clone();
         options.multicast_scouting = self.multicast;
+        if self.client {
+            options.mode = ecology_zenoh::Mode::Client;
+        }
         if let Some(lease) = self.lease {
             options.peis.lease = seconds(lease, "--lease")?;
         }

@@ -13,8 +13,8 @@ use std::time::Duration;
 use tokio::task::JoinSet;
 
 use ecology_tuples::{
-    Clock, Key, PeisId, PresenceEvent, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace,
-    Value,
+    Clock, Key, PeisId, PresenceEvent, Timestamp, Tuple, TupleError, TupleEvent, TuplePattern,
+    TupleSpace, Value,
 };
 
 use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
@@ -84,6 +84,9 @@ pub async fn drive_until<S: TupleSpace>(
     let mut presence = space.subscribe_presence().await?;
     let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
     let mut sets = RemoteSets::new(space.clone());
+    // The tuples of a PEIS that joins, asked of it: what it published before
+    // its link to this process formed never arrived as changes.
+    let mut snapshots: JoinSet<Vec<Tuple>> = JoinSet::new();
     let settle_until = start.saturating_add(config.settle);
     let mut started = false;
     tokio::pin!(stop);
@@ -125,25 +128,32 @@ pub async fn drive_until<S: TupleSpace>(
             };
             commands = tokio::select! {
                 event = tuples.next() => match event {
-                    Some(TupleEvent::Changed(t)) => {
-                        let value = t.text().unwrap_or_default().to_string();
-                        exec.handle(elapsed(&clock), Event::Tuple {
-                            owner: t.owner.to_string(),
-                            key: t.key.to_string(),
-                            value,
-                            epoch: t.epoch,
-                            seq: t.seq,
-                        })
-                    }
+                    Some(TupleEvent::Changed(t)) => exec.handle(elapsed(&clock), tuple_event(&t)),
                     Some(_) => Vec::new(),
                     None => return Ok(exec.status().clone()),
                 },
                 event = presence.next() => match event {
-                    Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string())),
+                    Some(PresenceEvent::Joined(p)) => {
+                        if let Ok(pattern) = TuplePattern::parse(&format!("{p}:**")) {
+                            let space = space.clone();
+                            snapshots.spawn(async move {
+                                // A failed snapshot leaves what arrives as changes; nothing else to do.
+                                space.get_matching(pattern).await.unwrap_or_default()
+                            });
+                        }
+                        exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string()))
+                    }
                     Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
                     None => Vec::new(),
                 },
                 Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
+                Some(Ok(tuples)) = snapshots.join_next() => {
+                    let mut commands = Vec::new();
+                    for t in &tuples {
+                        commands.extend(exec.handle(elapsed(&clock), tuple_event(t)));
+                    }
+                    commands
+                }
                 () = &mut stop, if !stopped => {
                     stopped = true;
                     exec.stop(elapsed(&clock), "stopped by the operator")
@@ -177,6 +187,17 @@ pub async fn drive_until<S: TupleSpace>(
                 Command::RemoteSet { owner, key, value } => sets.send(owner, key, value),
             }
         }
+    }
+}
+
+/// The executive's event for tuple `t` (a value that is not text reads as empty).
+fn tuple_event(t: &Tuple) -> Event {
+    Event::Tuple {
+        owner: t.owner.to_string(),
+        key: t.key.to_string(),
+        value: t.text().unwrap_or_default().to_string(),
+        epoch: t.epoch,
+        seq: t.seq,
     }
 }
 

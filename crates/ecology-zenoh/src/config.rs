@@ -8,11 +8,24 @@ use ecology_tuples::{Clock, PeisId, PeisOptions, SystemClock};
 
 use crate::ZenohError;
 
+/// How a PEIS takes part in the Zenoh network.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mode {
+    /// A peer: it listens and connects to the other PEIS directly (one network).
+    #[default]
+    Peer,
+    /// A client of a router: everything it sends and receives passes through the
+    /// router it connects to (PEIS that cannot reach each other directly).
+    Client,
+}
+
 /// Options of [`ZenohPeis::open`](crate::ZenohPeis::open).
 #[derive(Clone, Debug)]
 pub struct ZenohOptions {
     /// The PEIS to act as.
     pub name: PeisId,
+    /// Peer (the default) or client of a router.
+    pub mode: Mode,
     /// Remote-set policy, lease (the Zenoh transport lease, 2 s by default) and limits.
     pub peis: PeisOptions,
     /// Endpoints to listen on, such as `tcp/127.0.0.1:7447` (port 0 picks a free port).
@@ -36,6 +49,7 @@ impl ZenohOptions {
     pub fn new(name: PeisId) -> Self {
         Self {
             name,
+            mode: Mode::Peer,
             peis: PeisOptions::default(),
             listen: Vec::new(),
             connect: Vec::new(),
@@ -64,8 +78,10 @@ impl ZenohOptions {
                     message: e.to_string(),
                 })
         };
-        if self.zenoh_config.is_none() {
-            insert("mode", json_string("peer"))?;
+        match self.mode {
+            Mode::Client => insert("mode", json_string("client"))?,
+            Mode::Peer if self.zenoh_config.is_none() => insert("mode", json_string("peer"))?,
+            Mode::Peer => {}
         }
         if !self.listen.is_empty() {
             insert("listen/endpoints", json_array(&self.listen))?;

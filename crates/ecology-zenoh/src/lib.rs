@@ -11,7 +11,7 @@ mod peis;
 mod router;
 pub mod wire;
 
-pub use config::ZenohOptions;
+pub use config::{Mode, ZenohOptions};
 pub use peis::ZenohPeis;
 pub use router::{RouterOptions, run_router};
 

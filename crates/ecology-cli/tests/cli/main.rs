@@ -1,5 +1,6 @@
 //! The `ecology` binary, from the command line: outputs and exit codes.
 
+mod processes;
 mod tuples;
 
 use std::path::PathBuf;
