@@ -614,3 +614,123 @@ fn the_papers_experiment_as_separate_processes() {
         Some("task_done".into())
     );
 }
+
+/// The Python to run the example with: `ECOLOGY_PYTHON` (set by `scripts/test`
+/// to its virtual environment), else the repository's `.venv`, else `python3`.
+fn python() -> String {
+    if let Ok(python) = std::env::var("ECOLOGY_PYTHON") {
+        return python;
+    }
+    let venv = root().join(".venv/bin/python");
+    if venv.exists() {
+        return venv.display().to_string();
+    }
+    "python3".to_string()
+}
+
+#[test]
+fn a_component_written_in_python_is_switched_on_wired_and_run() {
+    let python = python();
+    match Command::new(&python).arg("--version").output() {
+        Ok(out) if out.status.success() => {}
+        _ => {
+            println!("skipped: no Python at `{python}` to run examples/python/robot_counter.py");
+            return;
+        }
+    }
+    let has_zenoh = Command::new(&python)
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        has_zenoh,
+        "{python} has no `zenoh` module: run scripts/test, which installs eclipse-zenoh into .venv"
+    );
+    let _one = one_at_a_time();
+    let scenario = root()
+        .join("scenarios/peis-home.toml")
+        .display()
+        .to_string();
+    let world_endpoint = free_endpoint();
+    let _world = Proc::start("world", &["world", &scenario, "--listen", &world_endpoint]).ready();
+    let _hsm = Proc::start(
+        "hsm",
+        &[
+            "peis",
+            &scenario,
+            "--name",
+            "hsm",
+            "--listen",
+            &free_endpoint(),
+            "--connect",
+            &world_endpoint,
+        ],
+    )
+    .ready();
+    let counter_endpoint = free_endpoint();
+    let mut counter = {
+        let mut child = Command::new(&python)
+            .arg(root().join("examples/python/robot_counter.py"))
+            .args(["--listen", &counter_endpoint, "--connect", &world_endpoint])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn the Python PEIS");
+        let out = child.stdout.take().expect("piped stdout");
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(out).lines() {
+                let Ok(text) = line else { return };
+                let at = Instant::now();
+                if tx.send(Line { text, at }).is_err() {
+                    return;
+                }
+            }
+        });
+        Proc {
+            name: "counter".to_string(),
+            child,
+            lines,
+            seen: Vec::new(),
+        }
+    };
+    counter.wait_for("ready", |l| l == "ready");
+    let listen = free_endpoint();
+    let task = Proc::start(
+        "executive",
+        &[
+            "task",
+            "--domain",
+            "examples/python/robot-counter.eco",
+            "--plan",
+            "examples/python/robot-counter.plan",
+            "--json",
+            "--wait-for",
+            "world,hsm,counter",
+            "--listen",
+            &listen,
+            "--connect",
+            &world_endpoint,
+        ],
+    );
+    let (code, lines) = task.finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    // Discovered (its init tuples priced it: start-up 5 + default 5), switched on, wired, done.
+    assert_eq!(costs(&all), [(30, false)], "{all:#?}");
+    let deployed = named(&all, "deployed");
+    assert_eq!(strings(&deployed[0]["switched_on"]), ["counter:c1"]);
+    assert_eq!(
+        strings(&deployed[0]["channels"]),
+        ["hsm:ca1 → counter:c1 (image hsm)"]
+    );
+    assert_eq!(named(&all, "action_done").len(), 1, "{all:#?}");
+    // The counter this task switched on is switched off again.
+    let released = named(&all, "released");
+    assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
+    // Stopped by SIGTERM, the Python PEIS exits cleanly.
+    counter.signal(Signal::SIGTERM);
+    let (code, _) = counter.finish();
+    assert_eq!(code, Some(0));
+}
