@@ -393,6 +393,26 @@ fn a_whole_plan_runs_to_completion() {
     let text = timeline(&exec);
     assert!(text.contains("switch on astrid:gr1"), "{text}");
     assert!(text.contains("switched off astrid:gr1"), "{text}");
+    // At the end the task leaves the ecology as it found it: the speaker it
+    // switched on goes off, and the components it borrowed lose their params.
+    let released = exec.log().iter().find_map(|e| match &e.event {
+        LogEvent::Released {
+            switched_off,
+            stopped,
+        } => Some((switched_off.clone(), stopped.clone())),
+        _ => None,
+    });
+    assert_eq!(
+        released,
+        Some((
+            vec!["astrid:sp1".to_string()],
+            ["astrid:s1", "astrid:tc1", "hsm:ca1", "hsm:tr1"]
+                .map(String::from)
+                .to_vec()
+        )),
+        "{text}"
+    );
+    assert_eq!(names(&exec)[names(&exec).len() - 2], "released");
 }
 
 // The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.
@@ -516,11 +536,15 @@ fn a_component_that_never_runs_times_out_and_is_replaced() {
 }
 
 fn tuple(owner: &str, key: &str, value: &str, seq: u64) -> Event {
+    tuple_of_run(owner, key, value, 1, seq)
+}
+
+fn tuple_of_run(owner: &str, key: &str, value: &str, epoch: u64, seq: u64) -> Event {
     Event::Tuple {
         owner: owner.to_string(),
         key: key.to_string(),
         value: value.to_string(),
-        epoch: 1,
+        epoch,
         seq,
     }
 }
@@ -608,6 +632,130 @@ fn waiting_too_long_is_a_failure() {
     );
 }
 
+#[test]
+fn a_restarted_peis_fails_its_components_and_its_new_run_counts() {
+    let mut exec = running_first_action();
+    // hsm restarts before anyone noticed it leave: its tuples come numbered
+    // from 1 again, in a later run.
+    exec.handle(
+        secs(2.0),
+        tuple_of_run("hsm", "components.tr1.type", "tr-sys", 2, 1),
+    );
+    let text = timeline(&exec);
+    assert!(text.contains("PEIS hsm restarted"), "{text}");
+    assert!(
+        text.contains("FAILURE hsm:tr1: PEIS hsm restarted")
+            && text.contains("FAILURE hsm:ca1: PEIS hsm restarted"),
+        "{text}"
+    );
+    assert_eq!(costs(&exec), [(80, false), (150, true)], "{text}");
+    // The new run's tuples are taken in although their numbers are low ...
+    exec.handle(secs(2.1), tuple_of_run("hsm", "tr1.status", "idle", 2, 1));
+    let view = exec.mirror().component("hsm", "tr1").cloned();
+    assert_eq!(view.and_then(|v| v.status), Some("idle".to_string()));
+    assert_eq!(
+        exec.mirror().component("hsm", "ca1"),
+        None,
+        "the old run's components are forgotten"
+    );
+    // ... and a late tuple of the old run is stale.
+    exec.handle(
+        secs(2.2),
+        tuple_of_run("hsm", "tr1.status", "running", 1, 9),
+    );
+    let view = exec.mirror().component("hsm", "tr1").cloned();
+    assert_eq!(view.and_then(|v| v.status), Some("idle".to_string()));
+}
+
+#[test]
+fn a_late_tuple_does_not_bring_back_a_peis_that_left() {
+    let mut exec = running_first_action();
+    exec.handle(secs(2.0), Event::PeisLeft("hsm".to_string()));
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+    // Sent before it left, delivered after: hsm stays absent.
+    exec.handle(secs(2.1), tuple("hsm", "ca1.status", "running", 7));
+    assert!(!exec.mirror().peis()["hsm"].present);
+    // Its presence coming back does bring it back, with the same run's numbering.
+    exec.handle(secs(3.0), Event::PeisJoined("hsm".to_string()));
+    assert!(exec.mirror().peis()["hsm"].present);
+    exec.handle(secs(3.1), tuple("hsm", "ca1.status", "error", 6));
+    let view = exec.mirror().component("hsm", "ca1").cloned();
+    assert_eq!(view.and_then(|v| v.status), Some("running".to_string()));
+    // One reconfiguration, for the departure only.
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+}
+
+#[test]
+fn a_failed_remote_set_fails_its_component() {
+    let mut exec = running_first_action();
+    exec.handle(
+        secs(2.0),
+        Event::RemoteSetFailed {
+            owner: "hsm".to_string(),
+            key: "tr1.params".to_string(),
+            reason: "remote set of tr1.params is not allowed by hsm".to_string(),
+        },
+    );
+    let text = timeline(&exec);
+    assert!(
+        text.contains(
+            "remote set of hsm:tr1.params failed: remote set of tr1.params is not allowed by hsm"
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains(
+            "FAILURE hsm:tr1: could not set tr1.params: remote set of tr1.params is not allowed by hsm"
+        ),
+        "{text}"
+    );
+    assert_eq!(costs(&exec), [(80, false), (150, true)], "{text}");
+    // A failed switch-off of a component outside the configuration is logged only.
+    exec.handle(
+        secs(2.5),
+        Event::RemoteSetFailed {
+            owner: "pippi".to_string(),
+            key: "components.ol2.reqState".to_string(),
+            reason: "pippi cannot be reached".to_string(),
+        },
+    );
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+}
+
+#[test]
+fn stopping_a_task_releases_what_it_used_and_fails_it() {
+    let mut exec = running_first_action();
+    let commands = exec.stop(secs(2.0), "stopped by the operator");
+    assert_eq!(
+        exec.status(),
+        &RunStatus::Failed {
+            index: 0,
+            reason: "stopped by the operator".to_string()
+        }
+    );
+    let cleared: Vec<String> = commands
+        .iter()
+        .filter_map(|c| match c {
+            Command::RemoteSet { owner, key, value } if value.is_empty() => {
+                Some(format!("{owner}:{key}"))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        cleared,
+        [
+            "astrid:s1.params",
+            "astrid:tc1.params",
+            "hsm:ca1.params",
+            "hsm:tr1.params"
+        ]
+    );
+    assert_eq!(names(&exec).last(), Some(&"task_failed"));
+    // Stopping twice does nothing more.
+    assert!(exec.stop(secs(3.0), "again").is_empty());
+}
+
 /// End to end on the in-process tuple space, in virtual time: PEIS hosts run
 /// test components that honour the component contract, and the driver runs
 /// the executive over the space.
@@ -619,7 +767,8 @@ mod on_the_tuple_space {
     use ecology_domain::{EcologyState, parse_domain, parse_facts};
     use ecology_peis::{Component, ComponentError, ComponentSpec, Context, run_host};
     use ecology_tuples::{
-        Clock, InProcessPeis, InProcessSpace, PeisId, PeisOptions, Value, VirtualClock,
+        Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceSubscription,
+        Subscription, Tuple, TupleError, TuplePattern, TupleSpace, Value, VirtualClock,
     };
 
     use super::{PEIS_HOME, PEIS_HOME_FACTS, costs, names, plan, timeline};
@@ -707,6 +856,66 @@ mod on_the_tuple_space {
     }
 
     async fn run(fault: Fault) -> Executive {
+        run_with(fault, None, plan()).await.0
+    }
+
+    /// The executive's own space, with every remote set to one PEIS delayed:
+    /// a PEIS that answers slowly.
+    #[derive(Clone)]
+    struct SlowTo {
+        inner: InProcessPeis,
+        slow: PeisId,
+        delay: Duration,
+        clock: Arc<dyn Clock>,
+    }
+
+    impl TupleSpace for SlowTo {
+        fn peis(&self) -> &PeisId {
+            self.inner.peis()
+        }
+        async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
+            self.inner.set(key, value).await
+        }
+        async fn delete(&self, key: Key) -> Result<bool, TupleError> {
+            self.inner.delete(key).await
+        }
+        async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
+            self.inner.get(owner, key).await
+        }
+        async fn get_matching(&self, pattern: TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+            self.inner.get_matching(pattern).await
+        }
+        async fn subscribe(&self, pattern: TuplePattern) -> Result<Subscription, TupleError> {
+            self.inner.subscribe(pattern).await
+        }
+        async fn set_remote(
+            &self,
+            owner: PeisId,
+            key: Key,
+            value: Value,
+        ) -> Result<Tuple, TupleError> {
+            if owner == self.slow {
+                let until = self.clock.now().saturating_add(self.delay);
+                self.clock.sleep_until(until).await;
+            }
+            self.inner.set_remote(owner, key, value).await
+        }
+        async fn peers(&self) -> Result<Vec<PeisId>, TupleError> {
+            self.inner.peers().await
+        }
+        async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
+            self.inner.subscribe_presence().await
+        }
+    }
+
+    /// Runs `plan`; with `slow`, every remote set to that PEIS takes that long.
+    /// Also returns astrid's `tc1.mi-position` as it is at the end, and when
+    /// the driver started (log times count from it).
+    async fn run_with(
+        fault: Fault,
+        slow: Option<(&str, Duration)>,
+        plan: Vec<crate::PlannedAction>,
+    ) -> (Executive, Option<Tuple>, ecology_tuples::Timestamp) {
         let clock = VirtualClock::default();
         let shared: Arc<dyn Clock> = Arc::new(clock.clone());
         let space = InProcessSpace::new(shared.clone());
@@ -788,14 +997,30 @@ mod on_the_tuple_space {
             })
         };
         let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
-        let mut exec = Executive::new(domain, EcologyState::new(), plan(), ExecConfig::default());
+        let mut exec = Executive::new(domain, EcologyState::new(), plan, ExecConfig::default());
         let config = DriverConfig {
             limit: Some(Duration::from_secs(300)),
             ..DriverConfig::default()
         };
-        drive(&me, shared.clone(), &mut exec, config)
+        let started = shared.now();
+        match slow {
+            Some((peis, delay)) => {
+                let space = SlowTo {
+                    inner: me.clone(),
+                    slow: PeisId::new(peis).expect("name"),
+                    delay,
+                    clock: shared.clone(),
+                };
+                drive(&space, shared.clone(), &mut exec, config).await
+            }
+            None => drive(&me, shared.clone(), &mut exec, config).await,
+        }
+        .expect("drives");
+        let astrid = PeisId::new("astrid").expect("name");
+        let wired = me
+            .get(astrid, Key::new("tc1.mi-position").expect("key"))
             .await
-            .expect("drives");
+            .expect("get");
         ticking.store(false, Ordering::Relaxed);
         let _ = ticker.await;
         for stop in stops {
@@ -808,11 +1033,43 @@ mod on_the_tuple_space {
             assert!(vanished || result.is_ok(), "host {i}: {result:?}");
         }
         space.shutdown().await;
-        exec
+        (exec, wired, started)
     }
 
     fn clock_now(clock: &VirtualClock) -> ecology_tuples::Timestamp {
         clock.now()
+    }
+
+    // Remote sets to one PEIS do not wait for those to another: a PEIS that
+    // takes 2 s to answer each remote set delays only its own components.
+    #[tokio::test]
+    async fn remote_sets_to_different_peis_run_concurrently() {
+        let slow = Duration::from_secs(2);
+        let (exec, wired, started) =
+            run_with(Fault::None, Some(("hsm", slow)), plan()[..1].to_vec()).await;
+        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        let deployed_at = exec
+            .log()
+            .iter()
+            .find(|e| e.event.name() == "deployed")
+            .map(|e| e.t)
+            .expect("deployed");
+        let running_at = exec
+            .log()
+            .iter()
+            .find(|e| e.event.name() == "running")
+            .map(|e| e.t)
+            .expect("running");
+        // hsm's three remote sets (two params, one input) follow each other: 6 s.
+        assert!(running_at >= deployed_at + 3 * slow, "{}", timeline(&exec));
+        // astrid's input, sent after hsm's params, was not held up behind them.
+        let wired = wired.expect("astrid's tc1.mi-position");
+        assert_eq!(wired.seq, 1);
+        let wired_at = wired.ts_write.saturating_duration_since(started);
+        assert!(
+            wired_at < deployed_at + Duration::from_millis(500),
+            "astrid's input was wired at {wired_at:?}, deployed at {deployed_at:?}"
+        );
     }
 
     // The paper's Section VIII on the real middleware (in-process), no failure.

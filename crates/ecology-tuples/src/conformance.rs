@@ -60,7 +60,8 @@ macro_rules! conformance_tests {
         $crate::conformance_tests!(@tests $make;
             last_value_per_key, order_per_key, wildcard_subscriptions, late_subscriber_gets_current_values,
             meta_tuple_refollows_pointer, remote_set_is_applied_by_owner, non_owner_cannot_publish,
-            expiry_removes_tuples, presence_join_and_leave, vanished_peis_left_within_lease);
+            expiry_removes_tuples, presence_join_and_leave, vanished_peis_left_within_lease,
+            a_rejoining_peis_starts_a_later_epoch);
     };
     (@tests $make:expr; $($name:ident),*) => {
         $(
@@ -686,4 +687,35 @@ pub async fn vanished_peis_left_within_lease<H: Harness>(h: &mut H) {
         assert!(took <= bound, "reported left after {took:?}");
     }
     assert_eq!(watcher.peers().await.expect("peers"), vec![peis("watcher")]);
+}
+
+/// A PEIS that leaves and joins again starts a new run: its sequence numbers start again, in a
+/// greater epoch, so a subscriber takes its tuples as newer than the old run's.
+pub async fn a_rejoining_peis_starts_a_later_epoch<H: Harness>(h: &mut H) {
+    let watcher = h.join("watcher", PeisOptions::default()).await;
+    let p = h.patience();
+    let first = h.join("phoenix", PeisOptions::default()).await;
+    let mut old = None;
+    for v in ["a", "b"] {
+        old = Some(first.set(key("x"), Value::text(v)).await.expect("set"));
+    }
+    let old = old.expect("set twice");
+    assert_eq!(old.seq, 2);
+    assert_ne!(old.epoch, 0, "a PEIS says which run wrote a tuple");
+    h.leave(first).await;
+    let mut sub = watcher
+        .subscribe(TuplePattern::parse("phoenix:x").expect("pattern"))
+        .await
+        .expect("subscribe");
+    h.advance(Duration::from_millis(1));
+    let second = h.join("phoenix", PeisOptions::default()).await;
+    let new = second.set(key("x"), Value::text("c")).await.expect("set");
+    assert_eq!(new.seq, 1, "a new run numbers its tuples from 1");
+    assert!(new.epoch > old.epoch, "{} after {}", new.epoch, old.epoch);
+    match next_event(&mut sub, p).await {
+        TupleEvent::Changed(t) => {
+            assert_eq!((t.text(), t.seq, t.epoch), (Ok("c"), 1, new.epoch));
+        }
+        other => panic!("unexpected {other:?}"),
+    }
 }
