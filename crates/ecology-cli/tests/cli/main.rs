@@ -1,6 +1,7 @@
 //! The `ecology` binary, from the command line: outputs and exit codes.
 
 mod processes;
+mod support;
 mod tuples;
 
 use std::path::PathBuf;

@@ -1,0 +1,338 @@
+//! What the tests and the fault benchmark share to run the ecology as
+//! processes: a guard for an `ecology` process that reads its output line by
+//! line, a small PEIS-Home scenario, and an ecology of world, astrid and hsm.
+
+#![allow(dead_code, unreachable_pub)]
+
+use std::io::BufRead;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use serde_json::Value;
+
+/// What a scenario fixture changes in the PEIS-Home.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Variant {
+    /// As in the paper: the laser off (0.3 s to start), the tracking system on.
+    Paper,
+    /// The tracking system off, taking this many seconds to switch on.
+    SlowTracking(f64),
+    /// The laser already on, so a reconfiguration to it starts nothing.
+    LaserOn,
+}
+
+/// Bounds every wait of these tests.
+pub const PATIENCE: Duration = Duration::from_secs(60);
+
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+pub fn free_endpoint() -> String {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+    format!(
+        "tcp/127.0.0.1:{}",
+        listener.local_addr().expect("address").port()
+    )
+}
+
+/// A line a process printed, and when it was read.
+#[derive(Debug, Clone)]
+pub struct Line {
+    pub text: String,
+    pub at: Instant,
+}
+
+/// An `ecology` process, killed when dropped; its stdout read line by line.
+pub struct Proc {
+    pub name: String,
+    pub child: Child,
+    pub lines: mpsc::Receiver<Line>,
+    pub seen: Vec<Line>,
+}
+
+impl Proc {
+    /// `ecology ARGS…`, from the repository's root.
+    pub fn start(name: &str, args: &[&str]) -> Proc {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_ecology"));
+        command.args(args);
+        Proc::spawn(name, command)
+    }
+
+    /// Any `command`, from the repository's root, its stdout read line by line.
+    pub fn spawn(name: &str, mut command: Command) -> Proc {
+        let mut child = command
+            .current_dir(root())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        let out = child.stdout.take().expect("piped stdout");
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(out).lines() {
+                let Ok(text) = line else { return };
+                if tx
+                    .send(Line {
+                        text,
+                        at: Instant::now(),
+                    })
+                    .is_err()
+                {
+                    return;
+                }
+            }
+        });
+        Proc {
+            name: name.to_string(),
+            child,
+            lines,
+            seen: Vec::new(),
+        }
+    }
+
+    pub fn pid(&self) -> Pid {
+        Pid::from_raw(i32::try_from(self.child.id()).expect("pid fits"))
+    }
+
+    pub fn signal(&self, signal: Signal) {
+        kill(self.pid(), signal).expect("signal the process");
+    }
+
+    /// Reads lines until one satisfies `want`; returns it.
+    pub fn wait_for(&mut self, what: &str, want: impl Fn(&str) -> bool) -> Line {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) => {
+                    self.seen.push(line.clone());
+                    if want(&line.text) {
+                        return line;
+                    }
+                }
+                Err(_) => panic!(
+                    "{} never printed {what}; it printed:\n{}",
+                    self.name,
+                    self.transcript()
+                ),
+            }
+        }
+    }
+
+    pub fn ready(mut self) -> Proc {
+        let name = self.name.clone();
+        self.wait_for("its ready line", |l| {
+            l.starts_with(&format!("{name} ready"))
+        });
+        self
+    }
+
+    /// Waits for the process to exit; returns its exit code and every line it printed.
+    pub fn finish(mut self) -> (Option<i32>, Vec<Line>) {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            match self.child.try_wait().expect("try_wait") {
+                Some(status) => {
+                    while let Ok(line) = self.lines.recv_timeout(Duration::from_secs(2)) {
+                        self.seen.push(line);
+                    }
+                    return (status.code(), std::mem::take(&mut self.seen));
+                }
+                None if Instant::now() > deadline => {
+                    panic!("{} did not exit:\n{}", self.name, self.transcript())
+                }
+                None => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+    }
+
+    pub fn transcript(&self) -> String {
+        self.seen
+            .iter()
+            .map(|l| l.text.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A scenario file and a plan file in a fresh folder, removed when dropped.
+pub struct Fixture {
+    pub folder: PathBuf,
+}
+
+impl Fixture {
+    /// Astrid in the entrance facing the bedroom door, hsm with its cameras, and `plan`.
+    pub fn new(test: &str, plan: &[(&str, &str)], variant: Variant) -> Fixture {
+        let (laser_on, tr1_on, tr1_startup) = match variant {
+            Variant::Paper => (false, true, 0.0),
+            Variant::SlowTracking(startup) => (false, false, startup),
+            Variant::LaserOn => (true, true, 0.0),
+        };
+        let folder = std::env::temp_dir().join(format!("ecology-{test}-{}", std::process::id()));
+        std::fs::create_dir_all(&folder).expect("temp folder");
+        let domain = root().join("domains/peis-home.eco");
+        let steps: Vec<String> = plan
+            .iter()
+            .map(|(action, goal)| format!("  {{ action = \"{action}\", configure = \"{goal}\" }},"))
+            .collect();
+        let scenario = format!(
+            r#"name = "{test}"
+seed = 7
+[task]
+domain = "{domain}"
+plan = [
+{steps}
+]
+[map]
+rooms = [
+  {{ name = "living-room", x = [0.0, 3.0], y = [0.0, 3.0] }},
+  {{ name = "entrance",    x = [2.5, 5.0], y = [3.0, 5.0] }},
+  {{ name = "bedroom",     x = [0.0, 2.5], y = [3.0, 5.0] }},
+]
+doors = [
+  {{ between = ["living-room", "entrance"], at = [2.75, 3.0] }},
+  {{ between = ["entrance", "bedroom"],     at = [2.5, 4.0] }},
+]
+[[robot]]
+name = "astrid"
+at = [3.3, 4.0, 3.14159]
+[[peis]]
+name = "astrid"
+components = [
+  {{ id = "l1",  type = "laser",    cost = 100, on = {laser_on}, startup = 0.3 }},
+  {{ id = "od1", type = "odomet",   cost = 10,  on = true }},
+  {{ id = "tc1", type = "tc",       cost = 20,  on = true }},
+  {{ id = "s1",  type = "self-loc", cost = 20,  on = true }},
+]
+[[peis]]
+name = "hsm"
+components = [
+  {{ id = "ca1", type = "cams",   cost = 20, on = true }},
+  {{ id = "tr1", type = "tr-sys", cost = 20, on = {tr1_on}, startup = {tr1_startup} }},
+]
+"#,
+            domain = domain.display(),
+            steps = steps.join("\n"),
+        );
+        std::fs::write(folder.join("scenario.toml"), scenario).expect("write scenario");
+        let plan_text: String = plan
+            .iter()
+            .map(|(action, goal)| format!("{action}  ; configure {goal}\n"))
+            .collect();
+        std::fs::write(folder.join("plan.txt"), plan_text).expect("write plan");
+        Fixture { folder }
+    }
+
+    pub fn scenario(&self) -> String {
+        self.folder.join("scenario.toml").display().to_string()
+    }
+
+    pub fn plan(&self) -> String {
+        self.folder.join("plan.txt").display().to_string()
+    }
+}
+
+impl Drop for Fixture {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.folder);
+    }
+}
+
+pub const TO_BEDROOM: (&str, &str) = (
+    "(move astrid entrance bedroom)",
+    "(navigate astrid bedroom)",
+);
+pub const TO_ENTRANCE: (&str, &str) = (
+    "(move astrid bedroom entrance)",
+    "(navigate astrid entrance)",
+);
+
+/// A running ecology: the world, astrid and hsm, each a process.
+pub struct Ecology {
+    pub world_endpoint: String,
+    _world: Proc,
+    _astrid: Proc,
+    pub hsm: Proc,
+    pub hsm_args: Vec<String>,
+}
+
+impl Ecology {
+    pub fn start(fixture: &Fixture, hsm_extra: &[&str]) -> Ecology {
+        let scenario = fixture.scenario();
+        let world_endpoint = free_endpoint();
+        let world =
+            Proc::start("world", &["world", &scenario, "--listen", &world_endpoint]).ready();
+        let peis = |name: &str, extra: &[&str]| -> Vec<String> {
+            let mut args: Vec<String> = [
+                "peis",
+                scenario.as_str(),
+                "--name",
+                name,
+                "--listen",
+                &free_endpoint(),
+                "--connect",
+                &world_endpoint,
+            ]
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+            args.extend(extra.iter().map(ToString::to_string));
+            args
+        };
+        let astrid_args = peis("astrid", &[]);
+        let hsm_args = peis("hsm", hsm_extra);
+        let astrid = Proc::start("astrid", &as_strs(&astrid_args)).ready();
+        let hsm = Proc::start("hsm", &as_strs(&hsm_args)).ready();
+        Ecology {
+            world_endpoint,
+            _world: world,
+            _astrid: astrid,
+            hsm,
+            hsm_args,
+        }
+    }
+
+    /// The executive on `plan`, printing JSON lines.
+    pub fn task(&self, fixture: &Fixture, extra: &[&str]) -> Proc {
+        let mut args = vec!["task", "--domain", "domains/peis-home.eco", "--plan"];
+        let plan = fixture.plan();
+        args.push(&plan);
+        let listen = free_endpoint();
+        args.extend([
+            "--json",
+            "--wait-for",
+            "world,astrid,hsm",
+            "--listen",
+            &listen,
+            "--connect",
+            &self.world_endpoint,
+        ]);
+        args.extend_from_slice(extra);
+        Proc::start("executive", &args)
+    }
+}
+
+pub fn as_strs(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}
+
+pub fn event(line: &str) -> Value {
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("not a JSON line ({e}): {line}"))
+}
+
+pub fn is_event(line: &str, name: &str) -> bool {
+    serde_json::from_str::<Value>(line).is_ok_and(|v| v["event"] == name)
+}
