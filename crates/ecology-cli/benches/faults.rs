@@ -77,6 +77,7 @@ fn main() {
         .ok()
         .and_then(|n| n.parse().ok())
         .unwrap_or(30);
+    support::QUIET.store(true, std::sync::atomic::Ordering::Relaxed);
     let there = Fixture::new("bench-there", &[TO_BEDROOM], Variant::LaserOn);
     let back = Fixture::new("bench-back", &[TO_ENTRANCE], Variant::LaserOn);
     let lease = format!("{}", LEASE.as_secs_f64());

@@ -25,6 +25,9 @@ pub enum Variant {
     LaserOn,
 }
 
+/// Whether the processes' stderr is dropped instead of shown (the benchmark sets it).
+pub static QUIET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// Bounds every wait of these tests.
 pub const PATIENCE: Duration = Duration::from_secs(60);
 
@@ -69,7 +72,11 @@ impl Proc {
             .current_dir(root())
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(if QUIET.load(std::sync::atomic::Ordering::Relaxed) {
+                Stdio::null()
+            } else {
+                Stdio::inherit()
+            })
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
         let out = child.stdout.take().expect("piped stdout");
