@@ -419,7 +419,7 @@ impl ExecClock {
 struct Faults {
     waiting: Vec<FaultSpec>,
     scheduled: Vec<(Instant, FaultSpec)>,
-    current_action: Option<u64>,
+    current_action: Option<usize>,
 }
 
 impl Faults {
@@ -441,27 +441,20 @@ impl Faults {
     /// Takes in one executive log entry (a JSON object) and schedules the faults it triggers.
     fn observe(&mut self, entry: &serde_json::Value) {
         let name = entry.get("event").and_then(serde_json::Value::as_str);
-        let index = entry.get("index").and_then(serde_json::Value::as_u64);
+        let index = entry
+            .get("index")
+            .and_then(serde_json::Value::as_u64)
+            .and_then(|i| usize::try_from(i).ok());
         if name == Some("action_started") {
             self.current_action = index;
         }
         let index = index.or(self.current_action);
         let mut still_waiting = Vec::new();
         for fault in std::mem::take(&mut self.waiting) {
-            let Trigger::After {
-                event,
-                action,
-                delay,
-            } = &fault.trigger
-            else {
-                continue;
-            };
-            let action_matches = action.is_none_or(|a| index == Some(a as u64 - 1));
-            if name == Some(event.as_str()) && action_matches {
-                self.scheduled
-                    .push((Instant::now() + *delay, fault.clone()));
-            } else {
-                still_waiting.push(fault);
+            let fired = name.and_then(|name| fault.trigger.fired_by(name, index));
+            match fired {
+                Some(delay) => self.scheduled.push((Instant::now() + delay, fault)),
+                None => still_waiting.push(fault),
             }
         }
         self.waiting = still_waiting;

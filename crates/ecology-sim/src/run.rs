@@ -216,18 +216,11 @@ pub async fn run(
                 current_action = Some(index);
             }
             for (fault, fired) in &mut triggers {
-                let Trigger::After {
-                    event,
-                    action,
-                    delay,
-                } = &fault.trigger
-                else {
-                    continue;
-                };
-                let action_matches = action.is_none_or(|a| index == Some(a - 1));
-                if !*fired && event == entry.event.name() && action_matches {
+                if let Some(delay) = fault.trigger.fired_by(entry.event.name(), index)
+                    && !*fired
+                {
                     *fired = true;
-                    lock(&schedule).push((shared.now().saturating_add(*delay), fault.clone()));
+                    lock(&schedule).push((shared.now().saturating_add(delay), fault.clone()));
                 }
             }
             (lock(&observer))(Update::Log(entry.clone()));

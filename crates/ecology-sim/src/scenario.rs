@@ -80,6 +80,23 @@ pub enum Trigger {
     },
 }
 
+impl Trigger {
+    /// When executive event `event` (its JSON-lines name) of action `index`
+    /// (0-based, the action running when it was logged) fires this trigger:
+    /// how long after it the fault is due. `None` for `At` triggers and for
+    /// events that do not fire it.
+    pub fn fired_by(&self, event: &str, index: Option<usize>) -> Option<Duration> {
+        match self {
+            Trigger::After {
+                event: wanted,
+                action,
+                delay,
+            } if wanted == event && action.is_none_or(|a| index == Some(a - 1)) => Some(*delay),
+            _ => None,
+        }
+    }
+}
+
 /// One fault injection.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FaultSpec {

@@ -63,21 +63,8 @@ impl ZenohOptions {
 
     /// The Zenoh configuration these options describe.
     pub(crate) fn zenoh_config(&self) -> Result<zenoh::Config, ZenohError> {
-        let mut config = match &self.zenoh_config {
-            Some(path) => zenoh::Config::from_file(path).map_err(|e| ZenohError::Config {
-                what: format!("reading {}", path.display()),
-                message: e.to_string(),
-            })?,
-            None => zenoh::Config::default(),
-        };
-        let mut insert = |key: &str, value: String| {
-            config
-                .insert_json5(key, &value)
-                .map_err(|e| ZenohError::Config {
-                    what: format!("{key} = {value}"),
-                    message: e.to_string(),
-                })
-        };
+        let mut config = base_config(self.zenoh_config.as_deref())?;
+        let mut insert = |key: &str, value: String| insert(&mut config, key, value);
         match self.mode {
             Mode::Client => insert("mode", json_string("client"))?,
             Mode::Peer if self.zenoh_config.is_none() => insert("mode", json_string("peer"))?,
@@ -107,6 +94,31 @@ impl ZenohOptions {
         )?;
         Ok(config)
     }
+}
+
+/// The configuration in `file` (JSON5), or Zenoh's defaults.
+pub(crate) fn base_config(file: Option<&std::path::Path>) -> Result<zenoh::Config, ZenohError> {
+    match file {
+        Some(path) => zenoh::Config::from_file(path).map_err(|e| ZenohError::Config {
+            what: format!("reading {}", path.display()),
+            message: e.to_string(),
+        }),
+        None => Ok(zenoh::Config::default()),
+    }
+}
+
+/// Sets `key` to the JSON5 `value` in `config`.
+pub(crate) fn insert(
+    config: &mut zenoh::Config,
+    key: &str,
+    value: String,
+) -> Result<(), ZenohError> {
+    config
+        .insert_json5(key, &value)
+        .map_err(|e| ZenohError::Config {
+            what: format!("{key} = {value}"),
+            message: e.to_string(),
+        })
 }
 
 pub(crate) fn millis(d: Duration) -> String {

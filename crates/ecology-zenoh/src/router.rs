@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::ZenohError;
-use crate::config::{json_array, json_string, millis};
+use crate::config::{base_config, insert, json_array, json_string, millis};
 
 /// Options of [`run_router`].
 #[derive(Clone, Debug)]
@@ -45,21 +45,8 @@ pub async fn run_router(
     ready: impl FnOnce(String),
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), ZenohError> {
-    let mut config = match &options.zenoh_config {
-        Some(path) => zenoh::Config::from_file(path).map_err(|e| ZenohError::Config {
-            what: format!("reading {}", path.display()),
-            message: e.to_string(),
-        })?,
-        None => zenoh::Config::default(),
-    };
-    let mut insert = |key: &str, value: String| {
-        config
-            .insert_json5(key, &value)
-            .map_err(|e| ZenohError::Config {
-                what: format!("{key} = {value}"),
-                message: e.to_string(),
-            })
-    };
+    let mut config = base_config(options.zenoh_config.as_deref())?;
+    let mut insert = |key: &str, value: String| insert(&mut config, key, value);
     insert("mode", json_string("router"))?;
     if !options.listen.is_empty() {
         insert("listen/endpoints", json_array(&options.listen))?;
