@@ -100,6 +100,11 @@ pub struct ExecConfig {
     pub action_timeout: Duration,
     /// How many alternative configurations to log with each choice.
     pub alternatives: usize,
+    /// How much search one configuration may take: nodes, and time by the
+    /// executive's stopwatch ([`Executive::with_stopwatch`]). When it runs
+    /// out, the best configuration found is used; when none was found, the
+    /// action fails with that reason.
+    pub planning: ecology_config::Budget,
 }
 
 impl Default for ExecConfig {
@@ -109,6 +114,10 @@ impl Default for ExecConfig {
             waiting_grace: Duration::from_secs(2),
             action_timeout: Duration::from_secs(600),
             alternatives: 3,
+            planning: ecology_config::Budget {
+                max_expansions: Some(1_000_000),
+                max_time: Some(Duration::from_secs(2)),
+            },
         }
     }
 }
@@ -146,6 +155,37 @@ pub enum RunStatus {
 
 type ComponentKey = (String, String);
 
+/// The key of the meta-tuple that wires channel `c` into its consumer:
+/// `C.mi-INFO`, or `C.mi-INFO.ARG…` when the consumer has another input of
+/// the same kind in `all` (two images from two cameras), so that the two
+/// never share a key.
+fn input_key(
+    c: &ecology_config::ChannelInstance,
+    all: &[ecology_config::ChannelInstance],
+) -> String {
+    let shared = all.iter().any(|other| {
+        other.to_peis == c.to_peis
+            && other.to_component == c.to_component
+            && other.info_name == c.info_name
+            && other.info != c.info
+    });
+    if !shared {
+        return format!("{}.mi-{}", c.to_component, c.info_name);
+    }
+    let args: Vec<&str> = c
+        .info
+        .trim_matches(|ch| ch == '(' || ch == ')')
+        .split_whitespace()
+        .skip(1)
+        .filter(|a| !a.starts_with(':'))
+        .take_while(|a| {
+            a.chars()
+                .all(|ch| ch.is_ascii_alphanumeric() || ch == '_' || ch == '-')
+        })
+        .collect();
+    format!("{}.mi-{}.{}", c.to_component, c.info_name, args.join("."))
+}
+
 fn micros(d: Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
 }
@@ -169,6 +209,9 @@ struct ActionRun {
     action_timer: TimerId,
     waiting: BTreeMap<ComponentKey, TimerId>,
     done: BTreeSet<ComponentKey>,
+    /// Inputs to re-point once their new producer runs (make-before-break):
+    /// the producer, and the remote set that wires its consumer.
+    deferred: Vec<(ComponentKey, Command)>,
 }
 
 /// Measures how long acquisition and planning take, for the log. The
@@ -364,6 +407,7 @@ impl Executive {
             action_timer,
             waiting: BTreeMap::new(),
             done: BTreeSet::new(),
+            deferred: Vec::new(),
         });
         if self.plan[index].goal.is_none() {
             self.finish_action(out);
@@ -376,17 +420,32 @@ impl Executive {
     fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
         let Some(run) = &self.run else { return };
         let index = run.index;
-        let exclusions = run.excluded.clone();
+        let mut exclusions = run.excluded.clone();
         let Some(goal) = self.plan[index].goal.clone() else {
             return;
         };
         let before = self.stopwatch.0.elapsed();
         let state = self.mirror.state(&self.world);
         let (peis, components) = self.mirror.counts();
+        // A component that reports `error` stays out until it reports
+        // something else (its PEIS restarting it counts): whatever action
+        // it failed in.
+        let mut unavailable = Vec::new();
+        for (p, c, cause) in self.mirror.in_error() {
+            let exclusion = Exclusion::Component {
+                peis: p.clone(),
+                component: c.clone(),
+            };
+            if !exclusions.contains(&exclusion) {
+                exclusions.push(exclusion);
+                unavailable.push(format!("{p}:{c} reports error ({cause})"));
+            }
+        }
         let acquired = self.stopwatch.0.elapsed();
         self.record(LogEvent::StateAcquired {
             peis,
             components,
+            unavailable,
             micros: micros(acquired.saturating_sub(before)),
         });
         let request = Request {
@@ -397,9 +456,9 @@ impl Executive {
         };
         let options = Options {
             count: self.config.alternatives.max(1),
-            ..Options::default()
+            budget: self.config.planning,
         };
-        let outcome = match ecology_config::plan(&request, &options, &NoClock) {
+        let outcome = match ecology_config::plan(&request, &options, &*self.stopwatch.0) {
             Ok(outcome) => outcome,
             Err(err) => {
                 self.fail_action(err.to_string(), out);
@@ -407,9 +466,16 @@ impl Executive {
             }
         };
         let Some(chosen) = outcome.configurations.first().cloned() else {
-            let reason = outcome
-                .explanation
-                .map_or_else(|| format!("no configuration for {goal}"), |e| e.to_string());
+            let reason = if outcome.status == ecology_config::Status::BudgetExceeded {
+                format!(
+                    "the configuration planner's budget ran out ({} nodes expanded) before it found a configuration for {goal}",
+                    outcome.stats.expanded
+                )
+            } else {
+                outcome
+                    .explanation
+                    .map_or_else(|| format!("no configuration for {goal}"), |e| e.to_string())
+            };
             self.fail_action(reason, out);
             return;
         };
@@ -469,15 +535,24 @@ impl Executive {
             }
         }
         let mut channels = Vec::new();
+        let mut deferred = Vec::new();
         for c in &config.channels {
-            out.push(Command::RemoteSet {
+            let wire = Command::RemoteSet {
                 owner: c.to_peis.clone(),
-                key: format!("{}.mi-{}", c.to_component, c.info_name),
+                key: input_key(c, &config.channels),
                 value: format!(
                     "(meta {} {}.out.{})",
                     c.from_peis, c.from_component, c.info_name
                 ),
-            });
+            };
+            // Make-before-break: an input is re-pointed only once its new
+            // producer runs, so its consumer never reads from nothing.
+            let producer = (c.from_peis.clone(), c.from_component.clone());
+            if pending.contains(&producer) {
+                deferred.push((producer, wire));
+            } else {
+                out.push(wire);
+            }
             channels.push(format!(
                 "{}:{} → {}:{} {}",
                 c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
@@ -500,6 +575,7 @@ impl Executive {
             out.push(Command::CancelTimer(id));
         }
         run.done = finished.into_iter().collect();
+        run.deferred = deferred;
         run.deploy_timer = deploy_timer;
         run.config = Some(config);
         run.phase = Phase::Deploying { pending };
@@ -542,7 +618,33 @@ impl Executive {
         }
         self.running = config;
         self.record(LogEvent::Running { switched_off });
+        self.arm_waiting_timers(out);
         self.check_done(out);
+    }
+
+    /// Starts the grace period of every component of the running
+    /// configuration that reports `waiting` and has none: one that was
+    /// waiting across a redeploy is timed again.
+    fn arm_waiting_timers(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        let Some(config) = &run.config else { return };
+        let waiting: Vec<ComponentKey> = config
+            .functionalities
+            .iter()
+            .map(|f| (f.peis.clone(), f.component.clone()))
+            .filter(|k| !run.waiting.contains_key(k) && !run.failed.contains(k))
+            .filter(|(p, c)| {
+                self.mirror
+                    .component(p, c)
+                    .is_some_and(|v| v.status.as_deref() == Some("waiting"))
+            })
+            .collect();
+        for key in waiting {
+            let id = self.timer(self.config.waiting_grace, out);
+            if let Some(run) = &mut self.run {
+                run.waiting.insert(key, id);
+            }
+        }
     }
 
     fn in_current_config(&self, key: &ComponentKey) -> bool {
@@ -572,6 +674,12 @@ impl Executive {
                 if let Phase::Deploying { pending } = &mut run.phase {
                     pending.remove(&key);
                 }
+                // Its consumers' inputs can point at it now.
+                let (ready, later): (Vec<_>, Vec<_>) = std::mem::take(&mut run.deferred)
+                    .into_iter()
+                    .partition(|(producer, _)| *producer == key);
+                run.deferred = later;
+                out.extend(ready.into_iter().map(|(_, wire)| wire));
                 if status == "done" {
                     run.done.insert(key);
                 }
@@ -745,7 +853,10 @@ impl Executive {
             .filter(|f| !f.postcondition.is_empty())
             .map(|f| (f.peis.clone(), f.component.clone()))
             .collect();
-        if !finishing.is_empty() && finishing.iter().all(|k| run.done.contains(k)) {
+        // An action is done when every functionality with a postcondition
+        // reports `done`; one whose configuration has none (it only provides
+        // information) is done as soon as its configuration runs.
+        if finishing.iter().all(|k| run.done.contains(k)) {
             self.finish_action(out);
         }
     }
@@ -756,6 +867,9 @@ impl Executive {
         for (_, id) in run.waiting {
             out.push(Command::CancelTimer(id));
         }
+        // Inputs still waiting for their producer are wired all the same:
+        // the next action may keep them.
+        out.extend(run.deferred.into_iter().map(|(_, wire)| wire));
         self.record(LogEvent::ActionDone {
             index: run.index,
             action: self.plan[run.index].action.clone(),

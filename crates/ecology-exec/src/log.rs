@@ -37,6 +37,8 @@ pub enum LogEvent {
         peis: usize,
         /// Components known on them.
         components: usize,
+        /// Components left out, and why (`hsm:tr1 reports error (cause)`).
+        unavailable: Vec<String>,
         /// How long building the state took (0 without a stopwatch).
         micros: u64,
     },
@@ -174,9 +176,12 @@ impl LogEntry {
                 json!({ "index": index, "action": action })
             }
             LogEvent::StateAcquired {
-                peis, components, ..
+                peis,
+                components,
+                unavailable,
+                ..
             } => {
-                json!({ "peis": peis, "components": components })
+                json!({ "peis": peis, "components": components, "unavailable": unavailable })
             }
             LogEvent::Configuration {
                 goal,
@@ -246,9 +251,16 @@ impl fmt::Display for LogEntry {
                 write!(f, "action {}: {action}", index + 1)
             }
             LogEvent::StateAcquired {
-                peis, components, ..
+                peis,
+                components,
+                unavailable,
+                ..
             } => {
-                write!(f, "  state acquired: {peis} PEIS, {components} components")
+                write!(f, "  state acquired: {peis} PEIS, {components} components")?;
+                if !unavailable.is_empty() {
+                    write!(f, "; unavailable: {}", unavailable.join(", "))?;
+                }
+                Ok(())
             }
             LogEvent::Configuration {
                 goal,

@@ -180,6 +180,22 @@ impl Mirror {
         state
     }
 
+    /// The components of present PEIS that report `error`, with their cause.
+    pub fn in_error(&self) -> Vec<(String, String, String)> {
+        self.peis
+            .iter()
+            .filter(|(_, view)| view.present)
+            .flat_map(|(p, view)| {
+                view.components.iter().filter_map(move |(c, comp)| {
+                    (comp.status.as_deref() == Some("error")).then(|| {
+                        let cause = comp.cause.clone().unwrap_or_default();
+                        (p.clone(), c.clone(), cause)
+                    })
+                })
+            })
+            .collect()
+    }
+
     /// Counts of present PEIS and of their typed components.
     pub fn counts(&self) -> (usize, usize) {
         let present: Vec<&PeisView> = self.peis.values().filter(|v| v.present).collect();

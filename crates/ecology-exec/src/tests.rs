@@ -633,6 +633,190 @@ fn waiting_too_long_is_a_failure() {
 }
 
 #[test]
+fn a_component_in_error_stays_out_of_later_actions() {
+    let mut broken = false;
+    let exec =
+        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
+            // On the way to the entrance, the tracking system fails for good.
+            if !broken && eco.now >= secs(2.0) {
+                broken = true;
+                eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
+            }
+        });
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    // Moving to the bedroom does not try the broken tracking system again.
+    assert_eq!(
+        costs(&exec),
+        [
+            (80, false),
+            (170, true),
+            (100, false),
+            (170, false),
+            (20, false)
+        ],
+        "{}",
+        timeline(&exec)
+    );
+    assert_eq!(names(&exec).iter().filter(|n| **n == "failure").count(), 1);
+    let text = timeline(&exec);
+    assert!(
+        text.contains("unavailable: hsm:tr1 reports error (camera ca1 stopped producing images)"),
+        "{text}"
+    );
+}
+
+/// The first `RemoteSet` of `key` on `owner` among `commands`.
+fn set_of<'a>(commands: &'a [Command], owner: &str, key: &str) -> Option<&'a str> {
+    commands.iter().find_map(|c| match c {
+        Command::RemoteSet {
+            owner: o,
+            key: k,
+            value,
+        } if o == owner && k == key => Some(value.as_str()),
+        _ => None,
+    })
+}
+
+#[test]
+fn inputs_are_repointed_only_once_their_new_producer_runs() {
+    let mut exec = running_first_action();
+    // Everything is on; the tracking system fails: scan matching on the laser
+    // replaces it, and l1, od1 and s1 get new params.
+    let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+    assert_eq!(
+        set_of(&commands, "astrid", "s1.params"),
+        Some("(scan-matching astrid s1)")
+    );
+    // Navigation still reads the old position until scan matching runs.
+    assert_eq!(set_of(&commands, "astrid", "tc1.mi-position"), None);
+    assert_eq!(set_of(&commands, "astrid", "s1.mi-range-scan"), None);
+    let commands = exec.handle(secs(2.2), tuple("astrid", "l1.status", "running", 2));
+    assert_eq!(
+        set_of(&commands, "astrid", "s1.mi-range-scan"),
+        Some("(meta astrid l1.out.range-scan)")
+    );
+    exec.handle(secs(2.3), tuple("astrid", "od1.status", "running", 3));
+    let commands = exec.handle(secs(2.4), tuple("astrid", "s1.status", "running", 3));
+    assert_eq!(
+        set_of(&commands, "astrid", "tc1.mi-position"),
+        Some("(meta astrid s1.out.position)")
+    );
+}
+
+#[test]
+fn a_component_waiting_across_a_redeploy_is_still_timed() {
+    let mut exec = running_first_action();
+    exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    // While the new configuration deploys, navigation loses its position.
+    exec.handle(secs(2.1), tuple("astrid", "tc1.status", "waiting", 3));
+    exec.handle(secs(2.2), tuple("astrid", "l1.status", "running", 2));
+    exec.handle(secs(2.3), tuple("astrid", "od1.status", "running", 3));
+    let commands = exec.handle(secs(2.4), tuple("astrid", "s1.status", "running", 3));
+    assert_eq!(names(&exec).last(), Some(&"running"), "{}", timeline(&exec));
+    let grace = ExecConfig::default().waiting_grace;
+    let Some(id) = commands.iter().find_map(|c| match c {
+        Command::StartTimer { id, after } if *after == grace => Some(*id),
+        _ => None,
+    }) else {
+        panic!("no grace timer for the waiting navigation: {commands:?}");
+    };
+    exec.handle(secs(4.4), Event::Timer(id));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("FAILURE astrid:tc1: waiting for longer than 2s"),
+        "{text}"
+    );
+}
+
+#[test]
+fn an_action_whose_configuration_has_no_postcondition_is_done_once_it_runs() {
+    let localize = PlannedAction {
+        action: "(localize astrid)".to_string(),
+        goal: Some(parse_goal("(get-position astrid)").expect("goal")),
+    };
+    let exec =
+        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(vec![localize]), secs(600.0), |_, _| {});
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+    // Long before the action's 600 s timeout: as soon as it runs.
+    let done_at = exec
+        .log()
+        .iter()
+        .find(|e| e.event.name() == "action_done")
+        .map(|e| e.t);
+    assert!(
+        done_at.is_some_and(|t| t < secs(5.0)),
+        "{}",
+        timeline(&exec)
+    );
+}
+
+const STEREO: &str = "
+(define (domain stereo)
+  (:functionality camera :parameters (?p ?c) :component (?p ?c)
+    :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 1)
+  (:functionality fuse :parameters (?r ?s ?a ?b) :component (?r ?s)
+    :precondition (pc ?r stereo ?s) :input ((image ?a) (image ?b)) :postcondition (seen ?r) :cost 1)
+  (:task see :parameters (?r))
+  (:method see-with-two-cameras :parameters (?r ?s ?a ?ca ?b ?cb) :task (see ?r)
+    :precondition (and (pc ?r stereo ?s) (pc ?a cam ?ca) (pc ?b cam ?cb) (not (= ?a ?b)))
+    :subtasks ((f1 (camera ?a ?ca)) (f2 (camera ?b ?cb)) (f3 (fuse ?r ?s ?a ?b)))
+    :channels ((f1 f3 (image ?a)) (f2 f3 (image ?b)))))
+";
+
+#[test]
+fn two_inputs_of_the_same_kind_get_keys_of_their_own() {
+    let domain = parse_domain(STEREO.as_bytes()).expect("domain");
+    let see = PlannedAction {
+        action: "(look robot)".to_string(),
+        goal: Some(parse_goal("(see robot)").expect("goal")),
+    };
+    let mut exec = Executive::new(
+        domain,
+        EcologyState::new(),
+        vec![see],
+        ExecConfig::default(),
+    );
+    for (p, ty, c) in [
+        ("robot", "stereo", "s1"),
+        ("left", "cam", "c1"),
+        ("right", "cam", "c2"),
+    ] {
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.type"), ty, 1),
+        );
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.cost"), "1", 1),
+        );
+        exec.handle(
+            Duration::ZERO,
+            tuple(p, &format!("components.{c}.currState"), "on", 1),
+        );
+    }
+    exec.handle(Duration::ZERO, Event::Start);
+    let mut wired = Vec::new();
+    for (p, c) in [("left", "c1"), ("right", "c2")] {
+        for command in exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2)) {
+            if let Command::RemoteSet { key, value, .. } = command {
+                wired.push(format!("{key} = {value}"));
+            }
+        }
+    }
+    wired.sort();
+    assert_eq!(
+        wired,
+        [
+            "s1.mi-image.left = (meta left c1.out.image)",
+            "s1.mi-image.right = (meta right c2.out.image)"
+        ],
+        "{}",
+        timeline(&exec)
+    );
+}
+
+#[test]
 fn a_restarted_peis_fails_its_components_and_its_new_run_counts() {
     let mut exec = running_first_action();
     // hsm restarts before anyone noticed it leave: its tuples come numbered
@@ -909,7 +1093,7 @@ mod on_the_tuple_space {
     }
 
     /// Runs `plan`; with `slow`, every remote set to that PEIS takes that long.
-    /// Also returns astrid's `tc1.mi-position` as it is at the end, and when
+    /// Also returns hsm's `tr1.params` as it was first set, and when
     /// the driver started (log times count from it).
     async fn run_with(
         fault: Fault,
@@ -1002,6 +1186,10 @@ mod on_the_tuple_space {
             limit: Some(Duration::from_secs(300)),
             ..DriverConfig::default()
         };
+        let mut probe = me
+            .subscribe(TuplePattern::parse("hsm:tr1.params").expect("pattern"))
+            .await
+            .expect("subscribe");
         let started = shared.now();
         match slow {
             Some((peis, delay)) => {
@@ -1016,11 +1204,12 @@ mod on_the_tuple_space {
             None => drive(&me, shared.clone(), &mut exec, config).await,
         }
         .expect("drives");
-        let astrid = PeisId::new("astrid").expect("name");
-        let wired = me
-            .get(astrid, Key::new("tc1.mi-position").expect("key"))
-            .await
-            .expect("get");
+        let mut wired = None;
+        while let Some(event) = probe.try_next() {
+            if let ecology_tuples::TupleEvent::Changed(t) = event {
+                wired.get_or_insert(t);
+            }
+        }
         ticking.store(false, Ordering::Relaxed);
         let _ = ticker.await;
         for stop in stops {
@@ -1046,7 +1235,7 @@ mod on_the_tuple_space {
     async fn remote_sets_to_different_peis_run_concurrently() {
         let slow = Duration::from_secs(2);
         let (exec, wired, started) =
-            run_with(Fault::None, Some(("hsm", slow)), plan()[..1].to_vec()).await;
+            run_with(Fault::None, Some(("astrid", slow)), plan()[..1].to_vec()).await;
         assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
         let deployed_at = exec
             .log()
@@ -1060,15 +1249,15 @@ mod on_the_tuple_space {
             .find(|e| e.event.name() == "running")
             .map(|e| e.t)
             .expect("running");
-        // hsm's three remote sets (two params, one input) follow each other: 6 s.
-        assert!(running_at >= deployed_at + 3 * slow, "{}", timeline(&exec));
-        // astrid's input, sent after hsm's params, was not held up behind them.
-        let wired = wired.expect("astrid's tc1.mi-position");
+        // astrid's two params follow each other (4 s) before her components run.
+        assert!(running_at >= deployed_at + 2 * slow, "{}", timeline(&exec));
+        // hsm's params, asked for after astrid's, were not held up behind them.
+        let wired = wired.expect("hsm's tr1.params");
         assert_eq!(wired.seq, 1);
         let wired_at = wired.ts_write.saturating_duration_since(started);
         assert!(
             wired_at < deployed_at + Duration::from_millis(500),
-            "astrid's input was wired at {wired_at:?}, deployed at {deployed_at:?}"
+            "hsm's params were set at {wired_at:?}, deployed at {deployed_at:?}"
         );
     }
 

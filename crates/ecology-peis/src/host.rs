@@ -6,7 +6,7 @@
 //! start-up delay, `off` stops it. When a component is on and has `C.params`,
 //! the host runs its body with those params; new params restart it, and
 //! empty params stop it (`idle`). A body that returns an error is reported as
-//! `error` with the error as `C.cause`; one that panics too, so a failing
+//! `error` with the error as `C.cause` (`on` again restarts it); one that panics too, so a failing
 //! component never takes the PEIS down. Every body runs in a task the host
 //! owns. On shutdown the host stops every body and reports every component
 //! that was on as switched off, so the ecology sees it go before the PEIS
@@ -148,6 +148,12 @@ pub async fn run_host<S: TupleSpace>(
                 match t.text().unwrap_or("") {
                     "on" if !state.on && state.starting_until.is_none() => {
                         state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
+                    }
+                    // On already, but its body stopped (it failed, or finished):
+                    // switching it on again runs its params afresh.
+                    "on" if state.on && state.task.is_none() && state.params.is_some() => {
+                        let c = c.to_string();
+                        start(&space, &clock, &mut states, &c, &mut tasks).await?;
                     }
                     "off" => {
                         state.starting_until = None;

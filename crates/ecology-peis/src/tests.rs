@@ -205,6 +205,34 @@ async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
 }
 
 #[tokio::test]
+async fn switching_on_again_restarts_a_body_that_failed() {
+    let attempts = Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let counted = attempts.clone();
+    let fails_once: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(move |ctx: Context<InProcessPeis>| {
+            let attempt = counted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            async move {
+                if attempt == 0 {
+                    return Err(ComponentError::Fault("lens fogged".into()));
+                }
+                ctx.status("running", None).await?;
+                std::future::pending::<()>().await;
+                Ok(())
+            }
+        });
+    let f = start(vec![spec("a", true, fails_once)]).await;
+    f.set("a.params", "(x)").await;
+    f.pass(Duration::from_millis(100)).await;
+    assert_eq!(f.get("a.status").await.as_deref(), Some("error"));
+    // It is on, so `on` used to change nothing and the component stayed dead.
+    f.set("components.a.reqState", "on").await;
+    f.pass(Duration::from_millis(100)).await;
+    assert_eq!(f.get("a.status").await.as_deref(), Some("running"));
+    assert_eq!(attempts.load(std::sync::atomic::Ordering::Relaxed), 2);
+    f.stop().await;
+}
+
+#[tokio::test]
 async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
     let consumer: Arc<dyn Component<InProcessPeis>> =
         Arc::new(|ctx: Context<InProcessPeis>| async move {
