@@ -186,12 +186,13 @@ impl Mirror {
             .iter()
             .filter(|(_, view)| view.present)
             .flat_map(|(p, view)| {
-                view.components.iter().filter_map(move |(c, comp)| {
-                    (comp.status.as_deref() == Some("error")).then(|| {
+                view.components
+                    .iter()
+                    .filter(|(_, comp)| comp.status.as_deref() == Some("error"))
+                    .map(move |(c, comp)| {
                         let cause = comp.cause.clone().unwrap_or_default();
                         (p.clone(), c.clone(), cause)
                     })
-                })
             })
             .collect()
     }
