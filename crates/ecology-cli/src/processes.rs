@@ -264,15 +264,19 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         wait_for.extend(scenario.peis.iter().map(|p| p.name.as_str()));
         let wait_for = wait_for.join(",");
         let domain_file = folder.join(&scenario.domain_file).display().to_string();
-        let plan_file = plan_file.display().to_string();
+        // A problem lets the executive plan again when an action fails; a plan is run as it is.
+        let (task_flag, task_file) = match &scenario.problem {
+            Some((_, problem_file)) => ("--problem", folder.join(problem_file).display().to_string()),
+            None => ("--plan", plan_file.display().to_string()),
+        };
         let action_timeout = scenario.action_timeout.as_secs_f64().max(0.001).to_string();
         let executive_endpoint = free_endpoint()?;
         let mut executive_args = strings(&[
             "task",
             "--domain",
             &domain_file,
-            "--plan",
-            &plan_file,
+            task_flag,
+            &task_file,
             "--wait-for",
             &wait_for,
             "--action-timeout",

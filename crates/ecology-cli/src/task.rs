@@ -11,7 +11,10 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ecology_domain::EcologyState;
-use ecology_exec::{DriverConfig, ExecConfig, Executive, PlannedAction, RunStatus, drive_until};
+use ecology_exec::{
+    DriverConfig, ExecConfig, Executive, PlannedAction, Replan, RunStatus, drive_until,
+};
+use ecology_sim::WorldReplanner;
 use ecology_tuples::{Key, PeisId, SystemClock, TupleSpace, Value};
 
 use crate::configure::WallClock;
@@ -65,13 +68,18 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
     let Ok(domain) = input::domain(&args.domain)? else {
         return Ok(EXIT_BAD_INPUT);
     };
+    let mut replanner = None;
     let plan = match (&args.problem, &args.plan) {
         (Some(path), _) => {
             let Ok(problem) = input::problem(path, &domain)? else {
                 return Ok(EXIT_BAD_INPUT);
             };
             match ecology_sim::plan_actions(&domain, &problem) {
-                Ok(plan) => plan,
+                Ok(plan) => {
+                    // A failed action is planned around from the world as observed.
+                    replanner = Some(WorldReplanner::new(domain.clone(), problem));
+                    plan
+                }
                 Err(e) => {
                     eprintln!("error: {}: {e}", path.display());
                     return Ok(EXIT_NO_SOLUTION);
@@ -116,33 +124,42 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
             Ok(space) => space,
             Err(failure) => return Ok(join_failed(failure)),
         };
-        let code = execute(
-            &space,
-            &domain,
+        let task = Task {
+            domain: &domain,
             plan,
             config,
             settle,
-            &expected,
-            wait_timeout,
-            args.json,
-        )
-        .await;
+            replanner,
+        };
+        let code = execute(&space, task, &expected, wait_timeout, args.json).await;
         space.close().await;
         code
     })
 }
 
-#[allow(clippy::too_many_arguments)]
-async fn execute(
-    space: &ecology_zenoh::ZenohPeis,
-    domain: &ecology_domain::Domain,
+/// What the executive runs.
+struct Task<'a> {
+    domain: &'a ecology_domain::Domain,
     plan: Vec<PlannedAction>,
     config: ExecConfig,
     settle: Duration,
+    replanner: Option<WorldReplanner>,
+}
+
+async fn execute(
+    space: &ecology_zenoh::ZenohPeis,
+    task: Task<'_>,
     expected: &[PeisId],
     wait_timeout: Duration,
     json: bool,
 ) -> anyhow::Result<u8> {
+    let Task {
+        domain,
+        plan,
+        config,
+        settle,
+        mut replanner,
+    } = task;
     // Wait for the PEIS the task needs, saying which are missing.
     let waited = Instant::now();
     let mut told = false;
@@ -211,6 +228,7 @@ async fn execute(
             let which = network::stop_signal().await;
             eprintln!("{which}: stopping the task and switching off what it switched on");
         },
+        replanner.as_mut().map(|r| r as &mut dyn Replan),
     )
     .await;
     drop(log_tx);

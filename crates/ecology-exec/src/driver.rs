@@ -17,7 +17,7 @@ use ecology_tuples::{
     TupleSpace, Value,
 };
 
-use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
+use crate::executive::{Command, Event, Executive, PlannedAction, RunStatus, TimerId};
 use crate::log::LogEntry;
 
 /// How the driver runs.
@@ -45,7 +45,16 @@ pub async fn drive<S: TupleSpace>(
     exec: &mut Executive,
     config: DriverConfig,
 ) -> Result<RunStatus, TupleError> {
-    drive_until(space, clock, exec, config, |_| {}, std::future::pending()).await
+    drive_until(
+        space,
+        clock,
+        exec,
+        config,
+        |_| {},
+        std::future::pending(),
+        None,
+    )
+    .await
 }
 
 /// [`drive`], calling `observe` with every log entry as soon as the executive
@@ -57,7 +66,29 @@ pub async fn drive_observed<S: TupleSpace>(
     config: DriverConfig,
     observe: impl FnMut(&LogEntry),
 ) -> Result<RunStatus, TupleError> {
-    drive_until(space, clock, exec, config, observe, std::future::pending()).await
+    drive_until(
+        space,
+        clock,
+        exec,
+        config,
+        observe,
+        std::future::pending(),
+        None,
+    )
+    .await
+}
+
+/// Action-level recovery: a new plan when an action fails (the paper's
+/// Section VII: the failed action is marked unavailable and the task is
+/// planned again from the world as it is).
+pub trait Replan: Send {
+    /// The tuples that describe the world, read when an action fails.
+    fn observe(&self) -> TuplePattern;
+
+    /// A new plan without the action instances of `failed` (every one that
+    /// failed in this task), from the world as the tuples `world` describe
+    /// it; `Err` says why there is none.
+    fn replan(&mut self, failed: &[String], world: &[Tuple]) -> Result<Vec<PlannedAction>, String>;
 }
 
 /// [`drive_observed`], stopping the task when `stop` completes (an operator's
@@ -66,9 +97,12 @@ pub async fn drive_observed<S: TupleSpace>(
 ///
 /// Remote sets go out concurrently to different PEIS and in order to each
 /// one; one that fails comes back to the executive as
-/// [`Event::RemoteSetFailed`]. When an action fails, the task is abandoned
-/// ([`Executive::abandon`]). Before returning, the driver waits for every
-/// remote set it sent (each is bounded by the space's own timeout).
+/// [`Event::RemoteSetFailed`]. When an action fails, `replan` (if any) is
+/// asked for a new plan from the world as observed, and the task goes on
+/// with it ([`Executive::replan`]); without one, or when no plan remains, the
+/// task is abandoned ([`Executive::abandon_because`]). Before returning, the
+/// driver waits for every remote set it sent (each is bounded by the
+/// space's own timeout).
 pub async fn drive_until<S: TupleSpace>(
     space: &S,
     clock: Arc<dyn Clock>,
@@ -76,6 +110,7 @@ pub async fn drive_until<S: TupleSpace>(
     config: DriverConfig,
     mut observe: impl FnMut(&LogEntry),
     stop: impl Future<Output = ()>,
+    mut replan: Option<&mut dyn Replan>,
 ) -> Result<RunStatus, TupleError> {
     let mut observed = exec.log().len();
     let start = clock.now();
@@ -94,7 +129,20 @@ pub async fn drive_until<S: TupleSpace>(
     loop {
         let mut commands = Vec::new();
         if matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
-            commands = exec.abandon(elapsed(&clock));
+            commands = match replan.as_deref_mut() {
+                Some(replanner) if !stopped => {
+                    // A failed read leaves the replanner the plan's own assumptions.
+                    let world = space
+                        .get_matching(replanner.observe())
+                        .await
+                        .unwrap_or_default();
+                    match replanner.replan(exec.failed_actions(), &world) {
+                        Ok(plan) => exec.replan(elapsed(&clock), plan),
+                        Err(why) => exec.abandon_because(elapsed(&clock), Some(&why)),
+                    }
+                }
+                _ => exec.abandon(elapsed(&clock)),
+            };
         } else if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
             sets.flush(exec, &clock, start).await;
             for entry in &exec.log()[observed..] {

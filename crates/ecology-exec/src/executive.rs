@@ -243,6 +243,8 @@ pub struct Executive {
     params: BTreeMap<ComponentKey, String>,
     /// Whether the task has ended and what it used has been released.
     finished: bool,
+    /// Every action instance that failed in this task, in order.
+    failed_actions: Vec<String>,
     next_timer: u64,
     now: Duration,
     log: Vec<LogEntry>,
@@ -270,6 +272,7 @@ impl Executive {
             started: BTreeSet::new(),
             params: BTreeMap::new(),
             finished: false,
+            failed_actions: Vec::new(),
             next_timer: 0,
             now: Duration::ZERO,
             log: Vec::new(),
@@ -886,6 +889,8 @@ impl Executive {
         for (_, id) in run.waiting {
             out.push(Command::CancelTimer(id));
         }
+        self.failed_actions
+            .push(self.plan[run.index].action.clone());
         self.record(LogEvent::ActionFailed {
             index: run.index,
             action: self.plan[run.index].action.clone(),
@@ -938,30 +943,47 @@ impl Executive {
         self.finished
     }
 
+    /// Every action instance that failed in this task so far, in order: what
+    /// a replanner must leave out.
+    pub fn failed_actions(&self) -> &[String] {
+        &self.failed_actions
+    }
+
     /// Action-level recovery: after an action failed, continue with a new
-    /// plan (from the action planner, without the failed action).
+    /// plan (from the action planner, without the failed actions and from
+    /// the world as observed).
     pub fn replan(&mut self, now: Duration, plan: Vec<PlannedAction>) -> Vec<Command> {
         self.now = self.now.max(now);
         let mut out = Vec::new();
-        if !matches!(self.status, RunStatus::Failed { .. }) {
+        if self.finished || !matches!(self.status, RunStatus::Failed { .. }) {
             return out;
         }
+        let failed = self.failed_actions.last().cloned().unwrap_or_default();
         self.plan = plan;
         let actions = self.plan.iter().map(|a| a.action.clone()).collect();
-        self.record(LogEvent::Plan { actions });
+        self.record(LogEvent::Replanned { failed, actions });
         self.start_action(0, &mut out);
         out
     }
 
     /// Gives up after a failed action: the task fails, and what it used is released.
     pub fn abandon(&mut self, now: Duration) -> Vec<Command> {
+        self.abandon_because(now, None)
+    }
+
+    /// [`Executive::abandon`], saying why no other plan was tried or found
+    /// (the action planner's explanation).
+    pub fn abandon_because(&mut self, now: Duration, why: Option<&str>) -> Vec<Command> {
         self.now = self.now.max(now);
         let mut out = Vec::new();
         if self.finished {
             return out;
         }
         if let RunStatus::Failed { index, .. } = &self.status {
-            let reason = format!("action {} failed", self.plan[*index].action);
+            let mut reason = format!("action {} failed", self.plan[*index].action);
+            if let Some(why) = why {
+                reason.push_str(&format!(" and no plan remains: {why}"));
+            }
             self.release(&mut out);
             self.record(LogEvent::TaskFailed { reason });
         }

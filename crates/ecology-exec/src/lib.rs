@@ -16,7 +16,7 @@ mod plan_file;
 #[cfg(test)]
 mod tests;
 
-pub use driver::{DriverConfig, drive, drive_observed, drive_until};
+pub use driver::{DriverConfig, Replan, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};

@@ -24,6 +24,13 @@ pub enum LogEvent {
         /// The actions, in order.
         actions: Vec<String>,
     },
+    /// An action failed and the task goes on with a new plan.
+    Replanned {
+        /// The action that failed.
+        failed: String,
+        /// The new plan's actions, in order.
+        actions: Vec<String>,
+    },
     /// An action started.
     ActionStarted {
         /// Its index in the plan.
@@ -146,6 +153,7 @@ impl LogEvent {
     pub fn name(&self) -> &'static str {
         match self {
             LogEvent::Plan { .. } => "plan",
+            LogEvent::Replanned { .. } => "replan",
             LogEvent::ActionStarted { .. } => "action_started",
             LogEvent::StateAcquired { .. } => "state_acquired",
             LogEvent::Configuration { .. } => "configuration",
@@ -172,6 +180,9 @@ impl LogEntry {
         use serde_json::json;
         let mut object = match &self.event {
             LogEvent::Plan { actions } => json!({ "actions": actions }),
+            LogEvent::Replanned { failed, actions } => {
+                json!({ "failed": failed, "actions": actions })
+            }
             LogEvent::ActionStarted { index, action } => {
                 json!({ "index": index, "action": action })
             }
@@ -247,6 +258,12 @@ impl fmt::Display for LogEntry {
         write!(f, "{:>8.3}s  ", self.t.as_secs_f64())?;
         match &self.event {
             LogEvent::Plan { actions } => write!(f, "plan: {}", actions.join(" → ")),
+            LogEvent::Replanned { failed, actions } if actions.is_empty() => {
+                write!(f, "replan without {failed}: nothing left to do")
+            }
+            LogEvent::Replanned { failed, actions } => {
+                write!(f, "replan without {failed}: {}", actions.join(" → "))
+            }
             LogEvent::ActionStarted { index, action } => {
                 write!(f, "action {}: {action}", index + 1)
             }

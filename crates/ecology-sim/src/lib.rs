@@ -12,6 +12,7 @@
 
 mod components;
 mod host;
+mod replan;
 mod rng;
 mod run;
 mod scenario;
@@ -23,6 +24,7 @@ mod tests;
 
 pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
 pub use host::{host_peis, parse_fault, simulated_components};
+pub use replan::WorldReplanner;
 pub use rng::Rng;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
 pub use scenario::{

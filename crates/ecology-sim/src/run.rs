@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use ecology_domain::EcologyState;
 use ecology_exec::{
-    DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, RunStatus, drive_observed,
+    DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, Replan, RunStatus, drive_until,
 };
 use ecology_peis::{HostError, run_host};
 use ecology_tuples::{
@@ -26,6 +26,7 @@ use tokio::task::{AbortHandle, JoinSet};
 
 use crate::components::{Faults, WORLD};
 use crate::host::simulated_components;
+use crate::replan::WorldReplanner;
 use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, Trigger};
 use crate::world::World;
 use crate::world_peis::WorldPeis;
@@ -205,7 +206,12 @@ pub async fn run(
     let driven = {
         let observer = observer.clone();
         let shared = shared.clone();
-        drive_observed(&me, shared.clone(), &mut exec, config, |entry| {
+        // Action-level recovery when the scenario has a problem to plan again.
+        let mut replanner = scenario
+            .problem
+            .as_ref()
+            .map(|(problem, _)| WorldReplanner::new(scenario.domain.clone(), problem.clone()));
+        let observe = |entry: &LogEntry| {
             let index = match &entry.event {
                 LogEvent::ActionStarted { index, .. }
                 | LogEvent::ActionDone { index, .. }
@@ -224,11 +230,18 @@ pub async fn run(
                 }
             }
             (lock(&observer))(Update::Log(entry.clone()));
-        })
+        };
+        drive_until(
+            &me,
+            shared.clone(),
+            &mut exec,
+            config,
+            observe,
+            std::future::pending(),
+            replanner.as_mut().map(|r| r as &mut dyn Replan),
+        )
         .await
     };
-    // No action-level recovery here: a failed action fails the task (the
-    // driver abandons it), with the planner's explanation in the action's failure.
     let _ = stop.send(true);
     let mut outcome = Ok(scenario.world.clone());
     while let Some(joined) = tasks.join_next().await {

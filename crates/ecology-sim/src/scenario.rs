@@ -153,6 +153,9 @@ pub struct Scenario {
     pub domain: Domain,
     /// The domain file, as the scenario names it (relative to the scenario file's folder).
     pub domain_file: PathBuf,
+    /// The problem the plan was made for (when the scenario gives one, not a
+    /// plan), and its file as the scenario names it: for replanning.
+    pub problem: Option<(Problem, PathBuf)>,
     /// The plan to execute.
     pub plan: Vec<PlannedAction>,
     /// The world at the start.
@@ -384,8 +387,13 @@ impl Scenario {
         let domain = parse_domain(&domain_bytes).map_err(|d| {
             ScenarioError::Task(d.render(parsed.task.domain.get_ref(), &domain_bytes))
         })?;
+        let mut planned_problem = None;
         let plan = match (&parsed.task.problem, &parsed.task.plan) {
-            (Some(problem), None) => plan_for(&domain, problem, &read_named)?,
+            (Some(problem), None) => {
+                let (plan, parsed_problem) = plan_for(&domain, problem, &read_named)?;
+                planned_problem = Some((parsed_problem, PathBuf::from(problem.get_ref())));
+                plan
+            }
             (None, Some(steps)) => {
                 let mut plan = Vec::new();
                 for step in steps {
@@ -581,6 +589,7 @@ impl Scenario {
             .ok_or_else(|| check.at(0..0, "action_timeout must be a positive number of seconds"))?;
         Ok(Scenario {
             domain_file: PathBuf::from(parsed.task.domain.get_ref()),
+            problem: planned_problem,
             name: parsed.name,
             description: parsed.description,
             seed: parsed.seed,
@@ -698,16 +707,17 @@ fn plan_for(
     domain: &Domain,
     problem: &Spanned<String>,
     read: &ReadNamed<'_>,
-) -> Result<Vec<PlannedAction>, ScenarioError> {
+) -> Result<(Vec<PlannedAction>, Problem), ScenarioError> {
     let bytes = read(problem)?;
     let parsed = parse_problem_for(domain, &bytes)
         .map_err(|d| ScenarioError::Task(d.render(problem.get_ref(), &bytes)))?;
-    plan_actions(domain, &parsed).map_err(|e| match e {
+    let plan = plan_actions(domain, &parsed).map_err(|e| match e {
         PlanError::Task(message) => {
             ScenarioError::Task(format!("{}: {message}", problem.get_ref()))
         }
         PlanError::NoPlan(why) => ScenarioError::NoPlan(why),
-    })
+    })?;
+    Ok((plan, parsed))
 }
 
 /// Why a problem has no plan of actions.

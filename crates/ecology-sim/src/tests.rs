@@ -351,3 +351,128 @@ async fn random_fault_schedules_always_end_and_are_reproducible() {
         "{outcomes:?}"
     );
 }
+
+// The paper's Section VII, action-level recovery: Astrid's move has no
+// configuration left, the task is planned again without it from the world as
+// observed, and Pippi wakes Johanna.
+#[tokio::test]
+async fn a_failed_action_is_planned_around_and_another_robot_goes() {
+    let scenario = load("replan.toml");
+    let report = run_seeded(&scenario, scenario.seed).await;
+    let text = timeline(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    let replans: Vec<(String, Vec<String>)> = report
+        .log
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Replanned { failed, actions } => Some((failed.clone(), actions.clone())),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        replans,
+        [(
+            "(move astrid living-room entrance)".to_string(),
+            [
+                "(move pippi kitchen living-room)",
+                "(move pippi living-room entrance)",
+                "(move pippi entrance bedroom)",
+                "(wake pippi johanna bedroom)"
+            ]
+            .map(String::from)
+            .to_vec()
+        )],
+        "{text}"
+    );
+    assert!(report.world.residents["johanna"].awake, "{text}");
+    let pippi = report.world.robots["pippi"].pose;
+    assert_eq!(
+        report
+            .world
+            .map
+            .room_at(pippi.x, pippi.y)
+            .map(|r| r.name.as_str()),
+        Some("bedroom")
+    );
+}
+
+// With both robots unable to localize, no plan remains: the task fails with
+// the action planner's reason, and what it switched on is switched off.
+#[tokio::test]
+async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
+    let scenario = load("no-plan.toml");
+    let report = run_seeded(&scenario, scenario.seed).await;
+    let text = timeline(&report);
+    assert!(matches!(report.status, RunStatus::Failed { .. }), "{text}");
+    let names: Vec<&str> = report.log.iter().map(|e| e.event.name()).collect();
+    assert_eq!(
+        names.iter().filter(|n| **n == "replan").count(),
+        1,
+        "{text}"
+    );
+    assert_eq!(
+        names[names.len() - 2..],
+        ["released", "task_failed"],
+        "{text}"
+    );
+    let Some(LogEvent::Released { switched_off, .. }) = report
+        .log
+        .iter()
+        .map(|e| &e.event)
+        .find(|e| e.name() == "released")
+    else {
+        panic!("released: {text}");
+    };
+    assert_eq!(switched_off, &["astrid:l1".to_string()], "{text}");
+    let Some(LogEvent::TaskFailed { reason }) = report.log.last().map(|e| &e.event) else {
+        panic!("task_failed: {text}");
+    };
+    assert!(
+        reason.contains("no plan remains: the goal is unreachable"),
+        "{reason}"
+    );
+}
+
+// The world for replanning is what the world PEIS shows, not what the plan assumed.
+#[test]
+fn a_replan_starts_from_the_world_as_observed() {
+    use ecology_exec::Replan;
+    use ecology_tuples::{Key, PeisId, Timestamp, Tuple};
+    let scenario = load("replan.toml");
+    let (problem, _) = scenario.problem.clone().expect("a problem");
+    let mut replanner = crate::WorldReplanner::new(scenario.domain.clone(), problem);
+    let tuple = |key: &str, value: &str| Tuple {
+        owner: PeisId::new("world").expect("name"),
+        key: Key::new(key).expect("key"),
+        data: bytes_of(value),
+        mimetype: ecology_tuples::Mimetype::new("text/plain").expect("mimetype"),
+        ts_write: Timestamp(1),
+        ts_user: None,
+        expiry: None,
+        seq: 1,
+        epoch: 1,
+    };
+    // Astrid has already reached the entrance; the problem says the living room.
+    let world = vec![
+        tuple("map", &scenario.world.map.to_text()),
+        tuple("robots.astrid.pose", "3.700 4.000 0.0000"),
+        tuple("robots.pippi.pose", "4.000 1.500 3.1416"),
+        tuple("residents.johanna.state", "asleep"),
+    ];
+    let plan = replanner.replan(&[], &world).expect("a plan");
+    let actions: Vec<&str> = plan.iter().map(|a| a.action.as_str()).collect();
+    assert_eq!(
+        actions,
+        [
+            "(move astrid entrance bedroom)",
+            "(wake astrid johanna bedroom)"
+        ]
+    );
+    // Johanna already awake: nothing left to do.
+    let awake = vec![tuple("residents.johanna.state", "awake")];
+    assert_eq!(replanner.replan(&[], &awake).expect("a plan"), []);
+}
+
+fn bytes_of(text: &str) -> bytes::Bytes {
+    bytes::Bytes::copy_from_slice(text.as_bytes())
+}

@@ -413,3 +413,33 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     let (code, _) = counter.finish();
     assert_eq!(code, Some(0));
 }
+
+#[test]
+fn over_zenoh_a_failed_action_is_planned_around_until_no_plan_remains() {
+    let _one = one_at_a_time();
+    let (code, lines) = Proc::start(
+        "launcher",
+        &["run", "scenarios/no-plan.toml", "--processes", "--json"],
+    )
+    .finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(1), "{all:#?}");
+    let replans = named(&all, "replan");
+    assert_eq!(replans.len(), 1, "{all:#?}");
+    assert_eq!(replans[0]["failed"], "(move astrid living-room entrance)");
+    assert_eq!(
+        strings(&replans[0]["actions"])[0],
+        "(move pippi kitchen living-room)"
+    );
+    let failed = named(&all, "task_failed");
+    assert!(
+        failed[0]["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("no plan remains")),
+        "{all:#?}"
+    );
+    assert_eq!(
+        strings(&named(&all, "released")[0]["switched_off"]),
+        ["astrid:l1"]
+    );
+}
