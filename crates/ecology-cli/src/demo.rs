@@ -44,6 +44,10 @@ pub struct RunArgs {
     /// in real time, with faults injected into the processes themselves.
     #[arg(long, conflicts_with_all = ["speed", "realtime"])]
     pub processes: bool,
+    /// Replace the scenario's faults by a random schedule made from the seed
+    /// (as `ecology sweep` does; replays one of its seeds).
+    #[arg(long, conflicts_with = "processes")]
+    pub random_faults: bool,
 }
 
 /// Arguments of `ecology run`.
@@ -125,6 +129,14 @@ pub fn run(args: &ScenarioArgs) -> anyhow::Result<u8> {
 }
 
 fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
+    let seed = args.seed.unwrap_or(scenario.seed);
+    let randomized;
+    let scenario = if args.random_faults {
+        randomized = ecology_sim::with_random_faults(scenario, seed);
+        &randomized
+    } else {
+        scenario
+    };
     let pace = match (args.realtime, args.speed) {
         (true, _) => Pace::Speed(1.0),
         (false, Some(x)) if x.is_finite() && x > 0.0 => Pace::Speed(x),
@@ -136,7 +148,7 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
     };
     let options = RunOptions {
         pace,
-        ..RunOptions::seeded(args.seed.unwrap_or(scenario.seed))
+        ..RunOptions::seeded(seed)
     };
     // One thread: the run is reproducible from its seed.
     let runtime = tokio::runtime::Builder::new_current_thread()
@@ -190,6 +202,9 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         wall.as_secs_f64(),
         sim.as_secs_f64() / wall.as_secs_f64().max(1e-9)
     );
+    for what in &report.spurious {
+        eprintln!("warning: a failure the ground truth does not bear out: {what}");
+    }
     Ok(match report.status {
         RunStatus::Done => EXIT_OK,
         RunStatus::Failed { .. } => EXIT_NO_SOLUTION,

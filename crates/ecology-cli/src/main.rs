@@ -13,6 +13,7 @@ mod peis;
 mod plan;
 mod processes;
 mod router;
+mod sweep;
 mod task;
 mod tuples;
 
@@ -57,6 +58,8 @@ enum Command {
     Task(task::TaskArgs),
     /// Run a Zenoh router, for PEIS that cannot reach each other directly.
     Router(router::RouterArgs),
+    /// Run a scenario under many random fault schedules and tabulate how the runs end.
+    Sweep(sweep::SweepArgs),
 }
 
 fn main() -> ExitCode {
@@ -83,6 +86,7 @@ fn main() -> ExitCode {
         Command::World(args) => peis::world(&args),
         Command::Task(args) => task::task(&args),
         Command::Router(args) => router::router(&args),
+        Command::Sweep(args) => sweep::sweep(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

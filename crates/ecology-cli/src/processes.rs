@@ -505,6 +505,15 @@ async fn inject(
             "recover".to_string(),
             format!("{target} recovers (fault tuple set)"),
         )),
+        FaultKind::Duplicate | FaultKind::Late => {
+            // A network's duplicates and late deliveries cannot be made to order
+            // between processes; the in-process run injects them.
+            note(format!(
+                "{target}: a {:?} delivery is injected only in-process",
+                fault.kind
+            ));
+            None
+        }
         FaultKind::Kill => {
             if let Some(process) = processes.get(&fault.peis) {
                 process.signal(Signal::SIGKILL);

@@ -175,33 +175,10 @@ pub async fn drive_until<S: TupleSpace>(
                 }
             };
             commands = tokio::select! {
-                event = tuples.next() => match event {
-                    Some(TupleEvent::Changed(t)) => exec.handle(elapsed(&clock), tuple_event(&t)),
-                    Some(_) => Vec::new(),
-                    None => return Ok(exec.status().clone()),
-                },
-                event = presence.next() => match event {
-                    Some(PresenceEvent::Joined(p)) => {
-                        if let Ok(pattern) = TuplePattern::parse(&format!("{p}:**")) {
-                            let space = space.clone();
-                            snapshots.spawn(async move {
-                                // A failed snapshot leaves what arrives as changes; nothing else to do.
-                                space.get_matching(pattern).await.unwrap_or_default()
-                            });
-                        }
-                        exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string()))
-                    }
-                    Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
-                    None => Vec::new(),
-                },
-                Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
-                Some(Ok(tuples)) = snapshots.join_next() => {
-                    let mut commands = Vec::new();
-                    for t in &tuples {
-                        commands.extend(exec.handle(elapsed(&clock), tuple_event(t)));
-                    }
-                    commands
-                }
+                // Biased: the same events give the same order every run (virtual
+                // time is reproducible), and a stop or a due timer is never
+                // starved by a stream of tuples.
+                biased;
                 () = &mut stop, if !stopped => {
                     stopped = true;
                     exec.stop(elapsed(&clock), "stopped by the operator")
@@ -218,6 +195,33 @@ pub async fn drive_until<S: TupleSpace>(
                         Vec::new()
                     }
                 }
+                Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
+                Some(Ok(tuples)) = snapshots.join_next() => {
+                    let mut commands = Vec::new();
+                    for t in &tuples {
+                        commands.extend(exec.handle(elapsed(&clock), tuple_event(t)));
+                    }
+                    commands
+                }
+                event = presence.next() => match event {
+                    Some(PresenceEvent::Joined(p)) => {
+                        if let Ok(pattern) = TuplePattern::parse(&format!("{p}:**")) {
+                            let space = space.clone();
+                            snapshots.spawn(async move {
+                                // A failed snapshot leaves what arrives as changes; nothing else to do.
+                                space.get_matching(pattern).await.unwrap_or_default()
+                            });
+                        }
+                        exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string()))
+                    }
+                    Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
+                    None => Vec::new(),
+                },
+                event = tuples.next() => match event {
+                    Some(TupleEvent::Changed(t)) => exec.handle(elapsed(&clock), tuple_event(&t)),
+                    Some(_) => Vec::new(),
+                    None => return Ok(exec.status().clone()),
+                },
             };
         }
         for entry in &exec.log()[observed..] {

@@ -217,7 +217,6 @@ impl Inputs {
     /// Waits for the next update of any input and takes it in; `false` when
     /// every subscription has ended.
     pub async fn changed(&mut self) -> bool {
-        let now = self.clock.now();
         let event = std::future::poll_fn(|cx| {
             let mut open = false;
             for (i, (_, sub)) in self.subscriptions.iter_mut().enumerate() {
@@ -239,6 +238,8 @@ impl Inputs {
         let Some((i, event)) = event else {
             return false;
         };
+        // Received now, when it arrived, not when the wait began.
+        let now = self.clock.now();
         let info = self.subscriptions[i].0.clone();
         match event {
             TupleEvent::Changed(t) => {

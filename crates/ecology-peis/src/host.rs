@@ -140,6 +140,8 @@ pub async fn run_host<S: TupleSpace>(
             }
         };
         tokio::select! {
+            // Biased: reproducible in virtual time, and shutdown comes first.
+            biased;
             () = &mut shutdown => break,
             event = requests.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };

@@ -235,6 +235,7 @@ impl<S: TupleSpace> Body<S> {
     /// Waits for the next input update, or one period.
     async fn next(&self, inputs: &mut Inputs) {
         tokio::select! {
+            biased;
             open = inputs.changed() => if !open { self.ctx.sleep(PERIOD).await },
             () = self.ctx.sleep(PERIOD) => {}
         }

@@ -84,6 +84,7 @@ pub async fn host_peis<S: TupleSpace>(
     tokio::pin!(host);
     loop {
         tokio::select! {
+            biased;
             result = &mut host => return result,
             Some(event) = fault_tuples.next() => {
                 let TupleEvent::Changed(tuple) = event else { continue };

@@ -16,6 +16,7 @@ mod replan;
 mod rng;
 mod run;
 mod scenario;
+mod schedule;
 mod world;
 mod world_peis;
 
@@ -31,6 +32,7 @@ pub use scenario::{
     ComponentDef, FaultKind, FaultSpec, PeisDef, PlanError, Scenario, ScenarioError, Trigger,
     plan_actions,
 };
+pub use schedule::with_random_faults;
 pub use world::{
     Door, MAX_RANGE, MAX_SPEED, MAX_TURN, Map, Pose, REACH, Resident, Robot, Room, Thing, World,
     wrap_angle,

@@ -19,7 +19,8 @@ use ecology_exec::{
 };
 use ecology_peis::{HostError, run_host};
 use ecology_tuples::{
-    Clock, InProcessPeis, InProcessSpace, PeisId, PeisOptions, Timestamp, TupleError, VirtualClock,
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Timestamp, Tuple, TupleError,
+    TupleEvent, TuplePattern, TupleSpace, VirtualClock,
 };
 use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinSet};
@@ -97,6 +98,11 @@ pub struct Report {
     pub sim_time: Duration,
     /// Whether the scenario's time limit stopped the run.
     pub timed_out: bool,
+    /// Failures the executive acted on that the ground truth does not bear
+    /// out: a component it failed for `error` or `waiting` that reports
+    /// something else, a PEIS it took for gone that is present. A duplicate
+    /// or late tuple taken as news would show here.
+    pub spurious: Vec<String>,
     /// The world at the end (ground truth).
     pub world: World,
 }
@@ -203,7 +209,9 @@ pub async fn run(
         .map(|f| (f.clone(), false))
         .collect();
     let mut current_action: Option<usize> = None;
+    let mut spurious = Vec::new();
     let driven = {
+        let truth = space.clone();
         let observer = observer.clone();
         let shared = shared.clone();
         // Action-level recovery when the scenario has a problem to plan again.
@@ -228,6 +236,18 @@ pub async fn run(
                     *fired = true;
                     lock(&schedule).push((shared.now().saturating_add(delay), fault.clone()));
                 }
+            }
+            if let LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } = &entry.event
+                && let Some(why) = unfounded(&truth, peis, component, cause)
+            {
+                spurious.push(format!(
+                    "{:.3}s {peis}:{component} ({cause}): {why}",
+                    entry.t.as_secs_f64()
+                ));
             }
             (lock(&observer))(Update::Log(entry.clone()));
         };
@@ -265,7 +285,38 @@ pub async fn run(
         injected,
         sim_time,
         world,
+        spurious,
     })
+}
+
+/// Why a failure the executive logged is not borne out by the ground truth
+/// at that instant, if it is not.
+fn unfounded(truth: &InProcessSpace, peis: &str, component: &str, cause: &str) -> Option<String> {
+    let id = PeisId::new(peis).ok()?;
+    if cause.starts_with("PEIS ") && cause.ends_with(" left the ecology") {
+        return truth.is_present(&id).then(|| format!("{peis} is present"));
+    }
+    let expected = if cause.starts_with("waiting for longer than") {
+        "waiting"
+    } else if cause.starts_with("PEIS ")
+        || cause.starts_with("did not ")
+        || cause.starts_with("could not set ")
+    {
+        // A restart, a timeout or a refused remote set: facts of their own.
+        return None;
+    } else {
+        "error"
+    };
+    let key = Key::new(&format!("{component}.status")).ok()?;
+    let status = truth
+        .peek(&id, &key)
+        .and_then(|t| t.text().ok().map(str::to_string));
+    match status {
+        Some(status) if status == expected => None,
+        // Gone with its PEIS: the executive's view lags by no more than the departure.
+        None => None,
+        Some(status) => Some(format!("it reports {status}")),
+    }
 }
 
 /// The simulation loop and what it owns.
@@ -328,6 +379,11 @@ impl Simulation {
     ) -> Result<World, RunError> {
         let mut world = WorldPeis::join(&space, self.world.clone(), self.seed).await?;
 
+        // The recent status tuples of every component, to deliver again as
+        // duplicates and late arrivals.
+        let pattern = TuplePattern::parse("*:*.status").map_err(TupleError::Invalid)?;
+        let mut statuses = space.subscribe(pattern).await?;
+        let mut recent: BTreeMap<(String, String), Vec<Tuple>> = BTreeMap::new();
         let (stop_hosts, hosts_stopped) = watch::channel(false);
         let mut hosts = JoinSet::new();
         let mut running: BTreeMap<String, Hosted> = BTreeMap::new();
@@ -358,6 +414,18 @@ impl Simulation {
                 }
             }
 
+            while let Some(event) = statuses.try_next() {
+                if let TupleEvent::Changed(tuple) = event {
+                    let history = recent
+                        .entry((tuple.owner.to_string(), tuple.key.to_string()))
+                        .or_default();
+                    history.push(tuple);
+                    if history.len() > 2 {
+                        history.remove(0);
+                    }
+                }
+            }
+
             // Faults that are due.
             let due: Vec<FaultSpec> = {
                 let mut schedule = lock(&self.schedule);
@@ -385,6 +453,24 @@ impl Simulation {
                         self.faults
                             .update(&fault.peis, &component, |s| *s = Default::default());
                         self.note(t, format!("{target} recovers"));
+                    }
+                    FaultKind::Duplicate | FaultKind::Late => {
+                        let key = (fault.peis.clone(), format!("{component}.status"));
+                        let history = recent.get(&key).map(Vec::as_slice).unwrap_or_default();
+                        let (tuple, what) = match (fault.kind, history) {
+                            (FaultKind::Duplicate, [.., last]) => (last, "again"),
+                            (_, [older, _]) => (older, "late, after a newer one"),
+                            _ => continue,
+                        };
+                        self.space.redeliver(tuple.clone());
+                        self.note(
+                            t,
+                            format!(
+                                "{target}.status `{}` (seq {}) delivered {what}",
+                                tuple.text().unwrap_or(""),
+                                tuple.seq
+                            ),
+                        );
                     }
                     FaultKind::Kill => {
                         if let Some(hosted) = running.remove(&fault.peis) {

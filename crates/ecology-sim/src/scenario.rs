@@ -61,6 +61,12 @@ pub enum FaultKind {
     Kill,
     /// A killed PEIS starts again, with its components as at the start.
     Revive,
+    /// The component's latest status tuple is delivered once more (a
+    /// duplicate, as a network may make).
+    Duplicate,
+    /// The component's status tuple before its latest is delivered again,
+    /// after the latest (a late, out-of-order delivery).
+    Late,
 }
 
 /// When a fault happens.
@@ -519,11 +525,13 @@ impl Scenario {
                 "fail" => FaultKind::Fail,
                 "stall" => FaultKind::Stall,
                 "recover" => FaultKind::Recover,
+                "duplicate" => FaultKind::Duplicate,
+                "late" => FaultKind::Late,
                 "kill" => FaultKind::Kill,
                 "revive" => FaultKind::Revive,
                 other => {
                     return Err(here(format!(
-                        "unknown fault `{other}` (known: fail, stall, recover, kill, revive)"
+                        "unknown fault `{other}` (known: fail, stall, recover, kill, revive, duplicate, late)"
                     )));
                 }
             };
@@ -532,7 +540,11 @@ impl Scenario {
             };
             let needs_component = matches!(
                 kind,
-                FaultKind::Fail | FaultKind::Stall | FaultKind::Recover
+                FaultKind::Fail
+                    | FaultKind::Stall
+                    | FaultKind::Recover
+                    | FaultKind::Duplicate
+                    | FaultKind::Late
             );
             match (&f.component, needs_component) {
                 (Some(c), true) if !target.components.iter().any(|d| &d.id == c) => {

@@ -7,10 +7,7 @@ use std::time::Duration;
 
 use ecology_exec::{LogEntry, LogEvent, RunStatus};
 
-use crate::{
-    FaultKind, FaultSpec, Map, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, Trigger,
-    match_scan, run, scan,
-};
+use crate::{Map, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, match_scan, run, scan};
 
 fn scenario_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -258,36 +255,6 @@ async fn the_kitchen_scenario_survives_a_crash_of_the_monitor() {
     assert_eq!(room.as_deref(), Some("bedroom"));
 }
 
-/// A random fault schedule on the paper's scenario, from `seed`.
-fn random_faults(scenario: &Scenario, seed: u64) -> Vec<FaultSpec> {
-    let mut rng = Rng::new(seed);
-    let components: Vec<(String, String)> = scenario
-        .peis
-        .iter()
-        .flat_map(|p| p.components.iter().map(|c| (p.name.clone(), c.id.clone())))
-        .collect();
-    let n = 1 + rng.below(3);
-    (0..n)
-        .map(|_| {
-            let (peis, component) = components[rng.below(components.len() as u64) as usize].clone();
-            let kind = match rng.below(5) {
-                0 | 1 => FaultKind::Fail,
-                2 => FaultKind::Stall,
-                3 => FaultKind::Kill,
-                _ => FaultKind::Recover,
-            };
-            let at = Duration::from_millis(rng.below(30_000));
-            FaultSpec {
-                kind,
-                component: (kind != FaultKind::Kill).then_some(component),
-                peis,
-                trigger: Trigger::At(at),
-                cause: format!("random fault {seed}"),
-            }
-        })
-        .collect()
-}
-
 // Random fault schedules never leave the executive stuck: each run ends with
 // the task done or failed with a reason, within the time limit, and the same
 // seed gives the same run.
@@ -296,11 +263,15 @@ async fn random_fault_schedules_always_end_and_are_reproducible() {
     let base = load("peis-home.toml");
     let mut outcomes = Vec::new();
     for seed in 0..10 {
-        let mut scenario = base.clone();
-        scenario.faults = random_faults(&scenario, seed);
+        let scenario = crate::with_random_faults(&base, seed);
         let report = run_seeded(&scenario, seed).await;
         let text = timeline(&report);
         assert!(!report.timed_out, "seed {seed} is stuck:\n{text}");
+        assert_eq!(
+            report.spurious,
+            Vec::<String>::new(),
+            "seed {seed}:\n{text}"
+        );
         match &report.status {
             RunStatus::Done => {}
             RunStatus::Failed { reason, .. } => {
@@ -317,20 +288,8 @@ async fn random_fault_schedules_always_end_and_are_reproducible() {
         outcomes.push((seed, report.status.clone()));
         if seed < 3 {
             let again = run_seeded(&scenario, seed).await;
-            // The same events in the same order; times may differ by a step,
-            // since tokio's `select!` breaks ties between ready branches at random.
-            let lines = |r: &Report| {
-                r.log
-                    .iter()
-                    .map(|e| {
-                        LogEntry {
-                            t: Duration::ZERO,
-                            event: e.event.clone(),
-                        }
-                        .json_line()
-                    })
-                    .collect::<Vec<_>>()
-            };
+            // The same events in the same order at the same virtual times.
+            let lines = |r: &Report| r.log.iter().map(LogEntry::json_line).collect::<Vec<_>>();
             let (first, second) = (lines(&report), lines(&again));
             let differ = first.iter().zip(&second).find(|(a, b)| a != b);
             assert!(

@@ -169,6 +169,7 @@ pub async fn run_world<S: TupleSpace>(
     let mut next = clock.now().saturating_add(step);
     loop {
         tokio::select! {
+            biased;
             () = &mut shutdown => return Ok(peis.into_world()),
             () = clock.sleep_until(next) => {}
         }

@@ -119,6 +119,32 @@ impl InProcessSpace {
         &self.shared.clock
     }
 
+    /// Delivers `tuple` once more to every subscriber it matches, as a
+    /// network may duplicate a sample or deliver it late; the store does not
+    /// change. For fault injection: receivers must tell it from news by its
+    /// `(epoch, seq)`.
+    pub fn redeliver(&self, tuple: Tuple) {
+        self.shared.lock().broadcast(&TupleEvent::Changed(tuple));
+    }
+
+    /// The current tuple (owner, key) as its owner holds it, without going
+    /// through a subscription: the ground truth, for checking what a
+    /// receiver made of the tuples it got.
+    pub fn peek(&self, owner: &PeisId, key: &Key) -> Option<Tuple> {
+        let state = self.shared.lock();
+        let now = self.shared.clock.now();
+        state.peers.get(owner)?.tuples.get(key, now).cloned()
+    }
+
+    /// Whether `peis` is present now (joined, and neither left nor vanished).
+    pub fn is_present(&self, peis: &PeisId) -> bool {
+        self.shared
+            .lock()
+            .peers
+            .get(peis)
+            .is_some_and(|p| p.lease_end.is_none())
+    }
+
     /// Stops the background task and waits for it.
     pub async fn shutdown(mut self) {
         let _ = self.shutdown.send(true);
@@ -149,9 +175,10 @@ async fn run_timer(shared: Arc<Shared>, mut shutdown: watch::Receiver<bool>) {
             None => Box::pin(std::future::pending()),
         };
         tokio::select! {
+            biased;
+            _ = shutdown.changed() => return,
             _ = sleep => {}
             _ = notified => {}
-            _ = shutdown.changed() => return,
         }
         let now = shared.clock.now();
         shared.lock().process_due(now);
