@@ -130,8 +130,19 @@ pub fn line_col(source: &[u8], offset: usize) -> (usize, usize) {
     (line, column)
 }
 
+/// At most this many diagnostics are rendered; the rest are counted.
+pub const MAX_RENDERED: usize = 100;
+/// A source line longer than this (in bytes) is shown as an excerpt around
+/// the error, so output stays proportional to the number of errors, not to
+/// their number times the line's length.
+pub const MAX_LINE: usize = 240;
+/// Characters shown either side of an error on a long line.
+const EXCERPT: usize = 40;
+
 /// Renders diagnostics as `error: message` followed by `┌─ file:line:col` and a
-/// caret excerpt, one after the other, without colour.
+/// caret excerpt, one after the other, without colour. At most
+/// [`MAX_RENDERED`] are shown, then how many more there are; on a line longer
+/// than [`MAX_LINE`] only the part around the error is shown.
 pub fn render(file_name: &str, source: &[u8], diags: &[Diagnostic]) -> String {
     // Offsets stay exact up to the first invalid byte, which is all a UTF-8
     // diagnostic needs; valid sources are unchanged.
@@ -139,7 +150,11 @@ pub fn render(file_name: &str, source: &[u8], diags: &[Diagnostic]) -> String {
     let files = SimpleFile::new(file_name, text.as_ref());
     let config = term::Config::default();
     let mut out = String::new();
-    for diag in diags {
+    for diag in diags.iter().take(MAX_RENDERED) {
+        if let Some(short) = render_on_long_line(file_name, &text, source, diag) {
+            out.push_str(&short);
+            continue;
+        }
         // Spans are clamped to the file and widened to character boundaries, so
         // a span over an invalid byte (replaced by U+FFFD above) still renders.
         let clamp = |span: Span| {
@@ -178,5 +193,70 @@ pub fn render(file_name: &str, source: &[u8], diags: &[Diagnostic]) -> String {
             }
         }
     }
+    if diags.len() > MAX_RENDERED {
+        out.push_str(&format!(
+            "… and {} more errors, not shown\n",
+            diags.len() - MAX_RENDERED
+        ));
+    }
     out
+}
+
+/// A diagnostic whose primary span lies on a line longer than [`MAX_LINE`],
+/// rendered as an excerpt of that line around the span; `None` otherwise.
+fn render_on_long_line(
+    file_name: &str,
+    text: &str,
+    source: &[u8],
+    diag: &Diagnostic,
+) -> Option<String> {
+    let at = diag.span.start.min(text.len());
+    let line_start = text[..floor_boundary(text, at)]
+        .rfind('\n')
+        .map_or(0, |i| i + 1);
+    let line_end = text[at..].find('\n').map_or(text.len(), |i| at + i);
+    if line_end - line_start <= MAX_LINE {
+        return None;
+    }
+    let (line, col) = line_col(source, at);
+    let before: String = {
+        let head = &text[line_start..floor_boundary(text, at)];
+        let chars: Vec<char> = head.chars().collect();
+        let from = chars.len().saturating_sub(EXCERPT);
+        let cut = if from > 0 { "…" } else { "" };
+        format!("{cut}{}", chars[from..].iter().collect::<String>())
+    };
+    let rest = &text[floor_boundary(text, at)..line_end];
+    let span_chars = text
+        [floor_boundary(text, at)..floor_boundary(text, diag.span.end.min(line_end).max(at))]
+        .chars()
+        .count()
+        .clamp(1, EXCERPT);
+    let after: String = rest.chars().take(EXCERPT + span_chars).collect();
+    let cut = if rest.chars().nth(EXCERPT + span_chars).is_some() {
+        "…"
+    } else {
+        ""
+    };
+    let pad = " ".repeat(before.chars().count());
+    let carets = "^".repeat(span_chars);
+    let label = diag.label.as_deref().unwrap_or("");
+    let mut out = format!(
+        "error: {}\n  ┌─ {file_name}:{line}:{col}\n  │\n{line:>2}│ {before}{after}{cut}\n  │ {pad}{carets} {label}\n",
+        diag.message
+    );
+    for note in &diag.notes {
+        out.push_str(&format!("  = {note}\n"));
+    }
+    out.push('\n');
+    Some(out)
+}
+
+/// The largest char boundary of `text` at or before `i`.
+fn floor_boundary(text: &str, i: usize) -> usize {
+    let mut i = i.min(text.len());
+    while !text.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
 }

@@ -133,6 +133,18 @@ pub fn read(src: &str, diags: &mut Vec<Diagnostic>) -> Vec<Sexp> {
                 while pos < bytes.len() && !is_delimiter(bytes[pos]) {
                     pos += 1;
                 }
+                if let Some((offset, c)) =
+                    src[start..pos].char_indices().find(|(_, c)| c.is_control())
+                {
+                    let at = start + offset;
+                    diags.push(
+                        Diagnostic::error(
+                            Span::new(at, at + c.len_utf8()),
+                            format!("control character U+{:04X} in a name", u32::from(c)),
+                        )
+                        .with_label("names are printable"),
+                    );
+                }
                 if skipping == 0 {
                     let text = src[start..pos].to_lowercase().into_boxed_str();
                     let sexp = Sexp {

@@ -628,3 +628,47 @@ fn problems_are_checked_against_their_domain() {
         "the problem is for domain `fridge`, but the domain is `peis-home`"
     );
 }
+
+#[test]
+fn control_characters_are_refused_in_names() {
+    let err = parse_facts(b"(peis ast\0rid)").expect_err("a NUL in a name");
+    assert_eq!(err.0.len(), 1);
+    assert_eq!(err.0[0].message, "control character U+0000 in a name");
+    assert_eq!((err.0[0].span.start, err.0[0].span.end), (9, 10));
+    let err = parse_goal("(navigate astrid bed\u{7}room)").expect_err("a bell in a name");
+    assert!(
+        err.0
+            .iter()
+            .any(|d| d.message == "control character U+0007 in a name")
+    );
+}
+
+#[test]
+fn rendered_diagnostics_stay_proportional_to_their_number() {
+    // 8 MiB of `(` on one line: 65 errors, each used to repeat the whole line.
+    let parens = "(".repeat(crate::syntax::MAX_FILE_BYTES - 16);
+    let err = parse_domain(parens.as_bytes()).expect_err("unbalanced");
+    let text = render("parens.eco", parens.as_bytes(), &err.0);
+    assert!(err.0.len() > 60, "{}", err.0.len());
+    assert!(text.len() < 300 * err.0.len(), "{} bytes", text.len());
+    assert!(
+        text.contains("parens.eco:1:"),
+        "{}",
+        &text[..text.len().min(500)]
+    );
+    // 30,000 errors on one line: the first hundred shown, the rest counted.
+    let line = vec!["(define)"; 30_000].join(" ");
+    let err = parse_domain(line.as_bytes()).expect_err("malformed");
+    let text = render("line.eco", line.as_bytes(), &err.0);
+    assert_eq!(err.0.len(), 30_000);
+    assert!(text.len() < 40_000, "{} bytes", text.len());
+    assert!(
+        text.ends_with("… and 29900 more errors, not shown\n"),
+        "{}",
+        &text[text.len() - 200..]
+    );
+    assert!(
+        text.contains("line.eco:1:10"),
+        "the second error's column is exact"
+    );
+}

@@ -355,9 +355,23 @@ impl Checker<'_> {
     }
 }
 
+/// The longest time a scenario may name: about 31 years.
+const MAX_SECONDS: f64 = 1e9;
+
 fn seconds(s: f64) -> Option<Duration> {
-    (s.is_finite() && s >= 0.0).then(|| Duration::from_secs_f64(s))
+    (s.is_finite() && (0.0..=MAX_SECONDS).contains(&s))
+        .then(|| Duration::try_from_secs_f64(s).ok())
+        .flatten()
 }
+
+/// Whether `name` can name a room, robot, thing or resident: it becomes part
+/// of tuple keys (`robots.NAME.pose`) and of planning facts.
+fn is_name(name: &str) -> bool {
+    ecology_tuples::Key::new(name).is_ok() && !name.contains('.')
+}
+
+/// The largest scenario or PEIS file read.
+const MAX_FILE_BYTES: u64 = 8 * 1024 * 1024;
 
 impl Scenario {
     /// Loads the scenario file at `path`; the task's domain and problem are
@@ -437,6 +451,15 @@ impl Scenario {
             {
                 return Err(check.at(room.span(), format!("room {} has no area", r.name)));
             }
+            if !is_name(&r.name) {
+                return Err(check.at(
+                    room.span(),
+                    format!(
+                        "`{}` cannot name a room: use letters, digits, `-` and `_`",
+                        r.name
+                    ),
+                ));
+            }
             if map.room(&r.name).is_some() {
                 return Err(check.at(room.span(), format!("room {} is defined twice", r.name)));
             }
@@ -477,6 +500,15 @@ impl Scenario {
         };
         for robot in &parsed.robots {
             let r = robot.get_ref();
+            if !is_name(&r.name) {
+                return Err(check.at(
+                    robot.span(),
+                    format!(
+                        "`{}` cannot name a robot: use letters, digits, `-` and `_`",
+                        r.name
+                    ),
+                ));
+            }
             inside(r.at[0], r.at[1], robot.span(), &r.name)?;
             world.robots.insert(
                 r.name.clone(),
@@ -490,6 +522,15 @@ impl Scenario {
         }
         for thing in &parsed.things {
             let t = thing.get_ref();
+            if !is_name(&t.name) {
+                return Err(check.at(
+                    thing.span(),
+                    format!(
+                        "`{}` cannot name a thing: use letters, digits, `-` and `_`",
+                        t.name
+                    ),
+                ));
+            }
             inside(t.at[0], t.at[1], thing.span(), &t.name)?;
             world.things.insert(
                 t.name.clone(),
@@ -502,6 +543,15 @@ impl Scenario {
         }
         for resident in &parsed.residents {
             let r = resident.get_ref();
+            if !is_name(&r.name) {
+                return Err(check.at(
+                    resident.span(),
+                    format!(
+                        "`{}` cannot name a resident: use letters, digits, `-` and `_`",
+                        r.name
+                    ),
+                ));
+            }
             inside(r.at[0], r.at[1], resident.span(), &r.name)?;
             world.residents.insert(
                 r.name.clone(),
@@ -698,15 +748,32 @@ impl PeisDef {
     }
 }
 
-/// The text of the file at `path`.
+/// The text of the file at `path`: at most 8 MiB of UTF-8.
 fn read_text(path: &Path) -> Result<String, ScenarioError> {
-    let bytes = std::fs::read(path).map_err(|e| ScenarioError::Read {
+    use std::io::Read;
+    let fail = |message: String| ScenarioError::Read {
         path: path.display().to_string(),
-        message: e.to_string(),
-    })?;
-    String::from_utf8(bytes).map_err(|_| ScenarioError::Read {
-        path: path.display().to_string(),
-        message: "not UTF-8".to_string(),
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+    let mut bytes = Vec::new();
+    file.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| fail(e.to_string()))?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(fail(format!(
+            "larger than the limit of {MAX_FILE_BYTES} bytes (8 MiB)"
+        )));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let (line, col) = line_col(&String::from_utf8_lossy(e.as_bytes()), at);
+        ScenarioError::Invalid {
+            file: path.display().to_string(),
+            line,
+            col,
+            message: "invalid UTF-8".to_string(),
+        }
     })
 }
 

@@ -7,7 +7,9 @@ use std::time::Duration;
 
 use ecology_exec::{LogEntry, LogEvent, RunStatus};
 
-use crate::{Map, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, match_scan, run, scan};
+use crate::{
+    Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, match_scan, run, scan,
+};
 
 fn scenario_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -148,10 +150,49 @@ fn bad_scenario_files_are_reported_with_their_line() {
     let unknown_field = good.replace("seed = 11", "sed = 11");
     assert!(error_of(&unknown_field).contains("unknown field `sed`"));
 
+    // Times past what a Duration holds are errors, not panics.
+    let forever = good.replace("time_limit = 120.0", "time_limit = 1.8e19");
+    assert!(
+        error_of(&forever).contains("time_limit must be a positive number of seconds"),
+        "{}",
+        error_of(&forever)
+    );
+    let late = good.replace("delay = 2.0", "delay = 1e300");
+    assert!(
+        error_of(&late).contains("delay must be seconds"),
+        "{}",
+        error_of(&late)
+    );
+
+    // A name that cannot be part of a tuple key used to hang the run.
+    let spaced = good.replacen("name = \"astrid\"\nat", "name = \"ast rid\"\nat", 1);
+    let e = error_of(&spaced);
+    assert!(e.contains("`ast rid` cannot name a robot"), "{e}");
+    assert!(e.starts_with("bad.toml:"), "{e}");
     let missing_domain = good.replace("../domains/peis-home.eco", "../domains/nowhere.eco");
     let e = error_of(&missing_domain);
     assert!(
         e.starts_with("bad.toml:15:") && e.contains("cannot read"),
+        "{e}"
+    );
+}
+
+#[test]
+fn scenario_files_are_read_with_a_size_limit_and_utf8_errors_have_a_place() {
+    let e = PeisDef::load_all(Path::new("/dev/zero")).expect_err("not a scenario");
+    assert!(
+        e.to_string()
+            .contains("larger than the limit of 8388608 bytes"),
+        "{e}"
+    );
+    let folder = std::env::temp_dir().join(format!("ecology-utf8-{}", std::process::id()));
+    std::fs::create_dir_all(&folder).expect("temp folder");
+    let file = folder.join("bad.toml");
+    std::fs::write(&file, b"name = \"x\"\n\n  seed = \"\xff\"\n").expect("write");
+    let e = Scenario::load(&file).expect_err("not UTF-8");
+    let _ = std::fs::remove_dir_all(&folder);
+    assert!(
+        e.to_string().ends_with("bad.toml:3:11: invalid UTF-8"),
         "{e}"
     );
 }
