@@ -49,8 +49,8 @@ use ecology_domain::{Call, Name};
 
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
-    AtomId, GroundError, InstanceError, MAX_OPERATORS, OpId, Operator, State, StateError, Task,
-    ground,
+    AtomId, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, OpId, Operator, State,
+    StateError, Task, ground, ground_within,
 };
 pub use validate::{PlanError, validate};
 

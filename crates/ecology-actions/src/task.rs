@@ -134,7 +134,34 @@ pub enum GroundError {
         /// The limit that was reached.
         limit: usize,
     },
+    /// Grounding took longer than its time limit.
+    #[error("grounding took longer than the time limit of {limit:?}")]
+    OutOfTime {
+        /// The limit that was reached.
+        limit: std::time::Duration,
+    },
 }
+
+/// Limits on grounding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GroundLimits {
+    /// Operators built at most.
+    pub max_operators: usize,
+    /// Time at most, as the caller's clock measures it.
+    pub max_time: Option<std::time::Duration>,
+}
+
+impl Default for GroundLimits {
+    fn default() -> Self {
+        GroundLimits {
+            max_operators: MAX_OPERATORS,
+            max_time: None,
+        }
+    }
+}
+
+/// How many candidate bindings grounding tries between two looks at the clock.
+const CLOCK_EVERY: u32 = 4096;
 
 /// A ground action instance could not be found from its name.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -445,6 +472,10 @@ struct Schema<'a> {
 struct Grounder<'a> {
     problem: &'a Problem,
     task: Task,
+    limits: GroundLimits,
+    clock: &'a dyn crate::Clock,
+    /// Bindings tried since the clock was last read.
+    ticks: u32,
     /// Each object's declared type.
     object_types: Vec<Name>,
     parents: HashMap<Name, Name>,
@@ -458,6 +489,16 @@ struct Grounder<'a> {
 /// ([`ecology_domain::check_problem`]); names it does not declare are taken
 /// as untyped objects.
 pub fn ground(domain: &Domain, problem: &Problem) -> Result<Task, GroundError> {
+    ground_within(domain, problem, &GroundLimits::default(), &crate::NoClock)
+}
+
+/// [`ground`] within `limits`; time is measured by `clock`.
+pub fn ground_within(
+    domain: &Domain,
+    problem: &Problem,
+    limits: &GroundLimits,
+    clock: &dyn crate::Clock,
+) -> Result<Task, GroundError> {
     let mut fluent_predicates: HashSet<&str> = HashSet::new();
     for action in &domain.actions {
         for effect in &action.effects {
@@ -491,6 +532,9 @@ pub fn ground(domain: &Domain, problem: &Problem) -> Result<Task, GroundError> {
     let mut g = Grounder {
         problem,
         task,
+        limits: *limits,
+        clock,
+        ticks: 0,
         object_types: Vec::new(),
         parents: domain
             .types
@@ -767,6 +811,7 @@ impl Grounder<'_> {
                 continue;
             }
             binding[depth] = candidates[depth][cursor[depth]];
+            self.tick()?;
             if !checks[depth + 1]
                 .iter()
                 .all(|&i| self.holds(&lits[i], &binding))
@@ -781,6 +826,20 @@ impl Grounder<'_> {
             self.emit(&schema, &binding)?;
             cursor[depth] += 1;
         }
+    }
+
+    /// Counts one binding tried; every [`CLOCK_EVERY`] of them, checks the time.
+    fn tick(&mut self) -> Result<(), GroundError> {
+        self.ticks += 1;
+        if self.ticks >= CLOCK_EVERY {
+            self.ticks = 0;
+            if let Some(limit) = self.limits.max_time
+                && self.clock.elapsed() >= limit
+            {
+                return Err(GroundError::OutOfTime { limit });
+            }
+        }
+        Ok(())
     }
 
     fn holds(&self, lit: &CLit, binding: &[u32]) -> bool {
@@ -812,9 +871,9 @@ impl Grounder<'_> {
             costs,
             configure,
         } = schema;
-        if self.task.operators.len() >= MAX_OPERATORS {
+        if self.task.operators.len() >= self.limits.max_operators {
             return Err(GroundError::TooLarge {
-                limit: MAX_OPERATORS,
+                limit: self.limits.max_operators,
             });
         }
         let value = |a: &Arg| match *a {

@@ -58,8 +58,24 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
     let Ok(problem) = input::problem(&args.problem, &domain)? else {
         return Ok(EXIT_BAD_INPUT);
     };
-    let task = match ecology_actions::ground(&domain, &problem) {
+    // `--max-millis` bounds the whole command: grounding too.
+    let limits = ecology_actions::GroundLimits {
+        max_time: args.max_millis.map(Duration::from_millis),
+        ..ecology_actions::GroundLimits::default()
+    };
+    let task = match ecology_actions::ground_within(&domain, &problem, &limits, &clock) {
         Ok(task) => task,
+        Err(err @ ecology_actions::GroundError::OutOfTime { .. }) => {
+            let reason = format!(
+                "no plan found within the budget: {err}; the problem may still be solvable"
+            );
+            if args.json {
+                println!("{}", json!({"error": "budget exceeded", "reason": reason}));
+            } else {
+                eprintln!("{reason}");
+            }
+            return Ok(EXIT_NO_SOLUTION);
+        }
         Err(err) => {
             eprintln!("error: {}: {err}", args.problem.display());
             return Ok(EXIT_BAD_INPUT);

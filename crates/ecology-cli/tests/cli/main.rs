@@ -491,3 +491,59 @@ fn run_takes_a_scenario_file_and_reports_bad_ones() {
     let out = ecology(&["demo", "--speed", "0"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+#[test]
+fn plan_max_millis_bounds_grounding_too() {
+    // One action with six parameters over 40 objects and a static precondition
+    // on all six: grounding tries 40^6 bindings, hours of work.
+    let folder = std::env::temp_dir().join(format!("ecology-ground-{}", std::process::id()));
+    std::fs::create_dir_all(&folder).expect("temp folder");
+    let domain = folder.join("big.pddl");
+    std::fs::write(
+        &domain,
+        "(define (domain big) (:requirements :strips)
+           (:predicates (p ?a ?b ?c ?d ?e ?f) (q ?a))
+           (:action a :parameters (?a ?b ?c ?d ?e ?f)
+             :precondition (p ?a ?b ?c ?d ?e ?f) :effect (q ?a)))",
+    )
+    .expect("write domain");
+    let objects: Vec<String> = (0..40).map(|i| format!("o{i}")).collect();
+    let problem = folder.join("big-problem.pddl");
+    std::fs::write(
+        &problem,
+        format!(
+            "(define (problem big-1) (:domain big) (:objects {}) (:init) (:goal (q o0)))",
+            objects.join(" ")
+        ),
+    )
+    .expect("write problem");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ecology"))
+        .args(["plan", "--domain"])
+        .arg(&domain)
+        .arg("--problem")
+        .arg(&problem)
+        .args(["--max-millis", "200"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("runs");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("try_wait") {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("`ecology plan --max-millis 200` was still grounding after 60 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let out = child.wait_with_output().expect("output");
+    let _ = std::fs::remove_dir_all(&folder);
+    assert_eq!(status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("grounding took longer than the time limit of 200ms"),
+        "{}",
+        stderr(&out)
+    );
+}
