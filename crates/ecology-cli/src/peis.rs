@@ -90,6 +90,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             Ok(space) => space,
             Err(failure) => return Ok(join_failed(failure)),
         };
+        let stop = network::stop_signal();
         let components: Vec<String> = def
             .components
             .iter()
@@ -113,7 +114,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             args.seed,
             move |note| say(&format!("{name}: {note}")),
             async move {
-                let which = network::stop_signal().await;
+                let which = stop.await;
                 if let Ok(mut slot) = signal.lock() {
                     *slot = Some(which);
                 }
@@ -157,6 +158,7 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
             Ok(space) => space,
             Err(failure) => return Ok(join_failed(failure)),
         };
+        let stop = network::stop_signal();
         let world = &scenario.world;
         let robots: Vec<&str> = world.robots.keys().map(String::as_str).collect();
         say(&format!(
@@ -174,7 +176,7 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
             seed,
             Duration::from_millis(args.step_ms),
             async {
-                network::stop_signal().await;
+                stop.await;
             },
         )
         .await;

@@ -294,6 +294,8 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         let mut faults = Faults::new(scenario, started);
         let mut clock = ExecClock::default();
         let mut interrupted = false;
+        let stop = network::stop_signal();
+        tokio::pin!(stop);
         let status = loop {
             let due = faults.next_due();
             tokio::select! {
@@ -313,7 +315,7 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
                         inject(&fault, &launcher, &mut processes, &mut spawner, &clock, json).await;
                     }
                 }
-                which = network::stop_signal(), if !interrupted => {
+                which = &mut stop, if !interrupted => {
                     interrupted = true;
                     show(json, &format!("launcher: {which}: stopping the executive"));
                     executive.signal(Signal::SIGTERM);

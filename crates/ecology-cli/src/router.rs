@@ -34,6 +34,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
     }
     let describe = args.net.describe();
     network::runtime()?.block_on(async {
+        let stop = network::stop_signal();
         let result = ecology_zenoh::run_router(
             options,
             |zid| {
@@ -42,7 +43,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
                 let _ = out.flush();
             },
             async {
-                let which = network::stop_signal().await;
+                let which = stop.await;
                 println!("router: {which}: closing");
             },
         )

@@ -160,6 +160,9 @@ async fn execute(
         settle,
         mut replanner,
     } = task;
+    // One listener for the whole run: no SIGINT is lost between two waits.
+    let stop = network::stop_signal();
+    tokio::pin!(stop);
     // Wait for the PEIS the task needs, saying which are missing.
     let waited = Instant::now();
     let mut told = false;
@@ -183,7 +186,7 @@ async fn execute(
         }
         tokio::select! {
             () = tokio::time::sleep(Duration::from_millis(100)) => {}
-            which = network::stop_signal() => {
+            which = &mut stop => {
                 eprintln!("{which}: stopped before the task started");
                 return Ok(EXIT_NO_SOLUTION);
             }
@@ -225,7 +228,7 @@ async fn execute(
             let _ = log_tx.send(line);
         },
         async {
-            let which = network::stop_signal().await;
+            let which = (&mut stop).await;
             eprintln!("{which}: stopping the task and switching off what it switched on");
         },
         replanner.as_mut().map(|r| r as &mut dyn Replan),

@@ -222,7 +222,10 @@ impl Command {
                 Ok(EXIT_OK)
             }
             Self::Peers => {
-                for id in peis.peers().await? {
+                drop(out);
+                let peers = settled_peers(peis).await?;
+                let mut out = std::io::stdout().lock();
+                for id in peers {
                     writeln!(out, "{id}")?;
                 }
                 Ok(EXIT_OK)
@@ -249,9 +252,35 @@ async fn wait_for_stdin_to_close() -> anyhow::Result<()> {
     });
     tokio::select! {
         done = reader => done.context("waiting for standard input")?,
-        signal = tokio::signal::ctrl_c() => signal.context("waiting for ctrl-c")?,
+        _ = crate::network::stop_signal() => {}
     }
     Ok(())
+}
+
+/// The PEIS present, once the mesh has formed: a process that has just joined
+/// is linked to the PEIS it connected to at first, and to the others only when
+/// gossip has told it their endpoints, so presence is gathered until no PEIS
+/// has joined for a moment (at most [`SETTLE_MAX`]).
+async fn settled_peers(peis: &ZenohPeis) -> anyhow::Result<Vec<PeisId>> {
+    const QUIET: Duration = Duration::from_millis(400);
+    const SETTLE_MAX: Duration = Duration::from_secs(3);
+    let mut presence = peis.subscribe_presence().await?;
+    let mut present = std::collections::BTreeSet::new();
+    let deadline = tokio::time::Instant::now() + SETTLE_MAX;
+    loop {
+        let quiet = tokio::time::Instant::now() + QUIET;
+        match tokio::time::timeout_at(quiet.min(deadline), presence.next()).await {
+            Ok(Some(PresenceEvent::Joined(id))) => {
+                present.insert(id);
+            }
+            Ok(Some(PresenceEvent::Left(id))) => {
+                present.remove(&id);
+            }
+            Ok(None) | Err(_) => break,
+        }
+    }
+    present.insert(peis.peis().clone());
+    Ok(present.into_iter().collect())
 }
 
 async fn watch(
@@ -260,6 +289,10 @@ async fn watch(
     json: bool,
     count: Option<u64>,
 ) -> anyhow::Result<i32> {
+    // One listener for the whole watch: a SIGINT that came between two
+    // changes was lost when each wait made a listener of its own.
+    let stop = crate::network::stop_signal();
+    tokio::pin!(stop);
     let mut tuples = peis.subscribe(pattern).await?;
     let mut presence = peis.subscribe_presence().await?;
     let clock = SystemClock;
@@ -281,10 +314,7 @@ async fn watch(
                 Some(PresenceEvent::Left(id)) => format!("- {id} left"),
                 None => return Ok(EXIT_OK),
             },
-            signal = tokio::signal::ctrl_c() => {
-                signal.context("waiting for ctrl-c")?;
-                return Ok(EXIT_OK);
-            }
+            _ = &mut stop => return Ok(EXIT_OK),
         };
         let mut out = std::io::stdout().lock();
         writeln!(out, "{line}")?;

@@ -56,6 +56,8 @@ pub struct Proc {
     pub child: Child,
     pub lines: mpsc::Receiver<Line>,
     pub seen: Vec<Line>,
+    /// Held open until the process is dropped (`ecology tuples set --hold` waits for its end).
+    _stdin: Option<std::process::ChildStdin>,
 }
 
 impl Proc {
@@ -70,7 +72,7 @@ impl Proc {
     pub fn spawn(name: &str, mut command: Command) -> Proc {
         let mut child = command
             .current_dir(root())
-            .stdin(Stdio::null())
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(if QUIET.load(std::sync::atomic::Ordering::Relaxed) {
                 Stdio::null()
@@ -97,6 +99,7 @@ impl Proc {
         });
         Proc {
             name: name.to_string(),
+            _stdin: child.stdin.take(),
             child,
             lines,
             seen: Vec::new(),

@@ -178,3 +178,82 @@ fn bad_input_exits_with_2() {
     let usage = ecology(&["get", "astrid"]).output().expect("run ecology");
     assert_eq!(usage.status.code(), Some(2));
 }
+
+/// `ecology tuples watch` stops on SIGINT every time, also between changes.
+#[test]
+fn watch_stops_on_sigint_every_time() {
+    use crate::support::Proc;
+    let endpoint = free_endpoint();
+    let holder = Proc::start(
+        "astrid",
+        &[
+            "tuples", "--name", "astrid", "--listen", &endpoint, "set", "astrid", "x", "1",
+            "--hold",
+        ],
+    );
+    let mut holder = holder;
+    holder.wait_for("ready", |l| l == "ready");
+    for round in 0..10 {
+        let listen = free_endpoint();
+        let mut watch = Proc::start(
+            "watch",
+            &[
+                "tuples",
+                "--listen",
+                &listen,
+                "--connect",
+                &endpoint,
+                "watch",
+                "astrid:x",
+                "--json",
+            ],
+        );
+        watch.wait_for("the current value", |l| l.contains("\"value\":\"1\""));
+        watch.signal(nix::sys::signal::Signal::SIGINT);
+        let (code, _) = watch.finish();
+        assert_eq!(code, Some(0), "round {round}");
+    }
+}
+
+/// `ecology tuples peers` joined through one PEIS lists the PEIS that one
+/// knows too, once gossip has linked them.
+#[test]
+fn peers_through_a_third_peis_lists_everyone() {
+    use crate::support::Proc;
+    let first = free_endpoint();
+    let second = free_endpoint();
+    let mut a = Proc::start(
+        "alpha",
+        &[
+            "tuples", "--name", "alpha", "--listen", &first, "set", "alpha", "x", "1", "--hold",
+        ],
+    );
+    a.wait_for("ready", |l| l == "ready");
+    let mut b = Proc::start(
+        "beta",
+        &[
+            "tuples",
+            "--name",
+            "beta",
+            "--listen",
+            &second,
+            "--connect",
+            &first,
+            "set",
+            "beta",
+            "x",
+            "1",
+            "--hold",
+        ],
+    );
+    b.wait_for("ready", |l| l == "ready");
+    for round in 0..5 {
+        let listed = run_joined(&second, &["--name", "gamma", "peers"]);
+        assert_eq!(
+            stdout(&listed),
+            "alpha\nbeta\ngamma\n",
+            "round {round}: {}",
+            String::from_utf8_lossy(&listed.stderr)
+        );
+    }
+}
