@@ -119,9 +119,6 @@ pub async fn drive_until<S: TupleSpace>(
     let mut presence = space.subscribe_presence().await?;
     let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
     let mut sets = RemoteSets::new(space.clone());
-    // The tuples of a PEIS that joins, asked of it: what it published before
-    // its link to this process formed never arrived as changes.
-    let mut snapshots: JoinSet<Vec<Tuple>> = JoinSet::new();
     let settle_until = start.saturating_add(config.settle);
     let mut started = false;
     tokio::pin!(stop);
@@ -196,24 +193,8 @@ pub async fn drive_until<S: TupleSpace>(
                     }
                 }
                 Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
-                Some(Ok(tuples)) = snapshots.join_next() => {
-                    let mut commands = Vec::new();
-                    for t in &tuples {
-                        commands.extend(exec.handle(elapsed(&clock), tuple_event(t)));
-                    }
-                    commands
-                }
                 event = presence.next() => match event {
-                    Some(PresenceEvent::Joined(p)) => {
-                        if let Ok(pattern) = TuplePattern::parse(&format!("{p}:**")) {
-                            let space = space.clone();
-                            snapshots.spawn(async move {
-                                // A failed snapshot leaves what arrives as changes; nothing else to do.
-                                space.get_matching(pattern).await.unwrap_or_default()
-                            });
-                        }
-                        exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string()))
-                    }
+                    Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string())),
                     Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
                     None => Vec::new(),
                 },

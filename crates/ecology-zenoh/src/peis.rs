@@ -214,33 +214,35 @@ impl ZenohPeis {
 
     /// Every tuple matching `pattern`, asked of the PEIS that own them.
     async fn query_tuples(&self, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
-        let core = &self.inner.core;
-        let replies = core
-            .session
-            .get(wire::pattern_key_expr(pattern))
-            .consolidation(ConsolidationMode::None)
-            .timeout(core.query_timeout)
-            .await
-            .map_err(transport("get"))?;
-        let mut tuples = Vec::new();
-        let mut recent = Recent::default();
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
-                    Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => {
-                        tuples.push(t)
-                    }
-                    Ok(_) => {}
-                    Err(_) => {
-                        core.malformed.fetch_add(1, Ordering::Relaxed);
-                    }
+        query_tuples(&self.inner.core, pattern).await
+    }
+}
+
+/// Every tuple matching `pattern`, asked of the PEIS that own them.
+async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+    let replies = core
+        .session
+        .get(wire::pattern_key_expr(pattern))
+        .consolidation(ConsolidationMode::None)
+        .timeout(core.query_timeout)
+        .await
+        .map_err(transport("get"))?;
+    let mut tuples = Vec::new();
+    let mut recent = Recent::default();
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
+                Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => tuples.push(t),
+                Ok(_) => {}
+                Err(_) => {
+                    core.malformed.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }
-        tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
-        tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
-        Ok(tuples)
     }
+    tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
+    tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
+    Ok(tuples)
 }
 
 /// The declared Zenoh publisher of each tuple this PEIS has published and not removed.
@@ -530,14 +532,16 @@ fn default_mimetype(sample: &Sample) -> Mimetype {
     Mimetype::new(&encoding).unwrap_or_else(|_| Mimetype::octet_stream())
 }
 
-/// Merges a subscription's snapshot with live samples that arrive while the snapshot is taken.
+/// Merges a subscription's snapshots with live samples: the snapshot taken
+/// when it starts, and one of each PEIS that links to this one later.
 struct Merge {
     events: mpsc::UnboundedSender<TupleEvent>,
     recent: Recent,
     snapshot_done: bool,
     buffered: Vec<TupleEvent>,
-    // Per key, the (epoch, seq) the snapshot delivered; live samples at or below it are duplicates or stale.
-    snapshot_seq: HashMap<(PeisId, Key), (u64, u64)>,
+    // Per key, the (epoch, seq) last delivered; anything at or below it is a
+    // duplicate or stale (a snapshot and a live sample may carry the same tuple).
+    delivered: HashMap<(PeisId, Key), (u64, u64)>,
 }
 
 impl Merge {
@@ -555,31 +559,46 @@ impl Merge {
             TupleEvent::Removed { seq, epoch, .. } => (*epoch, *seq),
             TupleEvent::Retargeted { .. } => (0, 0),
         };
-        if seq > 0 && !self.snapshot_seq.is_empty() {
+        // A sample without metadata (seq 0) cannot be ordered: always news.
+        if seq > 0 {
             let (owner, key) = event.subject();
             let id = (owner.clone(), key.clone());
-            if let Some(&seen) = self.snapshot_seq.get(&id) {
-                if (epoch, seq) <= seen {
-                    return;
-                }
-                self.snapshot_seq.remove(&id);
+            if self
+                .delivered
+                .get(&id)
+                .is_some_and(|&seen| (epoch, seq) <= seen)
+            {
+                return;
             }
+            self.delivered.insert(id, (epoch, seq));
         }
         let _ = self.events.send(event);
     }
 
     fn finish_snapshot(&mut self, tuples: Vec<Tuple>) {
         for tuple in tuples {
-            self.snapshot_seq.insert(
-                (tuple.owner.clone(), tuple.key.clone()),
-                (tuple.epoch, tuple.seq),
-            );
-            let _ = self.events.send(TupleEvent::Changed(tuple));
+            self.deliver(TupleEvent::Changed(tuple));
         }
         self.snapshot_done = true;
         for event in std::mem::take(&mut self.buffered) {
             self.deliver(event);
         }
+    }
+
+    /// The tuples of a PEIS that linked to this one after the snapshot.
+    fn catch_up(&mut self, tuples: Vec<Tuple>) {
+        for tuple in tuples {
+            self.live(TupleEvent::Changed(tuple));
+        }
+    }
+}
+
+/// Aborts a task when dropped: the catch-up task of a subscription.
+struct AbortOnDrop(JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
     }
 }
 
@@ -630,7 +649,7 @@ impl TupleSpace for ZenohPeis {
             },
             snapshot_done: false,
             buffered: Vec::new(),
-            snapshot_seq: HashMap::new(),
+            delivered: HashMap::new(),
         }));
         let live = merge.clone();
         let malformed = core.malformed.clone();
@@ -658,9 +677,50 @@ impl TupleSpace for ZenohPeis {
             })
             .await
             .map_err(transport("subscribe"))?;
+        // Peers do not relay, and they meet through gossip: a PEIS that links
+        // to this one after the snapshot has tuples that will never arrive as
+        // changes. Each PEIS that appears is asked for its matching tuples.
+        let (appeared, mut appearances) = mpsc::unbounded_channel::<PeisId>();
+        let owners = pattern.owner.clone();
+        let alive = match &pattern.owner {
+            ecology_tuples::OwnerPattern::Exact(id) => wire::alive_key_expr(id),
+            ecology_tuples::OwnerPattern::Any => wire::ALL_ALIVE.to_owned(),
+        };
+        let watcher = core
+            .session
+            .liveliness()
+            .declare_subscriber(alive)
+            .callback(move |sample| {
+                if sample.kind() == SampleKind::Put
+                    && let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str())
+                    && owners.matches(&id)
+                {
+                    let _ = appeared.send(id);
+                }
+            })
+            .await
+            .map_err(transport("subscribe"))?;
+        let catch_up = {
+            let core = core.clone();
+            let merge = merge.clone();
+            let key = pattern.key.clone();
+            tokio::spawn(async move {
+                while let Some(id) = appearances.recv().await {
+                    let theirs = TuplePattern {
+                        owner: ecology_tuples::OwnerPattern::Exact(id),
+                        key: key.clone(),
+                    };
+                    // A PEIS that does not answer is caught up with by its next changes.
+                    if let Ok(tuples) = query_tuples(&core, &theirs).await {
+                        lock(&merge).catch_up(tuples);
+                    }
+                }
+            })
+        };
         let snapshot = self.query_tuples(&pattern).await?;
         lock(&merge).finish_snapshot(snapshot);
-        Ok(Subscription::from_channel(rx, subscriber))
+        let guard = (subscriber, watcher, AbortOnDrop(catch_up));
+        Ok(Subscription::from_channel(rx, guard))
     }
 
     async fn set_remote(&self, owner: PeisId, key: Key, value: Value) -> Result<Tuple, TupleError> {
