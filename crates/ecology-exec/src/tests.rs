@@ -415,18 +415,23 @@ fn a_whole_plan_runs_to_completion() {
     assert_eq!(names(&exec)[names(&exec).len() - 2], "released");
 }
 
+/// The paper's plan in the scripted ecology, the tracking system failing for
+/// good at `at` seconds.
+fn tracking_broken_at(at: f64) -> Executive {
+    let mut broken = false;
+    Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
+        if !broken && eco.now >= secs(at) {
+            broken = true;
+            eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
+        }
+    })
+}
+
 // The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.
 #[test]
 fn a_failing_component_is_reconfigured_around() {
-    let mut broken = false;
-    let exec =
-        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
-            // Twelve seconds in, Astrid is on her way to the bedroom.
-            if !broken && eco.now >= secs(14.0) {
-                broken = true;
-                eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
-            }
-        });
+    // Fourteen seconds in, Astrid is on her way to the bedroom.
+    let exec = tracking_broken_at(14.0);
     assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
     assert_eq!(
         costs(&exec),
@@ -634,15 +639,8 @@ fn waiting_too_long_is_a_failure() {
 
 #[test]
 fn a_component_in_error_stays_out_of_later_actions() {
-    let mut broken = false;
-    let exec =
-        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
-            // On the way to the entrance, the tracking system fails for good.
-            if !broken && eco.now >= secs(2.0) {
-                broken = true;
-                eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
-            }
-        });
+    // On the way to the entrance, the tracking system fails for good.
+    let exec = tracking_broken_at(2.0);
     assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
     // Moving to the bedroom does not try the broken tracking system again.
     assert_eq!(

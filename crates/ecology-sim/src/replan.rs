@@ -12,6 +12,8 @@ use std::collections::BTreeMap;
 
 use ecology_domain::{Domain, Problem, Term, parse_goal};
 use ecology_exec::{PlannedAction, Replan};
+
+use crate::scenario::run_action_planner;
 use ecology_tuples::{Tuple, TuplePattern};
 
 use crate::components::WORLD;
@@ -138,25 +140,6 @@ impl Replan for WorldReplanner {
                 excluded.push(op);
             }
         }
-        let request = ecology_actions::Request::replan(&task, state, excluded);
-        let outcome = ecology_actions::plan(
-            &request,
-            &ecology_actions::Options::default(),
-            &ecology_actions::NoClock,
-        );
-        match outcome.verdict {
-            ecology_actions::Verdict::Found(plan) => Ok(plan
-                .steps
-                .iter()
-                .map(|step| PlannedAction {
-                    action: step.to_string(),
-                    goal: step.configure.clone(),
-                })
-                .collect()),
-            ecology_actions::Verdict::Unsolvable(why) => Err(why.to_string()),
-            ecology_actions::Verdict::BudgetExceeded => {
-                Err("the action planner's budget ran out".to_string())
-            }
-        }
+        run_action_planner(&ecology_actions::Request::replan(&task, state, excluded))
     }
 }

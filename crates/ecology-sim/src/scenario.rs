@@ -815,9 +815,16 @@ pub enum PlanError {
 pub fn plan_actions(domain: &Domain, problem: &Problem) -> Result<Vec<PlannedAction>, PlanError> {
     let task =
         ecology_actions::ground(domain, problem).map_err(|e| PlanError::Task(e.to_string()))?;
-    let request = ecology_actions::Request::new(&task);
+    run_action_planner(&ecology_actions::Request::new(&task)).map_err(PlanError::NoPlan)
+}
+
+/// The action planner's plan for `request`, each action with its
+/// `:configure` goal; `Err` says why there is none.
+pub(crate) fn run_action_planner(
+    request: &ecology_actions::Request<'_>,
+) -> Result<Vec<PlannedAction>, String> {
     let outcome = ecology_actions::plan(
-        &request,
+        request,
         &ecology_actions::Options::default(),
         &ecology_actions::NoClock,
     );
@@ -830,9 +837,9 @@ pub fn plan_actions(domain: &Domain, problem: &Problem) -> Result<Vec<PlannedAct
                 goal: step.configure.clone(),
             })
             .collect()),
-        ecology_actions::Verdict::Unsolvable(why) => Err(PlanError::NoPlan(why.to_string())),
+        ecology_actions::Verdict::Unsolvable(why) => Err(why.to_string()),
         ecology_actions::Verdict::BudgetExceeded => {
-            Err(PlanError::NoPlan("the planner's budget ran out".into()))
+            Err("the action planner's budget ran out".to_string())
         }
     }
 }
