@@ -51,12 +51,25 @@ pub struct Diagnostic {
     pub notes: Vec<String>,
 }
 
+/// The longest message, label or note kept, in characters: a name of 40 KB
+/// quoted in every message about it made output and memory grow with the
+/// square of the input.
+pub const MAX_MESSAGE: usize = 300;
+
+/// `text` cut to [`MAX_MESSAGE`] characters, ending in `…` when cut.
+fn bounded(text: String) -> String {
+    match text.char_indices().nth(MAX_MESSAGE) {
+        Some((end, _)) => format!("{}…", &text[..end]),
+        None => text,
+    }
+}
+
 impl Diagnostic {
     /// An error at `span` with `message`.
     pub fn error(span: Span, message: impl Into<String>) -> Diagnostic {
         Diagnostic {
             span,
-            message: message.into(),
+            message: bounded(message.into()),
             label: None,
             secondary: Vec::new(),
             notes: Vec::new(),
@@ -65,19 +78,19 @@ impl Diagnostic {
 
     /// Adds the note under the caret.
     pub fn with_label(mut self, label: impl Into<String>) -> Diagnostic {
-        self.label = Some(label.into());
+        self.label = Some(bounded(label.into()));
         self
     }
 
     /// Adds another place that explains this one.
     pub fn with_secondary(mut self, span: Span, label: impl Into<String>) -> Diagnostic {
-        self.secondary.push((span, label.into()));
+        self.secondary.push((span, bounded(label.into())));
         self
     }
 
     /// Adds a hint printed after the excerpt.
     pub fn with_note(mut self, note: impl Into<String>) -> Diagnostic {
-        self.notes.push(note.into());
+        self.notes.push(bounded(note.into()));
         self
     }
 }

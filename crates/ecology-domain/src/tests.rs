@@ -672,3 +672,23 @@ fn rendered_diagnostics_stay_proportional_to_their_number() {
         "the second error's column is exact"
     );
 }
+
+// Found by the fuzz harness: a 40 KB method name, quoted in every message
+// about the method, took 85 MB for a 44 KB file.
+#[test]
+fn messages_quote_long_names_briefly() {
+    let name = "m".repeat(40_000);
+    let src = format!(
+        "(define (domain d) (:method {name} {}))",
+        "x ".repeat(2_000)
+    );
+    let err = parse_domain(src.as_bytes()).expect_err("no keywords");
+    assert!(err.0.len() >= 1_000, "{} diagnostics", err.0.len());
+    assert!(err.0.iter().any(|d| d.message.contains("mmmm")));
+    let kept: usize = err.0.iter().map(|d| d.message.len()).sum();
+    // Without the cap: 2,000 messages of 40 KB each.
+    assert!(
+        kept < 2 * crate::diagnostic::MAX_MESSAGE * err.0.len(),
+        "{kept} bytes of messages"
+    );
+}
