@@ -134,6 +134,12 @@ pub enum GroundError {
         /// The limit that was reached.
         limit: usize,
     },
+    /// Grounding would hold more memory than its limit.
+    #[error("grounding needs more than {limit_mib} MiB; the problem is too large")]
+    TooMuchMemory {
+        /// The limit that was reached, in MiB.
+        limit_mib: usize,
+    },
     /// Grounding took longer than its time limit.
     #[error("grounding took longer than the time limit of {limit:?}")]
     OutOfTime {
@@ -149,6 +155,8 @@ pub struct GroundLimits {
     pub max_operators: usize,
     /// Time at most, as the caller's clock measures it.
     pub max_time: Option<std::time::Duration>,
+    /// Memory the operators may hold at most, in bytes (estimated as they are built).
+    pub max_bytes: usize,
 }
 
 impl Default for GroundLimits {
@@ -156,6 +164,7 @@ impl Default for GroundLimits {
         GroundLimits {
             max_operators: MAX_OPERATORS,
             max_time: None,
+            max_bytes: 512 * 1024 * 1024,
         }
     }
 }
@@ -476,6 +485,8 @@ struct Grounder<'a> {
     clock: &'a dyn crate::Clock,
     /// Bindings tried since the clock was last read.
     ticks: u32,
+    /// Estimated bytes the operators built so far hold.
+    bytes: usize,
     /// Each object's declared type.
     object_types: Vec<Name>,
     parents: HashMap<Name, Name>,
@@ -535,6 +546,7 @@ pub fn ground_within(
         limits: *limits,
         clock,
         ticks: 0,
+        bytes: 0,
         object_types: Vec::new(),
         parents: domain
             .types
@@ -946,7 +958,7 @@ impl Grounder<'_> {
                 .collect(),
             span: call.span,
         });
-        self.task.operators.push(Operator {
+        let operator = Operator {
             action: action.name.clone(),
             args: binding
                 .iter()
@@ -958,7 +970,33 @@ impl Grounder<'_> {
             del,
             cost,
             configure,
-        });
+        };
+        self.bytes = self.bytes.saturating_add(operator_bytes(&operator));
+        if self.bytes > self.limits.max_bytes {
+            return Err(GroundError::TooMuchMemory {
+                limit_mib: self.limits.max_bytes / (1024 * 1024),
+            });
+        }
+        self.task.operators.push(operator);
         Ok(())
     }
+}
+
+/// About how many bytes `op` holds, its heap allocations included.
+fn operator_bytes(op: &Operator) -> usize {
+    let names = |names: &[Name]| {
+        names
+            .iter()
+            .map(|n| n.len() + 2 * size_of::<usize>())
+            .sum::<usize>()
+    };
+    let atoms = op.pre.len() + op.pre_neg.len() + op.add.len() + op.del.len();
+    let configure = op.configure.as_ref().map_or(0, |c| {
+        c.name.len() + c.args.len() * (size_of::<Term>() + 16)
+    });
+    size_of::<Operator>()
+        + op.action.len()
+        + names(&op.args)
+        + atoms * size_of::<AtomId>()
+        + configure
 }

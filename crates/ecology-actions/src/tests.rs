@@ -592,3 +592,30 @@ proptest! {
         check_replanning(&inst.domain, &inst.problem);
     }
 }
+
+// Grounding stops at its memory limit (estimated as operators are built)
+// instead of growing until the machine runs out: 40^3 operators here.
+#[test]
+fn grounding_stops_at_its_memory_limit() {
+    let objects: Vec<String> = (0..40).map(|i| format!("o{i}")).collect();
+    let (domain, problem) = load(
+        "(define (domain big) (:requirements :strips) (:predicates (q ?a ?b ?c))
+           (:action a :parameters (?a ?b ?c) :precondition () :effect (q ?a ?b ?c)))",
+        &format!(
+            "(define (problem big-1) (:domain big) (:objects {}) (:init) (:goal (q o0 o1 o2)))",
+            objects.join(" ")
+        ),
+    );
+    let limits = crate::GroundLimits {
+        max_bytes: 1024 * 1024,
+        ..crate::GroundLimits::default()
+    };
+    let err = crate::ground_within(&domain, &problem, &limits, &crate::NoClock)
+        .expect_err("over the limit");
+    assert_eq!(
+        err.to_string(),
+        "grounding needs more than 1 MiB; the problem is too large"
+    );
+    // With the default limit the same task grounds.
+    assert!(crate::ground(&domain, &problem).is_ok());
+}
