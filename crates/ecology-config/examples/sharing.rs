@@ -1,10 +1,13 @@
 //! Plans for, or writes out, one shared-provider ecology from
 //! `ecology_config::synthetic::sharing`; used by `scripts/bench-config`.
 //!
-//! `cargo run --release -p ecology-config --example sharing -- run P L K CPP R F SEED [MAX_MILLIS]`
-//! prints one line `cost=… status=… micros=… first_micros=… expanded=… lower_bound=…`;
-//! `… -- export DIR P L K CPP R F SEED` writes `DIR/domain.eco`, `DIR/state.facts`,
-//! `DIR/goal` and `DIR/exclusions` (one `PEIS:COMPONENT` a line).
+//! `cargo run --release -p ecology-config --example sharing -- export DIR P L K CPP R F SEED`
+//! writes `DIR/domain.eco`, `DIR/state.facts`, `DIR/goal` and `DIR/exclusions`
+//! (one `PEIS:COMPONENT` a line); `… -- solve DIR [MAX_MILLIS]` reads them back
+//! and plans, printing one line `cost=… status=… micros=… first_micros=…
+//! expanded=… lower_bound=…` where `micros` is the planner's whole work
+//! (compiling, grounding, search) after parsing. `… -- run P L K CPP R F SEED
+//! [MAX_MILLIS]` generates and plans without files.
 
 use std::time::{Duration, Instant};
 
@@ -32,6 +35,26 @@ fn shape(args: &[String]) -> Sharing {
     }
 }
 
+/// An instance written by `export`.
+fn read(dir: &std::path::Path) -> synthetic::Instance {
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect("reads");
+    let (domain_text, facts_text, goal_text) =
+        (read("domain.eco"), read("state.facts"), read("goal"));
+    synthetic::Instance {
+        domain: ecology_domain::parse_domain(domain_text.as_bytes()).expect("parses"),
+        state: ecology_domain::parse_facts(facts_text.as_bytes()).expect("parses"),
+        goal: ecology_domain::parse_goal(goal_text.trim()).expect("parses"),
+        domain_text,
+        facts_text,
+        goal_text,
+        components: Vec::new(),
+        exclusions: read("exclusions")
+            .lines()
+            .map(|l| l.parse().expect("an exclusion"))
+            .collect(),
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
@@ -49,12 +72,15 @@ fn main() {
                 .collect();
             std::fs::write(dir.join("exclusions"), excluded).expect("writes");
         }
-        Some("run") => {
+        Some(mode @ ("run" | "solve")) => {
             let start = Instant::now();
-            let instance = synthetic::sharing(shape(&args[1..])).expect("generates");
-            let max_time = args
-                .get(8)
-                .map(|m| Duration::from_millis(m.parse().expect("ms")));
+            let (instance, max_time) = if mode == "run" {
+                let instance = synthetic::sharing(shape(&args[1..])).expect("generates");
+                (instance, args.get(8))
+            } else {
+                (read(std::path::Path::new(&args[1])), args.get(2))
+            };
+            let max_time = max_time.map(|m| Duration::from_millis(m.parse().expect("ms")));
             let request = Request {
                 domain: &instance.domain,
                 state: &instance.state,
@@ -92,7 +118,7 @@ fn main() {
             );
         }
         _ => eprintln!(
-            "usage: sharing run P L K CPP R F SEED [MAX_MILLIS] | sharing export DIR P L K CPP R F SEED"
+            "usage: sharing export DIR P L K CPP R F SEED | sharing solve DIR [MAX_MILLIS] | sharing run P L K CPP R F SEED [MAX_MILLIS]"
         ),
     }
 }

@@ -1,0 +1,191 @@
+"""Side-by-side benchmark of `ecology configure`'s planner against clingo.
+
+Run through `scripts/bench-config`, which builds the planner's `sharing`
+example and installs clingo into a virtual environment. For each point and
+seed it writes one instance of `ecology_config::synthetic::sharing` to files,
+then solves those same files with our planner (the `sharing solve` example)
+and with clingo (an ASP encoding read from the same files, #minimize), and
+prints both times, both costs and the ratio. Both times exclude reading and
+parsing the files; ours includes compiling, grounding and search, clingo's
+includes its grounding and solving. Costs must agree where both prove
+optimality; the script fails otherwise.
+"""
+
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+import clingo
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXAMPLE = os.environ.get(
+    "SHARING_EXAMPLE",
+    os.path.join(ROOT, "target", "release", "examples", "sharing"),
+)
+TIMEOUT_S = float(os.environ.get("BENCH_TIMEOUT_S", "60"))
+
+# (label, P, L, K, cpp, R, f)
+POINTS = [
+    ("P=4", 4, 3, 2, 1, 2, 0.0),
+    ("P=8", 8, 3, 2, 1, 2, 0.0),
+    ("P=16", 16, 3, 2, 1, 2, 0.0),
+    ("P=32", 32, 3, 2, 1, 2, 0.0),
+    ("P=64", 64, 3, 2, 1, 2, 0.0),
+    ("P=128", 128, 3, 2, 1, 2, 0.0),
+    ("P=16 L=4", 16, 4, 2, 1, 2, 0.0),
+    ("P=16 L=5", 16, 5, 2, 1, 2, 0.0),
+    ("P=16 K=3 R=3", 16, 3, 3, 1, 3, 0.0),
+    ("P=16 cpp=2", 16, 3, 2, 2, 2, 0.0),
+    ("P=16 cpp=4", 16, 3, 2, 4, 2, 0.0),
+    ("P=16 f=0.2", 16, 3, 2, 1, 2, 0.2),
+    ("P=32 L=4", 32, 4, 2, 1, 2, 0.0),
+    ("P=32 K=3 R=3", 32, 3, 3, 1, 3, 0.0),
+    ("P=32 cpp=4", 32, 3, 2, 4, 2, 0.0),
+    ("P=32 f=0.2", 32, 3, 2, 1, 2, 0.2),
+]
+SEEDS = [int(s) for s in os.environ.get("BENCH_SEEDS", "1 2 3").split()]
+
+
+def read_instance(directory):
+    """Components, channel costs and the user, from the written files."""
+    with open(os.path.join(directory, "state.facts")) as f:
+        facts = f.read()
+    with open(os.path.join(directory, "domain.eco")) as f:
+        domain = f.read()
+    with open(os.path.join(directory, "exclusions")) as f:
+        excluded = {tuple(line.strip().split(":")) for line in f if line.strip()}
+    signature = {}
+    for name, inputs, output in re.findall(
+        r"\(:functionality (f\d+) .*?:input \(((?:\([^()]*\))*)\) :output \(\(([^()]*)\)\)",
+        domain,
+        re.S,
+    ):
+        signature[name[1:]] = (output.strip(), re.findall(r"\(([^()]*)\)", inputs))
+    comps = {}
+    for peis, comp, sig in re.findall(r"\(sig (\S+) (\S+) s(\d+)\)", facts):
+        if (peis, comp) in excluded:
+            continue
+        out, ins = signature[sig]
+        comps[(peis, comp)] = {"provides": out, "needs": ins}
+    cost = {(p, c): int(n) for p, c, n in re.findall(r"\(cost (\S+) (\S+) (\d+) on\)", facts)}
+    for key in comps:
+        comps[key]["cost"] = cost[key]
+    chan = {(a, b): int(n) for a, b, n in re.findall(r"\(channel-cost (\S+) (\S+) (\d+)\)", facts)}
+    (user,) = re.findall(r"\(user (\S+) (\S+)\)", facts)
+    return comps, chan, user
+
+
+def asp_program(comps, chan, user):
+    peis_ids = {}
+    pid = lambda p: peis_ids.setdefault(p, len(peis_ids))
+    type_ids = {}
+    tid = lambda t: type_ids.setdefault(t, len(type_ids))
+    lines = []
+    ids = {}
+    for i, (key, c) in enumerate(sorted(comps.items())):
+        ids[key] = i + 1
+        lines.append(f"comp({i + 1},{pid(key[0])},{c['cost']},{tid(c['provides'])}).")
+        for n in c["needs"]:
+            lines.append(f"need({i + 1},{tid(n)}).")
+    lines.append(f"comp(0,{pid(user[0])},0,-1). need(0,{tid('goal')}). use(0).")
+    for (a, b), n in chan.items():
+        if a in peis_ids and b in peis_ids:
+            lines.append(f"chan({pid(a)},{pid(b)},{n}).")
+    lines.append(
+        """
+1 { feed(C,T,D) : comp(D,_,_,T) } 1 :- use(C), need(C,T).
+use(D) :- feed(_,_,D).
+wire(C,T,N) :- feed(C,T,D), comp(C,P,_,_), comp(D,Q,_,_), P != Q, chan(Q,P,N).
+#minimize { N,c,C : use(C), comp(C,_,N,_) ; N,w,C,T : wire(C,T,N) }.
+"""
+    )
+    return "\n".join(lines)
+
+
+def clingo_solve(program):
+    """(seconds, cost, proven) for the program, single-threaded."""
+    start = time.perf_counter()
+    ctl = clingo.Control(["--opt-mode=opt", "--parallel-mode=1"])
+    ctl.add("base", [], program)
+    ctl.ground([("base", [])])
+    best = [None]
+
+    def on_model(model):
+        best[0] = model.cost[0] if model.cost else 0
+
+    with ctl.solve(on_model=on_model, async_=True) as handle:
+        finished = handle.wait(max(0.0, TIMEOUT_S - (time.perf_counter() - start)))
+        if not finished:
+            handle.cancel()
+        result = handle.get()
+    elapsed = time.perf_counter() - start
+    proven = finished and result.exhausted
+    return elapsed, best[0], proven
+
+
+def ours(directory):
+    out = subprocess.run(
+        [EXAMPLE, "solve", directory, str(int(TIMEOUT_S * 1000))],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    fields = dict(kv.split("=") for kv in out.split())
+    cost = None if fields["cost"] == "none" else int(fields["cost"])
+    first = None if fields["first_micros"] == "none" else int(fields["first_micros"]) / 1e6
+    return int(fields["micros"]) / 1e6, cost, fields["status"] == "Proven", first
+
+
+def human(seconds):
+    if seconds < 1e-3:
+        return f"{seconds * 1e6:.0f} µs"
+    if seconds < 1:
+        return f"{seconds * 1e3:.1f} ms"
+    return f"{seconds:.2f} s"
+
+
+def main():
+    print("| point | seed | components | ours | first | clingo | cost ours / clingo | clingo ÷ ours |")
+    print("|---|---|---|---|---|---|---|---|")
+    failures = 0
+    worst = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, p, l, k, cpp, r, f in POINTS:
+            for seed in SEEDS:
+                d = os.path.join(tmp, f"{label}-{seed}".replace(" ", "_"))
+                subprocess.run(
+                    [EXAMPLE, "export", d, str(p), str(l), str(k), str(cpp), str(r), str(f), str(seed)],
+                    check=True,
+                )
+                t_ours, c_ours, p_ours, first = ours(d)
+                comps, chan, user = read_instance(d)
+                t_clingo, c_clingo, p_clingo = clingo_solve(asp_program(comps, chan, user))
+                mark = lambda c, proven: "none" if c is None else f"{c}{'' if proven else '?'}"
+                ratio = t_clingo / t_ours if t_ours > 0 else float("inf")
+                agree = not (p_ours and p_clingo) or c_ours == c_clingo
+                if not agree:
+                    failures += 1
+                if p_ours and p_clingo:
+                    worst = ratio if worst is None else min(worst, ratio)
+                print(
+                    f"| {label} | {seed} | {len(comps) + 1} | {human(t_ours)}{'' if p_ours else ' (not proven)'} "
+                    f"| {'-' if first is None else human(first)} "
+                    f"| {human(t_clingo)}{'' if p_clingo else ' (not proven)'} "
+                    f"| {mark(c_ours, p_ours)} / {mark(c_clingo, p_clingo)}{'' if agree else ' DISAGREE'} "
+                    f"| {ratio:.0f}× |",
+                    flush=True,
+                )
+    print()
+    print("`?`: not proven optimal within the budget of "
+          f"{TIMEOUT_S:.0f} s. Smallest ratio where both proved: "
+          f"{'-' if worst is None else f'{worst:.1f}×'}")
+    if failures:
+        print(f"{failures} disagreements between proven optima", file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
