@@ -390,6 +390,7 @@ impl Shared {
             for &p in &ps {
                 provs[p as usize].serves.push(t as u32);
             }
+            ps.sort_by_key(|&p| provs[p as usize].w);
             task.wmin = ps
                 .iter()
                 .map(|&p| provs[p as usize].w)
@@ -470,10 +471,10 @@ impl Shared {
     fn h(&self, state: &[u64]) -> u64 {
         let (chosen, open) = state.split_at(self.pwords);
         let nt = self.tasks.len();
-        let mut served = vec![false; nt];
+        let mut serving: Vec<Vec<u32>> = vec![Vec::new(); nt];
         for p in ones(chosen) {
             for &t in &self.provs[p].serves {
-                served[t as usize] = true;
+                serving[t as usize].push(p as u32);
             }
         }
         let mut landmark = vec![false; nt];
@@ -485,10 +486,11 @@ impl Shared {
                 return INFEASIBLE;
             }
             let t = need.task as usize;
-            if served[t] || !self.additive {
+            if !self.additive {
                 sum = sum.saturating_add(need.min_wire);
+                landmark[t] |= serving[t].is_empty();
             } else {
-                landmark[t] = true;
+                landmark[t] |= serving[t].is_empty();
                 waiting[t].push(n as u32);
             }
         }
@@ -496,7 +498,7 @@ impl Shared {
         while let Some(t) = work.pop() {
             for &u in &self.tasks[t].common {
                 let u = u as usize;
-                if !served[u] && !landmark[u] {
+                if serving[u].is_empty() && !landmark[u] {
                     landmark[u] = true;
                     work.push(u);
                 }
@@ -509,37 +511,60 @@ impl Shared {
                 .max();
             return sum.saturating_add(most.unwrap_or(0));
         }
-        for t in (0..nt).filter(|&t| landmark[t]) {
+        let into = |g: u32, n: u32| match self.needs[n as usize].consumer {
+            NONE => 0,
+            c => self.wire(g, c),
+        };
+        for t in 0..nt {
             let task = &self.tasks[t];
-            if task.wmin == INFEASIBLE {
-                return INFEASIBLE;
-            }
             let waiting = &waiting[t];
             if waiting.is_empty() {
-                sum = sum.saturating_add(task.wmin);
+                if landmark[t] {
+                    sum = sum.saturating_add(task.wmin);
+                }
                 continue;
             }
-            let m: u64 = waiting
+            // The needs are fed by chosen providers only (each at least its
+            // cheapest chosen feeder, `a`), or some new provider `F` is added:
+            // then each need costs its cheaper of a chosen feeder and `F`,
+            // unless a second new provider (at least `wmin`) joins in.
+            let a: Vec<u64> = waiting
                 .iter()
-                .map(|&n| self.needs[n as usize].min_wire)
-                .sum();
-            let best = task
-                .provs
-                .iter()
-                .map(|&g| {
-                    let s: u64 = waiting
+                .map(|&n| {
+                    serving[t]
                         .iter()
-                        .map(|&n| match self.needs[n as usize].consumer {
-                            NONE => 0,
-                            c => self.wire(g, c),
-                        })
-                        .sum();
-                    self.provs[g as usize]
-                        .w
-                        .saturating_add(s.min(task.wmin.saturating_add(m)))
+                        .map(|&g| into(g, n))
+                        .min()
+                        .unwrap_or(INFEASIBLE)
                 })
-                .min()
-                .unwrap_or(INFEASIBLE);
+                .collect();
+            let all_chosen = a.iter().fold(0u64, |s, &x| s.saturating_add(x));
+            let cheapest: u64 = waiting
+                .iter()
+                .zip(&a)
+                .map(|(&n, &a)| a.min(self.needs[n as usize].min_wire))
+                .sum();
+            let second = task.wmin.saturating_add(cheapest);
+            // Providers come cheapest `w` first: stop once `w` alone is no better.
+            let mut with_new = INFEASIBLE;
+            for &f in &task.provs {
+                let prov = &self.provs[f as usize];
+                if prov.w >= with_new.min(all_chosen) {
+                    break;
+                }
+                if bit(chosen, f as usize) {
+                    continue;
+                }
+                let alone = waiting
+                    .iter()
+                    .zip(&a)
+                    .fold(0u64, |s, (&n, &a)| s.saturating_add(a.min(into(f, n))));
+                with_new = with_new.min(prov.w.saturating_add(alone.min(second)));
+            }
+            let best = all_chosen.min(with_new);
+            if best == INFEASIBLE {
+                return INFEASIBLE;
+            }
             sum = sum.saturating_add(best);
         }
         sum
@@ -627,6 +652,8 @@ impl Shared {
         let mut choice = self.choices(from);
         let mut kids = Vec::new();
         while let Some(need) = self.first_open(&state) {
+            // Each step of the dive counts against the node budget.
+            self.expanded += 1;
             kids.clear();
             self.children(&state, need, &mut kids);
             let best = kids
@@ -648,6 +675,13 @@ impl Shared {
         }
     }
 
+    /// Nothing chosen; the goal's need open.
+    fn root_state(&self) -> Vec<u64> {
+        let mut state = vec![0u64; self.words];
+        set(&mut state[self.pwords..], 0, true);
+        state
+    }
+
     fn done(&self) -> bool {
         self.accepted.len() >= self.count || self.open.is_empty()
     }
@@ -657,9 +691,7 @@ impl Shared {
         let single = self.count == 1;
         if !self.started {
             self.started = true;
-            let root = vec![0u64; self.words];
-            let mut state = root;
-            set(&mut state[self.pwords..], 0, true);
+            let state = self.root_state();
             let h = self.h(&state);
             if h != INFEASIBLE {
                 self.push(NONE, NONE, NONE, 0, h, state);
@@ -748,6 +780,10 @@ impl Shared {
 
     /// No configuration not yet accepted costs less than this.
     pub(crate) fn lower_bound(&self) -> Option<u64> {
+        if !self.started {
+            let h = self.h(&self.root_state());
+            return (h != INFEASIBLE).then_some(h);
+        }
         let open = self.open.peek().map(|(Reverse(f), _, _)| *f);
         match (open, self.incumbent.as_ref().map(|i| i.0)) {
             (Some(a), Some(b)) => Some(a.min(b)),

@@ -405,6 +405,54 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
 
 /// Whether the planner agrees with the oracle on a `small` instance; `Ok(false)`
 /// when the oracle could not enumerate it.
+#[test]
+fn budgets_hold_for_the_provider_search() {
+    let instance = synthetic::sharing(synthetic::Sharing::base(24, 5)).expect("generates");
+    let request = Request {
+        domain: &instance.domain,
+        state: &instance.state,
+        goal: &instance.goal,
+        exclusions: &instance.exclusions,
+    };
+    let full = plan(&request, &Options::default(), &NoClock).expect("valid");
+    assert_eq!(full.status, Status::Proven);
+    assert!(full.configurations[0].optimal);
+    assert_eq!(full.lower_bound, None);
+    let optimum = full.configurations[0].cost;
+    let with = |budget| {
+        let options = Options { count: 1, budget };
+        plan(&request, &options, &Ticking::default()).expect("valid")
+    };
+    // No node: nothing found, but a bound.
+    let none = with(Budget {
+        max_expansions: Some(0),
+        max_time: None,
+    });
+    assert_eq!(none.status, Status::BudgetExceeded);
+    assert!(none.configurations.is_empty());
+    assert_eq!(none.stats.expanded, 0);
+    assert!(none.lower_bound.is_some_and(|lb| lb <= optimum));
+    // A few nodes, or one clock tick: the dive's configuration, flagged, with its gap.
+    for budget in [
+        Budget {
+            max_expansions: Some(40),
+            max_time: None,
+        },
+        Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_millis(1500)),
+        },
+    ] {
+        let outcome = with(budget);
+        assert_eq!(outcome.status, Status::BudgetExceeded, "{budget:?}");
+        let found = &outcome.configurations[0];
+        assert!(!found.optimal && found.cost >= optimum, "{budget:?}");
+        let lb = outcome.lower_bound.expect("a bound");
+        assert!(lb <= optimum && lb <= found.cost, "{budget:?}");
+        assert!(outcome.stats.first_micros.is_some());
+    }
+}
+
 fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<bool, TestCaseError> {
     let instance = synthetic::small(seed).map_err(|e| TestCaseError::fail(e.0))?;
     agrees_on(&instance, seed, exclude_one)
