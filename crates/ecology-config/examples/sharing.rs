@@ -6,7 +6,8 @@
 //! (one `PEIS:COMPONENT` a line); `… -- solve DIR [MAX_MILLIS]` reads them back
 //! and plans, printing one line `cost=… status=… micros=… first_micros=…
 //! expanded=… lower_bound=…` where `micros` is the planner's whole work
-//! (compiling, grounding, search) after parsing. `… -- run P L K CPP R F SEED
+//! (compiling, grounding, search) after parsing: the median of up to five
+//! runs while they take under half a second in all. `… -- run P L K CPP R F SEED
 //! [MAX_MILLIS]` generates and plans without files.
 
 use std::time::{Duration, Instant};
@@ -94,10 +95,20 @@ fn main() {
                     max_time,
                 },
             };
-            let clock = Wall(Instant::now());
             let generated = start.elapsed();
-            let outcome = plan(&request, &options, &clock).expect("valid goal");
-            let total = clock.elapsed();
+            // Up to five runs while they take under half a second in all; the
+            // median is reported (a lone run mostly measures cold caches).
+            let mut runs = Vec::new();
+            let began = Instant::now();
+            while runs.len() < 5
+                && (runs.is_empty() || began.elapsed() < Duration::from_millis(500))
+            {
+                let clock = Wall(Instant::now());
+                let outcome = plan(&request, &options, &clock).expect("valid goal");
+                runs.push((clock.elapsed(), outcome));
+            }
+            runs.sort_by_key(|r| r.0);
+            let (total, outcome) = runs.swap_remove(runs.len() / 2);
             println!(
                 "cost={} status={:?} micros={} generate_micros={} first_micros={} expanded={} lower_bound={}",
                 outcome
