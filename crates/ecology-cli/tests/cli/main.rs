@@ -205,6 +205,9 @@ fn configure_under_a_budget_is_flagged() {
     assert_eq!(v["error"], "budget exceeded", "{v}");
     assert!(v["lower_bound"].as_u64().is_some(), "{v}");
     assert_eq!(v["stats"]["expanded"], 0, "{v}");
+    // No time: the same, the clock counting from the command's start.
+    let v = json(&configure(&["--max-millis", "0", "--json"]));
+    assert_eq!(v["error"], "budget exceeded", "{v}");
     // Proven answers carry no bound.
     let v = json(&configure(&["--json"]));
     assert!(v["lower_bound"].is_null(), "{v}");
