@@ -39,6 +39,12 @@ POINTS = [
     ("P=32", 32, 3, 2, 1, 2, 0.0),
     ("P=64", 64, 3, 2, 1, 2, 0.0),
     ("P=128", 128, 3, 2, 1, 2, 0.0),
+    ("P=8 L=4", 8, 4, 2, 1, 2, 0.0),
+    ("P=8 L=5", 8, 5, 2, 1, 2, 0.0),
+    ("P=8 K=3 R=3", 8, 3, 3, 1, 3, 0.0),
+    ("P=8 cpp=2", 8, 3, 2, 2, 2, 0.0),
+    ("P=8 cpp=4", 8, 3, 2, 4, 2, 0.0),
+    ("P=8 f=0.2", 8, 3, 2, 1, 2, 0.2),
     ("P=16 L=4", 16, 4, 2, 1, 2, 0.0),
     ("P=16 L=5", 16, 5, 2, 1, 2, 0.0),
     ("P=16 K=3 R=3", 16, 3, 3, 1, 3, 0.0),
@@ -51,6 +57,8 @@ POINTS = [
     ("P=32 f=0.2", 32, 3, 2, 1, 2, 0.2),
 ]
 SEEDS = [int(s) for s in os.environ.get("BENCH_SEEDS", "1 2 3").split()]
+# A regular expression selecting points by label, e.g. "^P=32$".
+ONLY = re.compile(os.environ.get("BENCH_POINTS", ""))
 
 
 def read_instance(directory):
@@ -190,7 +198,8 @@ def highs_once(comps, chan, user):
     h.run()
     elapsed = time.perf_counter() - start
     status = h.getModelStatus()
-    proven = status == highspy.HighsModelStatus.kOptimal
+    # An infeasible model is a proven "no configuration".
+    proven = status in (highspy.HighsModelStatus.kOptimal, highspy.HighsModelStatus.kInfeasible)
     info = h.getInfo()
     value = round(info.objective_function_value) if info.primal_solution_status == 2 else None
     return elapsed, value, proven
@@ -233,6 +242,8 @@ def main():
     worst = None
     with tempfile.TemporaryDirectory() as tmp:
         for label, p, l, k, cpp, r, f in POINTS:
+            if not ONLY.search(label):
+                continue
             for seed in SEEDS:
                 d = os.path.join(tmp, f"{label}-{seed}".replace(" ", "_"))
                 subprocess.run(
