@@ -138,6 +138,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
         let value = if args.all {
             json!({
                 "configurations": outcome.configurations.iter().map(|c| config_json(c, &outcome)).collect::<Vec<_>>(),
+                "lower_bound": outcome.lower_bound,
                 "stats": stats_json(&outcome),
             })
         } else {
@@ -220,6 +221,7 @@ fn stats_json(outcome: &Outcome) -> Value {
         "generated": outcome.stats.generated,
         "alternatives": outcome.stats.alternatives,
         "micros": outcome.stats.micros,
+        "first_micros": outcome.stats.first_micros,
     })
 }
 
@@ -228,6 +230,8 @@ pub fn config_json(config: &Configuration, outcome: &Outcome) -> Value {
     json!({
         "cost": config.cost,
         "optimal": config.optimal,
+        // Under an exhausted budget: no configuration costs less (null when proven).
+        "lower_bound": outcome.lower_bound,
         "functionalities": config.functionalities.iter().map(|f| json!({
             "label": f.label,
             "name": f.name,

@@ -23,7 +23,7 @@ pub(crate) const INFEASIBLE: u64 = u64::MAX;
 /// Guards grounding against domains that bypassed validation with a cycle.
 const MAX_DEPTH: usize = 256;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub(crate) struct ItemId(pub(crate) u32);
 
 /// Why a functionality instance cannot be used.

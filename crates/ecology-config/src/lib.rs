@@ -32,6 +32,7 @@ mod explain;
 mod ground;
 pub mod oracle;
 mod search;
+mod share;
 pub mod synthetic;
 
 #[cfg(test)]
@@ -355,6 +356,8 @@ pub struct Stats {
     pub alternatives: u64,
     /// Time spent, by the caller's clock.
     pub micros: u64,
+    /// When the first configuration was found, by the caller's clock.
+    pub first_micros: Option<u64>,
 }
 
 /// The result of a search.
@@ -375,6 +378,8 @@ pub struct Outcome {
 /// A search that can be run in steps under an outside budget.
 pub struct Search<'a> {
     engine: Engine<'a>,
+    /// The search over chosen providers, when the domain has provider shape.
+    shared: Option<share::Shared>,
     count: usize,
     dived: bool,
 }
@@ -408,8 +413,11 @@ impl<'a> Search<'a> {
         let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
         let excluded = excluded(&mut compiled, request.exclusions);
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
+        let engine = Engine::new(ctx, callee, &args);
+        let shared = share::Shared::new(&engine, options.count);
         Ok(Search {
-            engine: Engine::new(ctx, callee, &args),
+            engine,
+            shared,
             count: options.count.max(1),
             dived: false,
         })
@@ -417,6 +425,13 @@ impl<'a> Search<'a> {
 
     /// Runs at most `expansions` steps.
     pub fn step(&mut self, expansions: u64) -> Progress {
+        if let Some(shared) = &mut self.shared {
+            return if shared.step(expansions) {
+                Progress::Done
+            } else {
+                Progress::InProgress
+            };
+        }
         if !self.dived && self.count == 1 {
             self.dived = true;
             self.engine.dive(expansions.max(1));
@@ -436,23 +451,50 @@ impl<'a> Search<'a> {
 
     /// Nodes expanded so far.
     pub fn expanded(&self) -> u64 {
-        self.engine.expanded
+        match &self.shared {
+            Some(shared) => shared.expanded,
+            None => self.engine.expanded,
+        }
+    }
+
+    /// Whether a configuration has been found (not necessarily the best).
+    pub fn found(&self) -> bool {
+        match &self.shared {
+            Some(shared) => shared.found(),
+            None => !self.engine.accepted.is_empty() || self.engine.incumbent.is_some(),
+        }
     }
 
     /// Ends the search. With `complete` false (the budget ran out), returns
     /// the best found so far, not proven.
     pub fn finish(mut self, complete: bool, elapsed: Duration) -> Outcome {
+        if let Some(mut shared) = self.shared.take() {
+            let lower_bound = if complete { None } else { shared.lower_bound() };
+            let (configurations, explanation) = shared.finish(&mut self.engine, complete);
+            return Outcome {
+                configurations,
+                status: if complete {
+                    Status::Proven
+                } else {
+                    Status::BudgetExceeded
+                },
+                explanation,
+                lower_bound,
+                stats: Stats {
+                    expanded: shared.expanded,
+                    generated: shared.generated,
+                    alternatives: self.engine.graph.alternatives,
+                    micros: elapsed.as_micros() as u64,
+                    first_micros: None,
+                },
+            };
+        }
         let mut configurations = std::mem::take(&mut self.engine.accepted);
         let proven_count = configurations.len();
         if configurations.is_empty()
             && let Some(incumbent) = self.engine.incumbent.take()
         {
             configurations.push(incumbent);
-        }
-        if !complete && configurations.is_empty() {
-            // Dive for something usable from the best open node.
-            self.engine.dive(10_000);
-            configurations.extend(self.engine.incumbent.take());
         }
         for (i, c) in configurations.iter_mut().enumerate() {
             c.optimal = complete || i < proven_count;
@@ -483,6 +525,7 @@ impl<'a> Search<'a> {
                 generated: self.engine.generated,
                 alternatives: self.engine.graph.alternatives,
                 micros: elapsed.as_micros() as u64,
+                first_micros: None,
             },
         }
     }
@@ -507,6 +550,14 @@ pub fn plan_with<'a>(
 ) -> Result<Outcome, RequestError> {
     const SLICE: u64 = 256;
     let mut search = Search::new(request, cost_model, options)?;
+    let mut first = None;
+    let finish = |search: Search<'a>, complete: bool, first: Option<Duration>| {
+        let mut outcome = search.finish(complete, clock.elapsed());
+        outcome.stats.first_micros = first
+            .filter(|_| !outcome.configurations.is_empty())
+            .map(|t: Duration| t.as_micros() as u64);
+        outcome
+    };
     loop {
         let slice = match options.budget.max_expansions {
             Some(max) => SLICE.min(max.saturating_sub(search.expanded())),
@@ -517,10 +568,14 @@ pub fn plan_with<'a>(
             .max_time
             .is_some_and(|t| clock.elapsed() >= t);
         if slice == 0 || over_time {
-            return Ok(search.finish(false, clock.elapsed()));
+            return Ok(finish(search, false, first));
         }
-        if search.step(slice) == Progress::Done {
-            return Ok(search.finish(true, clock.elapsed()));
+        let progress = search.step(slice);
+        if first.is_none() && search.found() {
+            first = Some(clock.elapsed());
+        }
+        if progress == Progress::Done {
+            return Ok(finish(search, true, first));
         }
     }
 }

@@ -74,6 +74,10 @@ struct Partial {
     used: HashMap<ComponentKey, ItemId>,
 }
 
+/// Names the alternative of a task occurrence from the functionality instance
+/// and input it feeds (`None`: the goal).
+pub(crate) type Chooser<'c> = dyn Fn(Option<(ItemId, &GInfo)>) -> Option<u32> + 'c;
+
 /// Why a complete decomposition is not an admissible configuration.
 pub(crate) type Inadmissible = String;
 
@@ -217,7 +221,7 @@ impl<'a> Engine<'a> {
         true
     }
 
-    fn reject(&mut self, reason: Inadmissible) {
+    pub(crate) fn reject(&mut self, reason: Inadmissible) {
         if let Some((_, n)) = self.rejections.iter_mut().find(|(r, _)| *r == reason) {
             *n += 1;
         } else if self.rejections.len() < 64 {
@@ -283,6 +287,54 @@ impl<'a> Engine<'a> {
                 }
             }
         }
+    }
+
+    /// Assembles the decomposition in which every task occurrence takes the
+    /// alternative `choose` names for the functionality and input it feeds
+    /// (`None`: the goal), unfolding shared providers into repeated subtrees.
+    pub(crate) fn assemble_with(
+        &self,
+        choose: &Chooser<'_>,
+    ) -> Result<Configuration, Inadmissible> {
+        /// Guards against a sharing pattern that unfolds into a huge tree.
+        const MAX_INSTANCES: usize = 1 << 20;
+        let mut partial = Partial::default();
+        partial.insts.push(Inst {
+            item: self.root,
+            parent: None,
+            alt: None,
+            children: Vec::new(),
+        });
+        partial.stack.push(0);
+        while let Some(top) = partial.stack.pop() {
+            if partial.insts.len() > MAX_INSTANCES {
+                return Err("the configuration unfolds into too large a decomposition".into());
+            }
+            let consumer =
+                match partial.insts[top as usize].parent {
+                    None => None,
+                    Some((parent, k)) => {
+                        let p = &partial.insts[parent as usize];
+                        let ItemKind::Task { alts, .. } = &self.graph.item(p.item).kind else {
+                            return Err("a functionality has subtasks".into());
+                        };
+                        let alt = &alts[p.alt.unwrap_or(0) as usize];
+                        let method = &self.ctx.compiled.methods[alt.method as usize];
+                        method.channels.iter().find(|(from, _, _)| *from == k).map(
+                            |(_, to, info)| {
+                                (
+                                    partial.insts[p.children[*to as usize] as usize].item,
+                                    info.ground(&alt.binding),
+                                )
+                            },
+                        )
+                    }
+                };
+            let alt = choose(consumer.as_ref().map(|(item, info)| (*item, info)))
+                .ok_or_else(|| "a task occurrence has no chosen alternative".to_string())?;
+            self.apply(&mut partial, top, alt);
+        }
+        self.assemble(&partial)
     }
 
     fn path(&self, mut id: u32) -> Vec<u32> {

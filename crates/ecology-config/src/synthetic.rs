@@ -55,6 +55,8 @@ pub struct Instance {
     pub goal: Call,
     /// Every component, as `(peis, component)`.
     pub components: Vec<(String, String)>,
+    /// Components that have failed: plan with these excluded.
+    pub exclusions: Vec<crate::Exclusion>,
 }
 
 /// Why a generated instance did not parse: a generator bug, with the text.
@@ -81,6 +83,7 @@ fn finish(
         state,
         goal,
         components,
+        exclusions: Vec::new(),
     })
 }
 
@@ -367,4 +370,193 @@ pub fn ecology(shape: Shape) -> Result<Instance, GeneratorError> {
     }
     domain.push(')');
     finish(domain, facts, "(level0 q0)".to_string(), components)
+}
+
+/// Parameters of a shared-provider ecology (issue 11): providers serve several
+/// consumers, and channels between PEIS cost.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sharing {
+    /// PEIS in the ecology.
+    pub peis: usize,
+    /// Levels of information types below the goal (the goal type is level 0).
+    pub levels: usize,
+    /// Information types per level 1..=`levels`.
+    pub types: usize,
+    /// Components per PEIS and level.
+    pub per_level: usize,
+    /// Distinct types of the next level each component below the last needs.
+    pub needs: usize,
+    /// Fraction of components that have failed (excluded).
+    pub failed: f64,
+    /// Random seed.
+    pub seed: u64,
+}
+
+impl Sharing {
+    /// The issue's base point: L=3, K=2, one component per level, R=2, none failed.
+    pub fn base(peis: usize, seed: u64) -> Sharing {
+        Sharing {
+            peis,
+            levels: 3,
+            types: 2,
+            per_level: 1,
+            needs: 2,
+            failed: 0.0,
+            seed,
+        }
+    }
+}
+
+/// An ecology where components are shared and channels cost (issue 11).
+///
+/// Every PEIS `q{p}` hosts, for each level `l` in `0..=levels`, `per_level`
+/// components `c{l}x{j}`; each gets a type of its level (level 0 is the goal
+/// type), a running cost in 1..=10 (on), and below the last level `needs`
+/// distinct types of the next level. A channel from PEIS `a` to PEIS `b`
+/// costs 1..=5. PEIS `q0` hosts a `user` component needing the goal type; the
+/// goal `(serve)` feeds it. One functionality per (type, needs) signature, one
+/// parameterless task `get-T` per type with one method per signature. The
+/// instance's `exclusions` list the failed components.
+pub fn sharing(shape: Sharing) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(shape.seed);
+    let levels = shape.levels.max(1);
+    let k = shape.types.max(1);
+    let r = shape.needs.clamp(1, k);
+    let per = shape.per_level.max(1);
+    let peis = shape.peis.max(1);
+    let type_name = |l: usize, t: usize| {
+        if l == 0 {
+            "goal".to_string()
+        } else {
+            format!("ty{l}-{t}")
+        }
+    };
+    let types_at = |l: usize| if l == 0 { 1 } else { k };
+    // types[l][p * per + j]
+    let mut types: Vec<Vec<usize>> = Vec::new();
+    for l in 0..=levels {
+        let n = types_at(l);
+        let mut level: Vec<usize> = (0..peis * per)
+            .map(|_| rng.below(n as u64) as usize)
+            .collect();
+        // Every type has a provider: give a missing one to a component whose
+        // type has another provider.
+        if level.len() >= n {
+            loop {
+                let mut count = vec![0usize; n];
+                for &t in &level {
+                    count[t] += 1;
+                }
+                let Some(missing) = count.iter().position(|&c| c == 0) else {
+                    break;
+                };
+                let i = rng.below(level.len() as u64) as usize;
+                if count[level[i]] > 1 {
+                    level[i] = missing;
+                }
+            }
+        }
+        types.push(level);
+    }
+    let mut facts = String::with_capacity(peis * peis * 28 + peis * levels * 80);
+    let mut components = Vec::new();
+    let mut exclusions = Vec::new();
+    let mut signatures: Vec<(usize, usize, Vec<usize>)> = Vec::new(); // level, type, needs
+    for p in 0..peis {
+        writeln!(facts, "(peis q{p})").ok();
+        for (l, level) in types.iter().enumerate() {
+            for j in 0..per {
+                let c = format!("c{l}x{j}");
+                let ty = level[p * per + j];
+                let mut needs: Vec<usize> = Vec::new();
+                if l < levels {
+                    let mut pool: Vec<usize> = (0..k).collect();
+                    for _ in 0..r {
+                        let i = rng.below(pool.len() as u64) as usize;
+                        needs.push(pool.swap_remove(i));
+                    }
+                    needs.sort_unstable();
+                }
+                let key = (l, ty, needs);
+                let sig = match signatures.iter().position(|s| *s == key) {
+                    Some(i) => i,
+                    None => {
+                        signatures.push(key);
+                        signatures.len() - 1
+                    }
+                };
+                writeln!(
+                    facts,
+                    "(sig q{p} {c} s{sig}) (cost q{p} {c} {} on)",
+                    1 + rng.below(10)
+                )
+                .ok();
+                if shape.failed > 0.0 && rng.chance(shape.failed) {
+                    exclusions.push(crate::Exclusion::Component {
+                        peis: format!("q{p}"),
+                        component: c.clone(),
+                    });
+                }
+                components.push((format!("q{p}"), c));
+            }
+        }
+    }
+    writeln!(facts, "(user q0 u) (cost q0 u 0 on)").ok();
+    components.push(("q0".to_string(), "u".to_string()));
+    for a in 0..peis {
+        for b in 0..peis {
+            if a != b {
+                writeln!(facts, "(channel-cost q{a} q{b} {})", 1 + rng.below(5)).ok();
+            }
+        }
+    }
+    let mut domain = String::from("(define (domain sharing)\n");
+    domain.push_str(
+        "  (:functionality user :parameters (?p ?c) :component (?p ?c)\n    :precondition (user ?p ?c) :input ((goal)) :cost 0)\n",
+    );
+    for (s, (l, ty, needs)) in signatures.iter().enumerate() {
+        let inputs: String = needs
+            .iter()
+            .map(|&n| format!("({})", type_name(l + 1, n)))
+            .collect();
+        writeln!(
+            domain,
+            "  (:functionality f{s} :parameters (?p ?c) :component (?p ?c)\n    :precondition (sig ?p ?c s{s}) :input ({inputs}) :output (({})) :cost 0)",
+            type_name(*l, *ty)
+        )
+        .ok();
+    }
+    for l in 0..=levels {
+        for t in 0..types_at(l) {
+            let name = type_name(l, t);
+            writeln!(
+                domain,
+                "  (:task get-{name} :parameters () :output (({name})))"
+            )
+            .ok();
+            for (s, (sl, sty, needs)) in signatures.iter().enumerate() {
+                if (*sl, *sty) != (l, t) {
+                    continue;
+                }
+                let mut subtasks = format!("(s0 (f{s} ?p ?c))");
+                let mut channels = String::new();
+                for (i, &n) in needs.iter().enumerate() {
+                    let need = type_name(l + 1, n);
+                    write!(subtasks, " (s{} (get-{need}))", i + 1).ok();
+                    write!(channels, "(s{} s0 ({need}))", i + 1).ok();
+                }
+                writeln!(
+                    domain,
+                    "  (:method get-{name}-by-f{s} :parameters (?p ?c) :task (get-{name})\n    :precondition (sig ?p ?c s{s}) :subtasks ({subtasks})\n    :channels ({channels}) :outputs ((({name}) s0)))"
+                )
+                .ok();
+            }
+        }
+    }
+    domain.push_str(
+        "  (:task serve :parameters ())\n  (:method serve-user :parameters (?p ?c) :task (serve)\n    :precondition (user ?p ?c) :subtasks ((s0 (user ?p ?c)) (s1 (get-goal)))\n    :channels ((s1 s0 (goal))))\n)",
+    );
+    let mut instance = finish(domain, facts, "(serve)".to_string(), components)?;
+    instance.exclusions = exclusions;
+    Ok(instance)
 }

@@ -403,9 +403,70 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
     }
 }
 
-fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
+/// Whether the planner agrees with the oracle on a `small` instance; `Ok(false)`
+/// when the oracle could not enumerate it.
+#[test]
+fn budgets_hold_for_the_provider_search() {
+    let instance = synthetic::sharing(synthetic::Sharing::base(24, 5)).expect("generates");
+    let request = Request {
+        domain: &instance.domain,
+        state: &instance.state,
+        goal: &instance.goal,
+        exclusions: &instance.exclusions,
+    };
+    let full = plan(&request, &Options::default(), &NoClock).expect("valid");
+    assert_eq!(full.status, Status::Proven);
+    assert!(full.configurations[0].optimal);
+    assert_eq!(full.lower_bound, None);
+    let optimum = full.configurations[0].cost;
+    let with = |budget| {
+        let options = Options { count: 1, budget };
+        plan(&request, &options, &Ticking::default()).expect("valid")
+    };
+    // No node: nothing found, but a bound.
+    let none = with(Budget {
+        max_expansions: Some(0),
+        max_time: None,
+    });
+    assert_eq!(none.status, Status::BudgetExceeded);
+    assert!(none.configurations.is_empty());
+    assert_eq!(none.stats.expanded, 0);
+    assert!(none.lower_bound.is_some_and(|lb| lb <= optimum));
+    // A few nodes, or one clock tick: the dive's configuration, flagged, with its gap.
+    for budget in [
+        Budget {
+            max_expansions: Some(40),
+            max_time: None,
+        },
+        Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_millis(1500)),
+        },
+    ] {
+        let outcome = with(budget);
+        assert_eq!(outcome.status, Status::BudgetExceeded, "{budget:?}");
+        let found = &outcome.configurations[0];
+        assert!(!found.optimal && found.cost >= optimum, "{budget:?}");
+        let lb = outcome.lower_bound.expect("a bound");
+        assert!(lb <= optimum && lb <= found.cost, "{budget:?}");
+        assert!(outcome.stats.first_micros.is_some());
+    }
+}
+
+fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<bool, TestCaseError> {
     let instance = synthetic::small(seed).map_err(|e| TestCaseError::fail(e.0))?;
-    let mut exclusions = Vec::new();
+    agrees_on(&instance, seed, exclude_one)
+}
+
+/// Whether the planner agrees with the oracle on `instance` (with its own
+/// exclusions, and one more component when `exclude_one`); `Ok(false)` when
+/// the oracle could not enumerate it.
+fn agrees_on(
+    instance: &synthetic::Instance,
+    seed: u64,
+    exclude_one: bool,
+) -> Result<bool, TestCaseError> {
+    let mut exclusions = instance.exclusions.clone();
     if exclude_one && !instance.components.is_empty() {
         let (peis, component) =
             &instance.components[(seed % instance.components.len() as u64) as usize];
@@ -422,7 +483,7 @@ fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
         &PaperCost,
         Limit(20_000),
     ) else {
-        return Ok(()); // Too large for the oracle.
+        return Ok(false); // Too large for the oracle: counted by the callers.
     };
     let request = Request {
         domain: &instance.domain,
@@ -486,7 +547,23 @@ fn oracle_agrees(seed: u64, exclude_one: bool) -> Result<(), TestCaseError> {
             }
         }
     }
-    Ok(())
+    Ok(true)
+}
+
+/// A small shared-provider ecology (issue 11) for the oracle.
+fn small_sharing(seed: u64) -> synthetic::Instance {
+    let mut rng = synthetic::Rng::new(seed);
+    let types = 1 + rng.below(2) as usize;
+    let shape = synthetic::Sharing {
+        peis: 1 + rng.below(4) as usize,
+        levels: 1 + rng.below(3) as usize,
+        types,
+        per_level: 1 + rng.below(2) as usize,
+        needs: 1 + rng.below(types as u64) as usize,
+        failed: if rng.chance(0.5) { 0.2 } else { 0.0 },
+        seed,
+    };
+    synthetic::sharing(shape).unwrap_or_else(|e| panic!("seed {seed}: {}", e.0))
 }
 
 proptest! {
@@ -498,6 +575,51 @@ proptest! {
     fn the_planner_agrees_with_brute_force(seed in any::<u64>(), exclude in any::<bool>()) {
         oracle_agrees(seed, exclude)?;
     }
+}
+
+/// Runs `check` on seeds `0..cases`; fails on a disagreement, or when the
+/// oracle could not enumerate more than a tenth of the cases. Prints the count.
+fn against_the_oracle(what: &str, cases: u64, check: impl Fn(u64) -> Result<bool, TestCaseError>) {
+    let mut skipped = 0;
+    for seed in 0..cases {
+        match check(seed) {
+            Ok(true) => {}
+            Ok(false) => skipped += 1,
+            Err(e) => panic!("{what}, seed {seed}: {e}"),
+        }
+    }
+    eprintln!("{what}: the oracle could not enumerate {skipped} of {cases} cases");
+    assert!(
+        skipped * 10 <= cases,
+        "{what}: the oracle could not enumerate {skipped} of {cases} cases"
+    );
+}
+
+// The same check on fixed seeds, counting the cases too large for the oracle.
+#[test]
+fn the_oracle_enumerates_most_small_cases() {
+    against_the_oracle("small", 400, |seed| oracle_agrees(seed, seed % 2 == 1));
+}
+
+// Shared providers and channel costs (issue 11): the provider search agrees
+// with brute force on optimum, k-best list and exclusions.
+#[test]
+fn the_provider_search_agrees_with_brute_force() {
+    against_the_oracle("sharing", 400, |seed| {
+        let instance = small_sharing(seed);
+        let request = Request {
+            domain: &instance.domain,
+            state: &instance.state,
+            goal: &instance.goal,
+            exclusions: &instance.exclusions,
+        };
+        let search = crate::Search::new(&request, &PaperCost, &Options::default()).expect("valid");
+        prop_assert!(
+            search.shared.is_some(),
+            "seed {seed}: not searched by providers"
+        );
+        agrees_on(&instance, seed, seed % 3 == 0)
+    });
 }
 
 #[test]

@@ -198,13 +198,20 @@ fn configure_dot() {
 
 #[test]
 fn configure_under_a_budget_is_flagged() {
-    let out = configure(&["--max-nodes", "0"]);
-    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    assert!(
-        stdout(&out).contains("not proven optimal"),
-        "{}",
-        stdout(&out)
-    );
+    // No node may be expanded: no configuration, only a bound.
+    let out = configure(&["--max-nodes", "0", "--json"]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    let v = json(&out);
+    assert_eq!(v["error"], "budget exceeded", "{v}");
+    assert!(v["lower_bound"].as_u64().is_some(), "{v}");
+    assert_eq!(v["stats"]["expanded"], 0, "{v}");
+    // No time: the same, the clock counting from the command's start.
+    let v = json(&configure(&["--max-millis", "0", "--json"]));
+    assert_eq!(v["error"], "budget exceeded", "{v}");
+    // Proven answers carry no bound.
+    let v = json(&configure(&["--json"]));
+    assert!(v["lower_bound"].is_null(), "{v}");
+    assert_eq!(v["optimal"], true, "{v}");
 }
 
 #[test]

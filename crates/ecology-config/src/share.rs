@@ -1,0 +1,912 @@
+//! Best-first search over the set of chosen providers and their open inputs,
+//! for domains of *provider shape* (issue 11).
+//!
+//! A domain has provider shape when, in the ground graph, every feasible
+//! method alternative runs exactly one functionality and one task per input
+//! of that functionality, each task wired by a channel to that input, and the
+//! functionality's output is what the method's task provides. Ecologies of
+//! shared cameras and costly links look like this. A configuration is then a
+//! set of functionality instances (*providers*) plus, for each of their inputs
+//! (*needs*), the provider feeding it: a provider serving two consumers is one
+//! instance, paid once, its own inputs wired once — exactly what the tree
+//! search's assembly makes of a decomposition whose shared subtrees agree.
+//!
+//! A search state is the set of chosen providers and the set of open needs;
+//! `g` is exact (components plus channels so far). Expanding a state resolves
+//! its lowest-numbered open need, one child per provider that can feed it.
+//! Because the need resolved is a function of the state, every configuration
+//! has exactly one path (so k-best lists need no duplicate check), and states
+//! reached in different orders are recognised as one (kept at the cheapest
+//! `g`) when looking for the optimum.
+//!
+//! The bound `h` is admissible: every open need will get its own channel (at
+//! least its cheapest one); every task no chosen provider serves needs a new
+//! provider, and so do the tasks all of its providers need (landmarks); a new
+//! provider costs at least its own cost plus the cheapest channel into each of
+//! its inputs; a landmark's open needs are fed either all by one new provider
+//! or by at least two, whose second costs at least the cheapest provider. When
+//! providers serve more than one task, landmarks count their maximum instead
+//! of their sum.
+//!
+//! Domains not of this shape, or whose providers could feed each other in a
+//! cycle, are searched by the decomposition tree search (`search`).
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::hash::{Hash, Hasher};
+
+use rustc_hash::{FxHashMap as HashMap, FxHasher};
+
+use crate::compile::{GInfo, Sym};
+use crate::ground::{INFEASIBLE, ItemId, ItemKind};
+use crate::search::Engine;
+use crate::{Configuration, explain};
+
+const NONE: u32 = u32::MAX;
+
+/// One way to resolve a need: an alternative of its task and the provider it runs.
+#[derive(Debug, Clone, Copy)]
+struct Opt {
+    alt: u32,
+    prov: u32,
+    /// The channel's cost into the consumer.
+    wire: u64,
+}
+
+#[derive(Debug)]
+struct Prov {
+    item: ItemId,
+    peis: u32,
+    cost: u64,
+    /// Its needs are `first_need..first_need + needs.len()`.
+    first_need: u32,
+    /// Its inputs, in order, with the task that provides each.
+    needs: Vec<(GInfo, ItemId)>,
+    /// Other providers on the same component.
+    conflicts: Vec<u32>,
+    /// Its cost plus the cheapest channel into each input.
+    w: u64,
+    /// The tasks it can provide (task indices).
+    serves: Vec<u32>,
+}
+
+#[derive(Debug)]
+struct Need {
+    /// The consuming provider; `NONE` for the goal itself.
+    consumer: u32,
+    task: u32,
+    opts: Vec<Opt>,
+    min_wire: u64,
+}
+
+#[derive(Debug, Default)]
+struct Task {
+    item: ItemId,
+    /// Feasible alternatives: (alternative, provider, infos provided).
+    alts: Vec<(u32, u32, Vec<GInfo>)>,
+    provs: Vec<u32>,
+    /// Tasks that every provider of this one needs.
+    common: Vec<u32>,
+    /// The cheapest `w` among its providers.
+    wmin: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    parent: u32,
+    need: u32,
+    opt: u32,
+    g: u64,
+}
+
+/// The provider-shape search; see the module docs.
+#[derive(Debug)]
+pub(crate) struct Shared {
+    provs: Vec<Prov>,
+    needs: Vec<Need>,
+    tasks: Vec<Task>,
+    prov_of_item: HashMap<ItemId, u32>,
+    /// Channel costs between PEIS indices, row: producer.
+    chan: Vec<u64>,
+    npeis: usize,
+    /// Whether every provider serves at most one task (landmarks add up).
+    additive: bool,
+    pwords: usize,
+    words: usize,
+    count: usize,
+    nodes: Vec<Node>,
+    /// States of the nodes, `words` words each: chosen providers, then open needs.
+    states: Vec<u64>,
+    open: BinaryHeap<(Reverse<u64>, u64, Reverse<u32>)>,
+    seen: HashMap<u64, u32>,
+    bound: u64,
+    incumbent: Option<(u64, Vec<u32>)>,
+    accepted: Vec<(u64, Vec<u32>)>,
+    started: bool,
+    pub(crate) expanded: u64,
+    pub(crate) generated: u64,
+}
+
+fn bit(words: &[u64], i: usize) -> bool {
+    words[i / 64] >> (i % 64) & 1 == 1
+}
+
+fn set(words: &mut [u64], i: usize, on: bool) {
+    if on {
+        words[i / 64] |= 1 << (i % 64);
+    } else {
+        words[i / 64] &= !(1 << (i % 64));
+    }
+}
+
+fn ones(words: &[u64]) -> impl Iterator<Item = usize> + '_ {
+    words.iter().enumerate().flat_map(|(w, &x)| {
+        let mut x = x;
+        std::iter::from_fn(move || {
+            if x == 0 {
+                return None;
+            }
+            let b = x.trailing_zeros() as usize;
+            x &= x - 1;
+            Some(w * 64 + b)
+        })
+    })
+}
+
+impl Shared {
+    /// The provider-shape search for `engine`'s goal, or `None` when the
+    /// domain does not have provider shape.
+    pub(crate) fn new(engine: &Engine<'_>, count: usize) -> Option<Shared> {
+        let graph = &engine.graph;
+        let ctx = &engine.ctx;
+        let c = &ctx.compiled;
+        if !matches!(graph.item(engine.root).kind, ItemKind::Task { .. }) {
+            return None;
+        }
+        let mut task_of_item: HashMap<ItemId, u32> = HashMap::default();
+        let mut tasks: Vec<Task> = Vec::new();
+        let mut provs: Vec<Prov> = Vec::new();
+        let mut prov_of_item: HashMap<ItemId, u32> = HashMap::default();
+        let mut peis_index: HashMap<Sym, u32> = HashMap::default();
+        let mut peis_syms: Vec<Sym> = Vec::new();
+        task_of_item.insert(engine.root, 0);
+        tasks.push(Task {
+            item: engine.root,
+            ..Task::default()
+        });
+        let mut next = 0;
+        while next < tasks.len() {
+            let item = graph.item(tasks[next].item);
+            let ItemKind::Task { alts, .. } = &item.kind else {
+                return None;
+            };
+            for (a, alt) in alts.iter().enumerate() {
+                if alt.lb == INFEASIBLE {
+                    continue;
+                }
+                let funcs: Vec<usize> = (0..alt.children.len())
+                    .filter(|&k| graph.func(alt.children[k]).is_some())
+                    .collect();
+                let [sf] = funcs[..] else { return None };
+                let f_item = alt.children[sf];
+                let f = graph.func(f_item)?;
+                let method = &c.methods[alt.method as usize];
+                let f_args: Vec<Option<Sym>> =
+                    graph.item(f_item).args.iter().map(|&s| Some(s)).collect();
+                let inputs: Vec<GInfo> = c.funcs[f.func as usize]
+                    .inputs
+                    .iter()
+                    .map(|i| i.ground(&f_args))
+                    .collect();
+                // Each task child feeds one distinct input of the functionality.
+                let mut needs: Vec<Option<ItemId>> = vec![None; inputs.len()];
+                let mut fed = vec![false; alt.children.len()];
+                for (from, to, info) in &method.channels {
+                    let (from, to) = (*from as usize, *to as usize);
+                    if to != sf || from == sf || fed[from] {
+                        return None;
+                    }
+                    fed[from] = true;
+                    let info = info.ground(&alt.binding);
+                    let k = inputs.iter().position(|i| *i == info)?;
+                    if needs[k].is_some() {
+                        return None;
+                    }
+                    needs[k] = Some(alt.children[from]);
+                }
+                if (0..alt.children.len()).any(|k| k != sf && !fed[k]) {
+                    return None;
+                }
+                let needs: Vec<(GInfo, ItemId)> = inputs
+                    .into_iter()
+                    .zip(needs)
+                    .map(|(i, t)| t.map(|t| (i, t)))
+                    .collect::<Option<_>>()?;
+                let provides: Vec<GInfo> = method
+                    .outputs
+                    .iter()
+                    .filter(|(_, sub)| *sub as usize == sf)
+                    .map(|(o, _)| o.ground(&alt.binding))
+                    .collect();
+                let p = match prov_of_item.get(&f_item) {
+                    Some(&p) => {
+                        // One provider, one wiring of its inputs: the tree
+                        // search's shared subtrees must agree, and so must these.
+                        if provs[p as usize].needs != needs {
+                            return None;
+                        }
+                        p
+                    }
+                    None => {
+                        let peis = *peis_index.entry(f.peis).or_insert_with(|| {
+                            peis_syms.push(f.peis);
+                            peis_syms.len() as u32 - 1
+                        });
+                        for (_, t) in &needs {
+                            if !task_of_item.contains_key(t) {
+                                task_of_item.insert(*t, tasks.len() as u32);
+                                tasks.push(Task {
+                                    item: *t,
+                                    ..Task::default()
+                                });
+                            }
+                        }
+                        provs.push(Prov {
+                            item: f_item,
+                            peis,
+                            cost: f.cost,
+                            first_need: 0,
+                            needs,
+                            conflicts: Vec::new(),
+                            w: 0,
+                            serves: Vec::new(),
+                        });
+                        prov_of_item.insert(f_item, provs.len() as u32 - 1);
+                        provs.len() as u32 - 1
+                    }
+                };
+                tasks[next].alts.push((a as u32, p, provides));
+            }
+            next += 1;
+        }
+        // Channel costs between every two PEIS, from the state and the cost model.
+        let npeis = peis_syms.len();
+        let mut facts: HashMap<(Sym, Sym), u64> = HashMap::default();
+        if let Some(pred) = c.syms.get("channel-cost") {
+            for fact in c.facts.of(pred) {
+                if let [a, b, n] = fact[..]
+                    && let Ok(n) = c.syms.name(n).parse()
+                {
+                    facts.entry((a, b)).or_insert(n);
+                }
+            }
+        }
+        let mut chan = vec![0u64; npeis * npeis];
+        for (i, &a) in peis_syms.iter().enumerate() {
+            for (j, &b) in peis_syms.iter().enumerate() {
+                if i != j {
+                    chan[i * npeis + j] = ctx.cost_model.channel_cost(
+                        c.syms.name(a),
+                        c.syms.name(b),
+                        facts.get(&(a, b)).copied(),
+                    );
+                }
+            }
+        }
+        // Needs: the goal's, then each provider's inputs.
+        let mut needs = vec![Need {
+            consumer: NONE,
+            task: 0,
+            opts: Vec::new(),
+            min_wire: 0,
+        }];
+        for (p, prov) in provs.iter_mut().enumerate() {
+            prov.first_need = needs.len() as u32;
+            for (_, t) in &prov.needs {
+                needs.push(Need {
+                    consumer: p as u32,
+                    task: task_of_item[t],
+                    opts: Vec::new(),
+                    min_wire: 0,
+                });
+            }
+        }
+        for n in 0..needs.len() {
+            let task = &tasks[needs[n].task as usize];
+            let consumer = needs[n].consumer;
+            let mut opts: Vec<Opt> = Vec::new();
+            for (alt, g, provides) in &task.alts {
+                if opts.iter().any(|o| o.prov == *g) {
+                    continue;
+                }
+                let wire = if consumer == NONE {
+                    0
+                } else {
+                    let cons = &provs[consumer as usize];
+                    let k = (n as u32 - cons.first_need) as usize;
+                    let info = &cons.needs[k].0;
+                    if !provides.contains(info)
+                        || !rate_ok(engine, cons.item, provs[*g as usize].item, info)
+                    {
+                        continue;
+                    }
+                    let (a, b) = (provs[*g as usize].peis as usize, cons.peis as usize);
+                    if a == b { 0 } else { chan[a * npeis + b] }
+                };
+                opts.push(Opt {
+                    alt: *alt,
+                    prov: *g,
+                    wire,
+                });
+            }
+            needs[n].opts = opts;
+        }
+        // Drop providers with an input nothing can feed, until none is left.
+        let mut dead = vec![false; provs.len()];
+        loop {
+            let mut changed = false;
+            for (p, prov) in provs.iter().enumerate() {
+                if dead[p] {
+                    continue;
+                }
+                let first = prov.first_need as usize;
+                if (first..first + prov.needs.len()).any(|n| needs[n].opts.is_empty()) {
+                    dead[p] = true;
+                    changed = true;
+                }
+            }
+            for need in &mut needs {
+                need.opts.retain(|o| !dead[o.prov as usize]);
+            }
+            if !changed {
+                break;
+            }
+        }
+        // Providers that could feed each other in a cycle: not a tree
+        // configuration, so leave the domain to the tree search.
+        if has_cycle(&provs, &needs) {
+            return None;
+        }
+        for need in &mut needs {
+            need.min_wire = need.opts.iter().map(|o| o.wire).min().unwrap_or(INFEASIBLE);
+            need.opts.sort_by_key(|o| o.wire);
+        }
+        for p in 0..provs.len() {
+            let first = provs[p].first_need as usize;
+            let w = (first..first + provs[p].needs.len())
+                .map(|n| needs[n].min_wire)
+                .fold(provs[p].cost, u64::saturating_add);
+            provs[p].w = if dead[p] { INFEASIBLE } else { w };
+        }
+        for (t, task) in tasks.iter_mut().enumerate() {
+            let mut ps: Vec<u32> = task
+                .alts
+                .iter()
+                .map(|a| a.1)
+                .filter(|&p| !dead[p as usize])
+                .collect();
+            ps.sort_unstable();
+            ps.dedup();
+            for &p in &ps {
+                provs[p as usize].serves.push(t as u32);
+            }
+            ps.sort_by_key(|&p| provs[p as usize].w);
+            task.wmin = ps
+                .iter()
+                .map(|&p| provs[p as usize].w)
+                .min()
+                .unwrap_or(INFEASIBLE);
+            task.provs = ps;
+        }
+        let additive = provs.iter().all(|p| p.serves.len() <= 1);
+        for task in &mut tasks {
+            let mut common: Option<Vec<u32>> = None;
+            for &p in &task.provs {
+                let mut mine: Vec<u32> = provs[p as usize]
+                    .needs
+                    .iter()
+                    .map(|(_, t)| task_of_item[t])
+                    .collect();
+                mine.sort_unstable();
+                common = Some(match common {
+                    None => mine,
+                    Some(c) => c.into_iter().filter(|x| mine.contains(x)).collect(),
+                });
+            }
+            task.common = common.unwrap_or_default();
+        }
+        let mut by_component: HashMap<(Sym, Sym), Vec<u32>> = HashMap::default();
+        for (p, prov) in provs.iter().enumerate() {
+            if let Some(f) = graph.func(prov.item) {
+                by_component
+                    .entry((f.peis, f.component))
+                    .or_default()
+                    .push(p as u32);
+            }
+        }
+        for group in by_component.values() {
+            for &p in group {
+                provs[p as usize].conflicts = group.iter().copied().filter(|&q| q != p).collect();
+            }
+        }
+        let pwords = provs.len().div_ceil(64);
+        let words = pwords + needs.len().div_ceil(64);
+        Some(Shared {
+            provs,
+            needs,
+            tasks,
+            prov_of_item,
+            chan,
+            npeis,
+            additive,
+            pwords,
+            words,
+            count: count.max(1),
+            nodes: Vec::new(),
+            states: Vec::new(),
+            open: BinaryHeap::new(),
+            seen: HashMap::default(),
+            bound: INFEASIBLE,
+            incumbent: None,
+            accepted: Vec::new(),
+            started: false,
+            expanded: 0,
+            generated: 0,
+        })
+    }
+
+    fn wire(&self, from: u32, to: u32) -> u64 {
+        let (a, b) = (
+            self.provs[from as usize].peis as usize,
+            self.provs[to as usize].peis as usize,
+        );
+        if a == b {
+            0
+        } else {
+            self.chan[a * self.npeis + b]
+        }
+    }
+
+    /// The admissible bound of a state (see the module docs).
+    fn h(&self, state: &[u64]) -> u64 {
+        let (chosen, open) = state.split_at(self.pwords);
+        let nt = self.tasks.len();
+        let mut serving: Vec<Vec<u32>> = vec![Vec::new(); nt];
+        for p in ones(chosen) {
+            for &t in &self.provs[p].serves {
+                serving[t as usize].push(p as u32);
+            }
+        }
+        let mut landmark = vec![false; nt];
+        let mut waiting: Vec<Vec<u32>> = vec![Vec::new(); nt];
+        let mut sum: u64 = 0;
+        for n in ones(open) {
+            let need = &self.needs[n];
+            if need.min_wire == INFEASIBLE {
+                return INFEASIBLE;
+            }
+            let t = need.task as usize;
+            if !self.additive {
+                sum = sum.saturating_add(need.min_wire);
+                landmark[t] |= serving[t].is_empty();
+            } else {
+                landmark[t] |= serving[t].is_empty();
+                waiting[t].push(n as u32);
+            }
+        }
+        let mut work: Vec<usize> = (0..nt).filter(|&t| landmark[t]).collect();
+        while let Some(t) = work.pop() {
+            for &u in &self.tasks[t].common {
+                let u = u as usize;
+                if serving[u].is_empty() && !landmark[u] {
+                    landmark[u] = true;
+                    work.push(u);
+                }
+            }
+        }
+        if !self.additive {
+            let most = (0..nt)
+                .filter(|&t| landmark[t])
+                .map(|t| self.tasks[t].wmin)
+                .max();
+            return sum.saturating_add(most.unwrap_or(0));
+        }
+        let into = |g: u32, n: u32| match self.needs[n as usize].consumer {
+            NONE => 0,
+            c => self.wire(g, c),
+        };
+        for t in 0..nt {
+            let task = &self.tasks[t];
+            let waiting = &waiting[t];
+            if waiting.is_empty() {
+                if landmark[t] {
+                    sum = sum.saturating_add(task.wmin);
+                }
+                continue;
+            }
+            // The needs are fed by chosen providers only (each at least its
+            // cheapest chosen feeder, `a`), or some new provider `F` is added:
+            // then each need costs its cheaper of a chosen feeder and `F`,
+            // unless a second new provider (at least `wmin`) joins in.
+            let a: Vec<u64> = waiting
+                .iter()
+                .map(|&n| {
+                    serving[t]
+                        .iter()
+                        .map(|&g| into(g, n))
+                        .min()
+                        .unwrap_or(INFEASIBLE)
+                })
+                .collect();
+            let all_chosen = a.iter().fold(0u64, |s, &x| s.saturating_add(x));
+            let cheapest: u64 = waiting
+                .iter()
+                .zip(&a)
+                .map(|(&n, &a)| a.min(self.needs[n as usize].min_wire))
+                .sum();
+            let second = task.wmin.saturating_add(cheapest);
+            // Providers come cheapest `w` first: stop once `w` alone is no better.
+            let mut with_new = INFEASIBLE;
+            for &f in &task.provs {
+                let prov = &self.provs[f as usize];
+                if prov.w >= with_new.min(all_chosen) {
+                    break;
+                }
+                if bit(chosen, f as usize) {
+                    continue;
+                }
+                let alone = waiting
+                    .iter()
+                    .zip(&a)
+                    .fold(0u64, |s, (&n, &a)| s.saturating_add(a.min(into(f, n))));
+                with_new = with_new.min(prov.w.saturating_add(alone.min(second)));
+            }
+            let best = all_chosen.min(with_new);
+            if best == INFEASIBLE {
+                return INFEASIBLE;
+            }
+            sum = sum.saturating_add(best);
+        }
+        sum
+    }
+
+    /// The children of a state: (opt index, child state, added cost).
+    fn children(&self, state: &[u64], need: usize, out: &mut Vec<(u32, Vec<u64>, u64)>) {
+        for (o, opt) in self.needs[need].opts.iter().enumerate() {
+            let p = opt.prov as usize;
+            let mut child = state.to_vec();
+            let (chosen, open) = child.split_at_mut(self.pwords);
+            set(open, need, false);
+            let mut add = opt.wire;
+            if !bit(chosen, p) {
+                let prov = &self.provs[p];
+                if prov.conflicts.iter().any(|&q| bit(chosen, q as usize)) {
+                    continue;
+                }
+                set(chosen, p, true);
+                let first = prov.first_need as usize;
+                for n in first..first + prov.needs.len() {
+                    set(open, n, true);
+                }
+                add = add.saturating_add(prov.cost);
+            }
+            out.push((o as u32, child, add));
+        }
+    }
+
+    fn first_open(&self, state: &[u64]) -> Option<usize> {
+        ones(&state[self.pwords..]).next()
+    }
+
+    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: Vec<u64>) {
+        let id = self.nodes.len() as u32;
+        if self.count == 1 {
+            let mut hasher = FxHasher::default();
+            state.hash(&mut hasher);
+            let key = hasher.finish();
+            match self.seen.get(&key) {
+                Some(&old) if self.state(old) == &state[..] => {
+                    if self.nodes[old as usize].g <= g {
+                        return;
+                    }
+                    self.seen.insert(key, id);
+                }
+                Some(_) => {} // A hash collision: keep both, unrecognised.
+                None => {
+                    self.seen.insert(key, id);
+                }
+            }
+        }
+        self.nodes.push(Node {
+            parent,
+            need,
+            opt,
+            g,
+        });
+        self.states.extend_from_slice(&state);
+        self.open.push((Reverse(f), g, Reverse(id)));
+        self.generated += 1;
+    }
+
+    fn state(&self, id: u32) -> &[u64] {
+        let at = id as usize * self.words;
+        &self.states[at..at + self.words]
+    }
+
+    fn choices(&self, mut id: u32) -> Vec<u32> {
+        let mut choice = vec![NONE; self.needs.len()];
+        while id != NONE {
+            let node = self.nodes[id as usize];
+            if node.need != NONE {
+                choice[node.need as usize] = node.opt;
+            }
+            id = node.parent;
+        }
+        choice
+    }
+
+    /// Greedy descent from a node, cheapest `f` first; a new incumbent if better.
+    fn dive(&mut self, from: u32) {
+        let mut state = self.state(from).to_vec();
+        let mut g = self.nodes[from as usize].g;
+        let mut choice = self.choices(from);
+        let mut kids = Vec::new();
+        while let Some(need) = self.first_open(&state) {
+            // Each step of the dive counts against the node budget.
+            self.expanded += 1;
+            kids.clear();
+            self.children(&state, need, &mut kids);
+            let best = kids
+                .drain(..)
+                .map(|(o, s, add)| {
+                    let h = self.h(&s);
+                    (g.saturating_add(add).saturating_add(h), o, s, add)
+                })
+                .filter(|k| k.0 < self.bound)
+                .min_by_key(|k| (k.0, k.1));
+            let Some((_, o, s, add)) = best else { return };
+            choice[need] = o;
+            g = g.saturating_add(add);
+            state = s;
+        }
+        if g < self.bound {
+            self.bound = g;
+            self.incumbent = Some((g, choice));
+        }
+    }
+
+    /// Nothing chosen; the goal's need open.
+    fn root_state(&self) -> Vec<u64> {
+        let mut state = vec![0u64; self.words];
+        set(&mut state[self.pwords..], 0, true);
+        state
+    }
+
+    fn done(&self) -> bool {
+        self.accepted.len() >= self.count || self.open.is_empty()
+    }
+
+    /// Runs at most `expansions` expansions; returns whether the search is over.
+    pub(crate) fn step(&mut self, expansions: u64) -> bool {
+        let single = self.count == 1;
+        if !self.started {
+            self.started = true;
+            let state = self.root_state();
+            let h = self.h(&state);
+            if h != INFEASIBLE {
+                self.push(NONE, NONE, NONE, 0, h, state);
+                if single {
+                    // A first configuration at once: anytime.
+                    self.dive(0);
+                }
+            }
+            return self.finalize();
+        }
+        let mut kids = Vec::new();
+        for _ in 0..expansions {
+            let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
+                break;
+            };
+            if single && f >= self.bound {
+                self.open.clear();
+                break;
+            }
+            let state = self.state(id).to_vec();
+            if single {
+                let mut hasher = FxHasher::default();
+                state.hash(&mut hasher);
+                if self
+                    .seen
+                    .get(&hasher.finish())
+                    .is_some_and(|&best| best != id && self.state(best) == &state[..])
+                {
+                    continue; // Reached again more cheaply.
+                }
+            }
+            let g = self.nodes[id as usize].g;
+            let Some(need) = self.first_open(&state) else {
+                // Complete: the cheapest left, by admissibility.
+                self.accepted.push((g, self.choices(id)));
+                if single {
+                    self.bound = g;
+                    self.incumbent = None;
+                }
+                if self.done() {
+                    break;
+                }
+                continue;
+            };
+            self.expanded += 1;
+            kids.clear();
+            self.children(&state, need, &mut kids);
+            for (o, s, add) in kids.drain(..) {
+                let cg = g.saturating_add(add);
+                let h = self.h(&s);
+                if h == INFEASIBLE {
+                    continue;
+                }
+                let cf = cg.saturating_add(h);
+                if single && cf >= self.bound {
+                    continue;
+                }
+                self.push(id, need as u32, o, cg, cf, s);
+            }
+            if single
+                && self.expanded % 4096 == 0
+                && let Some(&(_, _, Reverse(top))) = self.open.peek()
+            {
+                // Anytime: look for something better below the best open node.
+                self.dive(top);
+            }
+        }
+        self.finalize()
+    }
+
+    fn finalize(&mut self) -> bool {
+        if self.open.is_empty()
+            && self.accepted.is_empty()
+            && let Some(best) = self.incumbent.take()
+        {
+            // Nothing open can beat the incumbent: it is the optimum.
+            self.accepted.push(best);
+        }
+        self.done()
+    }
+
+    /// Whether a configuration has been found.
+    pub(crate) fn found(&self) -> bool {
+        !self.accepted.is_empty() || self.incumbent.is_some()
+    }
+
+    /// No configuration not yet accepted costs less than this.
+    pub(crate) fn lower_bound(&self) -> Option<u64> {
+        if !self.started {
+            let h = self.h(&self.root_state());
+            return (h != INFEASIBLE).then_some(h);
+        }
+        let open = self.open.peek().map(|(Reverse(f), _, _)| *f);
+        match (open, self.incumbent.as_ref().map(|i| i.0)) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Builds the configurations: proven ones, then (budget exceeded) the incumbent.
+    pub(crate) fn finish(
+        &mut self,
+        engine: &mut Engine<'_>,
+        complete: bool,
+    ) -> (Vec<Configuration>, Option<explain::Explanation>) {
+        let mut out = Vec::new();
+        let mut list: Vec<(u64, Vec<u32>, bool)> =
+            self.accepted.drain(..).map(|(g, c)| (g, c, true)).collect();
+        if list.is_empty()
+            && let Some((g, c)) = self.incumbent.take()
+        {
+            list.push((g, c, complete));
+        }
+        for (g, choice, proven) in list {
+            let chooser = |consumer: Option<(ItemId, &GInfo)>| -> Option<u32> {
+                let need = match consumer {
+                    None => 0,
+                    Some((item, info)) => {
+                        let p = &self.provs[*self.prov_of_item.get(&item)? as usize];
+                        let k = p.needs.iter().position(|(i, _)| i == info)?;
+                        p.first_need as usize + k
+                    }
+                };
+                let o = *choice.get(need)?;
+                self.needs[need].opts.get(o as usize).map(|o| o.alt)
+            };
+            match engine.assemble_with(&chooser) {
+                Ok(mut config) => {
+                    debug_assert_eq!(config.cost, g, "the search's cost is the configuration's");
+                    config.optimal = proven;
+                    out.push(config);
+                }
+                Err(reason) => engine.reject(reason),
+            }
+        }
+        let explanation = (out.is_empty() && complete)
+            .then(|| explain::explain(&engine.ctx, &engine.graph, engine.root, &engine.rejections));
+        (out, explanation)
+    }
+}
+
+/// Whether the consumer's input `info` is offered by the producer at a sufficient rate.
+fn rate_ok(engine: &Engine<'_>, consumer: ItemId, producer: ItemId, info: &GInfo) -> bool {
+    let c = &engine.ctx.compiled;
+    let (Some(cf), Some(pf)) = (engine.graph.func(consumer), engine.graph.func(producer)) else {
+        return false;
+    };
+    let binding = |item: ItemId| -> Vec<Option<Sym>> {
+        engine
+            .graph
+            .item(item)
+            .args
+            .iter()
+            .map(|&a| Some(a))
+            .collect()
+    };
+    let (cb, pb) = (binding(consumer), binding(producer));
+    let Some(out) = c.funcs[pf.func as usize]
+        .outputs
+        .iter()
+        .find(|o| o.ground(&pb) == *info)
+    else {
+        return false;
+    };
+    let Some(input) = c.funcs[cf.func as usize]
+        .inputs
+        .iter()
+        .find(|i| i.ground(&cb) == *info)
+    else {
+        return false;
+    };
+    match input.hz {
+        Some(need) => out.hz.is_some_and(|offered| offered >= need),
+        None => true,
+    }
+}
+
+/// Whether some provider could, through its inputs' possible feeders, feed itself.
+fn has_cycle(provs: &[Prov], needs: &[Need]) -> bool {
+    let succ: Vec<Vec<usize>> = provs
+        .iter()
+        .map(|p| {
+            let first = p.first_need as usize;
+            let mut out: Vec<usize> = (first..first + p.needs.len())
+                .flat_map(|n| needs[n].opts.iter().map(|o| o.prov as usize))
+                .collect();
+            out.sort_unstable();
+            out.dedup();
+            out
+        })
+        .collect();
+    // 0 unvisited, 1 on the stack, 2 done.
+    let mut mark = vec![0u8; provs.len()];
+    for start in 0..provs.len() {
+        if mark[start] != 0 {
+            continue;
+        }
+        let mut stack: Vec<(usize, usize)> = vec![(start, 0)];
+        mark[start] = 1;
+        while let Some(top) = stack.last_mut() {
+            let (p, at) = *top;
+            top.1 += 1;
+            match succ[p].get(at) {
+                Some(&q) if mark[q] == 1 => return true,
+                Some(&q) if mark[q] == 0 => {
+                    mark[q] = 1;
+                    stack.push((q, 0));
+                }
+                Some(_) => {}
+                None => {
+                    mark[p] = 2;
+                    stack.pop();
+                }
+            }
+        }
+    }
+    false
+}
