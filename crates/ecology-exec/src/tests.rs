@@ -1294,3 +1294,27 @@ mod on_the_tuple_space {
         assert!(costs(&exec).contains(&(170, true)), "{text}");
     }
 }
+
+#[test]
+fn a_planning_budget_that_runs_out_fails_the_action_with_that_reason() {
+    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
+    let config = ExecConfig {
+        planning: ecology_config::Budget {
+            max_expansions: Some(0),
+            max_time: None,
+        },
+        ..ExecConfig::default()
+    };
+    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(
+        Executive::new(domain, EcologyState::new(), plan(), config),
+        secs(600.0),
+        |_, _| {},
+    );
+    let RunStatus::Failed { reason, .. } = exec.status().clone() else {
+        panic!("the action should fail: {}", timeline(&exec));
+    };
+    assert!(
+        reason.starts_with("the configuration planner's budget ran out"),
+        "{reason}"
+    );
+}
