@@ -224,6 +224,18 @@ impl std::fmt::Debug for Stopwatch {
     }
 }
 
+/// The stopwatch's time since `start`: what a planning budget is measured by.
+struct Since<'a> {
+    clock: &'a (dyn PlannerClock + Send),
+    start: Duration,
+}
+
+impl PlannerClock for Since<'_> {
+    fn elapsed(&self) -> Duration {
+        self.clock.elapsed().saturating_sub(self.start)
+    }
+}
+
 /// The executive. See the module documentation.
 #[derive(Debug)]
 pub struct Executive {
@@ -461,7 +473,12 @@ impl Executive {
             count: self.config.alternatives.max(1),
             budget: self.config.planning,
         };
-        let outcome = match ecology_config::plan(&request, &options, &*self.stopwatch.0) {
+        // The planning budget counts from now, not from the executive's start.
+        let since = Since {
+            clock: &*self.stopwatch.0,
+            start: acquired,
+        };
+        let outcome = match ecology_config::plan(&request, &options, &since) {
             Ok(outcome) => outcome,
             Err(err) => {
                 self.fail_action(err.to_string(), out);

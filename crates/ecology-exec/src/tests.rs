@@ -1318,3 +1318,24 @@ fn a_planning_budget_that_runs_out_fails_the_action_with_that_reason() {
         "{reason}"
     );
 }
+
+/// A stopwatch that has been running for an hour and stands still.
+struct AnHourIn;
+
+impl ecology_config::Clock for AnHourIn {
+    fn elapsed(&self) -> Duration {
+        secs(3600.0)
+    }
+}
+
+// The planning budget counts from when planning starts, not from when the
+// executive started: an hour into a task, a 2 s budget is not spent already.
+#[test]
+fn the_planning_budget_counts_from_each_planning() {
+    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(
+        executive(plan()).with_stopwatch(Box::new(AnHourIn)),
+        secs(600.0),
+        |_, _| {},
+    );
+    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+}
