@@ -425,11 +425,15 @@ impl<'a> Search<'a> {
         let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
         let excluded = excluded(&mut compiled, request.exclusions);
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
-        let engine = Engine::new(ctx, callee, &args, &|| over());
+        let mut engine = Engine::new(ctx, callee, &args, &|| over());
         let shared = if engine.graph.cut || over() {
+            engine.graph.cut = true;
             None
         } else {
-            share::Shared::new(&engine, options.count)
+            let mut cut = false;
+            let shared = share::Shared::new(&engine, options.count, over, &mut cut);
+            engine.graph.cut = cut;
+            shared
         };
         Ok(Search {
             engine,
@@ -570,7 +574,7 @@ pub fn plan_with<'a>(
     options: &Options,
     clock: &dyn Clock,
 ) -> Result<Outcome, RequestError> {
-    const SLICE: u64 = 256;
+    const SLICE: u64 = 64;
     let over_time = || {
         options
             .budget

@@ -155,8 +155,14 @@ fn ones(words: &[u64]) -> impl Iterator<Item = usize> + '_ {
 
 impl Shared {
     /// The provider-shape search for `engine`'s goal, or `None` when the
-    /// domain does not have provider shape.
-    pub(crate) fn new(engine: &Engine<'_>, count: usize) -> Option<Shared> {
+    /// domain does not have provider shape. Asks `over` now and then whether
+    /// the budget ran out; if so, sets `cut` and returns `None`.
+    pub(crate) fn new(
+        engine: &Engine<'_>,
+        count: usize,
+        over: &dyn Fn() -> bool,
+        cut: &mut bool,
+    ) -> Option<Shared> {
         let graph = &engine.graph;
         let ctx = &engine.ctx;
         let c = &ctx.compiled;
@@ -312,6 +318,10 @@ impl Shared {
             }
         }
         for n in 0..needs.len() {
+            if n % 256 == 255 && over() {
+                *cut = true;
+                return None;
+            }
             let task = &tasks[needs[n].task as usize];
             let consumer = needs[n].consumer;
             let mut opts: Vec<Opt> = Vec::new();
