@@ -595,10 +595,20 @@ pub fn plan_with<'a>(
             .map(|t: Duration| t.as_micros() as u64);
         outcome
     };
+    // The provider search's first step is its greedy dive alone, one
+    // expansion per input it wires: allow it a whole configuration.
+    const DIVE: u64 = 1024;
+    let mut started = false;
     loop {
+        let cap = if !started && search.shared.is_some() {
+            DIVE
+        } else {
+            SLICE
+        };
+        started = true;
         let slice = match options.budget.max_expansions {
-            Some(max) => SLICE.min(max.saturating_sub(search.expanded())),
-            None => SLICE,
+            Some(max) => cap.min(max.saturating_sub(search.expanded())),
+            None => cap,
         };
         if slice == 0 || over_time() {
             return Ok(finish(search, false, first));

@@ -656,12 +656,18 @@ impl Shared {
     }
 
     /// Greedy descent from a node, cheapest `f` first; a new incumbent if better.
-    fn dive(&mut self, from: u32) {
+    /// Gives up after `limit` steps, each counted as an expansion.
+    fn dive(&mut self, from: u32, limit: u64) {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
         let mut kids = Vec::new();
+        let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
+            if steps == limit {
+                return;
+            }
+            steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
             kids.clear();
@@ -707,13 +713,13 @@ impl Shared {
                 self.push(NONE, NONE, NONE, 0, h, state);
                 if single {
                     // A first configuration at once: anytime.
-                    self.dive(0);
+                    self.dive(0, expansions.max(1));
                 }
             }
             return self.finalize();
         }
         let mut kids = Vec::new();
-        for _ in 0..expansions {
+        for done in 0..expansions {
             let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
                 break;
             };
@@ -766,7 +772,7 @@ impl Shared {
                 && let Some(&(_, _, Reverse(top))) = self.open.peek()
             {
                 // Anytime: look for something better below the best open node.
-                self.dive(top);
+                self.dive(top, expansions - done);
             }
         }
         self.finalize()
