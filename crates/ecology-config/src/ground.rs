@@ -214,6 +214,8 @@ pub(crate) struct Graph {
     memo: HashMap<(Callee, Box<[Sym]>), ItemId>,
     /// Alternatives created, for statistics.
     pub(crate) alternatives: u64,
+    /// Grounding was cut short by the caller's budget: the graph is unusable.
+    pub(crate) cut: bool,
 }
 
 impl Graph {
@@ -228,20 +230,38 @@ impl Graph {
         }
     }
 
-    /// The instance of `callee` on `args`, grounded with its lower bound.
-    pub(crate) fn ground(&mut self, ctx: &Ctx<'_>, callee: Callee, args: &[Sym]) -> ItemId {
-        self.ground_at(ctx, callee, args, 0)
+    /// The instance of `callee` on `args`, grounded with its lower bound,
+    /// asking `over` now and then whether the budget ran out; if so, stops
+    /// with `cut` set.
+    pub(crate) fn ground_until(
+        &mut self,
+        ctx: &Ctx<'_>,
+        callee: Callee,
+        args: &[Sym],
+        over: &dyn Fn() -> bool,
+    ) -> ItemId {
+        self.ground_at(ctx, callee, args, 0, over)
     }
 
-    fn ground_at(&mut self, ctx: &Ctx<'_>, callee: Callee, args: &[Sym], depth: usize) -> ItemId {
+    fn ground_at(
+        &mut self,
+        ctx: &Ctx<'_>,
+        callee: Callee,
+        args: &[Sym],
+        depth: usize,
+        over: &dyn Fn() -> bool,
+    ) -> ItemId {
         if let Some(&id) = self.memo.get(&(callee, args.into())) {
             return id;
         }
+        if self.items.len() % 256 == 255 && !self.cut && over() {
+            self.cut = true;
+        }
         let kind = match callee {
             Callee::Func(func) => ItemKind::Func(ctx.func_item(func, args)),
-            Callee::Task(task) if depth < MAX_DEPTH => ItemKind::Task {
+            Callee::Task(task) if depth < MAX_DEPTH && !self.cut => ItemKind::Task {
                 task,
-                alts: self.alternatives(ctx, task, args, depth),
+                alts: self.alternatives(ctx, task, args, depth, over),
             },
             Callee::Task(task) => ItemKind::Task {
                 task,
@@ -264,7 +284,14 @@ impl Graph {
         id
     }
 
-    fn alternatives(&mut self, ctx: &Ctx<'_>, task: u32, args: &[Sym], depth: usize) -> Vec<Alt> {
+    fn alternatives(
+        &mut self,
+        ctx: &Ctx<'_>,
+        task: u32,
+        args: &[Sym],
+        depth: usize,
+        over: &dyn Fn() -> bool,
+    ) -> Vec<Alt> {
         let c = &ctx.compiled;
         let mut alts = Vec::new();
         for &m in &c.tasks[task as usize].methods {
@@ -281,7 +308,7 @@ impl Graph {
                         sub.args.iter().map(|t| t.ground(&binding)).collect();
                     // Validation guarantees every subtask argument is bound.
                     let Some(sub_args) = sub_args else { continue };
-                    children.push(self.ground_at(ctx, sub.callee, &sub_args, depth + 1));
+                    children.push(self.ground_at(ctx, sub.callee, &sub_args, depth + 1, over));
                 }
                 let clash = self.clash(&children);
                 let lb = if clash.is_some() {

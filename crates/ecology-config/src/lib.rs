@@ -409,12 +409,32 @@ impl<'a> Search<'a> {
         cost_model: &'a dyn CostModel,
         options: &Options,
     ) -> Result<Search<'a>, RequestError> {
+        Search::new_until(request, cost_model, options, &|| false)
+    }
+
+    /// Like [`Search::new`], asking `over` between phases and now and then
+    /// while grounding whether the budget ran out; if it did, the search is
+    /// [`Search::cut`] and finishes at once with nothing and no bound.
+    fn new_until(
+        request: &Request<'a>,
+        cost_model: &'a dyn CostModel,
+        options: &Options,
+        over: &dyn Fn() -> bool,
+    ) -> Result<Search<'a>, RequestError> {
         let mut compiled = Compiled::new(request.domain, request.state);
         let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
         let excluded = excluded(&mut compiled, request.exclusions);
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
-        let engine = Engine::new(ctx, callee, &args);
-        let shared = share::Shared::new(&engine, options.count);
+        let mut engine = Engine::new(ctx, callee, &args, &|| over());
+        let shared = if engine.graph.cut || over() {
+            engine.graph.cut = true;
+            None
+        } else {
+            let mut cut = false;
+            let shared = share::Shared::new(&engine, options.count, over, &mut cut);
+            engine.graph.cut = cut;
+            shared
+        };
         Ok(Search {
             engine,
             shared,
@@ -455,6 +475,12 @@ impl<'a> Search<'a> {
             Some(shared) => shared.expanded,
             None => self.engine.expanded,
         }
+    }
+
+    /// Whether preparing the search was cut short by the budget: it has
+    /// nothing to search, and its bound means nothing.
+    fn cut(&self) -> bool {
+        self.engine.graph.cut
     }
 
     /// Whether a configuration has been found (not necessarily the best).
@@ -548,8 +574,19 @@ pub fn plan_with<'a>(
     options: &Options,
     clock: &dyn Clock,
 ) -> Result<Outcome, RequestError> {
-    const SLICE: u64 = 256;
-    let mut search = Search::new(request, cost_model, options)?;
+    const SLICE: u64 = 64;
+    let over_time = || {
+        options
+            .budget
+            .max_time
+            .is_some_and(|t| clock.elapsed() >= t)
+    };
+    let mut search = Search::new_until(request, cost_model, options, &over_time)?;
+    if search.cut() {
+        let mut outcome = search.finish(false, clock.elapsed());
+        outcome.lower_bound = None;
+        return Ok(outcome);
+    }
     let mut first = None;
     let finish = |search: Search<'a>, complete: bool, first: Option<Duration>| {
         let mut outcome = search.finish(complete, clock.elapsed());
@@ -558,16 +595,22 @@ pub fn plan_with<'a>(
             .map(|t: Duration| t.as_micros() as u64);
         outcome
     };
+    // The provider search's first step is its greedy dive alone, one
+    // expansion per input it wires: allow it a whole configuration.
+    const DIVE: u64 = 1024;
+    let mut started = false;
     loop {
-        let slice = match options.budget.max_expansions {
-            Some(max) => SLICE.min(max.saturating_sub(search.expanded())),
-            None => SLICE,
+        let cap = if !started && search.shared.is_some() {
+            DIVE
+        } else {
+            SLICE
         };
-        let over_time = options
-            .budget
-            .max_time
-            .is_some_and(|t| clock.elapsed() >= t);
-        if slice == 0 || over_time {
+        started = true;
+        let slice = match options.budget.max_expansions {
+            Some(max) => cap.min(max.saturating_sub(search.expanded())),
+            None => cap,
+        };
+        if slice == 0 || over_time() {
             return Ok(finish(search, false, first));
         }
         let progress = search.step(slice);

@@ -101,9 +101,16 @@ pub(crate) struct Engine<'a> {
 }
 
 impl<'a> Engine<'a> {
-    pub(crate) fn new(ctx: Ctx<'a>, goal: Callee, args: &[Sym]) -> Engine<'a> {
+    /// Grounds the goal, asking `over` now and then whether the budget ran
+    /// out (then `graph.cut` is set and the engine must not be searched).
+    pub(crate) fn new(
+        ctx: Ctx<'a>,
+        goal: Callee,
+        args: &[Sym],
+        over: &dyn Fn() -> bool,
+    ) -> Engine<'a> {
         let mut graph = Graph::default();
-        let root = graph.ground(&ctx, goal, args);
+        let root = graph.ground_until(&ctx, goal, args, over);
         let mut engine = Engine {
             ctx,
             graph,
@@ -120,7 +127,7 @@ impl<'a> Engine<'a> {
             incumbent: None,
         };
         let lb = engine.graph.item(root).lb;
-        if lb != INFEASIBLE {
+        if lb != INFEASIBLE && !engine.graph.cut {
             let (g, h, state) = match engine.graph.item(root).kind {
                 ItemKind::Func(_) => (lb, 0, NodeState::Complete),
                 ItemKind::Task { .. } => (0, lb, NodeState::Open),

@@ -31,6 +31,7 @@
 //! Domains not of this shape, or whose providers could feed each other in a
 //! cycle, are searched by the decomposition tree search (`search`).
 
+use std::cell::RefCell;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::hash::{Hash, Hasher};
@@ -91,6 +92,16 @@ struct Task {
     wmin: u64,
 }
 
+/// Buffers of the bound, kept between calls.
+#[derive(Debug, Default)]
+struct Scratch {
+    serving: Vec<Vec<u32>>,
+    waiting: Vec<Vec<u32>>,
+    landmark: Vec<bool>,
+    work: Vec<usize>,
+    a: Vec<u64>,
+}
+
 #[derive(Debug, Clone, Copy)]
 struct Node {
     parent: u32,
@@ -123,6 +134,7 @@ pub(crate) struct Shared {
     incumbent: Option<(u64, Vec<u32>)>,
     accepted: Vec<(u64, Vec<u32>)>,
     started: bool,
+    scratch: RefCell<Scratch>,
     pub(crate) expanded: u64,
     pub(crate) generated: u64,
 }
@@ -155,8 +167,14 @@ fn ones(words: &[u64]) -> impl Iterator<Item = usize> + '_ {
 
 impl Shared {
     /// The provider-shape search for `engine`'s goal, or `None` when the
-    /// domain does not have provider shape.
-    pub(crate) fn new(engine: &Engine<'_>, count: usize) -> Option<Shared> {
+    /// domain does not have provider shape. Asks `over` now and then whether
+    /// the budget ran out; if so, sets `cut` and returns `None`.
+    pub(crate) fn new(
+        engine: &Engine<'_>,
+        count: usize,
+        over: &dyn Fn() -> bool,
+        cut: &mut bool,
+    ) -> Option<Shared> {
         let graph = &engine.graph;
         let ctx = &engine.ctx;
         let c = &ctx.compiled;
@@ -312,6 +330,10 @@ impl Shared {
             }
         }
         for n in 0..needs.len() {
+            if n % 256 == 255 && over() {
+                *cut = true;
+                return None;
+            }
             let task = &tasks[needs[n].task as usize];
             let consumer = needs[n].consumer;
             let mut opts: Vec<Opt> = Vec::new();
@@ -450,6 +472,7 @@ impl Shared {
             incumbent: None,
             accepted: Vec::new(),
             started: false,
+            scratch: RefCell::default(),
             expanded: 0,
             generated: 0,
         })
@@ -471,14 +494,28 @@ impl Shared {
     fn h(&self, state: &[u64]) -> u64 {
         let (chosen, open) = state.split_at(self.pwords);
         let nt = self.tasks.len();
-        let mut serving: Vec<Vec<u32>> = vec![Vec::new(); nt];
+        // Scratch buffers reused between calls: the bound runs once per child.
+        let mut scratch = self.scratch.borrow_mut();
+        let Scratch {
+            serving,
+            waiting,
+            landmark,
+            work,
+            a,
+        } = &mut *scratch;
+        for v in serving.iter_mut().chain(waiting.iter_mut()) {
+            v.clear();
+        }
+        serving.resize_with(nt, Vec::new);
+        waiting.resize_with(nt, Vec::new);
+        landmark.clear();
+        landmark.resize(nt, false);
+        work.clear();
         for p in ones(chosen) {
             for &t in &self.provs[p].serves {
                 serving[t as usize].push(p as u32);
             }
         }
-        let mut landmark = vec![false; nt];
-        let mut waiting: Vec<Vec<u32>> = vec![Vec::new(); nt];
         let mut sum: u64 = 0;
         for n in ones(open) {
             let need = &self.needs[n];
@@ -494,7 +531,7 @@ impl Shared {
                 waiting[t].push(n as u32);
             }
         }
-        let mut work: Vec<usize> = (0..nt).filter(|&t| landmark[t]).collect();
+        work.extend((0..nt).filter(|&t| landmark[t]));
         while let Some(t) = work.pop() {
             for &u in &self.tasks[t].common {
                 let u = u as usize;
@@ -528,20 +565,18 @@ impl Shared {
             // cheapest chosen feeder, `a`), or some new provider `F` is added:
             // then each need costs its cheaper of a chosen feeder and `F`,
             // unless a second new provider (at least `wmin`) joins in.
-            let a: Vec<u64> = waiting
-                .iter()
-                .map(|&n| {
-                    serving[t]
-                        .iter()
-                        .map(|&g| into(g, n))
-                        .min()
-                        .unwrap_or(INFEASIBLE)
-                })
-                .collect();
+            a.clear();
+            a.extend(waiting.iter().map(|&n| {
+                serving[t]
+                    .iter()
+                    .map(|&g| into(g, n))
+                    .min()
+                    .unwrap_or(INFEASIBLE)
+            }));
             let all_chosen = a.iter().fold(0u64, |s, &x| s.saturating_add(x));
             let cheapest: u64 = waiting
                 .iter()
-                .zip(&a)
+                .zip(a.iter())
                 .map(|(&n, &a)| a.min(self.needs[n as usize].min_wire))
                 .sum();
             let second = task.wmin.saturating_add(cheapest);
@@ -557,7 +592,7 @@ impl Shared {
                 }
                 let alone = waiting
                     .iter()
-                    .zip(&a)
+                    .zip(a.iter())
                     .fold(0u64, |s, (&n, &a)| s.saturating_add(a.min(into(f, n))));
                 with_new = with_new.min(prov.w.saturating_add(alone.min(second)));
             }
@@ -646,12 +681,18 @@ impl Shared {
     }
 
     /// Greedy descent from a node, cheapest `f` first; a new incumbent if better.
-    fn dive(&mut self, from: u32) {
+    /// Gives up after `limit` steps, each counted as an expansion.
+    fn dive(&mut self, from: u32, limit: u64) {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
         let mut kids = Vec::new();
+        let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
+            if steps == limit {
+                return;
+            }
+            steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
             kids.clear();
@@ -697,13 +738,13 @@ impl Shared {
                 self.push(NONE, NONE, NONE, 0, h, state);
                 if single {
                     // A first configuration at once: anytime.
-                    self.dive(0);
+                    self.dive(0, expansions.max(1));
                 }
             }
             return self.finalize();
         }
         let mut kids = Vec::new();
-        for _ in 0..expansions {
+        for done in 0..expansions {
             let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
                 break;
             };
@@ -756,7 +797,7 @@ impl Shared {
                 && let Some(&(_, _, Reverse(top))) = self.open.peek()
             {
                 // Anytime: look for something better below the best open node.
-                self.dive(top);
+                self.dive(top, expansions - done);
             }
         }
         self.finalize()

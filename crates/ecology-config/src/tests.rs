@@ -438,9 +438,12 @@ fn budgets_hold_for_the_provider_search() {
             max_expansions: Some(40),
             max_time: None,
         },
+        // The ticking clock is read once after grounding, before the first
+        // step, after it (the first configuration's time) and before the
+        // second: 3.5 s allows exactly one step.
         Budget {
             max_expansions: None,
-            max_time: Some(Duration::from_millis(1500)),
+            max_time: Some(Duration::from_millis(3500)),
         },
     ] {
         let outcome = with(budget);
@@ -691,4 +694,40 @@ fn a_component_cannot_run_two_functionalities() {
     // With two cameras, both work.
     let outcome = run(domain, "(pc r cam c1) (pc r cam c2)", "(both r)", &[], 1);
     assert_eq!(outcome.configurations[0].cost, 2);
+}
+
+#[test]
+fn a_time_budget_stops_grounding() {
+    // Grounding 1,000 PEIS takes thousands of items; the clock ticks a second
+    // at each reading, so the budget runs out while grounding.
+    let instance = synthetic::ecology(Shape {
+        peis: 1000,
+        components_per_peis: 10,
+        types: 20,
+        methods: 3,
+        depth: 4,
+        seed: 3,
+    })
+    .expect("generates");
+    let request = Request {
+        domain: &instance.domain,
+        state: &instance.state,
+        goal: &instance.goal,
+        exclusions: &[],
+    };
+    let options = Options {
+        count: 1,
+        budget: Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_secs(3)),
+        },
+    };
+    let clock = Ticking::default();
+    let outcome = plan(&request, &options, &clock).expect("valid");
+    assert_eq!(outcome.status, Status::BudgetExceeded);
+    assert!(outcome.configurations.is_empty());
+    assert_eq!(outcome.lower_bound, None);
+    assert_eq!(outcome.stats.expanded, 0);
+    // It stopped early: a handful of readings, not one per 256 items of the whole graph.
+    assert!(clock.0.get() <= 4, "read the clock {} times", clock.0.get());
 }
