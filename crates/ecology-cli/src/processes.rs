@@ -243,12 +243,11 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         await_ready(&mut lines, &names, json).await?;
 
         // The launcher joins to follow the executive and to set fault tuples.
-        let mut net = NetArgs {
+        let net = NetArgs {
             listen: vec![free_endpoint()?],
             connect: vec![world_endpoint.clone()],
             ..NetArgs::default()
         };
-        net.lease = None;
         let me = PeisId::new("launcher")?;
         let launcher = match network::join(me, &net).await {
             Ok(space) => space,
