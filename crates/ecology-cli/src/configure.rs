@@ -126,7 +126,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     let outcome = match ecology_config::plan(&request, &options, &clock) {
         Ok(outcome) => outcome,
         Err(err) => {
-            eprintln!("error: {err}");
+            eprint!("{}", goal_error(&args.goal, &goal, &err));
             return Ok(EXIT_BAD_INPUT);
         }
     };
@@ -311,4 +311,38 @@ fn dot(config: &Configuration, goal: &str) -> String {
     }
     out.push_str("}\n");
     out
+}
+
+/// A goal the domain cannot plan for, shown at its place in the goal's text.
+fn goal_error(
+    text: &str,
+    goal: &ecology_domain::Call,
+    err: &ecology_config::RequestError,
+) -> String {
+    use ecology_config::RequestError;
+    use ecology_domain::{Diagnostic, Span};
+    let whole = goal.span;
+    let span = match err {
+        RequestError::UnknownGoal { name } => {
+            // The name follows the `(` and any spaces.
+            let inner = &text[whole.start.min(text.len())..whole.end.min(text.len())];
+            let skip = inner
+                .char_indices()
+                .find(|(_, c)| *c != '(' && !c.is_whitespace())
+                .map_or(0, |(i, _)| i);
+            let start = whole.start + skip;
+            Span::new(start, (start + name.len()).min(whole.end))
+        }
+        RequestError::NotGround(var) => text
+            .find(&format!("?{var}"))
+            .map_or(whole, |at| Span::new(at, at + var.len() + 1)),
+        RequestError::Arity { .. } => whole,
+    };
+    let label = match err {
+        RequestError::UnknownGoal { .. } => "no task or functionality has this name",
+        RequestError::Arity { .. } => "this goal",
+        RequestError::NotGround(_) => "a goal names objects, not variables",
+    };
+    let diagnostic = Diagnostic::error(span, err.to_string()).with_label(label);
+    ecology_domain::render("<goal>", text.as_bytes(), &[diagnostic])
 }

@@ -275,6 +275,31 @@ fn bad_goals_and_arguments_exit_2() {
     ]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("unknown task or functionality `fly` in the goal"));
+    // Where in the goal: the name, under a caret.
+    assert!(stderr(&out).contains("<goal>:1:2"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains(" ^^^ no task or functionality has this name"),
+        "{}",
+        stderr(&out)
+    );
+    let out = configure(&[]);
+    assert_eq!(out.status.code(), Some(0));
+    let out = ecology(&[
+        "configure",
+        "--domain",
+        "domains/peis-home.eco",
+        "--state",
+        "domains/peis-home.facts",
+        "--goal",
+        "  (navigate astrid)",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("<goal>:1:3"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("takes 2 arguments, the goal gives 1"),
+        "{}",
+        stderr(&out)
+    );
     let out = configure(&["--exclude", "a:b:c"]);
     assert_eq!(out.status.code(), Some(2));
     let out = ecology(&["frobnicate"]);
