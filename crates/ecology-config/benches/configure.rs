@@ -134,12 +134,7 @@ fn main() {
             seed: 2007,
         })
         .expect("generates");
-        let request = Request {
-            domain: &instance.domain,
-            state: &instance.state,
-            goal: &instance.goal,
-            exclusions: &[],
-        };
+        let request = instance.request();
         let base = CURRENT.load(Ordering::Relaxed);
         PEAK.store(base, Ordering::Relaxed);
         let (time, outcome) = median(runs(reps), || {

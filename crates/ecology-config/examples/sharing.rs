@@ -13,7 +13,7 @@
 use std::time::{Duration, Instant};
 
 use ecology_config::synthetic::{self, Sharing};
-use ecology_config::{Budget, Clock, Options, Request, plan};
+use ecology_config::{Budget, Clock, Options, plan};
 
 struct Wall(Instant);
 
@@ -82,12 +82,7 @@ fn main() {
                 (read(std::path::Path::new(&args[1])), args.get(2))
             };
             let max_time = max_time.map(|m| Duration::from_millis(m.parse().expect("ms")));
-            let request = Request {
-                domain: &instance.domain,
-                state: &instance.state,
-                goal: &instance.goal,
-                exclusions: &instance.exclusions,
-            };
+            let request = instance.request();
             let options = Options {
                 count: 1,
                 budget: Budget {

@@ -345,6 +345,17 @@ pub enum Status {
     BudgetExceeded,
 }
 
+impl Status {
+    /// `Proven` for a search that ran to its end, `BudgetExceeded` for one cut short.
+    fn of(complete: bool) -> Status {
+        if complete {
+            Status::Proven
+        } else {
+            Status::BudgetExceeded
+        }
+    }
+}
+
 /// Counts of one search.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Stats {
@@ -499,11 +510,7 @@ impl<'a> Search<'a> {
             let (configurations, explanation) = shared.finish(&mut self.engine, complete);
             return Outcome {
                 configurations,
-                status: if complete {
-                    Status::Proven
-                } else {
-                    Status::BudgetExceeded
-                },
+                status: Status::of(complete),
                 explanation,
                 lower_bound,
                 stats: Stats {
@@ -535,11 +542,7 @@ impl<'a> Search<'a> {
         });
         Outcome {
             configurations,
-            status: if complete {
-                Status::Proven
-            } else {
-                Status::BudgetExceeded
-            },
+            status: Status::of(complete),
             explanation,
             lower_bound: if complete {
                 None

@@ -74,6 +74,20 @@ struct Partial {
     used: HashMap<ComponentKey, ItemId>,
 }
 
+impl Partial {
+    /// A partial configuration holding only the goal's occurrence, `root`.
+    fn rooted(root: ItemId) -> Partial {
+        let mut partial = Partial::default();
+        partial.insts.push(Inst {
+            item: root,
+            parent: None,
+            alt: None,
+            children: Vec::new(),
+        });
+        partial
+    }
+}
+
 /// Names the alternative of a task occurrence from the functionality instance
 /// and input it feeds (`None`: the goal).
 pub(crate) type Chooser<'c> = dyn Fn(Option<(ItemId, &GInfo)>) -> Option<u32> + 'c;
@@ -305,13 +319,7 @@ impl<'a> Engine<'a> {
     ) -> Result<Configuration, Inadmissible> {
         /// Guards against a sharing pattern that unfolds into a huge tree.
         const MAX_INSTANCES: usize = 1 << 20;
-        let mut partial = Partial::default();
-        partial.insts.push(Inst {
-            item: self.root,
-            parent: None,
-            alt: None,
-            children: Vec::new(),
-        });
+        let mut partial = Partial::rooted(self.root);
         partial.stack.push(0);
         while let Some(top) = partial.stack.pop() {
             if partial.insts.len() > MAX_INSTANCES {
@@ -355,13 +363,7 @@ impl<'a> Engine<'a> {
     }
 
     fn replay(&self, id: u32) -> Partial {
-        let mut partial = Partial::default();
-        partial.insts.push(Inst {
-            item: self.root,
-            parent: None,
-            alt: None,
-            children: Vec::new(),
-        });
+        let mut partial = Partial::rooted(self.root);
         match self.graph.func(self.root) {
             Some(f) => {
                 partial.used.insert((f.peis, f.component), self.root);

@@ -59,6 +59,18 @@ pub struct Instance {
     pub exclusions: Vec<crate::Exclusion>,
 }
 
+impl Instance {
+    /// The request for this instance: its goal, with its failed components excluded.
+    pub fn request(&self) -> crate::Request<'_> {
+        crate::Request {
+            domain: &self.domain,
+            state: &self.state,
+            goal: &self.goal,
+            exclusions: &self.exclusions,
+        }
+    }
+}
+
 /// Why a generated instance did not parse: a generator bug, with the text.
 #[derive(Debug, Clone)]
 pub struct GeneratorError(pub String);

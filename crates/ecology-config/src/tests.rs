@@ -372,12 +372,7 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
         seed: 7,
     })
     .expect("generates");
-    let request = Request {
-        domain: &instance.domain,
-        state: &instance.state,
-        goal: &instance.goal,
-        exclusions: &[],
-    };
+    let request = instance.request();
     let full = plan(&request, &Options::default(), &NoClock).expect("valid");
     assert_eq!(full.status, Status::Proven);
     let optimum = full.configurations[0].cost;
@@ -408,12 +403,7 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
 #[test]
 fn budgets_hold_for_the_provider_search() {
     let instance = synthetic::sharing(synthetic::Sharing::base(24, 5)).expect("generates");
-    let request = Request {
-        domain: &instance.domain,
-        state: &instance.state,
-        goal: &instance.goal,
-        exclusions: &instance.exclusions,
-    };
+    let request = instance.request();
     let full = plan(&request, &Options::default(), &NoClock).expect("valid");
     assert_eq!(full.status, Status::Proven);
     assert!(full.configurations[0].optimal);
@@ -610,12 +600,7 @@ fn the_oracle_enumerates_most_small_cases() {
 fn the_provider_search_agrees_with_brute_force() {
     against_the_oracle("sharing", 400, |seed| {
         let instance = small_sharing(seed);
-        let request = Request {
-            domain: &instance.domain,
-            state: &instance.state,
-            goal: &instance.goal,
-            exclusions: &instance.exclusions,
-        };
+        let request = instance.request();
         let search = crate::Search::new(&request, &PaperCost, &Options::default()).expect("valid");
         prop_assert!(
             search.shared.is_some(),
@@ -635,12 +620,7 @@ fn the_generators_are_deterministic() {
     let mut solvable = 0;
     for seed in 0..200 {
         let instance = synthetic::small(seed).unwrap_or_else(|e| panic!("seed {seed}: {}", e.0));
-        let request = Request {
-            domain: &instance.domain,
-            state: &instance.state,
-            goal: &instance.goal,
-            exclusions: &[],
-        };
+        let request = instance.request();
         if !plan(&request, &Options::default(), &NoClock)
             .expect("valid")
             .configurations
@@ -709,12 +689,7 @@ fn a_time_budget_stops_grounding() {
         seed: 3,
     })
     .expect("generates");
-    let request = Request {
-        domain: &instance.domain,
-        state: &instance.state,
-        goal: &instance.goal,
-        exclusions: &[],
-    };
+    let request = instance.request();
     let options = Options {
         count: 1,
         budget: Budget {

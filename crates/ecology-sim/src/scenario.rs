@@ -344,6 +344,18 @@ struct Checker<'a> {
 }
 
 impl Checker<'_> {
+    /// `Ok` when `name` can name a `what` (a room, robot, thing or resident).
+    fn name(&self, name: &str, what: &str, span: Range<usize>) -> Result<(), ScenarioError> {
+        if is_name(name) {
+            Ok(())
+        } else {
+            Err(self.at(
+                span,
+                format!("`{name}` cannot name a {what}: use letters, digits, `-` and `_`"),
+            ))
+        }
+    }
+
     fn at(&self, span: Range<usize>, message: impl Into<String>) -> ScenarioError {
         let (line, col) = line_col(self.text, span.start);
         ScenarioError::Invalid {
@@ -451,15 +463,7 @@ impl Scenario {
             {
                 return Err(check.at(room.span(), format!("room {} has no area", r.name)));
             }
-            if !is_name(&r.name) {
-                return Err(check.at(
-                    room.span(),
-                    format!(
-                        "`{}` cannot name a room: use letters, digits, `-` and `_`",
-                        r.name
-                    ),
-                ));
-            }
+            check.name(&r.name, "room", room.span())?;
             if map.room(&r.name).is_some() {
                 return Err(check.at(room.span(), format!("room {} is defined twice", r.name)));
             }
@@ -500,15 +504,7 @@ impl Scenario {
         };
         for robot in &parsed.robots {
             let r = robot.get_ref();
-            if !is_name(&r.name) {
-                return Err(check.at(
-                    robot.span(),
-                    format!(
-                        "`{}` cannot name a robot: use letters, digits, `-` and `_`",
-                        r.name
-                    ),
-                ));
-            }
+            check.name(&r.name, "robot", robot.span())?;
             inside(r.at[0], r.at[1], robot.span(), &r.name)?;
             world.robots.insert(
                 r.name.clone(),
@@ -522,15 +518,7 @@ impl Scenario {
         }
         for thing in &parsed.things {
             let t = thing.get_ref();
-            if !is_name(&t.name) {
-                return Err(check.at(
-                    thing.span(),
-                    format!(
-                        "`{}` cannot name a thing: use letters, digits, `-` and `_`",
-                        t.name
-                    ),
-                ));
-            }
+            check.name(&t.name, "thing", thing.span())?;
             inside(t.at[0], t.at[1], thing.span(), &t.name)?;
             world.things.insert(
                 t.name.clone(),
@@ -543,15 +531,7 @@ impl Scenario {
         }
         for resident in &parsed.residents {
             let r = resident.get_ref();
-            if !is_name(&r.name) {
-                return Err(check.at(
-                    resident.span(),
-                    format!(
-                        "`{}` cannot name a resident: use letters, digits, `-` and `_`",
-                        r.name
-                    ),
-                ));
-            }
+            check.name(&r.name, "resident", resident.span())?;
             inside(r.at[0], r.at[1], resident.span(), &r.name)?;
             world.residents.insert(
                 r.name.clone(),

@@ -22,6 +22,11 @@ fn ecology(args: &[&str]) -> Output {
 }
 
 fn configure(extra: &[&str]) -> Output {
+    configure_goal("(navigate astrid bedroom)", extra)
+}
+
+/// `ecology configure` on the paper's domain and state, for `goal`.
+fn configure_goal(goal: &str, extra: &[&str]) -> Output {
     let mut args = vec![
         "configure",
         "--domain",
@@ -29,7 +34,7 @@ fn configure(extra: &[&str]) -> Output {
         "--state",
         "domains/peis-home.facts",
         "--goal",
-        "(navigate astrid bedroom)",
+        goal,
     ];
     args.extend_from_slice(extra);
     ecology(&args)
@@ -253,26 +258,10 @@ fn check_reports_diagnostics_and_exits_2() {
 
 #[test]
 fn bad_goals_and_arguments_exit_2() {
-    let out = ecology(&[
-        "configure",
-        "--domain",
-        "domains/peis-home.eco",
-        "--state",
-        "domains/peis-home.facts",
-        "--goal",
-        "(fly astrid",
-    ]);
+    let out = configure_goal("(fly astrid", &[]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("<goal>:1:1"), "{}", stderr(&out));
-    let out = ecology(&[
-        "configure",
-        "--domain",
-        "domains/peis-home.eco",
-        "--state",
-        "domains/peis-home.facts",
-        "--goal",
-        "(fly astrid)",
-    ]);
+    let out = configure_goal("(fly astrid)", &[]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("unknown task or functionality `fly` in the goal"));
     // Where in the goal: the name, under a caret.
@@ -284,15 +273,7 @@ fn bad_goals_and_arguments_exit_2() {
     );
     let out = configure(&[]);
     assert_eq!(out.status.code(), Some(0));
-    let out = ecology(&[
-        "configure",
-        "--domain",
-        "domains/peis-home.eco",
-        "--state",
-        "domains/peis-home.facts",
-        "--goal",
-        "  (navigate astrid)",
-    ]);
+    let out = configure_goal("  (navigate astrid)", &[]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("<goal>:1:3"), "{}", stderr(&out));
     assert!(
