@@ -8,6 +8,7 @@
 mod configure;
 mod demo;
 mod input;
+mod keys;
 mod network;
 mod peis;
 mod plan;
@@ -60,6 +61,8 @@ enum Command {
     Router(router::RouterArgs),
     /// Run a scenario under many random fault schedules and tabulate how the runs end.
     Sweep(sweep::SweepArgs),
+    /// Create an ecology's keys: its certificate authority, members' certificates, the roster.
+    Keys(keys::KeysArgs),
 }
 
 fn main() -> ExitCode {
@@ -87,6 +90,7 @@ fn main() -> ExitCode {
         Command::Task(args) => task::task(&args),
         Command::Router(args) => router::router(&args),
         Command::Sweep(args) => sweep::sweep(&args),
+        Command::Keys(args) => keys::keys(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -6,12 +6,13 @@ use std::time::Duration;
 
 use anyhow::Context;
 use ecology_tuples::{PeisId, TupleError};
-use ecology_zenoh::{ZenohError, ZenohOptions, ZenohPeis};
+use ecology_zenoh::security::KeysDir;
+use ecology_zenoh::{Security, ZenohError, ZenohOptions, ZenohPeis};
 
 /// How to reach the ecology.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct NetArgs {
-    /// Endpoint to listen on, such as tcp/127.0.0.1:7447 (repeatable).
+    /// Endpoint to listen on, such as tcp/127.0.0.1:7447, or tls/… with --keys (repeatable).
     #[arg(long, global = true, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
     /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable).
@@ -30,6 +31,11 @@ pub struct NetArgs {
     /// notice within this long (default 2).
     #[arg(long, global = true, value_name = "SECONDS")]
     pub lease: Option<f64>,
+    /// The ecology's keys directory (made by `ecology keys`): join with this PEIS's certificate
+    /// over mutual TLS, under the roster's access rules. Without it the process runs
+    /// unauthenticated, and says so.
+    #[arg(long, global = true, value_name = "DIR", env = "ECOLOGY_KEYS")]
+    pub keys: Option<PathBuf>,
 }
 
 impl NetArgs {
@@ -46,7 +52,27 @@ impl NetArgs {
         if let Some(lease) = self.lease {
             options.peis.lease = seconds(lease, "--lease")?;
         }
+        options.security = self.security(&options.name)?;
         Ok(options)
+    }
+
+    /// How `name` proves who it is: its identity in `--keys`, or nothing, said loudly on stderr.
+    pub fn security(&self, name: &PeisId) -> anyhow::Result<Security> {
+        match &self.keys {
+            Some(dir) => {
+                let keys = KeysDir::open(dir)
+                    .with_context(|| format!("reading the keys in {}", dir.display()))?;
+                Ok(Security::Authenticated(Box::new(keys.identity(name)?)))
+            }
+            None => {
+                eprintln!(
+                    "warning: {name} runs UNAUTHENTICATED: anyone who reaches its endpoints can write \
+                     any PEIS's tuples, answer for it and switch its components. Use this on one \
+                     machine only; for a real ecology run `ecology keys init DIR` and pass --keys DIR."
+                );
+                Ok(Security::Open)
+            }
+        }
     }
 
     /// The endpoints, for a readiness line: `listening on …; connected to …`.

@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use ecology_sim::{FaultKind, FaultSpec, Scenario, Trigger, WORLD};
 use ecology_tuples::{Key, PeisId, TupleEvent, TuplePattern, TupleSpace, Value};
+use ecology_zenoh::security::{GrantPattern, KeysDir, Role};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use tokio::io::{AsyncBufReadExt, BufReader};
@@ -34,6 +35,8 @@ const READY_TIMEOUT: Duration = Duration::from_secs(30);
 const STOP_TIMEOUT: Duration = Duration::from_secs(3);
 /// The executive's PEIS name.
 const EXECUTIVE: &str = "executive";
+/// The launcher's own PEIS name.
+const LAUNCHER: &str = "launcher";
 
 /// What the launcher runs with.
 #[derive(Debug, Clone)]
@@ -131,10 +134,30 @@ impl Spawner {
     }
 }
 
+/// A free TLS endpoint on 127.0.0.1: every process of the launch proves its name.
 fn free_endpoint() -> anyhow::Result<String> {
     let listener =
         std::net::TcpListener::bind("127.0.0.1:0").context("finding a free port on 127.0.0.1")?;
-    Ok(format!("tcp/127.0.0.1:{}", listener.local_addr()?.port()))
+    Ok(format!("tls/127.0.0.1:{}", listener.local_addr()?.port()))
+}
+
+/// A keys directory for one launch: every process a member, the executive with its role, and
+/// the launcher granted the `fault` tuples it injects faults through.
+fn launch_keys(dir: &Path, scenario: &Scenario) -> anyhow::Result<()> {
+    let mut keys = KeysDir::init(dir)?;
+    for name in std::iter::once(WORLD)
+        .chain(scenario.peis.iter().map(|p| p.name.as_str()))
+        .chain([LAUNCHER])
+    {
+        keys.add(PeisId::new(name)?, Role::Peis)?;
+    }
+    keys.add(PeisId::new(EXECUTIVE)?, Role::Executive)?;
+    keys.grant(
+        PeisId::new(LAUNCHER)?,
+        None,
+        vec![GrantPattern::new("*.fault")?],
+    )?;
+    Ok(())
 }
 
 fn strings(items: &[&str]) -> Vec<String> {
@@ -191,6 +214,9 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
     let plan_file = work.join("plan.txt");
     std::fs::write(&plan_file, plan_text(scenario))
         .with_context(|| format!("writing {}", plan_file.display()))?;
+    let keys_dir = work.join("keys");
+    launch_keys(&keys_dir, scenario)?;
+    let keys = keys_dir.display().to_string();
 
     let (lines_tx, mut lines) = mpsc::unbounded_channel();
     let mut spawner = Spawner {
@@ -204,7 +230,7 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         show(
             json,
             &format!(
-                "scenario {}: {} (seed {seed}), as {} processes on 127.0.0.1",
+                "scenario {}: {} (seed {seed}), as {} processes on 127.0.0.1, over mutual TLS",
                 scenario.name,
                 scenario.description,
                 scenario.peis.len() + 2
@@ -218,6 +244,8 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
             &seed,
             "--listen",
             &world_endpoint,
+            "--keys",
+            &keys,
         ];
         let world = spawner.spawn(WORLD, strings(&world_args))?;
         processes.insert(WORLD.to_string(), world);
@@ -235,6 +263,8 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
                 &endpoint,
                 "--connect",
                 &world_endpoint,
+                "--keys",
+                &keys,
             ];
             let process = spawner.spawn(&def.name, strings(&args))?;
             processes.insert(def.name.clone(), process);
@@ -246,9 +276,10 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         let net = NetArgs {
             listen: vec![free_endpoint()?],
             connect: vec![world_endpoint.clone()],
+            keys: Some(keys_dir.clone()),
             ..NetArgs::default()
         };
-        let me = PeisId::new("launcher")?;
+        let me = PeisId::new(LAUNCHER)?;
         let launcher = match network::join(me, &net).await {
             Ok(space) => space,
             Err(network::JoinFailure::NameTaken(id)) => {
@@ -284,6 +315,8 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
             &executive_endpoint,
             "--connect",
             &world_endpoint,
+            "--keys",
+            &keys,
         ]);
         if json {
             executive_args.push("--json".to_string());

@@ -4,6 +4,7 @@
 use std::io::Write;
 
 use clap::Args;
+use ecology_tuples::PeisId;
 use ecology_zenoh::RouterOptions;
 
 use crate::network::{self, NetArgs};
@@ -12,6 +13,9 @@ use crate::{EXIT_NO_SOLUTION, EXIT_OK};
 /// Arguments of `ecology router`.
 #[derive(Debug, Args)]
 pub struct RouterArgs {
+    /// The router's name in the roster, with --keys (a member with the router role).
+    #[arg(long, default_value = "router", value_name = "NAME")]
+    pub name: String,
     #[command(flatten)]
     pub net: NetArgs,
 }
@@ -32,6 +36,14 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
     if let Some(lease) = args.net.lease {
         options.lease = network::seconds(lease, "--lease")?;
     }
+    let name = match PeisId::new(&args.name) {
+        Ok(name) => name,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Ok(crate::EXIT_BAD_INPUT);
+        }
+    };
+    options.security = args.net.security(&name)?;
     let describe = args.net.describe();
     network::runtime()?.block_on(async {
         let stop = network::stop_signal();

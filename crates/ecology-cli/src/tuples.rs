@@ -4,7 +4,6 @@
 //! 2 bad input (malformed name, key, pattern or value). Failing to join the ecology is an error (1).
 
 use std::io::{BufRead, Write};
-use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
@@ -12,7 +11,9 @@ use ecology_tuples::{
     Clock, Key, PeisId, PresenceEvent, SystemClock, Tuple, TupleError, TupleEvent, TuplePattern,
     TupleSpace, ValidationError, Value,
 };
-use ecology_zenoh::{ZenohError, ZenohOptions, ZenohPeis};
+use ecology_zenoh::{ZenohError, ZenohPeis};
+
+use crate::network::{self, NetArgs};
 
 /// Exit code: success.
 pub const EXIT_OK: i32 = 0;
@@ -24,21 +25,11 @@ pub const EXIT_BAD_INPUT: i32 = 2;
 /// `ecology tuples`: options to join an ecology, and what to do there.
 #[derive(clap::Args, Debug)]
 pub struct TuplesArgs {
-    /// Endpoint to listen on, such as tcp/127.0.0.1:7447 (repeatable).
-    #[arg(long, global = true, value_name = "ENDPOINT")]
-    listen: Vec<String>,
-    /// Endpoint of a PEIS to connect to, such as tcp/127.0.0.1:7447 (repeatable).
-    #[arg(long, global = true, value_name = "ENDPOINT")]
-    connect: Vec<String>,
-    /// The PEIS name to join as (default: tuples-PID).
+    /// The PEIS name to join as (default: tuples-PID; with --keys, a member of the roster).
     #[arg(long, global = true, value_name = "PEIS")]
     name: Option<String>,
-    /// A Zenoh configuration file (JSON5); --listen and --connect override it.
-    #[arg(long, global = true, value_name = "FILE")]
-    zenoh_config: Option<PathBuf>,
-    /// Find peers by UDP multicast scouting (off by default).
-    #[arg(long, global = true)]
-    multicast: bool,
+    #[command(flatten)]
+    net: NetArgs,
     #[command(subcommand)]
     command: TuplesCommand,
 }
@@ -81,12 +72,7 @@ enum TuplesCommand {
 
 /// Runs `ecology tuples` and returns the exit code.
 pub fn run(args: TuplesArgs) -> anyhow::Result<i32> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
-    runtime.block_on(run_async(args))
+    network::runtime()?.block_on(run_async(args))
 }
 
 fn bad_input(e: &ValidationError) -> i32 {
@@ -108,11 +94,7 @@ async fn run_async(args: TuplesArgs) -> anyhow::Result<i32> {
         Ok(command) => command,
         Err(e) => return Ok(bad_input(&e)),
     };
-    let mut options = ZenohOptions::new(name);
-    options.listen = args.listen.clone();
-    options.connect = args.connect.clone();
-    options.zenoh_config = args.zenoh_config.clone();
-    options.multicast_scouting = args.multicast;
+    let options = args.net.options(name)?;
     let peis = match ZenohPeis::open(options).await {
         Ok(peis) => peis,
         Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => {

@@ -1,12 +1,14 @@
-//! How a PEIS joins an ecology over Zenoh: its name, endpoints, scouting, lease and clock.
+//! How a PEIS joins an ecology over Zenoh: its name, endpoints, scouting, lease, clock and security.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
 use ecology_tuples::{Clock, PeisId, PeisOptions, SystemClock};
+use serde_json::json;
 
 use crate::ZenohError;
+use crate::security::Identity;
 
 /// How a PEIS takes part in the Zenoh network.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -42,6 +44,8 @@ pub struct ZenohOptions {
     pub connect_timeout: Duration,
     /// The clock for timestamps and expiry.
     pub clock: Arc<dyn Clock>,
+    /// Open, or authenticated with the member's certificate and the ecology's roster.
+    pub security: Security,
 }
 
 impl ZenohOptions {
@@ -58,42 +62,128 @@ impl ZenohOptions {
             query_timeout: Duration::from_secs(2),
             connect_timeout: Duration::from_secs(5),
             clock: Arc::new(SystemClock),
+            security: Security::Open,
         }
     }
 
     /// The Zenoh configuration these options describe.
     pub(crate) fn zenoh_config(&self) -> Result<zenoh::Config, ZenohError> {
         let mut config = base_config(self.zenoh_config.as_deref())?;
-        let mut insert = |key: &str, value: String| insert(&mut config, key, value);
+        let config_ref = &mut config;
         match self.mode {
-            Mode::Client => insert("mode", json_string("client"))?,
-            Mode::Peer if self.zenoh_config.is_none() => insert("mode", json_string("peer"))?,
+            Mode::Client => insert(config_ref, "mode", json!("client"))?,
+            Mode::Peer if self.zenoh_config.is_none() => insert(config_ref, "mode", json!("peer"))?,
             Mode::Peer => {}
         }
         if !self.listen.is_empty() {
-            insert("listen/endpoints", json_array(&self.listen))?;
+            insert(config_ref, "listen/endpoints", json!(self.listen))?;
         }
         if !self.connect.is_empty() {
-            insert("connect/endpoints", json_array(&self.connect))?;
-            insert("connect/timeout_ms", millis(self.connect_timeout))?;
-            insert("connect/exit_on_failure", "true".to_owned())?;
+            insert(config_ref, "connect/endpoints", json!(self.connect))?;
+            insert(
+                config_ref,
+                "connect/timeout_ms",
+                millis(self.connect_timeout),
+            )?;
+            insert(config_ref, "connect/exit_on_failure", json!(true))?;
         }
         if self.zenoh_config.is_none() || self.multicast_scouting {
             insert(
+                config_ref,
                 "scouting/multicast/enabled",
-                self.multicast_scouting.to_string(),
+                json!(self.multicast_scouting),
             )?;
         }
-        insert("transport/link/tx/lease", millis(self.peis.lease))?;
+        insert(
+            config_ref,
+            "transport/link/tx/lease",
+            millis(self.peis.lease),
+        )?;
         // Gossip tells each PEIS the endpoints of the others so the mesh completes (peers do not relay).
         // Only the PEIS with the greater Zenoh id dials, so two never dial each other at once and
         // lose both links.
         insert(
+            config_ref,
             "scouting/gossip/autoconnect_strategy",
-            r#"{ peer: { to_router: "always", to_peer: "greater-zid" } }"#.to_owned(),
+            json!({ "peer": { "to_router": "always", "to_peer": "greater-zid" } }),
+        )?;
+        secure(
+            config_ref,
+            &self.security,
+            self.listen.iter().chain(&self.connect),
         )?;
         Ok(config)
     }
+}
+
+/// How a process proves who it is on the network.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Security {
+    /// No proof: anyone who reaches an endpoint may write anything (a quick start on one machine).
+    #[default]
+    Open,
+    /// Mutual TLS with the member's certificate, and Zenoh's access control built from the roster.
+    Authenticated(Box<Identity>),
+}
+
+impl Security {
+    /// Whether this is the unauthenticated mode.
+    pub fn is_open(&self) -> bool {
+        matches!(self, Security::Open)
+    }
+}
+
+/// Applies `security` to `config`: TLS with the member's certificate on every link, and the
+/// roster's access rules. Every endpoint must then be `tls/…`: a `tcp/…` one would be refused by
+/// the access rules anyway, and is more likely a mistake than a wish.
+pub(crate) fn secure<'a>(
+    config: &mut zenoh::Config,
+    security: &Security,
+    endpoints: impl Iterator<Item = &'a String>,
+) -> Result<(), ZenohError> {
+    let Security::Authenticated(identity) = security else {
+        return Ok(());
+    };
+    for endpoint in endpoints {
+        if !endpoint.starts_with("tls/") {
+            return Err(ZenohError::Config {
+                what: format!("endpoint {endpoint}"),
+                message: format!(
+                    "with keys, every endpoint is TLS: write tls/{}",
+                    endpoint
+                        .split_once('/')
+                        .map_or(endpoint.as_str(), |(_, rest)| rest)
+                ),
+            });
+        }
+    }
+    let path = |p: &std::path::Path| json!(p.to_string_lossy());
+    insert(
+        config,
+        "transport/link/tls/root_ca_certificate",
+        path(&identity.ca_cert),
+    )?;
+    for side in ["listen", "connect"] {
+        insert(
+            config,
+            &format!("transport/link/tls/{side}_certificate"),
+            path(&identity.cert),
+        )?;
+        insert(
+            config,
+            &format!("transport/link/tls/{side}_private_key"),
+            path(&identity.key),
+        )?;
+    }
+    insert(config, "transport/link/tls/enable_mtls", json!(true))?;
+    // Names are checked by the access rules against the certificate's common name, not against
+    // the address dialled: PEIS are reached by IP address, and robots move between networks.
+    insert(
+        config,
+        "transport/link/tls/verify_name_on_connect",
+        json!(false),
+    )?;
+    insert(config, "access_control", identity.roster.access_control())
 }
 
 /// The configuration in `file` (JSON5), or Zenoh's defaults.
@@ -107,40 +197,21 @@ pub(crate) fn base_config(file: Option<&std::path::Path>) -> Result<zenoh::Confi
     }
 }
 
-/// Sets `key` to the JSON5 `value` in `config`.
+/// Sets `key` to `value` in `config`.
 pub(crate) fn insert(
     config: &mut zenoh::Config,
     key: &str,
-    value: String,
+    value: serde_json::Value,
 ) -> Result<(), ZenohError> {
+    let value = value.to_string();
     config
         .insert_json5(key, &value)
         .map_err(|e| ZenohError::Config {
-            what: format!("{key} = {value}"),
+            what: format!("{key} = {}", value.chars().take(200).collect::<String>()),
             message: e.to_string(),
         })
 }
 
-pub(crate) fn millis(d: Duration) -> String {
-    d.as_millis().max(1).to_string()
-}
-
-pub(crate) fn json_string(s: &str) -> String {
-    let mut out = String::with_capacity(s.len() + 2);
-    out.push('"');
-    for c in s.chars() {
-        match c {
-            '"' => out.push_str("\\\""),
-            '\\' => out.push_str("\\\\"),
-            c if c.is_control() => out.push_str(&format!("\\u{:04x}", u32::from(c))),
-            c => out.push(c),
-        }
-    }
-    out.push('"');
-    out
-}
-
-pub(crate) fn json_array(items: &[String]) -> String {
-    let items: Vec<String> = items.iter().map(|s| json_string(s)).collect();
-    format!("[{}]", items.join(","))
+pub(crate) fn millis(d: Duration) -> serde_json::Value {
+    json!(u64::try_from(d.as_millis()).unwrap_or(u64::MAX).max(1))
 }

@@ -9,9 +9,10 @@
 mod config;
 mod peis;
 mod router;
+pub mod security;
 pub mod wire;
 
-pub use config::{Mode, ZenohOptions};
+pub use config::{Mode, Security, ZenohOptions};
 pub use peis::ZenohPeis;
 pub use router::{RouterOptions, run_router};
 

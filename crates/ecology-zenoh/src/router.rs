@@ -8,8 +8,10 @@ use std::future::Future;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use serde_json::json;
+
 use crate::ZenohError;
-use crate::config::{base_config, insert, json_array, json_string, millis};
+use crate::config::{Security, base_config, insert, millis, secure};
 
 /// Options of [`run_router`].
 #[derive(Clone, Debug)]
@@ -24,6 +26,8 @@ pub struct RouterOptions {
     pub zenoh_config: Option<PathBuf>,
     /// The transport lease: how long a silent PEIS stays connected.
     pub lease: Duration,
+    /// Open, or authenticated as a member with the router role.
+    pub security: Security,
 }
 
 impl Default for RouterOptions {
@@ -34,6 +38,7 @@ impl Default for RouterOptions {
             multicast_scouting: false,
             zenoh_config: None,
             lease: Duration::from_secs(2),
+            security: Security::Open,
         }
     }
 }
@@ -46,19 +51,25 @@ pub async fn run_router(
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), ZenohError> {
     let mut config = base_config(options.zenoh_config.as_deref())?;
-    let mut insert = |key: &str, value: String| insert(&mut config, key, value);
-    insert("mode", json_string("router"))?;
+    let c = &mut config;
+    insert(c, "mode", json!("router"))?;
     if !options.listen.is_empty() {
-        insert("listen/endpoints", json_array(&options.listen))?;
+        insert(c, "listen/endpoints", json!(options.listen))?;
     }
     if !options.connect.is_empty() {
-        insert("connect/endpoints", json_array(&options.connect))?;
+        insert(c, "connect/endpoints", json!(options.connect))?;
     }
     insert(
+        c,
         "scouting/multicast/enabled",
-        options.multicast_scouting.to_string(),
+        json!(options.multicast_scouting),
     )?;
-    insert("transport/link/tx/lease", millis(options.lease))?;
+    insert(c, "transport/link/tx/lease", millis(options.lease))?;
+    secure(
+        c,
+        &options.security,
+        options.listen.iter().chain(&options.connect),
+    )?;
     let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
         message: e.to_string(),
     })?;

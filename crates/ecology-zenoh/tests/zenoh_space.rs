@@ -537,3 +537,161 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
         assert_eq!(Metadata::decode(bytes), Err(expected));
     }
 }
+
+/// A keys directory in a fresh temporary folder with the given members, removed when dropped.
+struct TempKeys {
+    dir: std::path::PathBuf,
+    keys: ecology_zenoh::security::KeysDir,
+}
+
+impl TempKeys {
+    fn new(tag: &str, members: &[(&str, ecology_zenoh::security::Role)]) -> Self {
+        let dir = std::env::temp_dir().join(format!(
+            "ecology-zenoh-{tag}-{}-{:?}",
+            std::process::id(),
+            std::time::SystemTime::now()
+        ));
+        let mut keys = ecology_zenoh::security::KeysDir::init(&dir).expect("init keys");
+        for (name, role) in members {
+            keys.add(peis(name), *role).expect("add member");
+        }
+        Self { dir, keys }
+    }
+
+    fn options(&self, name: &str, listen: &str, connect: &[String]) -> ZenohOptions {
+        let mut options = ZenohOptions::new(peis(name));
+        options.listen = vec![listen.to_owned()];
+        options.connect = connect.to_vec();
+        options.security = ecology_zenoh::Security::Authenticated(Box::new(
+            self.keys.identity(&peis(name)).expect("identity"),
+        ));
+        options
+    }
+}
+
+impl Drop for TempKeys {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn free_tls_endpoint() -> String {
+    free_endpoint().replacen("tcp/", "tls/", 1)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_remotely() {
+    use ecology_zenoh::security::Role;
+    let keys = TempKeys::new(
+        "mtls",
+        &[
+            ("hsm", Role::Peis),
+            ("executive", Role::Executive),
+            ("pippi", Role::Peis),
+        ],
+    );
+    let hsm_endpoint = free_tls_endpoint();
+    let hsm = ZenohPeis::open(keys.options("hsm", &hsm_endpoint, &[]))
+        .await
+        .expect("hsm joins over TLS");
+    hsm.set(key("ca1.status"), Value::text("running"))
+        .await
+        .expect("set");
+    let executive = ZenohPeis::open(keys.options(
+        "executive",
+        &free_tls_endpoint(),
+        std::slice::from_ref(&hsm_endpoint),
+    ))
+    .await
+    .expect("executive joins over TLS");
+    let pippi = ZenohPeis::open(keys.options(
+        "pippi",
+        &free_tls_endpoint(),
+        std::slice::from_ref(&hsm_endpoint),
+    ))
+    .await
+    .expect("pippi joins over TLS");
+
+    // Reads work for every member, and presence is seen.
+    let mut presence = pippi.subscribe_presence().await.expect("presence");
+    wait_presence(&mut presence, &PresenceEvent::Joined(peis("hsm")), PATIENCE).await;
+    let mut sub = pippi
+        .subscribe(TuplePattern::exact(peis("hsm"), &key("ca1.status")))
+        .await
+        .expect("subscribe");
+    match next_event(&mut sub, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!(t.text(), Ok("running")),
+        other => panic!("unexpected {other:?}"),
+    }
+
+    // The executive may switch a component on; pippi may not, and hsm's tuple stays as it was.
+    let set = executive
+        .set_remote(
+            peis("hsm"),
+            key("components.ca1.reqState"),
+            Value::text("on"),
+        )
+        .await
+        .expect("the executive's remote set is applied");
+    assert_eq!(set.text(), Ok("on"));
+    let refused = pippi
+        .set_remote(
+            peis("hsm"),
+            key("components.ca1.reqState"),
+            Value::text("off"),
+        )
+        .await;
+    assert!(
+        refused.is_err(),
+        "pippi's remote set was applied: {refused:?}"
+    );
+    let refused = executive
+        .set_remote(peis("hsm"), key("components.ca1.cost"), Value::text("0"))
+        .await;
+    assert!(
+        refused.is_err(),
+        "a key outside the executive's grant was set: {refused:?}"
+    );
+    let now = hsm
+        .get(peis("hsm"), key("components.ca1.reqState"))
+        .await
+        .expect("get")
+        .expect("present");
+    assert_eq!(now.text(), Ok("on"));
+    assert_eq!(
+        hsm.get(peis("hsm"), key("components.ca1.cost"))
+            .await
+            .expect("get"),
+        None
+    );
+
+    // A stock client without a certificate cannot reach hsm at all.
+    let mut config = zenoh::Config::default();
+    config
+        .insert_json5("connect/endpoints", &format!("[\"{hsm_endpoint}\"]"))
+        .expect("config");
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .expect("config");
+    config
+        .insert_json5("connect/exit_on_failure", "true")
+        .expect("config");
+    config
+        .insert_json5("connect/timeout_ms", "1000")
+        .expect("config");
+    assert!(
+        zenoh::open(config).await.is_err(),
+        "a client without a certificate opened a session with hsm"
+    );
+
+    // Plain TCP endpoints are refused with the fix in the message.
+    let mut tcp = keys.options("pippi", &free_endpoint(), &[]);
+    tcp.name = peis("pippi");
+    match ZenohPeis::open(tcp).await {
+        Err(e) => assert!(e.to_string().contains("write tls/127.0.0.1:"), "{e}"),
+        Ok(_) => panic!("a tcp endpoint was accepted with keys"),
+    }
+    for space in [pippi, executive, hsm] {
+        space.close().await;
+    }
+}
