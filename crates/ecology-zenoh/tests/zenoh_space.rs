@@ -695,3 +695,320 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         space.close().await;
     }
 }
+
+/// The Python with the stock `eclipse-zenoh` package: `ECOLOGY_PYTHON` (set by `scripts/test`),
+/// or `python3` if it can import zenoh; `None` (and the test says it is skipped) otherwise.
+fn python_with_zenoh() -> Option<String> {
+    let candidates = std::env::var("ECOLOGY_PYTHON")
+        .into_iter()
+        .chain(["python3".to_owned()]);
+    for python in candidates {
+        let ok = Command::new(&python)
+            .args(["-c", "import zenoh"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if ok {
+            return Some(python);
+        }
+    }
+    eprintln!("skipped: no Python with the eclipse-zenoh package (scripts/test sets one up)");
+    None
+}
+
+/// The attacker script as a process; killed when dropped.
+struct Attacker {
+    child: Child,
+    lines: std::sync::mpsc::Receiver<String>,
+}
+
+impl Attacker {
+    fn spawn(python: &str, args: &[String]) -> Self {
+        let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/attacker.py");
+        let mut child = Command::new(python)
+            .arg(script)
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn the attacker");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stdout)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if tx.send(line).is_err() {
+                    return;
+                }
+            }
+        });
+        Self { child, lines }
+    }
+
+    /// The next line the attacker prints, within `patience`.
+    async fn line(&self, patience: Duration) -> String {
+        let deadline = std::time::Instant::now() + patience;
+        loop {
+            match self.lines.try_recv() {
+                Ok(line) => return line,
+                Err(std::sync::mpsc::TryRecvError::Empty)
+                    if std::time::Instant::now() < deadline =>
+                {
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
+                Err(e) => panic!("no line from the attacker within {patience:?}: {e:?}"),
+            }
+        }
+    }
+
+    fn say(&mut self, text: &str) {
+        use std::io::Write;
+        let stdin = self.child.stdin.as_mut().expect("piped stdin");
+        writeln!(stdin, "{text}").expect("write to the attacker");
+    }
+}
+
+impl Drop for Attacker {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn number(report: &str, field: &str) -> u64 {
+    let at = report
+        .find(&format!("\"{field}\": "))
+        .unwrap_or_else(|| panic!("no {field} in {report}"));
+    report[at + field.len() + 4..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect::<String>()
+        .parse()
+        .unwrap_or_else(|_| panic!("{field} is not a number in {report}"))
+}
+
+/// Every forgery found against the open tuple space, tried 1,000 times or more each by the stock
+/// Python client holding a certificate of its own (an enrolled but malicious member): none is
+/// accepted by the PEIS, and the victim joins and works while the attack runs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
+    use ecology_zenoh::security::Role;
+    let Some(python) = python_with_zenoh() else {
+        return;
+    };
+    let keys = TempKeys::new(
+        "attack",
+        &[
+            ("hsm", Role::Peis),
+            ("executive", Role::Executive),
+            ("watcher", Role::Peis),
+            ("mallory", Role::Peis),
+        ],
+    );
+    let watcher_endpoint = free_tls_endpoint();
+    let watcher = ZenohPeis::open(keys.options("watcher", &watcher_endpoint, &[]))
+        .await
+        .expect("watcher joins");
+    let mut everything = watcher
+        .subscribe(TuplePattern::everything())
+        .await
+        .expect("subscribe");
+    let mut presence = watcher.subscribe_presence().await.expect("presence");
+
+    // The attacker declares tokens as hsm and as a made-up PEIS before hsm exists.
+    let file = |f: &str| keys.dir.join(f).display().to_string();
+    let mut attacker = Attacker::spawn(
+        &python,
+        &[
+            "--connect".into(),
+            watcher_endpoint.clone(),
+            "--victim".into(),
+            "hsm".into(),
+            "--tries".into(),
+            "1000".into(),
+            "--peers".into(),
+            "3".into(),
+            "--ca".into(),
+            file("ca.crt"),
+            "--cert".into(),
+            file("mallory.crt"),
+            "--key".into(),
+            file("mallory.key"),
+        ],
+    );
+    assert_eq!(attacker.line(PATIENCE).await, "tokens");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let peers = watcher.peers().await.expect("peers");
+    assert!(
+        !peers.contains(&peis("hsm")) && !peers.contains(&peis("ghost")),
+        "forged presence tokens were taken: {peers:?}"
+    );
+
+    // hsm joins although a token under its name was declared first, and works.
+    let hsm = ZenohPeis::open(keys.options(
+        "hsm",
+        &free_tls_endpoint(),
+        std::slice::from_ref(&watcher_endpoint),
+    ))
+    .await
+    .expect("hsm joins despite the forged token");
+    for (k, v) in [
+        ("components.ca1.type", "cams"),
+        ("components.ca1.cost", "20"),
+        ("ca1.status", "running"),
+    ] {
+        hsm.set(key(k), Value::text(v)).await.expect("set");
+    }
+    let executive = ZenohPeis::open(keys.options(
+        "executive",
+        &free_tls_endpoint(),
+        std::slice::from_ref(&watcher_endpoint),
+    ))
+    .await
+    .expect("executive joins");
+    wait_presence(&mut presence, &PresenceEvent::Joined(peis("hsm")), PATIENCE).await;
+
+    // hsm keeps publishing while the attack runs, so there are real samples to replay.
+    let beating = {
+        let hsm = hsm.clone();
+        tokio::spawn(async move {
+            for i in 0u64.. {
+                let _ = hsm
+                    .set(key("ca1.out.image"), Value::text(&format!("frame {i}")))
+                    .await;
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+    };
+    attacker.say("go");
+    let report = attacker.line(Duration::from_secs(120)).await;
+    eprintln!("attacker: {report}");
+    assert_eq!(attacker.line(PATIENCE).await, "attacking");
+    assert!(report.contains("\"joined\": true"), "{report}");
+    assert!(
+        number(&report, "linked_peers") >= 3,
+        "the attacker did not reach every PEIS: {report}"
+    );
+    for (field, at_least) in [
+        ("puts", 2000),
+        ("deletes", 1000),
+        ("replays", 1000),
+        ("sets", 1000),
+    ] {
+        assert!(
+            number(&report, field) >= at_least,
+            "{field} below {at_least}: {report}"
+        );
+    }
+    assert_eq!(number(&report, "set_accepted"), 0, "{report}");
+    assert_eq!(number(&report, "queries_answered"), 0, "{report}");
+
+    // The executive's own remote set still works while the attack runs.
+    executive
+        .set_remote(
+            peis("hsm"),
+            key("components.ca1.reqState"),
+            Value::text("on"),
+        )
+        .await
+        .expect("the executive's remote set");
+
+    // 1,000 gets of hsm's tuples: every answer is hsm's own.
+    let mut gets = 0;
+    for _ in 0..1000 {
+        for t in watcher
+            .get_matching(TuplePattern::parse("hsm:**").expect("pattern"))
+            .await
+            .expect("get")
+        {
+            assert!(
+                t.seq < u64::MAX && !t.text().unwrap_or("").contains("FORGED"),
+                "{t:?}"
+            );
+        }
+        gets += 1;
+    }
+
+    // Whatever reached the watcher came from hsm itself.
+    beating.abort();
+    let mut seen = 0;
+    while let Ok(Some(event)) =
+        tokio::time::timeout(Duration::from_millis(500), everything.next()).await
+    {
+        seen += 1;
+        match &event {
+            TupleEvent::Changed(t) => {
+                let text = t.text().unwrap_or("");
+                assert!(
+                    !text.contains("FORGED") && t.seq < u64::MAX && t.epoch < u64::MAX,
+                    "forged tuple accepted: {t:?}"
+                );
+                assert_ne!((t.key.as_str(), text), ("ca1.status", "error"), "{t:?}");
+            }
+            TupleEvent::Removed { owner, key, .. } => {
+                panic!("a removal was accepted: {owner}:{key}")
+            }
+            TupleEvent::Retargeted { .. } => {}
+        }
+    }
+    let now = |k: &str| {
+        let hsm = hsm.clone();
+        let k = key(k);
+        async move {
+            hsm.get(peis("hsm"), k)
+                .await
+                .expect("get")
+                .map(|t| t.text().map(str::to_owned))
+        }
+    };
+    assert_eq!(
+        now("components.ca1.reqState").await,
+        Some(Ok("on".to_owned()))
+    );
+    assert_eq!(
+        now("components.ca1.type").await,
+        Some(Ok("cams".to_owned()))
+    );
+    assert_eq!(now("ca1.fault").await, None);
+    let peers = watcher.peers().await.expect("peers");
+    assert!(!peers.contains(&peis("ghost")), "{peers:?}");
+    eprintln!(
+        "accepted forgeries: 0 of {} puts, {} deletes, {} replays, {} remote sets, 2 tokens; \
+         {gets} gets answered by hsm only; {seen} genuine changes seen",
+        number(&report, "puts"),
+        number(&report, "deletes"),
+        number(&report, "replays"),
+        number(&report, "sets"),
+    );
+    drop(attacker);
+    for space in [executive, hsm, watcher] {
+        space.close().await;
+    }
+}
+
+/// Without a certificate of the ecology the stock client cannot even open a session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_outsider_without_a_certificate_cannot_join() {
+    use ecology_zenoh::security::Role;
+    let Some(python) = python_with_zenoh() else {
+        return;
+    };
+    let keys = TempKeys::new("outsider", &[("hsm", Role::Peis)]);
+    let endpoint = free_tls_endpoint();
+    let hsm = ZenohPeis::open(keys.options("hsm", &endpoint, &[]))
+        .await
+        .expect("hsm joins");
+    // Over TLS without a certificate, and over plain TCP to the TLS port.
+    for connect in [endpoint.clone(), endpoint.replacen("tls/", "tcp/", 1)] {
+        let attacker = Attacker::spawn(
+            &python,
+            &["--connect".into(), connect, "--victim".into(), "hsm".into()],
+        );
+        let line = attacker.line(Duration::from_secs(20)).await;
+        assert!(line.contains("\"joined\": false"), "{line}");
+    }
+    hsm.close().await;
+}
