@@ -145,7 +145,12 @@ pub fn keys(args: &KeysArgs) -> anyhow::Result<u8> {
         KeysCommand::List { dir } => {
             let keys = KeysDir::open(dir)?;
             let roster = keys.roster();
-            println!("ecology {} in {}", roster.authority, dir.display());
+            println!(
+                "the ecology of {} in {}: {} members",
+                roster.authority,
+                dir.display(),
+                roster.members.len()
+            );
             for member in &roster.members {
                 let mut sets: Vec<String> = Vec::new();
                 if member.role == Role::Executive {
@@ -165,7 +170,11 @@ pub fn keys(args: &KeysArgs) -> anyhow::Result<u8> {
                 } else {
                     sets.join(", ")
                 };
-                println!("  {:<16} {:<10} may set {sets}", member.name, member.role);
+                println!(
+                    "  {:<16} {:<10} may set {sets}",
+                    member.name.to_string(),
+                    member.role.to_string()
+                );
             }
             Ok(EXIT_OK)
         }

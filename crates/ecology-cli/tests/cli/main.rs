@@ -560,3 +560,110 @@ fn plan_max_millis_bounds_grounding_too() {
         stderr(&out)
     );
 }
+
+/// `ecology keys`: a new ecology, members, a grant and the listing; every mistake exits 2 with
+/// the reason. A process without --keys says it is unauthenticated; one with --keys refuses
+/// plain TCP endpoints and names it cannot prove.
+#[test]
+fn keys_make_an_ecology_and_processes_use_them() {
+    let dir = std::env::temp_dir().join(format!("ecology-cli-keys-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = dir.to_str().expect("utf-8 path");
+    let ok = |out: &Output| {
+        assert_eq!(out.status.code(), Some(0), "{}{}", stdout(out), stderr(out));
+        stdout(out)
+    };
+    let fails = |out: &Output, why: &str| {
+        assert_eq!(out.status.code(), Some(2), "{}{}", stdout(out), stderr(out));
+        assert!(stderr(out).contains(why), "{why:?} not in {}", stderr(out));
+    };
+    ok(&ecology(&["keys", "init", d]));
+    fails(
+        &ecology(&["keys", "init", d]),
+        "already holds an ecology's keys",
+    );
+    ok(&ecology(&["keys", "add", d, "astrid", "hsm"]));
+    ok(&ecology(&[
+        "keys",
+        "add",
+        d,
+        "executive",
+        "--role",
+        "executive",
+    ]));
+    fails(
+        &ecology(&["keys", "add", d, "hsm"]),
+        "hsm is already a member",
+    );
+    fails(
+        &ecology(&["keys", "add", d, "x", "--role", "king"]),
+        "unknown role",
+    );
+    fails(&ecology(&["keys", "add", d, "ast rid"]), "ast rid");
+    ok(&ecology(&[
+        "keys", "grant", d, "astrid", "*.fault", "--owner", "hsm",
+    ]));
+    fails(
+        &ecology(&["keys", "grant", d, "nobody", "*.fault"]),
+        "nobody is not a member",
+    );
+    fails(
+        &ecology(&["keys", "grant", d, "astrid", "a..b"]),
+        "invalid key pattern",
+    );
+    let list = ok(&ecology(&["keys", "list", d]));
+    assert!(
+        list.contains("astrid           peis       may set *.fault of hsm"),
+        "{list}"
+    );
+    assert!(
+        list.contains("executive        executive  may set components.*.reqState of every PEIS"),
+        "{list}"
+    );
+    assert!(
+        list.contains("hsm              peis       may set nothing of others"),
+        "{list}"
+    );
+
+    // Joining with keys: TLS endpoints only, and only as a member.
+    let scenario = "scenarios/peis-home.toml";
+    let tcp = ecology(&[
+        "peis",
+        scenario,
+        "--name",
+        "hsm",
+        "--keys",
+        d,
+        "--listen",
+        "tcp/127.0.0.1:0",
+    ]);
+    assert_ne!(tcp.status.code(), Some(0));
+    assert!(
+        stderr(&tcp).contains("write tls/127.0.0.1:0"),
+        "{}",
+        stderr(&tcp)
+    );
+    let stranger = ecology(&[
+        "peis",
+        scenario,
+        "--name",
+        "pippi",
+        "--keys",
+        d,
+        "--listen",
+        "tls/127.0.0.1:0",
+    ]);
+    assert_ne!(stranger.status.code(), Some(0));
+    assert!(
+        stderr(&stranger).contains("pippi is not a member"),
+        "{}",
+        stderr(&stranger)
+    );
+    let open = ecology(&["tuples", "get", "astrid", "x"]);
+    assert!(
+        stderr(&open).contains("runs UNAUTHENTICATED"),
+        "{}",
+        stderr(&open)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
