@@ -81,8 +81,11 @@ pub enum TupleError {
     /// The PEIS this handle is bound to has left the ecology; the handle can no longer be used.
     #[error("PEIS {0} has left the ecology")]
     Departed(PeisId),
-    /// The owner of a remote set is not present, or did not answer.
-    #[error("PEIS {owner} is not present to apply a remote set of {key}")]
+    /// The owner of a remote set is not present, or did not answer (on an authenticated ecology,
+    /// a request the access rules do not grant is dropped unanswered, so it ends here too).
+    #[error(
+        "no answer from PEIS {owner} to a remote set of {key}: it is not present, or this PEIS may not set that key"
+    )]
     OwnerUnreachable {
         /// The PEIS that was asked.
         owner: PeisId,

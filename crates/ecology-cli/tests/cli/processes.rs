@@ -16,7 +16,7 @@ use serde_json::Value;
 
 use crate::support::{
     Ecology, Fixture, Line, Proc, TO_BEDROOM, TO_ENTRANCE, Variant, as_strs, event, free_endpoint,
-    is_event, root,
+    is_event, root, task_on,
 };
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -441,5 +441,111 @@ fn over_zenoh_a_failed_action_is_planned_around_until_no_plan_remains() {
     assert_eq!(
         strings(&named(&all, "released")[0]["switched_off"]),
         ["astrid:l1"]
+    );
+}
+
+/// Issue: only the owner writes its tuples. Every process with keys over mutual TLS; the stock
+/// Python client, enrolled as `mallory`, declares hsm's presence token before hsm starts, then
+/// forges hsm's tuples (its cameras' and tracking system's status `error`), deletes and replays
+/// them and asks hsm to switch its cameras off, over and over while Astrid moves on hsm's cameras.
+/// hsm joins, nothing forged is accepted, and the move is done on the cameras (80) without a
+/// failure or a reconfiguration.
+#[test]
+fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
+    let python = python();
+    let has_zenoh = Command::new(&python)
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has_zenoh {
+        println!("skipped: no Python with the eclipse-zenoh package at `{python}`");
+        return;
+    }
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("attacked", &[TO_BEDROOM], Variant::Paper);
+    let keys = fixture.folder.join("keys");
+    let k = keys.display().to_string();
+    for args in [
+        vec!["keys", "init", &k],
+        vec!["keys", "add", &k, "world", "astrid", "hsm", "mallory"],
+        vec!["keys", "add", &k, "executive", "--role", "executive"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+            .args(&args)
+            .output()
+            .expect("ecology keys");
+        assert!(out.status.success(), "{args:?}: {:?}", out);
+    }
+    // The world first, so the attacker has somewhere to connect before hsm exists.
+    let world_endpoint = free_endpoint().replacen("tcp/", "tls/", 1);
+    let scenario = fixture.scenario();
+    let _world = Proc::start(
+        "world",
+        &[
+            "world",
+            &scenario,
+            "--listen",
+            &world_endpoint,
+            "--keys",
+            &k,
+        ],
+    )
+    .ready();
+    let file = |f: &str| keys.join(f).display().to_string();
+    let mut attacker_command = Command::new(&python);
+    attacker_command
+        .arg(root().join("crates/ecology-zenoh/tests/attacker.py"))
+        .args([
+            "--connect",
+            &world_endpoint,
+            "--victim",
+            "hsm",
+            "--peers",
+            "3",
+        ])
+        .args(["--ca", &file("ca.crt"), "--cert", &file("mallory.crt")])
+        .args(["--key", &file("mallory.key")]);
+    let mut attacker = Proc::spawn("attacker", attacker_command);
+    attacker.wait_for("tokens", |l| l == "tokens");
+    let peis = |name: &str| {
+        Proc::start(
+            name,
+            &[
+                "peis",
+                &scenario,
+                "--name",
+                name,
+                "--listen",
+                &free_endpoint().replacen("tcp/", "tls/", 1),
+                "--connect",
+                &world_endpoint,
+                "--keys",
+                &k,
+            ],
+        )
+        .ready()
+    };
+    let _astrid = peis("astrid");
+    let _hsm = peis("hsm");
+    attacker.say("go");
+    let report = attacker.wait_for("its report", |l| l.starts_with('{')).text;
+    println!("attacker: {report}");
+    assert!(
+        report.contains("\"joined\": true") && report.contains("\"set_accepted\": 0"),
+        "{report}"
+    );
+    attacker.wait_for("attacking", |l| l == "attacking");
+
+    let (code, lines) = task_on(&world_endpoint, Some(&k), &fixture, &[]).finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(
+        named(&all, "failure").is_empty(),
+        "a forged status was taken for a failure: {all:#?}"
+    );
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    assert_eq!(
+        all.last().map(|e| e["event"].clone()),
+        Some("task_done".into())
     );
 }

@@ -106,6 +106,13 @@ impl Proc {
         }
     }
 
+    /// Writes `text` and a newline to the process's standard input.
+    pub fn say(&mut self, text: &str) {
+        use std::io::Write;
+        let stdin = self._stdin.as_mut().expect("piped stdin");
+        writeln!(stdin, "{text}").expect("write to the process");
+    }
+
     pub fn pid(&self) -> Pid {
         Pid::from_raw(i32::try_from(self.child.id()).expect("pid fits"))
     }
@@ -273,6 +280,8 @@ pub const TO_ENTRANCE: (&str, &str) = (
 /// A running ecology: the world, astrid and hsm, each a process.
 pub struct Ecology {
     pub world_endpoint: String,
+    /// The keys directory every process joins with, if any (then endpoints are TLS).
+    pub keys: Option<String>,
     _world: Proc,
     _astrid: Proc,
     pub hsm: Proc,
@@ -281,10 +290,21 @@ pub struct Ecology {
 
 impl Ecology {
     pub fn start(fixture: &Fixture, hsm_extra: &[&str]) -> Ecology {
+        Ecology::start_with(fixture, hsm_extra, None)
+    }
+
+    /// As [`Ecology::start`], every process with `--keys keys` on TLS endpoints when given.
+    pub fn start_with(fixture: &Fixture, hsm_extra: &[&str], keys: Option<&str>) -> Ecology {
         let scenario = fixture.scenario();
-        let world_endpoint = free_endpoint();
-        let world =
-            Proc::start("world", &["world", &scenario, "--listen", &world_endpoint]).ready();
+        let endpoint = || match keys {
+            Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+            None => free_endpoint(),
+        };
+        let secured: Vec<&str> = keys.map_or(vec![], |k| vec!["--keys", k]);
+        let world_endpoint = endpoint();
+        let mut world_args = vec!["world", &scenario, "--listen", &world_endpoint];
+        world_args.extend(&secured);
+        let world = Proc::start("world", &world_args).ready();
         let peis = |name: &str, extra: &[&str]| -> Vec<String> {
             let mut args: Vec<String> = [
                 "peis",
@@ -292,14 +312,14 @@ impl Ecology {
                 "--name",
                 name,
                 "--listen",
-                &free_endpoint(),
+                &endpoint(),
                 "--connect",
                 &world_endpoint,
             ]
             .iter()
             .map(ToString::to_string)
             .collect();
-            args.extend(extra.iter().map(ToString::to_string));
+            args.extend(secured.iter().chain(extra).map(ToString::to_string));
             args
         };
         let astrid_args = peis("astrid", &[]);
@@ -308,6 +328,7 @@ impl Ecology {
         let hsm = Proc::start("hsm", &as_strs(&hsm_args)).ready();
         Ecology {
             world_endpoint,
+            keys: keys.map(ToString::to_string),
             _world: world,
             _astrid: astrid,
             hsm,
@@ -317,22 +338,39 @@ impl Ecology {
 
     /// The executive on `plan`, printing JSON lines.
     pub fn task(&self, fixture: &Fixture, extra: &[&str]) -> Proc {
-        let mut args = vec!["task", "--domain", "domains/peis-home.eco", "--plan"];
-        let plan = fixture.plan();
-        args.push(&plan);
-        let listen = free_endpoint();
-        args.extend([
-            "--json",
-            "--wait-for",
-            "world,astrid,hsm",
-            "--listen",
-            &listen,
-            "--connect",
-            &self.world_endpoint,
-        ]);
-        args.extend_from_slice(extra);
-        Proc::start("executive", &args)
+        task_on(&self.world_endpoint, self.keys.as_deref(), fixture, extra)
     }
+}
+
+/// The executive on `fixture`'s plan, connected to the world at `world_endpoint`, printing JSON
+/// lines; with `--keys keys` on a TLS endpoint when given.
+pub fn task_on(
+    world_endpoint: &str,
+    keys: Option<&str>,
+    fixture: &Fixture,
+    extra: &[&str],
+) -> Proc {
+    let mut args = vec!["task", "--domain", "domains/peis-home.eco", "--plan"];
+    let plan = fixture.plan();
+    args.push(&plan);
+    let listen = match keys {
+        Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+        None => free_endpoint(),
+    };
+    if let Some(keys) = keys {
+        args.extend(["--keys", keys]);
+    }
+    args.extend([
+        "--json",
+        "--wait-for",
+        "world,astrid,hsm",
+        "--listen",
+        &listen,
+        "--connect",
+        world_endpoint,
+    ]);
+    args.extend_from_slice(extra);
+    Proc::start("executive", &args)
 }
 
 pub fn as_strs(args: &[String]) -> Vec<&str> {
