@@ -877,7 +877,7 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
         tokio::spawn(async move {
             for i in 0u64.. {
                 let _ = hsm
-                    .set(key("ca1.out.image"), Value::text(&format!("frame {i}")))
+                    .set(key("ca1.out.image"), Value::text(format!("frame {i}")))
                     .await;
                 tokio::time::sleep(Duration::from_millis(20)).await;
             }
