@@ -4,7 +4,7 @@
 It tries, many times each, every forgery found against the unauthenticated tuple space, with
 whatever credentials it is given (none, or a certificate of its own name):
 
-- token:   liveliness tokens under the victim's name and a made-up PEIS, declared first and held;
+- token:   liveliness tokens under the victim's name and under made-up PEIS, declared first and held;
 - put:     tuples under the victim's name, with a sequence number and epoch of 2^64-1;
 - delete:  deletes of the victim's tuples;
 - replay:  the victim's own samples, captured by subscribing, published again as they were;
@@ -75,10 +75,9 @@ def main():
         return
     report["joined"] = True
 
-    tokens = [
-        s.liveliness().declare_token(f"peis/{victim}/@alive"),
-        s.liveliness().declare_token("peis/ghost/@alive"),
-    ]
+    # The victim's token, and one for each of --tries made-up PEIS.
+    tokens = [s.liveliness().declare_token(f"peis/{victim}/@alive")]
+    tokens += [s.liveliness().declare_token(f"peis/ghost-{i}/@alive") for i in range(args.tries)]
     report["tokens"] = len(tokens)
     # The test starts the victim now: its tokens are already out there.
     print("tokens", flush=True)
