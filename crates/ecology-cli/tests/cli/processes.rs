@@ -198,20 +198,52 @@ fn a_component_slower_to_start_than_the_deploy_timeout_is_excluded() {
 
 #[test]
 fn peis_that_reach_each_other_only_through_a_router_configure_an_action() {
+    through_a_router(false);
+}
+
+/// The same over mutual TLS: the router is a member with the router role, and its clients accept
+/// what it forwards.
+#[test]
+fn a_secured_router_forwards_for_its_members() {
+    through_a_router(true);
+}
+
+fn through_a_router(secured: bool) {
     let _one = one_at_a_time();
     let fixture = Fixture::new("router", &[TO_BEDROOM], Variant::Paper);
-    let router_endpoint = free_endpoint();
-    let _router = Proc::start("router", &["router", "--listen", &router_endpoint]).ready();
+    let keys = fixture.folder.join("keys").display().to_string();
+    let mut secure: Vec<&str> = Vec::new();
+    let mut router_endpoint = free_endpoint();
+    if secured {
+        for args in [
+            vec!["keys", "init", &keys],
+            vec!["keys", "add", &keys, "world", "astrid", "hsm"],
+            vec!["keys", "add", &keys, "executive", "--role", "executive"],
+            vec!["keys", "add", &keys, "router", "--role", "router"],
+        ] {
+            let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+                .args(&args)
+                .output()
+                .expect("ecology keys");
+            assert!(out.status.success(), "{args:?}: {out:?}");
+        }
+        secure = vec!["--keys", &keys];
+        router_endpoint = router_endpoint.replacen("tcp/", "tls/", 1);
+    }
+    let mut args = vec!["router", "--listen", &router_endpoint];
+    args.extend(&secure);
+    let _router = Proc::start("router", &args).ready();
     // Clients of the router: every tuple, query and presence token passes through it.
-    let through = ["--client", "--connect", router_endpoint.as_str()];
+    let mut through = vec!["--client", "--connect", router_endpoint.as_str()];
+    through.extend(&secure);
     let scenario = fixture.scenario();
     let mut args = vec!["world", scenario.as_str()];
-    args.extend(through);
+    args.extend(&through);
     let _world = Proc::start("world", &args).ready();
     let mut procs = Vec::new();
     for name in ["astrid", "hsm"] {
         let mut args = vec!["peis", scenario.as_str(), "--name", name];
-        args.extend(through);
+        args.extend(&through);
         procs.push(Proc::start(name, &args).ready());
     }
     let plan = fixture.plan();
@@ -225,7 +257,7 @@ fn peis_that_reach_each_other_only_through_a_router_configure_an_action() {
         "--wait-for",
         "world,astrid,hsm",
     ];
-    args.extend(through);
+    args.extend(&through);
     let (code, lines) = Proc::start("executive", &args).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
