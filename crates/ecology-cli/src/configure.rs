@@ -8,6 +8,7 @@ use ecology_config::{
     Budget, Clock, Configuration, Exclusion, Explanation, Options, Outcome, Request, Status,
 };
 use ecology_domain::Power;
+use ecology_view::{Drawing, Edge, Mark, Node};
 use serde_json::{Value, json};
 
 use crate::input::{self, Reported};
@@ -54,6 +55,10 @@ pub struct ConfigureArgs {
     /// Print Graphviz DOT.
     #[arg(long)]
     pub dot: bool,
+    /// Also write the (cheapest) configuration as an SVG picture drawn by Ecology itself, with
+    /// excluded components marked.
+    #[arg(long, value_name = "FILE")]
+    pub svg: Option<PathBuf>,
 }
 
 /// Wall-clock time since the command started.
@@ -133,6 +138,13 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     if outcome.configurations.is_empty() {
         print_none(args, &outcome);
         return Ok(EXIT_NO_SOLUTION);
+    }
+    if let Some(file) = &args.svg {
+        let picture = drawing(&outcome.configurations[0], &args.goal, &args.exclude).svg();
+        if let Err(e) = std::fs::write(file, picture) {
+            eprintln!("error: writing {}: {e}", file.display());
+            return Ok(EXIT_BAD_INPUT);
+        }
     }
     if args.json {
         let value = if args.all {
@@ -311,6 +323,56 @@ fn dot(config: &Configuration, goal: &str) -> String {
     }
     out.push_str("}\n");
     out
+}
+
+/// The configuration as a picture: the same drawing as the live view's, components excluded on
+/// the command line marked as failed.
+fn drawing(config: &Configuration, goal: &str, excluded: &[Exclusion]) -> Drawing {
+    let mut drawing = Drawing {
+        title: format!(
+            "{goal}: cost {}{}",
+            config.cost,
+            if config.optimal { " (optimal)" } else { "" }
+        ),
+        ..Drawing::default()
+    };
+    for f in &config.functionalities {
+        let (state, mark) = match f.power {
+            Power::On => ("on", Mark::Normal),
+            Power::Off => ("off, switched on", Mark::SwitchedOn),
+        };
+        drawing.nodes.push(Node {
+            peis: f.peis.clone(),
+            component: f.component.clone(),
+            label: f.call(),
+            detail: format!("cost {} ({state})", f.cost),
+            mark,
+        });
+    }
+    for c in &config.channels {
+        let index = |label: &str| config.functionalities.iter().position(|f| f.label == label);
+        if let (Some(from), Some(to)) = (index(&c.from), index(&c.to)) {
+            drawing.edges.push(Edge {
+                from,
+                to,
+                info: c.info.clone(),
+            });
+        }
+    }
+    for e in excluded {
+        if let Exclusion::Component { peis, component } = e
+            && drawing.node(peis, component).is_none()
+        {
+            drawing.nodes.push(Node {
+                peis: peis.clone(),
+                component: component.clone(),
+                label: format!("FAILED {peis}:{component}"),
+                detail: "excluded".into(),
+                mark: Mark::Failed,
+            });
+        }
+    }
+    drawing
 }
 
 /// A goal the domain cannot plan for, shown at its place in the goal's text.

@@ -48,6 +48,12 @@ pub struct RunArgs {
     /// (as `ecology sweep` does; replays one of its seeds).
     #[arg(long, conflicts_with = "processes")]
     pub random_faults: bool,
+    /// Serve a live web view of the run (best with --realtime); it stays up after the run until Ctrl-C.
+    #[arg(long, conflicts_with = "processes")]
+    pub view: bool,
+    /// Where --view serves the page (port 0 picks a free one).
+    #[arg(long, value_name = "ADDR", default_value = crate::view::DEFAULT_BIND, requires = "view")]
+    pub bind: std::net::SocketAddr,
 }
 
 /// Arguments of `ecology run`.
@@ -146,8 +152,15 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         }
         (false, None) => Pace::Unpaced,
     };
+    let served = if args.view {
+        Some(crate::view::Served::start(args.bind)?)
+    } else {
+        None
+    };
+    let hub = served.as_ref().map(|s| s.hub.clone());
     let options = RunOptions {
         pace,
+        observe_tuples: hub.is_some(),
         ..RunOptions::seeded(seed)
     };
     // One thread: the run is reproducible from its seed.
@@ -168,7 +181,20 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         if progress {
             eprint!("\r\x1b[K");
         }
+        if let Some(hub) = &hub {
+            match &update {
+                Update::Log(entry) => {
+                    if let Ok(line) = serde_json::from_str(&entry.json_line()) {
+                        hub.update(|v| v.log(&line));
+                    }
+                }
+                Update::Tuple(event) => hub.update(|v| v.tuple(event)),
+                Update::Presence(event) => hub.update(|v| v.presence(event)),
+                Update::Injected { .. } | Update::Progress { .. } => {}
+            }
+        }
         match update {
+            Update::Tuple(_) | Update::Presence(_) => {}
             Update::Log(entry) if json => {
                 let _ = writeln!(out, "{}", entry.json_line());
             }
@@ -204,6 +230,10 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
     );
     for what in &report.spurious {
         eprintln!("warning: a failure the ground truth does not bear out: {what}");
+    }
+    if let Some(served) = served {
+        crate::view::hold(&served)?;
+        served.stop();
     }
     Ok(match report.status {
         RunStatus::Done => EXIT_OK,

@@ -17,6 +17,7 @@ mod router;
 mod sweep;
 mod task;
 mod tuples;
+mod view;
 
 use std::process::ExitCode;
 
@@ -63,6 +64,8 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// Create an ecology's keys: its certificate authority, members' certificates, the roster.
     Keys(keys::KeysArgs),
+    /// Serve a live web view of an ecology over Zenoh: PEIS, components, plan, configuration, tuples.
+    View(view::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -91,6 +94,7 @@ fn main() -> ExitCode {
         Command::Router(args) => router::router(&args),
         Command::Sweep(args) => sweep::sweep(&args),
         Command::Keys(args) => keys::keys(&args),
+        Command::View(args) => view::view(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -19,8 +19,8 @@ use ecology_exec::{
 };
 use ecology_peis::{HostError, run_host};
 use ecology_tuples::{
-    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Timestamp, Tuple, TupleError,
-    TupleEvent, TuplePattern, TupleSpace, VirtualClock,
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceEvent, Timestamp,
+    Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, VirtualClock,
 };
 use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinSet};
@@ -50,6 +50,9 @@ pub struct RunOptions {
     pub pace: Pace,
     /// The simulation's fixed time step.
     pub step: Duration,
+    /// Whether the observer also gets every tuple change and presence event ([`Update::Tuple`],
+    /// [`Update::Presence`]), for a live view of the run.
+    pub observe_tuples: bool,
 }
 
 impl RunOptions {
@@ -59,6 +62,7 @@ impl RunOptions {
             seed,
             pace: Pace::Unpaced,
             step: Duration::from_millis(50),
+            observe_tuples: false,
         }
     }
 }
@@ -80,6 +84,10 @@ pub enum Update {
         /// Simulated time since the start.
         t: Duration,
     },
+    /// A tuple changed (only with [`RunOptions::observe_tuples`]).
+    Tuple(TupleEvent),
+    /// A PEIS joined or left (only with [`RunOptions::observe_tuples`]).
+    Presence(PresenceEvent),
 }
 
 /// Receives [`Update`]s as they happen.
@@ -189,6 +197,23 @@ pub async fn run(
         PeisId::new("executive").map_err(TupleError::Invalid)?,
         PeisOptions::default(),
     )?;
+    // Read through the executive's own handle, so watching adds no PEIS to the ecology.
+    let mut watching = JoinSet::new();
+    if options.observe_tuples {
+        let mut tuples = me.subscribe(TuplePattern::everything()).await?;
+        let mut presence = me.subscribe_presence().await?;
+        let observer = observer.clone();
+        watching.spawn(async move {
+            loop {
+                let update = tokio::select! {
+                    Some(event) = tuples.next() => Update::Tuple(event),
+                    Some(event) = presence.next() => Update::Presence(event),
+                    else => return,
+                };
+                (lock(&observer))(update);
+            }
+        });
+    }
     let mut exec = Executive::new(
         scenario.domain.clone(),
         EcologyState::new(),
@@ -263,6 +288,7 @@ pub async fn run(
         .await
     };
     let _ = stop.send(true);
+    watching.abort_all();
     let mut outcome = Ok(scenario.world.clone());
     while let Some(joined) = tasks.join_next().await {
         outcome = match joined {

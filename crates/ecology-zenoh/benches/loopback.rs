@@ -5,6 +5,8 @@
 //! process (`loopback sub ...`). Latency is publisher send time (wall clock, in the payload) to receipt.
 //! For profiling one side alone, `LOOPBACK_ONLY=raw` or `LOOPBACK_ONLY=ecology` runs only its phases
 //! (the other side's figures then read 0 and the ratios are meaningless).
+//! `LOOPBACK_TLS=1` runs the ecology side authenticated (mutual TLS and the access rules, with keys made
+//! for the run), the raw side still on plain TCP: the ratios then show what security costs.
 
 use std::io::{BufRead, Write};
 use std::process::{Command, Stdio};
@@ -12,7 +14,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use ecology_tuples::{Key, PeisId, TupleEvent, TupleSpace, Value};
-use ecology_zenoh::{ZenohOptions, ZenohPeis};
+use ecology_zenoh::security::{KeysDir, Role};
+use ecology_zenoh::{Security, ZenohOptions, ZenohPeis};
 
 const THROUGHPUT: usize = 100_000;
 const LATENCY: usize = 5_000;
@@ -87,7 +90,11 @@ fn main() {
         .build()
         .expect("runtime");
     if args.get(1).map(String::as_str) == Some("sub") {
-        runtime.block_on(subscriber(&args[2], &args[3]));
+        runtime.block_on(subscriber(
+            &args[2],
+            &args[3],
+            args.get(4).map(String::as_str),
+        ));
     } else {
         runtime.block_on(publisher());
     }
@@ -111,7 +118,27 @@ async fn raw_session(listen: Option<&str>, connect: Option<&str>) -> zenoh::Sess
     zenoh::open(c).await.expect("open raw session")
 }
 
-async fn subscriber(ecology_endpoint: &str, raw_endpoint: &str) {
+/// The ecology side's security: the member's identity in `keys`, or open.
+fn security(keys: Option<&str>, name: &str) -> Security {
+    match keys {
+        Some(dir) => {
+            let keys = KeysDir::open(std::path::Path::new(dir)).expect("open keys");
+            let name = PeisId::new(name).expect("name");
+            Security::Authenticated(Box::new(keys.identity(&name).expect("identity")))
+        }
+        None => Security::Open,
+    }
+}
+
+/// A free endpoint for the ecology side: TLS when it runs with keys.
+fn ecology_endpoint(keys: Option<&str>) -> String {
+    match keys {
+        Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+        None => free_endpoint(),
+    }
+}
+
+async fn subscriber(ecology_endpoint_to: &str, raw_endpoint: &str, keys: Option<&str>) {
     let phases: Arc<Mutex<[Phase; 4]>> = Arc::new(Mutex::new(Default::default()));
     let raw = raw_session(None, Some(raw_endpoint)).await;
     let p = phases.clone();
@@ -130,8 +157,9 @@ async fn subscriber(ecology_endpoint: &str, raw_endpoint: &str) {
         .expect("raw subscriber");
 
     let mut options = ZenohOptions::new(PeisId::new("bench-sub").expect("name"));
-    options.listen = vec![free_endpoint()];
-    options.connect = vec![ecology_endpoint.to_owned()];
+    options.listen = vec![ecology_endpoint(keys)];
+    options.connect = vec![ecology_endpoint_to.to_owned()];
+    options.security = security(keys, "bench-sub");
     let peis = ZenohPeis::open(options).await.expect("open");
     let mut sub = peis
         .subscribe("bench-pub:bench.*".parse().expect("pattern"))
@@ -193,16 +221,32 @@ where
 }
 
 async fn publisher() {
-    let ecology_endpoint = free_endpoint();
+    let keys_dir = std::env::var("LOOPBACK_TLS")
+        .is_ok_and(|v| v == "1")
+        .then(|| {
+            let dir =
+                std::env::temp_dir().join(format!("ecology-loopback-keys-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            let mut keys = KeysDir::init(&dir).expect("init keys");
+            for name in ["bench-pub", "bench-sub"] {
+                keys.add(PeisId::new(name).expect("name"), Role::Peis)
+                    .expect("add");
+            }
+            dir.display().to_string()
+        });
+    let keys = keys_dir.as_deref();
+    let ecology_endpoint = ecology_endpoint(keys);
     let raw_endpoint = free_endpoint();
     let raw = raw_session(Some(&raw_endpoint), None).await;
     let mut options = ZenohOptions::new(PeisId::new("bench-pub").expect("name"));
     options.listen = vec![ecology_endpoint.clone()];
+    options.security = security(keys, "bench-pub");
     let peis = ZenohPeis::open(options).await.expect("open");
 
     let exe = std::env::current_exe().expect("current exe");
     let mut child = Command::new(exe)
         .args(["sub", &ecology_endpoint, &raw_endpoint])
+        .args(keys)
         .stdout(Stdio::piped())
         .spawn()
         .expect("spawn subscriber");
@@ -268,7 +312,12 @@ async fn publisher() {
     let raw_rate = rc as f64 / rs;
     let eco_rate = ec as f64 / es;
     println!(
-        "zenoh loopback, two processes, {PAYLOAD}-byte values, {THROUGHPUT} back to back, {LATENCY} paced at 200 us"
+        "zenoh loopback, two processes, {PAYLOAD}-byte values, {THROUGHPUT} back to back, {LATENCY} paced at 200 us{}",
+        if keys.is_some() {
+            "; ecology side over mutual TLS with access rules, raw side plain TCP"
+        } else {
+            ""
+        }
     );
     println!("                      raw zenoh put     ecology set     ratio (target)");
     println!(
@@ -290,4 +339,7 @@ async fn publisher() {
     println!("received: raw {rc}/{THROUGHPUT}, ecology {ec}/{THROUGHPUT}");
     peis.close().await;
     let _ = raw.close().await;
+    if let Some(dir) = keys {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

@@ -1,0 +1,508 @@
+//! What the live view knows: built from tuple changes, presence, and the executive's log entries
+//! (the JSON objects of `ecology task --json`, also published as the executive's `log` tuple).
+
+use std::collections::BTreeMap;
+
+use ecology_tuples::{PresenceEvent, TupleEvent};
+use serde_json::{Value as Json, json};
+
+use crate::svg::{Drawing, Edge, Mark, Node};
+
+/// The longest value preview kept per tuple.
+const PREVIEW: usize = 160;
+/// Timeline entries kept (the oldest go first).
+const TIMELINE: usize = 400;
+/// Tuples kept; past it, new keys are counted but not stored.
+const MAX_TUPLES: usize = 20_000;
+
+#[derive(Clone, Debug, Default)]
+struct TupleRow {
+    value: String,
+    mimetype: String,
+    seq: u64,
+    changed: u64,
+}
+
+#[derive(Clone, Debug, Default)]
+struct Configuration {
+    goal: String,
+    cost: Json,
+    optimal: bool,
+    reconfiguration: bool,
+    functionalities: Vec<(String, String, String)>,
+    channels: Vec<(String, String, String)>,
+    switched_on: Vec<String>,
+}
+
+/// The ecology as the view sees it.
+#[derive(Clone, Debug, Default)]
+pub struct View {
+    present: BTreeMap<String, bool>,
+    tuples: BTreeMap<(String, String), TupleRow>,
+    dropped_tuples: u64,
+    plan: Vec<String>,
+    current: Option<usize>,
+    done: Vec<usize>,
+    failed_actions: Vec<usize>,
+    timeline: Vec<Json>,
+    configuration: Option<Configuration>,
+    failed: BTreeMap<String, String>,
+    status: String,
+    changes: u64,
+}
+
+impl View {
+    /// An empty view.
+    pub fn new() -> Self {
+        Self {
+            status: "waiting for the executive".into(),
+            ..Self::default()
+        }
+    }
+
+    /// How many changes the view has taken in: a version for clients.
+    pub fn version(&self) -> u64 {
+        self.changes
+    }
+
+    /// Takes in a tuple change; the executive's `log` tuple is also read as a log entry.
+    pub fn tuple(&mut self, event: &TupleEvent) {
+        self.changes += 1;
+        match event {
+            TupleEvent::Changed(t) => {
+                let text = String::from_utf8_lossy(&t.data);
+                if t.key.as_str() == "log"
+                    && let Ok(entry) = serde_json::from_str::<Json>(&text)
+                    && entry.get("event").is_some()
+                {
+                    self.log(&entry);
+                }
+                let id = (t.owner.to_string(), t.key.to_string());
+                if !self.tuples.contains_key(&id) && self.tuples.len() >= MAX_TUPLES {
+                    self.dropped_tuples += 1;
+                    return;
+                }
+                self.present.entry(t.owner.to_string()).or_insert(true);
+                self.tuples.insert(
+                    id,
+                    TupleRow {
+                        value: preview(&text),
+                        mimetype: t.mimetype.to_string(),
+                        seq: t.seq,
+                        changed: t.ts_write.as_nanos(),
+                    },
+                );
+            }
+            TupleEvent::Removed { owner, key, .. } => {
+                self.tuples.remove(&(owner.to_string(), key.to_string()));
+            }
+            TupleEvent::Retargeted { .. } => {}
+        }
+    }
+
+    /// Takes in a presence event.
+    pub fn presence(&mut self, event: &PresenceEvent) {
+        self.changes += 1;
+        match event {
+            PresenceEvent::Joined(p) => {
+                self.present.insert(p.to_string(), true);
+            }
+            PresenceEvent::Left(p) => {
+                self.present.insert(p.to_string(), false);
+            }
+        }
+    }
+
+    /// Takes in one entry of the executive's log, as JSON.
+    pub fn log(&mut self, entry: &Json) {
+        self.changes += 1;
+        let text = |field: &str| entry[field].as_str().unwrap_or("").to_owned();
+        let strings = |field: &str| -> Vec<String> {
+            entry[field]
+                .as_array()
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|v| v.as_str().map(str::to_owned))
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let index = entry["index"]
+            .as_u64()
+            .and_then(|i| usize::try_from(i).ok());
+        let event = text("event");
+        let mut summary = event.replace('_', " ");
+        match event.as_str() {
+            "plan" | "replan" => {
+                self.plan = strings("actions");
+                self.current = None;
+                self.done.clear();
+                self.failed_actions.clear();
+                summary = format!("plan: {}", self.plan.join(" → "));
+            }
+            "action_started" => {
+                self.current = index;
+                self.status = format!("action {}: {}", index.map_or(0, |i| i + 1), text("action"));
+                summary = format!("action started: {}", text("action"));
+            }
+            "action_done" => {
+                self.done.extend(index);
+                summary = format!("action done: {}", text("action"));
+            }
+            "action_failed" => {
+                self.failed_actions.extend(index);
+                summary = format!("action failed: {} ({})", text("action"), text("reason"));
+            }
+            "configuration" => {
+                let functionalities = strings("functionalities")
+                    .iter()
+                    .map(|f| split_functionality(f))
+                    .collect();
+                let reconfiguration = entry["reconfiguration"].as_bool().unwrap_or(false);
+                self.configuration = Some(Configuration {
+                    goal: text("goal"),
+                    cost: entry["cost"].clone(),
+                    optimal: entry["optimal"].as_bool().unwrap_or(false),
+                    reconfiguration,
+                    functionalities,
+                    channels: Vec::new(),
+                    switched_on: Vec::new(),
+                });
+                summary = format!(
+                    "{} for {}: cost {}",
+                    if reconfiguration {
+                        "reconfigured"
+                    } else {
+                        "configuration"
+                    },
+                    text("goal"),
+                    entry["cost"]
+                );
+            }
+            "deployed" => {
+                if let Some(c) = &mut self.configuration {
+                    c.channels = strings("channels")
+                        .iter()
+                        .filter_map(|ch| split_channel(ch))
+                        .collect();
+                    c.switched_on = strings("switched_on");
+                }
+                let on = strings("switched_on");
+                summary = if on.is_empty() {
+                    "deployed".into()
+                } else {
+                    format!("deployed: switched on {}", on.join(", "))
+                };
+            }
+            "failure" => {
+                let id = format!("{}:{}", text("peis"), text("component"));
+                summary = format!("FAILURE {id}: {}", text("cause"));
+                self.failed.insert(id, text("cause"));
+            }
+            "task_done" => {
+                self.status = "task done".into();
+                self.current = None;
+            }
+            "task_failed" => {
+                self.status = format!("task failed: {}", text("reason"));
+                summary = self.status.clone();
+            }
+            _ => {}
+        }
+        self.timeline.push(json!({
+            "t": entry["t"],
+            "event": event,
+            "text": summary,
+            "cost": if event == "configuration" { entry["cost"].clone() } else { Json::Null },
+        }));
+        if self.timeline.len() > TIMELINE {
+            let extra = self.timeline.len() - TIMELINE;
+            self.timeline.drain(..extra);
+        }
+    }
+
+    /// The current configuration as a drawing: its functionalities and channels, with the
+    /// components that failed during the run marked beside them.
+    pub fn drawing(&self) -> Option<Drawing> {
+        let c = self.configuration.as_ref()?;
+        let mut drawing = Drawing {
+            title: format!(
+                "{}: cost {}{}",
+                c.goal,
+                c.cost,
+                if c.optimal { " (optimal)" } else { "" }
+            ),
+            nodes: Vec::new(),
+            edges: Vec::new(),
+        };
+        for (label, peis, component) in &c.functionalities {
+            let id = format!("{peis}:{component}");
+            let state = self.component_field(peis, component, "currState");
+            drawing.nodes.push(Node {
+                peis: peis.clone(),
+                component: component.clone(),
+                label: label.clone(),
+                detail: state.unwrap_or_else(|| "in use".into()),
+                mark: if c.switched_on.contains(&id) {
+                    Mark::SwitchedOn
+                } else {
+                    Mark::Normal
+                },
+            });
+        }
+        for (from, to, info) in &c.channels {
+            let find = |id: &str| {
+                let (p, comp) = id.split_once(':')?;
+                drawing.node(p, comp)
+            };
+            if let (Some(from), Some(to)) = (find(from), find(to)) {
+                drawing.edges.push(Edge {
+                    from,
+                    to,
+                    info: info.clone(),
+                });
+            }
+        }
+        for (id, cause) in &self.failed {
+            let Some((peis, component)) = id.split_once(':') else {
+                continue;
+            };
+            if drawing.node(peis, component).is_none() {
+                drawing.nodes.push(Node {
+                    peis: peis.into(),
+                    component: component.into(),
+                    label: format!("FAILED {id}"),
+                    detail: cause.clone(),
+                    mark: Mark::Failed,
+                });
+            }
+        }
+        Some(drawing)
+    }
+
+    fn component_field(&self, peis: &str, component: &str, field: &str) -> Option<String> {
+        self.tuples
+            .get(&(peis.to_owned(), format!("components.{component}.{field}")))
+            .map(|row| row.value.clone())
+    }
+
+    /// Everything the page shows, as one JSON object.
+    pub fn snapshot(&self) -> Json {
+        let mut peis: Vec<Json> = Vec::new();
+        for (name, present) in &self.present {
+            let mut components: BTreeMap<String, Json> = BTreeMap::new();
+            for ((owner, key), row) in self.tuples.range((name.clone(), String::new())..) {
+                if owner != name {
+                    break;
+                }
+                let parts: Vec<&str> = key.split('.').collect();
+                let (component, field) = match parts.as_slice() {
+                    ["components", c, field] => (*c, *field),
+                    [c, field @ ("status" | "cause")] => (*c, *field),
+                    _ => continue,
+                };
+                let entry = components
+                    .entry(component.to_owned())
+                    .or_insert_with(|| json!({"id": component}));
+                entry[field] = json!(row.value);
+            }
+            for (id, cause) in &self.failed {
+                if let Some((p, c)) = id.split_once(':')
+                    && p == name
+                    && let Some(entry) = components.get_mut(c)
+                {
+                    entry["failed"] = json!(cause);
+                }
+            }
+            peis.push(json!({
+                "name": name,
+                "present": present,
+                "components": components.into_values().filter(|c| c.get("type").is_some()).collect::<Vec<_>>(),
+            }));
+        }
+        let tuples: Vec<Json> = self
+            .tuples
+            .iter()
+            .map(|((owner, key), row)| {
+                json!({"owner": owner, "key": key, "value": row.value, "mimetype": row.mimetype,
+                       "seq": row.seq, "changed": row.changed})
+            })
+            .collect();
+        let plan: Vec<Json> = self
+            .plan
+            .iter()
+            .enumerate()
+            .map(|(i, action)| {
+                let state = if self.failed_actions.contains(&i) {
+                    "failed"
+                } else if self.done.contains(&i) {
+                    "done"
+                } else if self.current == Some(i) {
+                    "current"
+                } else {
+                    "pending"
+                };
+                json!({"action": action, "state": state})
+            })
+            .collect();
+        let configuration = self.configuration.as_ref().map(|c| {
+            json!({"goal": c.goal, "cost": c.cost, "optimal": c.optimal,
+                   "reconfiguration": c.reconfiguration})
+        });
+        json!({
+            "version": self.changes,
+            "status": self.status,
+            "peis": peis,
+            "plan": plan,
+            "configuration": configuration,
+            "svg": self.drawing().map(|d| d.svg()),
+            "failed": self.failed,
+            "timeline": self.timeline,
+            "tuples": tuples,
+            "tuples_not_kept": self.dropped_tuples,
+        })
+    }
+}
+
+/// `(navigation astrid tc1 entrance) on astrid:tc1` → (call, peis, component).
+fn split_functionality(text: &str) -> (String, String, String) {
+    match text.rsplit_once(" on ") {
+        Some((call, at)) => {
+            let (peis, component) = at.split_once(':').unwrap_or((at, ""));
+            (call.to_owned(), peis.to_owned(), component.to_owned())
+        }
+        None => (text.to_owned(), String::new(), String::new()),
+    }
+}
+
+/// `hsm:ca1 → hsm:tr1 (image hsm)` → (from, to, info).
+fn split_channel(text: &str) -> Option<(String, String, String)> {
+    let (from, rest) = text.split_once(" → ")?;
+    let (to, info) = rest.split_once(' ').unwrap_or((rest, ""));
+    Some((from.to_owned(), to.to_owned(), info.to_owned()))
+}
+
+fn preview(text: &str) -> String {
+    if text.chars().count() <= PREVIEW {
+        text.to_owned()
+    } else {
+        let mut s: String = text.chars().take(PREVIEW).collect();
+        s.push('…');
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ecology_tuples::{Key, Mimetype, PeisId, Timestamp, Tuple};
+
+    use super::*;
+
+    fn tuple(owner: &str, key: &str, value: &str) -> TupleEvent {
+        TupleEvent::Changed(Tuple {
+            owner: PeisId::new(owner).expect("name"),
+            key: Key::new(key).expect("key"),
+            data: value.as_bytes().to_vec().into(),
+            mimetype: Mimetype::octet_stream(),
+            ts_write: Timestamp(1),
+            ts_user: None,
+            expiry: None,
+            seq: 1,
+            epoch: 1,
+        })
+    }
+
+    fn entry(text: &str) -> Json {
+        serde_json::from_str(text).expect("json")
+    }
+
+    #[test]
+    fn the_log_and_tuples_make_the_picture_of_a_reconfiguration() {
+        let mut view = View::new();
+        view.presence(&PresenceEvent::Joined(PeisId::new("hsm").expect("name")));
+        for (owner, key, value) in [
+            ("hsm", "components.tr1.type", "tr-sys"),
+            ("hsm", "components.tr1.currState", "on"),
+            ("hsm", "tr1.status", "error"),
+            ("astrid", "components.l1.type", "laser"),
+            ("astrid", "components.l1.currState", "on"),
+        ] {
+            view.tuple(&tuple(owner, key, value));
+        }
+        view.log(&entry(
+            r#"{"event":"plan","actions":["(move astrid a b)"],"t":0.2}"#,
+        ));
+        view.log(&entry(
+            r#"{"event":"action_started","index":0,"action":"(move astrid a b)","t":0.2}"#,
+        ));
+        view.log(&entry(
+            r#"{"event":"failure","peis":"hsm","component":"tr1","cause":"no images","t":15.5}"#,
+        ));
+        // The executive's log tuple counts as a log entry too.
+        view.tuple(&tuple(
+            "executive",
+            "log",
+            r#"{"event":"configuration","goal":"(navigate astrid b)","cost":170,"optimal":true,"reconfiguration":true,"functionalities":["(laser astrid l1) on astrid:l1","(navigation astrid tc1 b) on astrid:tc1"],"t":15.5}"#,
+        ));
+        view.log(&entry(r#"{"event":"deployed","channels":["astrid:l1 → astrid:tc1 (range-scan astrid)"],"switched_on":["astrid:l1"],"t":15.5}"#));
+
+        let snapshot = view.snapshot();
+        assert_eq!(snapshot["configuration"]["cost"], 170);
+        assert_eq!(snapshot["plan"][0]["state"], "current");
+        assert_eq!(snapshot["failed"]["hsm:tr1"], "no images");
+        let hsm = snapshot["peis"]
+            .as_array()
+            .and_then(|all| all.iter().find(|p| p["name"] == "hsm"))
+            .expect("hsm listed");
+        assert_eq!(hsm["present"], true);
+        assert_eq!(hsm["components"][0]["status"], "error");
+        assert_eq!(hsm["components"][0]["failed"], "no images");
+        let svg = snapshot["svg"].as_str().expect("svg");
+        assert!(
+            svg.contains("(navigate astrid b): cost 170 (optimal)"),
+            "{svg}"
+        );
+        assert!(svg.contains(r#"class="functionality switched-on" data-component="astrid:l1""#));
+        assert!(svg.contains(r#"class="failed" data-component="hsm:tr1""#));
+        assert_eq!(svg.matches("class=\"channel\"").count(), 1);
+        let texts: Vec<&str> = snapshot["timeline"]
+            .as_array()
+            .expect("timeline")
+            .iter()
+            .filter_map(|e| e["text"].as_str())
+            .collect();
+        assert_eq!(
+            texts,
+            [
+                "plan: (move astrid a b)",
+                "action started: (move astrid a b)",
+                "FAILURE hsm:tr1: no images",
+                "reconfigured for (navigate astrid b): cost 170",
+                "deployed: switched on astrid:l1",
+            ]
+        );
+    }
+
+    #[test]
+    fn odd_log_entries_and_values_do_not_break_the_view() {
+        let mut view = View::new();
+        view.log(&entry(
+            r#"{"event":"configuration","functionalities":[1, "x"],"cost":"?"}"#,
+        ));
+        view.log(&entry(
+            r#"{"event":"deployed","channels":["nonsense", "a → b"]}"#,
+        ));
+        view.log(&entry(r#"[1,2,3]"#));
+        view.tuple(&tuple("p", "x", &"é".repeat(10_000)));
+        let snapshot = view.snapshot();
+        assert!(
+            snapshot["tuples"][0]["value"]
+                .as_str()
+                .expect("value")
+                .chars()
+                .count()
+                <= PREVIEW + 1
+        );
+        assert!(snapshot["svg"].as_str().expect("svg").contains("</svg>"));
+    }
+}
