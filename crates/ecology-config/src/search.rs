@@ -722,6 +722,12 @@ impl<'a> Engine<'a> {
                 }
             }
         }
+        // Labels, once per functionality instance: channels name them again.
+        let labels: HashMap<u32, String> = order
+            .iter()
+            .map(|&at| (at, self.label(partial, at)))
+            .collect();
+        let label_at = |at: u32| labels.get(&at).cloned().unwrap_or_default();
         // Cost: distinct components, plus distinct channels between PEIS.
         let mut cost: u64 = 0;
         let mut functionalities = Vec::new();
@@ -734,7 +740,7 @@ impl<'a> Engine<'a> {
             let schema = &c.funcs[f.func as usize];
             let args = self.binding_of(item);
             functionalities.push(FunctionalityInstance {
-                label: self.label(partial, at),
+                label: label_at(at),
                 name: self.callee_name(Callee::Func(f.func)).to_string(),
                 args: self
                     .graph
@@ -779,8 +785,7 @@ impl<'a> Engine<'a> {
             let label_of = |k: ComponentKey| {
                 by_component
                     .get(&k)
-                    .map(|&at| self.label(partial, at))
-                    .unwrap_or_default()
+                    .map_or(String::new(), |&at| label_at(at))
             };
             channels.push(ChannelInstance {
                 from: label_of(pkey),

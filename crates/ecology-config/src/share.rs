@@ -289,16 +289,7 @@ impl Shared {
         }
         // Channel costs between every two PEIS, from the state and the cost model.
         let npeis = peis_syms.len();
-        let mut facts: HashMap<(Sym, Sym), u64> = HashMap::default();
-        if let Some(pred) = c.syms.get("channel-cost") {
-            for fact in c.facts.of(pred) {
-                if let [a, b, n] = fact[..]
-                    && let Ok(n) = c.syms.name(n).parse()
-                {
-                    facts.entry((a, b)).or_insert(n);
-                }
-            }
-        }
+        let facts = &ctx.channels;
         let mut chan = vec![0u64; npeis * npeis];
         for (i, &a) in peis_syms.iter().enumerate() {
             for (j, &b) in peis_syms.iter().enumerate() {
