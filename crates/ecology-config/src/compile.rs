@@ -295,7 +295,12 @@ pub(crate) struct Compiled {
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
     pub(crate) callee_by_name: HashMap<Box<str>, Callee>,
+    /// Reading the state was cut short by the caller's budget: facts are missing.
+    pub(crate) cut: bool,
 }
+
+/// How many facts are interned or indexed between two looks at the budget.
+const FACTS_PER_CHECK: usize = 1024;
 
 struct Slots<'a> {
     map: HashMap<&'a str, u16>,
@@ -315,13 +320,26 @@ impl<'a> Slots<'a> {
 }
 
 impl Compiled {
-    pub(crate) fn new(domain: &Domain, state: &EcologyState) -> Compiled {
+    /// Compiles the domain and the state, asking `over` every
+    /// [`FACTS_PER_CHECK`] facts whether the budget ran out; if it did, the
+    /// rest of the state is left out and `cut` is set (the schemas are always
+    /// compiled: the goal is checked against them whatever the budget).
+    pub(crate) fn new_until(
+        domain: &Domain,
+        state: &EcologyState,
+        over: &dyn Fn() -> bool,
+    ) -> Compiled {
         let mut syms = Symbols::with_capacity(state.len() / 2 + 64);
+        let mut cut = false;
         // Facts are interned first (their symbols come first), and indexed
         // once the schemas say which predicates preconditions look up.
         let mut preds = Vec::with_capacity(state.len());
         let mut args = Vec::with_capacity(state.len() * 3);
-        for fact in state.facts() {
+        for (k, fact) in state.facts().iter().enumerate() {
+            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
+                cut = true;
+                break;
+            }
             preds.push(syms.intern(&fact.predicate));
             args.extend(fact.args.iter().map(|a| syms.intern(a)));
         }
@@ -339,6 +357,7 @@ impl Compiled {
             tasks: Vec::new(),
             methods: Vec::new(),
             callee_by_name,
+            cut,
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -432,7 +451,13 @@ impl Compiled {
         }
         compiled.facts.index.reserve(state.len());
         let mut at = 0;
-        for (pred, fact) in preds.into_iter().zip(state.facts()) {
+        for (k, (pred, fact)) in preds.into_iter().zip(state.facts()).enumerate() {
+            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && !compiled.cut && over() {
+                compiled.cut = true;
+            }
+            if compiled.cut {
+                break;
+            }
             compiled.facts.insert(pred, &args[at..at + fact.args.len()]);
             at += fact.args.len();
         }

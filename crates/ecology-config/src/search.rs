@@ -116,14 +116,18 @@ pub(crate) struct Engine<'a> {
 
 impl<'a> Engine<'a> {
     /// Grounds the goal, asking `over` now and then whether the budget ran
-    /// out (then `graph.cut` is set and the engine must not be searched).
+    /// out (then `graph.cut` is set and the engine must not be searched;
+    /// `cut` says it already has).
     pub(crate) fn new(
         ctx: Ctx<'a>,
         goal: Callee,
         args: &[Sym],
+        cut: bool,
         over: &dyn Fn() -> bool,
     ) -> Engine<'a> {
+        // Already cut (while reading the state): only the goal's item, empty.
         let mut graph = Graph::default();
+        graph.cut = cut;
         let root = graph.ground_until(&ctx, goal, args, over);
         let mut engine = Engine {
             ctx,
