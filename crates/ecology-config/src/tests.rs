@@ -558,8 +558,13 @@ fn agrees_on(
     Ok(true)
 }
 
-/// A small shared-provider ecology (issue 11) for the oracle.
+/// A small shared-provider ecology (issue 11) for the oracle; even seeds
+/// have rates.
 fn small_sharing(seed: u64) -> synthetic::Instance {
+    small_sharing_with(seed, seed % 2 == 0)
+}
+
+fn small_sharing_with(seed: u64, rates: bool) -> synthetic::Instance {
     let mut rng = synthetic::Rng::new(seed);
     let types = 1 + rng.below(2) as usize;
     let shape = synthetic::Sharing {
@@ -569,6 +574,7 @@ fn small_sharing(seed: u64) -> synthetic::Instance {
         per_level: 1 + rng.below(2) as usize,
         needs: 1 + rng.below(types as u64) as usize,
         failed: if rng.chance(0.5) { 0.2 } else { 0.0 },
+        rates,
         seed,
     };
     synthetic::sharing(shape).unwrap_or_else(|e| panic!("seed {seed}: {}", e.0))
@@ -609,10 +615,32 @@ fn the_oracle_enumerates_most_small_cases() {
     against_the_oracle("small", 400, |seed| oracle_agrees(seed, seed % 2 == 1));
 }
 
-// Shared providers and channel costs (issue 11): the provider search agrees
-// with brute force on optimum, k-best list and exclusions.
+// Shared providers, channel costs and rates (issue 11): the provider search
+// agrees with brute force on optimum, k-best list and exclusions.
 #[test]
 fn the_provider_search_agrees_with_brute_force() {
+    // The rates matter: on some seeds they change the optimum or rule out
+    // every configuration (checked against brute force below).
+    let binding = (0..400)
+        .step_by(2)
+        .filter(|&seed| {
+            let cost = |rates| {
+                let instance = small_sharing_with(seed, rates);
+                let outcome = plan(&instance.request(), &Options::default(), &NoClock);
+                outcome
+                    .expect("valid")
+                    .configurations
+                    .first()
+                    .map(|c| c.cost)
+            };
+            cost(true) != cost(false)
+        })
+        .count();
+    eprintln!("sharing: rates change the optimum on {binding} of 200 seeds");
+    assert!(
+        binding >= 20,
+        "rates change the optimum on only {binding} of 200 seeds"
+    );
     against_the_oracle("sharing", 400, |seed| {
         let instance = small_sharing(seed);
         let request = instance.request();
