@@ -530,11 +530,13 @@ pub fn sharing(shape: Sharing) -> Result<Instance, GeneratorError> {
     let mut domain = String::from("(define (domain sharing)\n");
     // Rates from a stream of their own, so that the same seed gives the same
     // ecology with and without them.
-    let mut rates = Rng::new(shape.seed ^ 0x5eed_0f_4a7e5);
+    let mut rates = Rng::new(shape.seed ^ 0x05ee_d0f4_a7e5);
     let mut hz = |p: f64| {
-        (shape.rates && rates.chance(p))
-            .then(|| format!(" :hz {}", 10 * (1 + rates.below(3))))
-            .unwrap_or_default()
+        if shape.rates && rates.chance(p) {
+            format!(" :hz {}", 10 * (1 + rates.below(3)))
+        } else {
+            String::new()
+        }
     };
     writeln!(
         domain,
