@@ -111,6 +111,14 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     let Ok(goal) = input::goal(&args.goal) else {
         return Ok(EXIT_BAD_INPUT);
     };
+    // Reading is not interrupted (the parser does not take a budget), but a
+    // budget it used up is not handed to the planner as if it were left.
+    if let Some(max) = args.max_millis
+        && clock.elapsed() >= Duration::from_millis(max)
+    {
+        print_spent_reading(args, clock.elapsed());
+        return Ok(EXIT_NO_SOLUTION);
+    }
     let request = Request {
         domain: &domain,
         state: &state,
@@ -167,6 +175,27 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     Ok(EXIT_OK)
 }
 
+/// The budget ran out while reading the input: nothing planned, no bound.
+fn print_spent_reading(args: &ConfigureArgs, elapsed: Duration) {
+    let micros = elapsed.as_micros() as u64;
+    if args.json {
+        let value = json!({
+            "error": "budget exceeded",
+            "phase": "reading",
+            "explanation": null,
+            "lower_bound": null,
+            "stats": {"expanded": 0, "generated": 0, "alternatives": 0, "micros": micros, "first_micros": null},
+        });
+        println!("{value}");
+    } else {
+        eprintln!(
+            "no configuration found for {}: the budget was spent while reading the input ({} ms)",
+            args.goal,
+            micros / 1000
+        );
+    }
+}
+
 fn print_none(args: &ConfigureArgs, outcome: &Outcome) {
     let budget = outcome.status == Status::BudgetExceeded;
     if args.json {
@@ -176,6 +205,7 @@ fn print_none(args: &ConfigureArgs, outcome: &Outcome) {
             }
             None => json!({
                 "error": if budget { "budget exceeded" } else { "no configuration" },
+                "phase": if budget { Some("planning") } else { None },
                 "explanation": null,
                 "lower_bound": outcome.lower_bound,
                 "stats": stats_json(outcome),

@@ -32,6 +32,7 @@ fn shape(args: &[String]) -> Sharing {
         per_level: n(3),
         needs: n(4),
         failed: args[5].parse().expect("a fraction"),
+        rates: false,
         seed: args[6].parse().expect("a seed"),
     }
 }

@@ -17,6 +17,13 @@ pub(crate) struct Symbols {
 }
 
 impl Symbols {
+    fn with_capacity(n: usize) -> Symbols {
+        Symbols {
+            map: HashMap::with_capacity_and_hasher(n, Default::default()),
+            names: Vec::with_capacity(n),
+        }
+    }
+
     pub(crate) fn intern(&mut self, name: &str) -> Sym {
         if let Some(&sym) = self.map.get(name) {
             return sym;
@@ -156,49 +163,95 @@ pub(crate) struct CMethod {
     pub(crate) outputs: Vec<(CInfo, u16)>,
 }
 
+/// The facts of one predicate, their arguments back to back.
+#[derive(Debug, Default)]
+pub(crate) struct FactList {
+    args: Vec<Sym>,
+    /// Where each fact's arguments end in `args`.
+    ends: Vec<u32>,
+}
+
+impl FactList {
+    pub(crate) fn len(&self) -> usize {
+        self.ends.len()
+    }
+
+    pub(crate) fn get(&self, k: usize) -> &[Sym] {
+        let start = if k == 0 { 0 } else { self.ends[k - 1] as usize };
+        &self.args[start..self.ends[k] as usize]
+    }
+
+    pub(crate) fn iter(&self) -> impl Iterator<Item = &[Sym]> {
+        (0..self.len()).map(|k| self.get(k))
+    }
+}
+
+const NO_FACTS: &FactList = &FactList {
+    args: Vec::new(),
+    ends: Vec::new(),
+};
+
 /// The facts of the state, indexed for joins.
+///
+/// Only predicates that some precondition mentions are indexed: the others
+/// (costs, channel costs: most of a large state) are only ever read whole, and
+/// indexing them was most of the time spent on small problems. Arguments are
+/// stored back to back, one allocation per predicate rather than per fact.
 #[derive(Debug, Default)]
 pub(crate) struct Facts {
-    by_pred: HashMap<Sym, Vec<Box<[Sym]>>>,
+    by_pred: HashMap<Sym, FactList>,
     /// (predicate, argument position, value) → indices into `by_pred[predicate]`.
     index: HashMap<(Sym, u8, Sym), Vec<u32>>,
-    set: HashSet<(Sym, Box<[Sym]>)>,
+    indexed: HashSet<Sym>,
 }
 
 impl Facts {
-    fn insert(&mut self, pred: Sym, args: Box<[Sym]>) {
-        if !self.set.insert((pred, args.clone())) {
-            return;
-        }
+    /// Adds a fact; the state has no duplicates (`EcologyState` is a set).
+    fn insert(&mut self, pred: Sym, args: &[Sym]) {
         let list = self.by_pred.entry(pred).or_default();
-        let at = list.len() as u32;
-        for (pos, &arg) in args.iter().enumerate().take(u8::MAX as usize) {
-            self.index
-                .entry((pred, pos as u8, arg))
-                .or_default()
-                .push(at);
+        let at = list.ends.len() as u32;
+        if self.indexed.contains(&pred) {
+            for (pos, &arg) in args.iter().enumerate().take(u8::MAX as usize) {
+                self.index
+                    .entry((pred, pos as u8, arg))
+                    .or_default()
+                    .push(at);
+            }
         }
-        list.push(args);
+        list.args.extend_from_slice(args);
+        list.ends.push(list.args.len() as u32);
     }
 
     pub(crate) fn holds(&self, pred: Sym, args: &[Sym]) -> bool {
-        // Avoid allocating for the common miss on an unknown predicate.
-        self.by_pred.contains_key(&pred) && self.set.contains(&(pred, args.into()))
+        let candidates = self.candidates_of(pred, args.iter().map(|&a| Some(a)));
+        (0..candidates.len()).any(|k| candidates.get(k) == args)
     }
 
-    pub(crate) fn of(&self, pred: Sym) -> &[Box<[Sym]>] {
-        self.by_pred.get(&pred).map_or(&[], Vec::as_slice)
+    pub(crate) fn of(&self, pred: Sym) -> &FactList {
+        self.by_pred.get(&pred).unwrap_or(NO_FACTS)
     }
 
     /// Facts of `pred` that may match `pattern`, using the most selective index.
     fn candidates(&self, pred: Sym, pattern: &[Option<Sym>]) -> Candidates<'_> {
+        self.candidates_of(pred, pattern.iter().copied())
+    }
+
+    fn candidates_of(
+        &self,
+        pred: Sym,
+        pattern: impl Iterator<Item = Option<Sym>>,
+    ) -> Candidates<'_> {
         let all = self.of(pred);
+        if !self.indexed.contains(&pred) {
+            return Candidates::All(all);
+        }
         let mut best: Option<&[u32]> = None;
-        for (pos, value) in pattern.iter().enumerate() {
+        // Positions past the index's reach are checked by the caller.
+        for (pos, value) in pattern.enumerate().take(u8::MAX as usize) {
             if let Some(value) = value {
                 let list = self
                     .index
-                    .get(&(pred, pos as u8, *value))
+                    .get(&(pred, pos as u8, value))
                     .map_or(&[][..], Vec::as_slice);
                 if best.is_none_or(|b| list.len() < b.len()) {
                     best = Some(list);
@@ -213,8 +266,8 @@ impl Facts {
 }
 
 enum Candidates<'a> {
-    All(&'a [Box<[Sym]>]),
-    Indexed(&'a [Box<[Sym]>], &'a [u32]),
+    All(&'a FactList),
+    Indexed(&'a FactList, &'a [u32]),
 }
 
 impl Candidates<'_> {
@@ -227,8 +280,8 @@ impl Candidates<'_> {
 
     fn get(&self, i: usize) -> &[Sym] {
         match self {
-            Candidates::All(all) => &all[i],
-            Candidates::Indexed(all, list) => &all[list[i] as usize],
+            Candidates::All(all) => all.get(i),
+            Candidates::Indexed(all, list) => all.get(list[i] as usize),
         }
     }
 }
@@ -242,7 +295,12 @@ pub(crate) struct Compiled {
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
     pub(crate) callee_by_name: HashMap<Box<str>, Callee>,
+    /// Reading the state was cut short by the caller's budget: facts are missing.
+    pub(crate) cut: bool,
 }
+
+/// How many facts are interned or indexed between two looks at the budget.
+const FACTS_PER_CHECK: usize = 1024;
 
 struct Slots<'a> {
     map: HashMap<&'a str, u16>,
@@ -262,13 +320,28 @@ impl<'a> Slots<'a> {
 }
 
 impl Compiled {
-    pub(crate) fn new(domain: &Domain, state: &EcologyState) -> Compiled {
-        let mut syms = Symbols::default();
-        let mut facts = Facts::default();
-        for fact in state.facts() {
-            let pred = syms.intern(&fact.predicate);
-            let args = fact.args.iter().map(|a| syms.intern(a)).collect();
-            facts.insert(pred, args);
+    /// Compiles the domain and the state, asking `over` every
+    /// [`FACTS_PER_CHECK`] facts whether the budget ran out; if it did, the
+    /// rest of the state is left out and `cut` is set (the schemas are always
+    /// compiled: the goal is checked against them whatever the budget).
+    pub(crate) fn new_until(
+        domain: &Domain,
+        state: &EcologyState,
+        over: &dyn Fn() -> bool,
+    ) -> Compiled {
+        let mut syms = Symbols::with_capacity(state.len() / 2 + 64);
+        let mut cut = false;
+        // Facts are interned first (their symbols come first), and indexed
+        // once the schemas say which predicates preconditions look up.
+        let mut preds = Vec::with_capacity(state.len());
+        let mut args = Vec::with_capacity(state.len() * 3);
+        for (k, fact) in state.facts().iter().enumerate() {
+            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
+                cut = true;
+                break;
+            }
+            preds.push(syms.intern(&fact.predicate));
+            args.extend(fact.args.iter().map(|a| syms.intern(a)));
         }
         let mut callee_by_name = HashMap::default();
         for (i, f) in domain.functionalities.iter().enumerate() {
@@ -279,11 +352,12 @@ impl Compiled {
         }
         let mut compiled = Compiled {
             syms,
-            facts,
+            facts: Facts::default(),
             funcs: Vec::new(),
             tasks: Vec::new(),
             methods: Vec::new(),
             callee_by_name,
+            cut,
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -367,6 +441,25 @@ impl Compiled {
                 inputs,
                 outputs,
             });
+        }
+        let schemas = compiled.funcs.iter().map(|f| &f.pre);
+        let pres = schemas.chain(compiled.methods.iter().map(|m| &m.pre));
+        for lit in pres.flatten() {
+            if let CLit::Pos(a) | CLit::Neg(a) = lit {
+                compiled.facts.indexed.insert(a.pred);
+            }
+        }
+        compiled.facts.index.reserve(state.len());
+        let mut at = 0;
+        for (k, (pred, fact)) in preds.into_iter().zip(state.facts()).enumerate() {
+            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && !compiled.cut && over() {
+                compiled.cut = true;
+            }
+            if compiled.cut {
+                break;
+            }
+            compiled.facts.insert(pred, &args[at..at + fact.args.len()]);
+            at += fact.args.len();
         }
         compiled
     }
@@ -513,8 +606,21 @@ impl Compiled {
         let g = |t: &CTerm| t.ground(binding);
         match lit {
             CLit::Pos(a) | CLit::Neg(a) => {
-                let args: Option<Vec<Sym>> = a.args.iter().map(g).collect();
-                let holds = args.is_some_and(|args| self.facts.holds(a.pred, &args));
+                // Most atoms are short: ground them on the stack.
+                let mut short = [Sym(0); 8];
+                let holds = if a.args.len() <= short.len() {
+                    let mut all = true;
+                    for (slot, t) in short.iter_mut().zip(&a.args) {
+                        match g(t) {
+                            Some(v) => *slot = v,
+                            None => all = false,
+                        }
+                    }
+                    all && self.facts.holds(a.pred, &short[..a.args.len()])
+                } else {
+                    let args: Option<Vec<Sym>> = a.args.iter().map(g).collect();
+                    args.is_some_and(|args| self.facts.holds(a.pred, &args))
+                };
                 holds == matches!(lit, CLit::Pos(_))
             }
             CLit::Eq(a, b) => g(a).is_some() && g(a) == g(b),

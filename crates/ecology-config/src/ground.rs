@@ -87,6 +87,8 @@ pub(crate) struct Ctx<'a> {
     pub(crate) cost_model: &'a dyn CostModel,
     pub(crate) excluded: Excluded,
     costs: HashMap<(Sym, Sym), ComponentCost>,
+    /// The state's `channel-cost` facts, (from, to) → cost; the first one counts.
+    pub(crate) channels: HashMap<(Sym, Sym), u64>,
     /// How often each functionality schema can occur in one configuration.
     pub(crate) multiplicity: Vec<u64>,
 }
@@ -101,7 +103,7 @@ impl<'a> Ctx<'a> {
     ) -> Ctx<'a> {
         let mut costs = HashMap::default();
         if let Some(cost) = compiled.syms.get("cost") {
-            for fact in compiled.facts.of(cost) {
+            for fact in compiled.facts.of(cost).iter() {
                 if let [p, c, amount, power] = fact[..] {
                     let amount = compiled.syms.name(amount).parse::<u64>();
                     let power = match compiled.syms.name(power) {
@@ -116,6 +118,18 @@ impl<'a> Ctx<'a> {
                 }
             }
         }
+        let mut channels = HashMap::default();
+        if let Some(pred) = compiled.syms.get("channel-cost") {
+            let facts = compiled.facts.of(pred);
+            channels.reserve(facts.len());
+            for fact in facts.iter() {
+                if let [a, b, n] = fact[..]
+                    && let Ok(n) = compiled.syms.name(n).parse()
+                {
+                    channels.entry((a, b)).or_insert(n);
+                }
+            }
+        }
         let multiplicity = multiplicity(&compiled, goal);
         Ctx {
             domain,
@@ -123,6 +137,7 @@ impl<'a> Ctx<'a> {
             cost_model,
             excluded,
             costs,
+            channels,
             multiplicity,
         }
     }
@@ -161,12 +176,7 @@ impl<'a> Ctx<'a> {
     /// The channel cost from one PEIS to another under the cost model.
     pub(crate) fn channel_cost(&self, from: Sym, to: Sym) -> u64 {
         let c = &self.compiled;
-        let state = c.syms.get("channel-cost").and_then(|pred| {
-            c.facts.of(pred).iter().find_map(|f| match f[..] {
-                [a, b, n] if a == from && b == to => c.syms.name(n).parse().ok(),
-                _ => None,
-            })
-        });
+        let state = self.channels.get(&(from, to)).copied();
         self.cost_model
             .channel_cost(c.syms.name(from), c.syms.name(to), state)
     }
@@ -174,7 +184,18 @@ impl<'a> Ctx<'a> {
     fn func_item(&self, func: u32, args: &[Sym]) -> FuncItem {
         let c = &self.compiled;
         let schema = &c.funcs[func as usize];
-        let binding: Vec<Option<Sym>> = args.iter().map(|&a| Some(a)).collect();
+        // Most functionalities have few parameters: bind them on the stack.
+        let mut short = [None; 8];
+        let long: Vec<Option<Sym>>;
+        let binding: &[Option<Sym>] = if args.len() <= short.len() {
+            for (slot, &a) in short.iter_mut().zip(args) {
+                *slot = Some(a);
+            }
+            &short[..args.len()]
+        } else {
+            long = args.iter().map(|&a| Some(a)).collect();
+            &long
+        };
         let peis = args[schema.component.0 as usize];
         let component = args[schema.component.1 as usize];
         let state = self.costs.get(&(peis, component)).copied();
@@ -192,7 +213,7 @@ impl<'a> Ctx<'a> {
             schema
                 .pre
                 .iter()
-                .position(|lit| !c.check(lit, &binding))
+                .position(|lit| !c.check(lit, binding))
                 .map(FuncProblem::Precondition)
         };
         FuncItem {
@@ -211,7 +232,8 @@ impl<'a> Ctx<'a> {
 #[derive(Debug, Default)]
 pub(crate) struct Graph {
     pub(crate) items: Vec<Item>,
-    memo: HashMap<(Callee, Box<[Sym]>), ItemId>,
+    /// Instances by callee, then arguments (looked up without allocating).
+    memo: HashMap<Callee, HashMap<Box<[Sym]>, ItemId>>,
     /// Alternatives created, for statistics.
     pub(crate) alternatives: u64,
     /// Grounding was cut short by the caller's budget: the graph is unusable.
@@ -251,7 +273,7 @@ impl Graph {
         depth: usize,
         over: &dyn Fn() -> bool,
     ) -> ItemId {
-        if let Some(&id) = self.memo.get(&(callee, args.into())) {
+        if let Some(&id) = self.memo.get(&callee).and_then(|m| m.get(args)) {
             return id;
         }
         if self.items.len() % 256 == 255 && !self.cut && over() {
@@ -280,7 +302,7 @@ impl Graph {
             kind,
             lb,
         });
-        self.memo.insert((callee, args.into()), id);
+        self.memo.entry(callee).or_default().insert(args.into(), id);
         id
     }
 
@@ -300,14 +322,22 @@ impl Graph {
             if let Some(mut binding) = bind_task_args(method, args) {
                 c.solve(&method.pre, &mut binding, &mut |b| bindings.push(b.into()));
             }
+            let mut sub_args = Vec::new();
             for binding in bindings {
                 self.alternatives += 1;
                 let mut children = Vec::with_capacity(method.subtasks.len());
                 for sub in &method.subtasks {
-                    let sub_args: Option<Vec<Sym>> =
-                        sub.args.iter().map(|t| t.ground(&binding)).collect();
+                    sub_args.clear();
                     // Validation guarantees every subtask argument is bound.
-                    let Some(sub_args) = sub_args else { continue };
+                    if !sub.args.iter().all(|t| match t.ground(&binding) {
+                        Some(a) => {
+                            sub_args.push(a);
+                            true
+                        }
+                        None => false,
+                    }) {
+                        continue;
+                    }
                     children.push(self.ground_at(ctx, sub.callee, &sub_args, depth + 1, over));
                 }
                 let clash = self.clash(&children);
@@ -376,39 +406,49 @@ pub(crate) fn bind_task_args(
 /// For each functionality schema, the most times it can occur in one
 /// decomposition of `goal` (computed on schemas, so it holds for every binding).
 fn multiplicity(c: &Compiled, goal: Callee) -> Vec<u64> {
-    fn occ(
-        c: &Compiled,
-        callee: Callee,
-        memo: &mut HashMap<u32, Vec<u64>>,
-        depth: usize,
-    ) -> Vec<u64> {
+    /// Fills `memo[t]` with task `t`'s counts (left empty past `MAX_DEPTH`,
+    /// which counts as none).
+    fn occ(c: &Compiled, t: usize, memo: &mut [Option<Vec<u64>>], depth: usize) {
+        if memo[t].is_some() || depth >= MAX_DEPTH {
+            return;
+        }
         let mut out = vec![0u64; c.funcs.len()];
-        match callee {
-            Callee::Func(f) => out[f as usize] = 1,
-            Callee::Task(t) => {
-                if let Some(v) = memo.get(&t) {
-                    return v.clone();
-                }
-                if depth >= MAX_DEPTH {
-                    return out;
-                }
-                for &m in &c.tasks[t as usize].methods {
-                    let mut sum = vec![0u64; c.funcs.len()];
-                    for sub in &c.methods[m as usize].subtasks {
-                        for (s, o) in sum.iter_mut().zip(occ(c, sub.callee, memo, depth + 1)) {
-                            *s = s.saturating_add(o);
+        let mut sum = vec![0u64; c.funcs.len()];
+        for &m in &c.tasks[t].methods {
+            sum.fill(0);
+            for sub in &c.methods[m as usize].subtasks {
+                match sub.callee {
+                    Callee::Func(f) => sum[f as usize] = sum[f as usize].saturating_add(1),
+                    Callee::Task(u) => {
+                        occ(c, u as usize, memo, depth + 1);
+                        if let Some(counts) = &memo[u as usize] {
+                            for (s, o) in sum.iter_mut().zip(counts) {
+                                *s = s.saturating_add(*o);
+                            }
                         }
                     }
-                    for (o, s) in out.iter_mut().zip(sum) {
-                        *o = (*o).max(s);
-                    }
                 }
-                memo.insert(t, out.clone());
+            }
+            for (o, s) in out.iter_mut().zip(&sum) {
+                *o = (*o).max(*s);
             }
         }
-        out
+        memo[t] = Some(out);
     }
-    occ(c, goal, &mut HashMap::default(), 0)
+    match goal {
+        Callee::Func(f) => {
+            let mut out = vec![0u64; c.funcs.len()];
+            out[f as usize] = 1;
+            out
+        }
+        Callee::Task(t) => {
+            let mut memo = vec![None; c.tasks.len()];
+            occ(c, t as usize, &mut memo, 0);
+            memo[t as usize]
+                .take()
+                .unwrap_or_else(|| vec![0u64; c.funcs.len()])
+        }
+    }
 }
 
 /// Renders a literal with parameters replaced by values (unknown variables stay).

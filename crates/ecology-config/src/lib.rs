@@ -49,6 +49,7 @@ pub use explain::Explanation;
 
 use compile::{Callee, Compiled};
 use ground::{Ctx, Excluded};
+
 use search::Engine;
 
 /// What to plan for.
@@ -432,13 +433,19 @@ impl<'a> Search<'a> {
         options: &Options,
         over: &dyn Fn() -> bool,
     ) -> Result<Search<'a>, RequestError> {
-        let mut compiled = Compiled::new(request.domain, request.state);
+        let mut compiled = Compiled::new_until(request.domain, request.state, over);
         let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
         let excluded = excluded(&mut compiled, request.exclusions);
+        let cut = compiled.cut || over();
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
-        let mut engine = Engine::new(ctx, callee, &args, &|| over());
+        let mut engine = Engine::new(ctx, callee, &args, cut, &|| over());
         let shared = if engine.graph.cut || over() {
             engine.graph.cut = true;
+            None
+        } else if engine.graph.item(engine.root).lb == ground::INFEASIBLE {
+            // Nothing can be provided (an information without a provider that
+            // is not excluded, say): proven at once, without building the
+            // search; the tree search finishes with the explanation.
             None
         } else {
             let mut cut = false;
@@ -456,8 +463,15 @@ impl<'a> Search<'a> {
 
     /// Runs at most `expansions` steps.
     pub fn step(&mut self, expansions: u64) -> Progress {
+        self.step_until(expansions, &|| false)
+    }
+
+    /// Like [`Search::step`], asking `over` now and then during the provider
+    /// search's dives (which may wire a whole configuration in one step)
+    /// whether the budget ran out; if so, returns early.
+    fn step_until(&mut self, expansions: u64, over: &dyn Fn() -> bool) -> Progress {
         if let Some(shared) = &mut self.shared {
-            return if shared.step(expansions) {
+            return if shared.step(expansions, over) {
                 Progress::Done
             } else {
                 Progress::InProgress
@@ -504,13 +518,30 @@ impl<'a> Search<'a> {
 
     /// Ends the search. With `complete` false (the budget ran out), returns
     /// the best found so far, not proven.
-    pub fn finish(mut self, complete: bool, elapsed: Duration) -> Outcome {
+    pub fn finish(self, complete: bool, elapsed: Duration) -> Outcome {
+        self.finish_until(complete, elapsed, &|| false)
+    }
+
+    /// Like [`Search::finish`], asking `over` between the configurations it
+    /// builds whether the budget ran out; if so, the list is cut short (the
+    /// ones built are still the cheapest, but the outcome is not proven).
+    fn finish_until(
+        mut self,
+        complete: bool,
+        elapsed: Duration,
+        over: &dyn Fn() -> bool,
+    ) -> Outcome {
         if let Some(mut shared) = self.shared.take() {
             let lower_bound = if complete { None } else { shared.lower_bound() };
-            let (configurations, explanation) = shared.finish(&mut self.engine, complete);
+            let (configurations, explanation, whole) =
+                shared.finish(&mut self.engine, complete, over);
+            let lower_bound = match (lower_bound, whole) {
+                (None, false) => configurations.last().map(|c| c.cost),
+                (bound, _) => bound,
+            };
             return Outcome {
                 configurations,
-                status: Status::of(complete),
+                status: Status::of(complete && whole),
                 explanation,
                 lower_bound,
                 stats: Stats {
@@ -586,13 +617,13 @@ pub fn plan_with<'a>(
     };
     let mut search = Search::new_until(request, cost_model, options, &over_time)?;
     if search.cut() {
-        let mut outcome = search.finish(false, clock.elapsed());
-        outcome.lower_bound = None;
-        return Ok(outcome);
+        // The bound is the goal's when grounding was complete, else none.
+        return Ok(search.finish(false, clock.elapsed()));
     }
     let mut first = None;
     let finish = |search: Search<'a>, complete: bool, first: Option<Duration>| {
-        let mut outcome = search.finish(complete, clock.elapsed());
+        let mut outcome = search.finish_until(complete, Duration::ZERO, &over_time);
+        outcome.stats.micros = clock.elapsed().as_micros() as u64;
         outcome.stats.first_micros = first
             .filter(|_| !outcome.configurations.is_empty())
             .map(|t: Duration| t.as_micros() as u64);
@@ -616,7 +647,7 @@ pub fn plan_with<'a>(
         if slice == 0 || over_time() {
             return Ok(finish(search, false, first));
         }
-        let progress = search.step(slice);
+        let progress = search.step_until(slice, &over_time);
         if first.is_none() && search.found() {
             first = Some(clock.elapsed());
         }

@@ -116,14 +116,18 @@ pub(crate) struct Engine<'a> {
 
 impl<'a> Engine<'a> {
     /// Grounds the goal, asking `over` now and then whether the budget ran
-    /// out (then `graph.cut` is set and the engine must not be searched).
+    /// out (then `graph.cut` is set and the engine must not be searched;
+    /// `cut` says it already has).
     pub(crate) fn new(
         ctx: Ctx<'a>,
         goal: Callee,
         args: &[Sym],
+        cut: bool,
         over: &dyn Fn() -> bool,
     ) -> Engine<'a> {
+        // Already cut (while reading the state): only the goal's item, empty.
         let mut graph = Graph::default();
+        graph.cut = cut;
         let root = graph.ground_until(&ctx, goal, args, over);
         let mut engine = Engine {
             ctx,
@@ -722,6 +726,12 @@ impl<'a> Engine<'a> {
                 }
             }
         }
+        // Labels, once per functionality instance: channels name them again.
+        let labels: HashMap<u32, String> = order
+            .iter()
+            .map(|&at| (at, self.label(partial, at)))
+            .collect();
+        let label_at = |at: u32| labels.get(&at).cloned().unwrap_or_default();
         // Cost: distinct components, plus distinct channels between PEIS.
         let mut cost: u64 = 0;
         let mut functionalities = Vec::new();
@@ -734,7 +744,7 @@ impl<'a> Engine<'a> {
             let schema = &c.funcs[f.func as usize];
             let args = self.binding_of(item);
             functionalities.push(FunctionalityInstance {
-                label: self.label(partial, at),
+                label: label_at(at),
                 name: self.callee_name(Callee::Func(f.func)).to_string(),
                 args: self
                     .graph
@@ -779,8 +789,7 @@ impl<'a> Engine<'a> {
             let label_of = |k: ComponentKey| {
                 by_component
                     .get(&k)
-                    .map(|&at| self.label(partial, at))
-                    .unwrap_or_default()
+                    .map_or(String::new(), |&at| label_at(at))
             };
             channels.push(ChannelInstance {
                 from: label_of(pkey),

@@ -45,6 +45,11 @@ use crate::{Configuration, explain};
 
 const NONE: u32 = u32::MAX;
 
+/// Steps of a dive between two looks at the budget: each costs one bound per
+/// provider of the information it wires, and a first dive wires a whole
+/// configuration, which on large ecologies takes milliseconds.
+const DIVE_STEPS_PER_CHECK: u64 = 8;
+
 /// One way to resolve a need: an alternative of its task and the provider it runs.
 #[derive(Debug, Clone, Copy)]
 struct Opt {
@@ -289,18 +294,14 @@ impl Shared {
         }
         // Channel costs between every two PEIS, from the state and the cost model.
         let npeis = peis_syms.len();
-        let mut facts: HashMap<(Sym, Sym), u64> = HashMap::default();
-        if let Some(pred) = c.syms.get("channel-cost") {
-            for fact in c.facts.of(pred) {
-                if let [a, b, n] = fact[..]
-                    && let Ok(n) = c.syms.name(n).parse()
-                {
-                    facts.entry((a, b)).or_insert(n);
-                }
-            }
-        }
+        let facts = &ctx.channels;
         let mut chan = vec![0u64; npeis * npeis];
         for (i, &a) in peis_syms.iter().enumerate() {
+            // A row is `npeis` calls of the cost model.
+            if i % 64 == 63 && over() {
+                *cut = true;
+                return None;
+            }
             for (j, &b) in peis_syms.iter().enumerate() {
                 if i != j {
                     chan[i * npeis + j] = ctx.cost_model.channel_cost(
@@ -681,15 +682,18 @@ impl Shared {
     }
 
     /// Greedy descent from a node, cheapest `f` first; a new incumbent if better.
-    /// Gives up after `limit` steps, each counted as an expansion.
-    fn dive(&mut self, from: u32, limit: u64) {
+    /// Gives up after `limit` steps, each counted as an expansion, or when
+    /// `over` (asked every [`DIVE_STEPS_PER_CHECK`] steps) says the budget ran out.
+    fn dive(&mut self, from: u32, limit: u64, over: &dyn Fn() -> bool) {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
         let mut kids = Vec::new();
         let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
-            if steps == limit {
+            if steps == limit
+                || (steps % DIVE_STEPS_PER_CHECK == DIVE_STEPS_PER_CHECK - 1 && over())
+            {
                 return;
             }
             steps += 1;
@@ -727,8 +731,9 @@ impl Shared {
         self.accepted.len() >= self.count || self.open.is_empty()
     }
 
-    /// Runs at most `expansions` expansions; returns whether the search is over.
-    pub(crate) fn step(&mut self, expansions: u64) -> bool {
+    /// Runs at most `expansions` expansions; returns whether the search is
+    /// over. Dives ask `over` now and then whether the budget ran out.
+    pub(crate) fn step(&mut self, expansions: u64, over: &dyn Fn() -> bool) -> bool {
         let single = self.count == 1;
         if !self.started {
             self.started = true;
@@ -738,7 +743,7 @@ impl Shared {
                 self.push(NONE, NONE, NONE, 0, h, state);
                 if single {
                     // A first configuration at once: anytime.
-                    self.dive(0, expansions.max(1));
+                    self.dive(0, expansions.max(1), over);
                 }
             }
             return self.finalize();
@@ -797,7 +802,7 @@ impl Shared {
                 && let Some(&(_, _, Reverse(top))) = self.open.peek()
             {
                 // Anytime: look for something better below the best open node.
-                self.dive(top, expansions - done);
+                self.dive(top, expansions - done, over);
             }
         }
         self.finalize()
@@ -832,12 +837,15 @@ impl Shared {
         }
     }
 
-    /// Builds the configurations: proven ones, then (budget exceeded) the incumbent.
+    /// Builds the configurations: proven ones, then (budget exceeded) the
+    /// incumbent. After the first, asks `over` before each whether the budget
+    /// ran out; the last value says whether every one was built.
     pub(crate) fn finish(
         &mut self,
         engine: &mut Engine<'_>,
         complete: bool,
-    ) -> (Vec<Configuration>, Option<explain::Explanation>) {
+        over: &dyn Fn() -> bool,
+    ) -> (Vec<Configuration>, Option<explain::Explanation>, bool) {
         let mut out = Vec::new();
         let mut list: Vec<(u64, Vec<u32>, bool)> =
             self.accepted.drain(..).map(|(g, c)| (g, c, true)).collect();
@@ -846,7 +854,12 @@ impl Shared {
         {
             list.push((g, c, complete));
         }
+        let mut whole = true;
         for (g, choice, proven) in list {
+            if !out.is_empty() && over() {
+                whole = false;
+                break;
+            }
             let chooser = |consumer: Option<(ItemId, &GInfo)>| -> Option<u32> {
                 let need = match consumer {
                     None => 0,
@@ -870,7 +883,7 @@ impl Shared {
         }
         let explanation = (out.is_empty() && complete)
             .then(|| explain::explain(&engine.ctx, &engine.graph, engine.root, &engine.rejections));
-        (out, explanation)
+        (out, explanation, whole)
     }
 }
 

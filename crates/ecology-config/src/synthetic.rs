@@ -400,6 +400,10 @@ pub struct Sharing {
     pub needs: usize,
     /// Fraction of components that have failed (excluded).
     pub failed: f64,
+    /// Whether information comes at rates: each functionality offers its
+    /// output at 10, 20 or 30 Hz and may ask as much of each input, so some
+    /// providers are too slow for some consumers.
+    pub rates: bool,
     /// Random seed.
     pub seed: u64,
 }
@@ -414,6 +418,7 @@ impl Sharing {
             per_level: 1,
             needs: 2,
             failed: 0.0,
+            rates: false,
             seed,
         }
     }
@@ -523,18 +528,32 @@ pub fn sharing(shape: Sharing) -> Result<Instance, GeneratorError> {
         }
     }
     let mut domain = String::from("(define (domain sharing)\n");
-    domain.push_str(
-        "  (:functionality user :parameters (?p ?c) :component (?p ?c)\n    :precondition (user ?p ?c) :input ((goal)) :cost 0)\n",
-    );
+    // Rates from a stream of their own, so that the same seed gives the same
+    // ecology with and without them.
+    let mut rates = Rng::new(shape.seed ^ 0x05ee_d0f4_a7e5);
+    let mut hz = |p: f64| {
+        if shape.rates && rates.chance(p) {
+            format!(" :hz {}", 10 * (1 + rates.below(3)))
+        } else {
+            String::new()
+        }
+    };
+    writeln!(
+        domain,
+        "  (:functionality user :parameters (?p ?c) :component (?p ?c)\n    :precondition (user ?p ?c) :input ((goal{})) :cost 0)",
+        hz(0.5)
+    )
+    .ok();
     for (s, (l, ty, needs)) in signatures.iter().enumerate() {
         let inputs: String = needs
             .iter()
-            .map(|&n| format!("({})", type_name(l + 1, n)))
+            .map(|&n| format!("({}{})", type_name(l + 1, n), hz(0.5)))
             .collect();
         writeln!(
             domain,
-            "  (:functionality f{s} :parameters (?p ?c) :component (?p ?c)\n    :precondition (sig ?p ?c s{s}) :input ({inputs}) :output (({})) :cost 0)",
-            type_name(*l, *ty)
+            "  (:functionality f{s} :parameters (?p ?c) :component (?p ?c)\n    :precondition (sig ?p ?c s{s}) :input ({inputs}) :output (({}{})) :cost 0)",
+            type_name(*l, *ty),
+            hz(0.9)
         )
         .ok();
     }

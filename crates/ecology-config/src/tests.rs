@@ -411,7 +411,7 @@ fn budgets_hold_for_the_provider_search() {
     let optimum = full.configurations[0].cost;
     let with = |budget| {
         let options = Options { count: 1, budget };
-        plan(&request, &options, &Ticking::default()).expect("valid")
+        plan(&request, &options, &Counting::default()).expect("valid")
     };
     // No node: nothing found, but a bound.
     let none = with(Budget {
@@ -422,19 +422,34 @@ fn budgets_hold_for_the_provider_search() {
     assert!(none.configurations.is_empty());
     assert_eq!(none.stats.expanded, 0);
     assert!(none.lower_bound.is_some_and(|lb| lb <= optimum));
-    // A few nodes, or one clock tick: the dive's configuration, flagged, with its gap.
+    // A few nodes, or a little time: the dive's configuration, flagged, with its gap.
+    let reads = {
+        let clock = Counting::default();
+        let budget = Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_secs(3600)),
+        };
+        plan(&request, &Options { count: 1, budget }, &clock).expect("valid");
+        clock.0.get()
+    };
+    // The first budget of time (a millisecond per clock reading) that finds
+    // one without proving it.
+    let timed = (0..reads)
+        .map(|ms| Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_millis(ms)),
+        })
+        .find(|&budget| {
+            let outcome = with(budget);
+            outcome.status == Status::BudgetExceeded && !outcome.configurations.is_empty()
+        })
+        .expect("a budget that stops after the dive");
     for budget in [
         Budget {
             max_expansions: Some(40),
             max_time: None,
         },
-        // The ticking clock is read once after grounding, before the first
-        // step, after it (the first configuration's time) and before the
-        // second: 3.5 s allows exactly one step.
-        Budget {
-            max_expansions: None,
-            max_time: Some(Duration::from_millis(3500)),
-        },
+        timed,
     ] {
         let outcome = with(budget);
         assert_eq!(outcome.status, Status::BudgetExceeded, "{budget:?}");
@@ -543,8 +558,13 @@ fn agrees_on(
     Ok(true)
 }
 
-/// A small shared-provider ecology (issue 11) for the oracle.
+/// A small shared-provider ecology (issue 11) for the oracle; even seeds
+/// have rates.
 fn small_sharing(seed: u64) -> synthetic::Instance {
+    small_sharing_with(seed, seed % 2 == 0)
+}
+
+fn small_sharing_with(seed: u64, rates: bool) -> synthetic::Instance {
     let mut rng = synthetic::Rng::new(seed);
     let types = 1 + rng.below(2) as usize;
     let shape = synthetic::Sharing {
@@ -554,6 +574,7 @@ fn small_sharing(seed: u64) -> synthetic::Instance {
         per_level: 1 + rng.below(2) as usize,
         needs: 1 + rng.below(types as u64) as usize,
         failed: if rng.chance(0.5) { 0.2 } else { 0.0 },
+        rates,
         seed,
     };
     synthetic::sharing(shape).unwrap_or_else(|e| panic!("seed {seed}: {}", e.0))
@@ -572,9 +593,14 @@ proptest! {
 
 /// Runs `check` on seeds `0..cases`; fails on a disagreement, or when the
 /// oracle could not enumerate more than a tenth of the cases. Prints the count.
-fn against_the_oracle(what: &str, cases: u64, check: impl Fn(u64) -> Result<bool, TestCaseError>) {
+fn against_the_oracle(
+    what: &str,
+    seeds: std::ops::Range<u64>,
+    check: impl Fn(u64) -> Result<bool, TestCaseError>,
+) {
     let mut skipped = 0;
-    for seed in 0..cases {
+    let cases = seeds.end - seeds.start;
+    for seed in seeds {
         match check(seed) {
             Ok(true) => {}
             Ok(false) => skipped += 1,
@@ -591,19 +617,60 @@ fn against_the_oracle(what: &str, cases: u64, check: impl Fn(u64) -> Result<bool
 // The same check on fixed seeds, counting the cases too large for the oracle.
 #[test]
 fn the_oracle_enumerates_most_small_cases() {
-    against_the_oracle("small", 400, |seed| oracle_agrees(seed, seed % 2 == 1));
+    against_the_oracle("small", 0..400, |seed| oracle_agrees(seed, seed % 2 == 1));
 }
 
-// Shared providers and channel costs (issue 11): the provider search agrees
-// with brute force on optimum, k-best list and exclusions.
+// Rates bind in the small shared-provider ecologies the oracle checks: on
+// some seeds they change the optimum or rule out every configuration.
+#[test]
+fn rates_matter_in_the_small_sharing_ecologies() {
+    // The rates matter: on some seeds they change the optimum or rule out
+    // every configuration (each checked against brute force below).
+    let binding = (0..400)
+        .step_by(2)
+        .filter(|&seed| {
+            let cost = |rates| {
+                let instance = small_sharing_with(seed, rates);
+                let outcome = plan(&instance.request(), &Options::default(), &NoClock);
+                outcome
+                    .expect("valid")
+                    .configurations
+                    .first()
+                    .map(|c| c.cost)
+            };
+            cost(true) != cost(false)
+        })
+        .count();
+    eprintln!("sharing: rates change the optimum on {binding} of 200 seeds");
+    assert!(
+        binding >= 20,
+        "rates change the optimum on only {binding} of 200 seeds"
+    );
+}
+
+// Shared providers, channel costs and rates (issue 11): the provider search
+// agrees with brute force on optimum, k-best list and exclusions. Two halves
+// of the seeds, so that the test harness runs them side by side.
 #[test]
 fn the_provider_search_agrees_with_brute_force() {
-    against_the_oracle("sharing", 400, |seed| {
+    provider_search_against_the_oracle(0..200);
+}
+
+#[test]
+fn the_provider_search_agrees_with_brute_force_more() {
+    provider_search_against_the_oracle(200..400);
+}
+
+fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
+    against_the_oracle("sharing", seeds, |seed| {
         let instance = small_sharing(seed);
         let request = instance.request();
         let search = crate::Search::new(&request, &PaperCost, &Options::default()).expect("valid");
+        // Every instance is searched by providers, except those grounding
+        // already proves have no configuration (nothing to search).
+        let hopeless = search.engine.graph.item(search.engine.root).lb == crate::ground::INFEASIBLE;
         prop_assert!(
-            search.shared.is_some(),
+            search.shared.is_some() || hopeless,
             "seed {seed}: not searched by providers"
         );
         agrees_on(&instance, seed, seed % 3 == 0)
@@ -705,4 +772,127 @@ fn a_time_budget_stops_grounding() {
     assert_eq!(outcome.stats.expanded, 0);
     // It stopped early: a handful of readings, not one per 256 items of the whole graph.
     assert!(clock.0.get() <= 4, "read the clock {} times", clock.0.get());
+}
+
+#[test]
+fn a_time_budget_stops_reading_the_state() {
+    // 128 PEIS: over 16,000 channel costs. The clock ticks a second at each
+    // reading; the second look, 2,048 facts in, is past the budget.
+    let instance = synthetic::sharing(synthetic::Sharing::base(128, 1)).expect("generates");
+    let request = instance.request();
+    let options = Options {
+        count: 1,
+        budget: Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_millis(1500)),
+        },
+    };
+    let clock = Ticking::default();
+    let outcome = plan(&request, &options, &clock).expect("valid");
+    assert_eq!(outcome.status, Status::BudgetExceeded);
+    assert!(outcome.configurations.is_empty());
+    assert_eq!(outcome.lower_bound, None);
+    // Cut before grounding anything.
+    assert_eq!(outcome.stats.alternatives, 0);
+    assert!(clock.0.get() <= 4, "read the clock {} times", clock.0.get());
+}
+
+/// A clock that advances one millisecond each time it is read.
+#[derive(Debug, Default)]
+struct Counting(std::cell::Cell<u64>);
+
+impl Clock for Counting {
+    fn elapsed(&self) -> Duration {
+        self.0.set(self.0.get() + 1);
+        Duration::from_millis(self.0.get())
+    }
+}
+
+#[test]
+fn every_phase_of_the_provider_search_checks_the_budget() {
+    let instance = synthetic::sharing(synthetic::Sharing::base(64, 2)).expect("generates");
+    let request = instance.request();
+    let full = plan(&request, &Options::default(), &NoClock).expect("valid");
+    let optimum = full.configurations[0].cost;
+    // How often an unlimited search reads the clock.
+    let clock = Counting::default();
+    let unlimited = Options {
+        count: 1,
+        budget: Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_secs(3600)),
+        },
+    };
+    plan(&request, &unlimited, &clock).expect("valid");
+    let reads = clock.0.get();
+    // Every budget short of that stops somewhere: each outcome is flagged, its
+    // configuration (if any) no cheaper than the optimum, its bound no higher.
+    let mut mid_dive = false;
+    for ms in 0..reads.min(400) {
+        let options = Options {
+            count: 1,
+            budget: Budget {
+                max_expansions: None,
+                max_time: Some(Duration::from_millis(ms)),
+            },
+        };
+        let outcome = plan(&request, &options, &Counting::default()).expect("valid");
+        if outcome.status == Status::Proven {
+            assert_eq!(outcome.configurations[0].cost, optimum, "{ms} ms");
+            continue;
+        }
+        if let Some(found) = outcome.configurations.first() {
+            assert!(!found.optimal && found.cost >= optimum, "{ms} ms");
+        }
+        assert!(
+            outcome.lower_bound.is_none_or(|lb| lb <= optimum),
+            "{ms} ms"
+        );
+        // The first dive wires a whole configuration in one step; stopped
+        // inside it, steps were taken but nothing was found.
+        mid_dive |= outcome.stats.expanded > 0 && outcome.configurations.is_empty();
+    }
+    assert!(mid_dive, "no budget stopped the first dive");
+}
+
+#[test]
+fn a_budget_cuts_a_long_list_short() {
+    let instance = synthetic::sharing(synthetic::Sharing::base(4, 3)).expect("generates");
+    let request = instance.request();
+    let thirty = Options {
+        count: 30,
+        ..Options::default()
+    };
+    let full = plan(&request, &thirty, &NoClock).expect("valid");
+    assert_eq!(full.configurations.len(), 30);
+    let clock = Counting::default();
+    let unlimited = Options {
+        budget: Budget {
+            max_expansions: None,
+            max_time: Some(Duration::from_secs(3600)),
+        },
+        ..thirty
+    };
+    plan(&request, &unlimited, &clock).expect("valid");
+    let mut shorter = false;
+    for ms in 0..clock.0.get() {
+        let options = Options {
+            budget: Budget {
+                max_expansions: None,
+                max_time: Some(Duration::from_millis(ms)),
+            },
+            ..thirty
+        };
+        let outcome = plan(&request, &options, &Counting::default()).expect("valid");
+        let n = outcome.configurations.len();
+        // What it lists is the start of the whole list, all of it only when proven.
+        for (got, want) in outcome.configurations.iter().zip(&full.configurations) {
+            assert_eq!(got.cost, want.cost, "{ms} ms");
+        }
+        assert_eq!(outcome.status == Status::Proven, n == 30, "{ms} ms");
+        if outcome.status == Status::BudgetExceeded {
+            shorter |= n > 1 && outcome.configurations.iter().all(|c| c.optimal);
+        }
+    }
+    assert!(shorter, "no budget cut the list of proven ones short");
 }

@@ -210,13 +210,75 @@ fn configure_under_a_budget_is_flagged() {
     assert_eq!(v["error"], "budget exceeded", "{v}");
     assert!(v["lower_bound"].as_u64().is_some(), "{v}");
     assert_eq!(v["stats"]["expanded"], 0, "{v}");
-    // No time: the same, the clock counting from the command's start.
+    // No time: the same, the clock counting from the command's start, so
+    // the budget is spent while reading.
     let v = json(&configure(&["--max-millis", "0", "--json"]));
     assert_eq!(v["error"], "budget exceeded", "{v}");
+    assert_eq!(v["phase"], "reading", "{v}");
     // Proven answers carry no bound.
     let v = json(&configure(&["--json"]));
     assert!(v["lower_bound"].is_null(), "{v}");
     assert_eq!(v["optimal"], true, "{v}");
+}
+
+/// A shared-provider ecology of 96 PEIS (about 9,500 facts) written to a
+/// fresh directory: domain, state and goal for `ecology configure`.
+fn large_instance(name: &str) -> (PathBuf, String) {
+    let instance =
+        ecology_config::synthetic::sharing(ecology_config::synthetic::Sharing::base(96, 1))
+            .expect("generates");
+    let dir = std::env::temp_dir().join(format!("ecology-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    std::fs::write(dir.join("domain.eco"), &instance.domain_text).expect("write");
+    std::fs::write(dir.join("state.facts"), &instance.facts_text).expect("write");
+    (dir, instance.goal_text)
+}
+
+#[test]
+fn configure_stops_when_the_budget_is_spent_while_reading() {
+    let (dir, goal) = large_instance("reading");
+    let run = |extra: &[&str]| {
+        let domain = dir.join("domain.eco");
+        let state = dir.join("state.facts");
+        let mut args = vec![
+            "configure",
+            "--domain",
+            domain.to_str().expect("utf-8 path"),
+            "--state",
+            state.to_str().expect("utf-8 path"),
+            "--goal",
+            &goal,
+        ];
+        args.extend_from_slice(extra);
+        ecology(&args)
+    };
+    // Reading alone uses a budget of 0 ms: stopped before planning, no bound.
+    let out = run(&["--max-millis", "0", "--json"]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    let v = json(&out);
+    assert_eq!(v["error"], "budget exceeded", "{v}");
+    assert_eq!(v["phase"], "reading", "{v}");
+    assert!(v["lower_bound"].is_null(), "{v}");
+    assert_eq!(v["stats"]["expanded"], 0, "{v}");
+    let out = run(&["--max-millis", "0"]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("the budget was spent while reading the input"),
+        "{}",
+        stderr(&out)
+    );
+    // A budget of nodes is spent while planning: not proven, with the bound.
+    let v = json(&run(&["--max-nodes", "0", "--json"]));
+    assert_eq!(v["error"], "budget exceeded", "{v}");
+    assert_eq!(v["phase"], "planning", "{v}");
+    let bound = v["lower_bound"].as_u64().expect("a bound");
+    // Unlimited: proven, and no cheaper than the bound.
+    let out = run(&["--json"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let v = json(&out);
+    assert_eq!(v["optimal"], true, "{v}");
+    assert!(v["cost"].as_u64().expect("a cost") >= bound, "{v}");
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
