@@ -56,9 +56,9 @@ pub struct Drawing {
     pub edges: Vec<Edge>,
 }
 
-const NODE_W: f64 = 230.0;
+const NODE_W: f64 = 215.0;
 const NODE_H: f64 = 46.0;
-const COL_GAP: f64 = 70.0;
+const COL_GAP: f64 = 110.0;
 const ROW_GAP: f64 = 14.0;
 const BAND_PAD: f64 = 14.0;
 const LABEL_W: f64 = 90.0;

@@ -3,6 +3,7 @@
 mod processes;
 mod support;
 mod tuples;
+mod view;
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
