@@ -730,3 +730,32 @@ fn keys_make_an_ecology_and_processes_use_them() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `configure --svg`: the picture of the laser's configuration, drawn by Ecology, with the
+/// excluded tracking system marked; a file that cannot be written exits 2.
+#[test]
+fn configure_writes_an_svg_picture() {
+    let file = std::env::temp_dir().join(format!("ecology-config-{}.svg", std::process::id()));
+    let path = file.to_str().expect("utf-8 path");
+    let out = configure(&["--exclude", "hsm:tr1", "--svg", path]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(stdout(&out).contains("cost 170"), "{}", stdout(&out));
+    let svg = std::fs::read_to_string(&file).expect("the picture");
+    let _ = std::fs::remove_file(&file);
+    assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\""));
+    assert!(
+        svg.contains("(navigate astrid bedroom): cost 170 (optimal)"),
+        "{svg}"
+    );
+    assert!(svg.contains(r#"class="functionality switched-on" data-component="astrid:l1""#));
+    assert!(svg.contains(r#"class="failed" data-component="hsm:tr1""#));
+    assert_eq!(svg.matches("class=\"functionality").count(), 4, "{svg}");
+    assert_eq!(svg.matches("<g class=\"channel").count(), 3, "{svg}");
+    let bad = configure(&["--svg", "/nonexistent-dir/x.svg"]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(
+        stderr(&bad).contains("writing /nonexistent-dir/x.svg"),
+        "{}",
+        stderr(&bad)
+    );
+}

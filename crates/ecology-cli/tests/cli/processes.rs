@@ -581,3 +581,91 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
         Some("task_done".into())
     );
 }
+
+/// `ecology view` over Zenoh: a process of its own that joins the ecology, follows every tuple,
+/// presence and the executive's log tuple, and serves the state the page shows.
+#[test]
+fn the_view_follows_an_ecology_of_processes() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("view", &[TO_BEDROOM], Variant::Paper);
+    let ecology = Ecology::start(&fixture, &[]);
+    let mut view = Proc::start(
+        "view",
+        &[
+            "view",
+            "--bind",
+            "127.0.0.1:0",
+            "--listen",
+            &free_endpoint(),
+            "--connect",
+            &ecology.world_endpoint,
+        ],
+    );
+    let ready = view.wait_for("view ready", |l| l.starts_with("view ready: "));
+    let url = ready.text["view ready: ".len()..]
+        .split(';')
+        .next()
+        .expect("the address")
+        .to_owned();
+    let (code, lines) = ecology.task(&fixture, &[]).finish();
+    assert_eq!(code, Some(0), "{:#?}", events(&lines));
+    let port: u16 = url
+        .trim_end_matches('/')
+        .rsplit(':')
+        .next()
+        .and_then(|p| p.parse().ok())
+        .expect("a port in the address");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let state = loop {
+        let state = http_get_json(port, "/state");
+        if state["status"] == "task done" {
+            break state;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the view never saw the task done: {state}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_eq!(state["configuration"]["cost"], 80, "{state}");
+    assert_eq!(state["plan"][0]["state"], "done", "{state}");
+    let names: Vec<&str> = state["peis"]
+        .as_array()
+        .expect("peis")
+        .iter()
+        .filter(|p| p["present"] == true)
+        .filter_map(|p| p["name"].as_str())
+        .collect();
+    for name in ["astrid", "hsm", "world"] {
+        assert!(names.contains(&name), "{name} not shown present: {names:?}");
+    }
+    assert!(
+        state["svg"]
+            .as_str()
+            .is_some_and(|s| s.contains(r#"data-component="hsm:tr1""#)),
+        "{state}"
+    );
+    view.signal(Signal::SIGINT);
+    let (code, _) = view.finish();
+    assert_eq!(code, Some(0));
+}
+
+/// GET `path` from 127.0.0.1:`port` as JSON (`null` when it cannot be had).
+fn http_get_json(port: u16, path: &str) -> Value {
+    use std::io::{Read, Write};
+    let Ok(mut stream) = std::net::TcpStream::connect(("127.0.0.1", port)) else {
+        return Value::Null;
+    };
+    let _ = stream.set_read_timeout(Some(Duration::from_secs(5)));
+    let _ = write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+    );
+    let mut response = Vec::new();
+    let _ = stream.read_to_end(&mut response);
+    let response = String::from_utf8_lossy(&response);
+    response
+        .split_once("\r\n\r\n")
+        .and_then(|(_, body)| serde_json::from_str(body).ok())
+        .unwrap_or(Value::Null)
+}
