@@ -29,6 +29,8 @@ pub const EXIT_OK: u8 = 0;
 pub const EXIT_NO_SOLUTION: u8 = 1;
 /// Exit code: bad input or usage.
 pub const EXIT_BAD_INPUT: u8 = 2;
+/// When this environment variable is set, `ecology` only checks its arguments, then exits 0.
+const PARSE_ONLY: &str = "ECOLOGY_PARSE_ONLY";
 
 /// Ecology: self-configuration of an ecology of robots.
 #[derive(Debug, Parser)]
@@ -81,6 +83,12 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
+    // For documentation tests: a command line that would start a long-running process (a PEIS,
+    // a router, a real-time run) is checked for valid arguments only.
+    if std::env::var_os(PARSE_ONLY).is_some() {
+        println!("{PARSE_ONLY}: the arguments are valid");
+        return ExitCode::from(EXIT_OK);
+    }
     let result = match cli.command {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),

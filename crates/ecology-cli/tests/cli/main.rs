@@ -1,6 +1,7 @@
 //! The `ecology` binary, from the command line: outputs and exit codes.
 
 mod processes;
+mod readme;
 mod support;
 mod tuples;
 mod view;
