@@ -215,18 +215,7 @@ fn through_a_router(secured: bool) {
     let mut secure: Vec<&str> = Vec::new();
     let mut router_endpoint = free_endpoint();
     if secured {
-        for args in [
-            vec!["keys", "init", &keys],
-            vec!["keys", "add", &keys, "world", "astrid", "hsm"],
-            vec!["keys", "add", &keys, "executive", "--role", "executive"],
-            vec!["keys", "add", &keys, "router", "--role", "router"],
-        ] {
-            let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
-                .args(&args)
-                .output()
-                .expect("ecology keys");
-            assert!(out.status.success(), "{args:?}: {out:?}");
-        }
+        make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
         secure = vec!["--keys", &keys];
         router_endpoint = router_endpoint.replacen("tcp/", "tls/", 1);
     }
@@ -346,6 +335,26 @@ fn the_papers_experiment_as_separate_processes() {
         all.last().map(|e| e["event"].clone()),
         Some("task_done".into())
     );
+}
+
+/// A keys directory at `dir` made with `ecology keys`: `peis` as PEIS members, `executive` with
+/// the executive role, and `routers` with the router role.
+fn make_keys(dir: &str, peis: &[&str], routers: &[&str]) {
+    let mut commands = vec![
+        vec!["keys", "init", dir],
+        vec!["keys", "add", dir, "executive", "--role", "executive"],
+    ];
+    commands.push([&["keys", "add", dir][..], peis].concat());
+    for router in routers {
+        commands.push(vec!["keys", "add", dir, router, "--role", "router"]);
+    }
+    for args in commands {
+        let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+            .args(&args)
+            .output()
+            .expect("ecology keys");
+        assert!(out.status.success(), "{args:?}: {out:?}");
+    }
 }
 
 /// The Python to run the example with: `ECOLOGY_PYTHON` (set by `scripts/test`
@@ -497,17 +506,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     let fixture = Fixture::new("attacked", &[TO_BEDROOM], Variant::Paper);
     let keys = fixture.folder.join("keys");
     let k = keys.display().to_string();
-    for args in [
-        vec!["keys", "init", &k],
-        vec!["keys", "add", &k, "world", "astrid", "hsm", "mallory"],
-        vec!["keys", "add", &k, "executive", "--role", "executive"],
-    ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
-            .args(&args)
-            .output()
-            .expect("ecology keys");
-        assert!(out.status.success(), "{args:?}: {:?}", out);
-    }
+    make_keys(&k, &["world", "astrid", "hsm", "mallory"], &[]);
     // The world first, so the attacker has somewhere to connect before hsm exists.
     let world_endpoint = free_endpoint().replacen("tcp/", "tls/", 1);
     let scenario = fixture.scenario();
