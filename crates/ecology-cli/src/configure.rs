@@ -105,20 +105,22 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     let Ok(domain) = input::domain(&args.domain)? else {
         return Ok(EXIT_BAD_INPUT);
     };
-    let Ok(state) = input::facts(&args.state)? else {
+    // The state (the large file) is read under the budget too: reading stops when it is spent.
+    let spent = |clock: &WallClock| {
+        args.max_millis
+            .is_some_and(|max| clock.elapsed() >= Duration::from_millis(max))
+    };
+    let Ok(state) = input::facts_until(&args.state, &mut || spent(&clock))? else {
         return Ok(EXIT_BAD_INPUT);
     };
     let Ok(goal) = input::goal(&args.goal) else {
         return Ok(EXIT_BAD_INPUT);
     };
-    // Reading is not interrupted (the parser does not take a budget), but a
-    // budget it used up is not handed to the planner as if it were left.
-    if let Some(max) = args.max_millis
-        && clock.elapsed() >= Duration::from_millis(max)
-    {
+    // A budget spent while reading is not handed to the planner as if it were left.
+    let Some(state) = state.filter(|_| !spent(&clock)) else {
         print_spent_reading(args, clock.elapsed());
         return Ok(EXIT_NO_SOLUTION);
-    }
+    };
     let request = Request {
         domain: &domain,
         state: &state,

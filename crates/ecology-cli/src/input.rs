@@ -49,6 +49,15 @@ pub fn facts(path: &Path) -> anyhow::Result<Parsed<EcologyState>> {
     Ok(ecology_domain::parse_facts(&bytes).map_err(|d| report(path, &bytes, &d)))
 }
 
+/// Reads a facts file, giving up (`Ok(None)`) as soon as `stop` says so.
+pub fn facts_until(
+    path: &Path,
+    stop: &mut dyn FnMut() -> bool,
+) -> anyhow::Result<Parsed<Option<EcologyState>>> {
+    let bytes = read_limited(path)?;
+    Ok(ecology_domain::parse_facts_until(&bytes, stop).map_err(|d| report(path, &bytes, &d)))
+}
+
 /// Parses a goal given on the command line.
 pub fn goal(text: &str) -> Parsed<ecology_domain::Call> {
     ecology_domain::parse_goal(text).map_err(|d| report(Path::new("<goal>"), text.as_bytes(), &d))

@@ -53,6 +53,9 @@ fn read(source: &[u8]) -> Result<(Vec<syntax::Sexp>, Parser, Span), Diagnostics>
     Ok((forms, parser, Span::new(0, text.len())))
 }
 
+/// Facts are parsed this many at a time between two `stop` checks.
+const FACTS_PER_CHECK: usize = 1024;
+
 /// Parses and validates a domain file.
 pub fn parse_domain(source: &[u8]) -> Result<Domain, Diagnostics> {
     let (forms, mut parser, whole) = read(source)?;
@@ -85,9 +88,29 @@ pub fn parse_problem_for(domain: &Domain, source: &[u8]) -> Result<Problem, Diag
 
 /// Parses a `.facts` file: ground facts, one S-expression each.
 pub fn parse_facts(source: &[u8]) -> Result<EcologyState, Diagnostics> {
-    let (forms, mut parser, _) = read(source)?;
+    match parse_facts_until(source, &mut || false)? {
+        Some(state) => Ok(state),
+        // Unreachable: nothing asks to stop.
+        None => Err(Diagnostics(Vec::new())),
+    }
+}
+
+/// [`parse_facts`], asking `stop` now and then (every 16 KiB read, every 1,024 facts) whether to
+/// give up: `Ok(None)` when it did. A budget for a whole command covers reading this way.
+pub fn parse_facts_until(
+    source: &[u8],
+    stop: &mut dyn FnMut() -> bool,
+) -> Result<Option<EcologyState>, Diagnostics> {
+    let text = syntax::decode(source).map_err(|d| Diagnostics(vec![d]))?;
+    let mut parser = Parser::default();
+    let Some(forms) = syntax::read_until(text, &mut parser.diags, stop) else {
+        return Ok(None);
+    };
     let mut state = EcologyState::new();
-    for form in &forms {
+    for (i, form) in forms.iter().enumerate() {
+        if i % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && stop() {
+            return Ok(None);
+        }
         let Some(call) = parser.call(form, "a fact like `(peis astrid)`") else {
             continue;
         };
@@ -115,7 +138,7 @@ pub fn parse_facts(source: &[u8]) -> Result<EcologyState, Diagnostics> {
             }
         }
     }
-    finish(state, parser.diags)
+    finish(state, parser.diags).map(Some)
 }
 
 /// Parses a ground goal such as `(navigate astrid bedroom)`.

@@ -78,7 +78,20 @@ pub fn decode(bytes: &[u8]) -> Result<&str, Diagnostic> {
 /// Unbalanced parentheses and excessive nesting are reported; reading goes on
 /// so that later errors are found in the same pass.
 pub fn read(src: &str, diags: &mut Vec<Diagnostic>) -> Vec<Sexp> {
+    read_until(src, diags, &mut || false).unwrap_or_default()
+}
+
+/// How many bytes are read between two calls of a `stop` check.
+const CHECK_EVERY: usize = 16 * 1024;
+
+/// [`read`], asking `stop` every 16 KiB whether to give up; `None` when it did.
+pub fn read_until(
+    src: &str,
+    diags: &mut Vec<Diagnostic>,
+    stop: &mut dyn FnMut() -> bool,
+) -> Option<Vec<Sexp>> {
     let bytes = src.as_bytes();
+    let mut next_check = 0;
     let mut top = Vec::new();
     // Open lists: the byte offset of their '(' and the items read so far.
     let mut open: Vec<(usize, Vec<Sexp>)> = Vec::new();
@@ -86,6 +99,12 @@ pub fn read(src: &str, diags: &mut Vec<Diagnostic>) -> Vec<Sexp> {
     let mut skipping = 0usize;
     let mut pos = 0;
     while pos < bytes.len() {
+        if pos >= next_check {
+            if stop() {
+                return None;
+            }
+            next_check = pos + CHECK_EVERY;
+        }
         let byte = bytes[pos];
         match byte {
             b';' => {
@@ -167,7 +186,7 @@ pub fn read(src: &str, diags: &mut Vec<Diagnostic>) -> Vec<Sexp> {
         };
         push(&mut open, &mut top, sexp);
     }
-    top
+    Some(top)
 }
 
 fn push(open: &mut [(usize, Vec<Sexp>)], top: &mut Vec<Sexp>, sexp: Sexp) {
