@@ -49,11 +49,11 @@ pub fn facts(path: &Path) -> anyhow::Result<Parsed<EcologyState>> {
     Ok(ecology_domain::parse_facts(&bytes).map_err(|d| report(path, &bytes, &d)))
 }
 
-/// Reads a facts file, giving up (`Ok(None)`) as soon as `stop` says so.
+/// Reads a facts file, giving up as soon as `stop` says so.
 pub fn facts_until(
     path: &Path,
     stop: &mut dyn FnMut() -> bool,
-) -> anyhow::Result<Parsed<Option<EcologyState>>> {
+) -> anyhow::Result<Parsed<ecology_domain::FactsRead>> {
     let bytes = read_limited(path)?;
     Ok(ecology_domain::parse_facts_until(&bytes, stop).map_err(|d| report(path, &bytes, &d)))
 }

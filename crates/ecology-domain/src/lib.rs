@@ -88,28 +88,41 @@ pub fn parse_problem_for(domain: &Domain, source: &[u8]) -> Result<Problem, Diag
 
 /// Parses a `.facts` file: ground facts, one S-expression each.
 pub fn parse_facts(source: &[u8]) -> Result<EcologyState, Diagnostics> {
-    match parse_facts_until(source, &mut || false)? {
-        Some(state) => Ok(state),
-        // Unreachable: nothing asks to stop.
-        None => Err(Diagnostics(Vec::new())),
-    }
+    parse_facts_until(source, &mut || false).map(|read| read.state)
+}
+
+/// What [`parse_facts_until`] read.
+#[derive(Debug)]
+pub struct FactsRead {
+    /// The facts read: all of them when `complete`, else those read before it stopped.
+    pub state: EcologyState,
+    /// Whether the whole file was read (`stop` never said to give up).
+    pub complete: bool,
 }
 
 /// [`parse_facts`], asking `stop` now and then (every 16 KiB read, every 1,024 facts) whether to
-/// give up: `Ok(None)` when it did. A budget for a whole command covers reading this way.
+/// give up, so that a budget for a whole command covers reading. When it gives up, the facts
+/// read so far come back with `complete: false` (a large state takes a while to free: the
+/// caller decides when).
 pub fn parse_facts_until(
     source: &[u8],
     stop: &mut dyn FnMut() -> bool,
-) -> Result<Option<EcologyState>, Diagnostics> {
+) -> Result<FactsRead, Diagnostics> {
     let text = syntax::decode(source).map_err(|d| Diagnostics(vec![d]))?;
     let mut parser = Parser::default();
-    let Some(forms) = syntax::read_until(text, &mut parser.diags, stop) else {
-        return Ok(None);
-    };
     let mut state = EcologyState::new();
+    let stopped = |state| {
+        Ok(FactsRead {
+            state,
+            complete: false,
+        })
+    };
+    let Some(forms) = syntax::read_until(text, &mut parser.diags, stop) else {
+        return stopped(state);
+    };
     for (i, form) in forms.iter().enumerate() {
         if i % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && stop() {
-            return Ok(None);
+            return stopped(state);
         }
         let Some(call) = parser.call(form, "a fact like `(peis astrid)`") else {
             continue;
@@ -138,7 +151,10 @@ pub fn parse_facts_until(
             }
         }
     }
-    finish(state, parser.diags).map(Some)
+    finish(state, parser.diags).map(|state| FactsRead {
+        state,
+        complete: true,
+    })
 }
 
 /// Parses a ground goal such as `(navigate astrid bedroom)`.

@@ -20,6 +20,7 @@ const OTHERS: &[&str] = &[
     "cargo bench -p ecology-actions --bench plan",
     "cargo bench -p ecology-zenoh --bench loopback",
     "scripts/bench-actions",
+    "scripts/bench-budget",
 ];
 
 /// Subcommands and options that start something long-running: checked, not run.
