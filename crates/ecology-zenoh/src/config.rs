@@ -126,13 +126,6 @@ pub enum Security {
     Authenticated(Box<Identity>),
 }
 
-impl Security {
-    /// Whether this is the unauthenticated mode.
-    pub fn is_open(&self) -> bool {
-        matches!(self, Security::Open)
-    }
-}
-
 /// Applies `security` to `config`: TLS with the member's certificate on every link, and the
 /// roster's access rules. Every endpoint must then be `tls/…`: a `tcp/…` one would be refused by
 /// the access rules anyway, and is more likely a mistake than a wish.
