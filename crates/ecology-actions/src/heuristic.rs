@@ -64,7 +64,7 @@ impl HeuristicKind {
                 marked: Vec::new(),
                 stack: Vec::new(),
             }),
-            HeuristicKind::LmCut => Box::new(LmCut::new(relaxed)),
+            HeuristicKind::LmCut => Box::new(crate::lmcut::LmCut::new(relaxed)),
         }
     }
 }
@@ -112,6 +112,8 @@ pub(crate) struct Relaxed {
     is_goal: Vec<bool>,
     /// The goal is false for a static reason.
     impossible: bool,
+    /// `(atom, complement fact)` for the atoms that have a complement.
+    complemented: Vec<(u32, u32)>,
 }
 
 impl Relaxed {
@@ -168,7 +170,14 @@ impl Relaxed {
         for &g in &goal {
             is_goal[g as usize] = true;
         }
+        let complemented = complement
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c != u32::MAX)
+            .map(|(a, &c)| (a as u32, c))
+            .collect();
         Relaxed {
+            complemented,
             is_goal,
             facts: facts as usize,
             atoms,
@@ -181,15 +190,37 @@ impl Relaxed {
     }
 
     /// Calls `f` with each fact true in `state`.
-    fn state_facts(&self, state: &State, mut f: impl FnMut(u32)) {
-        for a in 0..self.atoms {
-            let holds = state.holds(crate::task::AtomId(a as u32));
-            if holds {
-                f(a as u32);
-            } else if self.complement[a] != u32::MAX {
-                f(self.complement[a]);
+    pub(crate) fn state_facts(&self, state: &State, mut f: impl FnMut(u32)) {
+        for a in state.atoms() {
+            if (a.0 as usize) < self.atoms {
+                f(a.0);
             }
         }
+        for &(a, c) in &self.complemented {
+            if !state.holds(crate::task::AtomId(a)) {
+                f(c);
+            }
+        }
+    }
+
+    /// How many facts: atoms and complements.
+    pub(crate) fn facts(&self) -> usize {
+        self.facts
+    }
+
+    /// Each relaxed operator's preconditions, effects and cost.
+    pub(crate) fn ops(&self) -> impl Iterator<Item = (&[u32], &[u32], u64)> + '_ {
+        self.ops.iter().map(|o| (&o.pre[..], &o.add[..], o.cost))
+    }
+
+    /// The goal facts.
+    pub(crate) fn goal(&self) -> &[u32] {
+        &self.goal
+    }
+
+    /// Whether the goal is false for a static reason.
+    pub(crate) fn impossible(&self) -> bool {
+        self.impossible
     }
 }
 
@@ -424,11 +455,12 @@ impl Heuristic for HFf {
     }
 }
 
-/// LM-cut (Helmert and Domshlak): repeatedly finds a cut of operators that
-/// every relaxed plan must use, adds its cheapest cost, and lowers the cut's
-/// costs by it. Admissible.
+/// LM-cut (Helmert and Domshlak) computing h-max from scratch after every
+/// cut: the straightforward version [`crate::lmcut::LmCut`] replaced, kept
+/// as a test oracle. Admissible.
+#[cfg(test)]
 #[derive(Debug, Clone)]
-struct LmCut {
+pub(crate) struct LmCutFromScratch {
     explore: Exploration,
     costs: Vec<u64>,
     in_zone: Vec<bool>,
@@ -438,8 +470,9 @@ struct LmCut {
     no_pre: Vec<u32>,
 }
 
-impl LmCut {
-    fn new(relaxed: Relaxed) -> LmCut {
+#[cfg(test)]
+impl LmCutFromScratch {
+    pub(crate) fn new(relaxed: Relaxed) -> LmCutFromScratch {
         let mut adders = vec![Vec::new(); relaxed.facts];
         for (i, o) in relaxed.ops.iter().enumerate() {
             for &f in &o.add {
@@ -447,7 +480,7 @@ impl LmCut {
             }
         }
         let facts = relaxed.facts;
-        LmCut {
+        LmCutFromScratch {
             costs: relaxed.ops.iter().map(|o| o.cost).collect(),
             explore: Exploration::new(relaxed),
             in_zone: vec![false; facts],
@@ -459,7 +492,8 @@ impl LmCut {
     }
 }
 
-impl Heuristic for LmCut {
+#[cfg(test)]
+impl Heuristic for LmCutFromScratch {
     fn name(&self) -> &'static str {
         "lmcut"
     }

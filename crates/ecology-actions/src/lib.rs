@@ -33,8 +33,10 @@
 //! ```
 
 mod heuristic;
+mod lmcut;
 pub mod oracle;
 pub mod problems;
+mod queue;
 mod search;
 mod task;
 mod validate;
