@@ -366,9 +366,13 @@ impl<'t> Search<'t> {
             } => (heuristic, Algorithm::Greedy { preferred }),
             Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar),
         };
-        let heuristic = kind.build(task, &excluded);
         let initial = task.fit(&request.initial);
-        let engine = Engine::new(task, &initial, excluded.clone(), heuristic, algorithm);
+        // Both the search and the heuristic go without the operators that
+        // cannot matter from this start; `excluded` stays as asked, for
+        // explaining unreachable goals.
+        let useless = task.useless_operators(&initial, &excluded);
+        let heuristic = kind.build(task, &useless);
+        let engine = Engine::new(task, &initial, useless, heuristic, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))
         } else if engine.initial_h.is_none() {
