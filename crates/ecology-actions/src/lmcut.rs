@@ -56,6 +56,40 @@ impl Lists {
     }
 }
 
+/// The operators whose supporter each fact is, as intrusive doubly linked
+/// lists: the cut search and the incremental update then follow exactly
+/// the justification graph's edges instead of testing every consumer.
+#[derive(Debug, Clone)]
+struct Supported {
+    head: Vec<u32>,
+    next: Vec<u32>,
+    prev: Vec<u32>,
+}
+
+impl Supported {
+    fn link(&mut self, op: u32, fact: u32) {
+        let first = self.head[fact as usize];
+        self.next[op as usize] = first;
+        self.prev[op as usize] = NONE;
+        if first != NONE {
+            self.prev[first as usize] = op;
+        }
+        self.head[fact as usize] = op;
+    }
+
+    fn unlink(&mut self, op: u32, fact: u32) {
+        let (p, n) = (self.prev[op as usize], self.next[op as usize]);
+        if p == NONE {
+            self.head[fact as usize] = n;
+        } else {
+            self.next[p as usize] = n;
+        }
+        if n != NONE {
+            self.prev[n as usize] = p;
+        }
+    }
+}
+
 /// LM-cut: repeatedly finds a cut of operators that every relaxed plan must
 /// use, adds its cheapest cost, lowers the cut's costs by it and updates
 /// h-max. Each cut is a disjunctive action landmark whose costs are
@@ -80,6 +114,7 @@ pub(crate) struct LmCut {
     /// The precondition with the highest h-max (the one satisfied last).
     supporter: Vec<u32>,
     supporter_cost: Vec<u64>,
+    supported: Supported,
     fact_cost: Vec<u64>,
     /// `2 * round` when the fact is in the goal zone of the current cut,
     /// `2 * round + 1` when it was reached before the goal zone.
@@ -129,6 +164,11 @@ impl LmCut {
             unsatisfied: vec![0; ops],
             supporter: vec![NONE; ops],
             supporter_cost: vec![0; ops],
+            supported: Supported {
+                head: vec![NONE; facts + 2],
+                next: vec![NONE; ops],
+                prev: vec![NONE; ops],
+            },
             fact_cost: vec![INF; facts + 2],
             zone: vec![0; facts + 2],
             round: 0,
@@ -152,12 +192,14 @@ impl LmCut {
             unsatisfied,
             supporter,
             supporter_cost,
+            supported,
             fact_cost,
             queue,
             start_fact,
             ..
         } = self;
         fact_cost.fill(INF);
+        supported.head.fill(NONE);
         cost.copy_from_slice(base_cost);
         for (slot, w) in unsatisfied.iter_mut().zip(pre.start.windows(2)) {
             *slot = w[1] - w[0];
@@ -179,6 +221,7 @@ impl LmCut {
                 if unsatisfied[op] == 0 {
                     supporter[op] = f;
                     supporter_cost[op] = c;
+                    supported.link(op as u32, f);
                     let target = c.saturating_add(cost[op]);
                     for &e in eff.get(op) {
                         if target < fact_cost[e as usize] {
@@ -199,10 +242,10 @@ impl LmCut {
         let LmCut {
             pre,
             eff,
-            consumers,
             cost,
             supporter,
             supporter_cost,
+            supported,
             fact_cost,
             queue,
             cut,
@@ -223,9 +266,11 @@ impl LmCut {
             if c > fact_cost[f as usize] {
                 continue;
             }
-            for &op in consumers.get(f as usize) {
-                let op = op as usize;
-                if supporter[op] != f || supporter_cost[op] <= c {
+            let mut next = supported.head[f as usize];
+            while next != NONE {
+                let op = next as usize;
+                next = supported.next[op];
+                if supporter_cost[op] <= c {
                     continue;
                 }
                 // `f` fell; the costliest precondition may now be another
@@ -240,7 +285,11 @@ impl LmCut {
                         best_cost = pc;
                     }
                 }
-                supporter[op] = best;
+                if best != f {
+                    supported.unlink(op as u32, f);
+                    supported.link(op as u32, best);
+                    supporter[op] = best;
+                }
                 supporter_cost[op] = best_cost;
                 if best_cost < old {
                     let target = best_cost.saturating_add(cost[op]);
@@ -292,8 +341,7 @@ impl LmCut {
         let LmCut {
             relaxed,
             eff,
-            consumers,
-            supporter,
+            supported,
             zone,
             stack,
             cut,
@@ -312,11 +360,10 @@ impl LmCut {
             stack.push(f);
         });
         while let Some(f) = stack.pop() {
-            for &op in consumers.get(f as usize) {
-                let op = op as usize;
-                if supporter[op] != f {
-                    continue;
-                }
+            let mut next = supported.head[f as usize];
+            while next != NONE {
+                let op = next as usize;
+                next = supported.next[op];
                 let effects = eff.get(op);
                 if effects.iter().any(|&e| zone[e as usize] == goal_mark) {
                     cut.push(op as u32);
