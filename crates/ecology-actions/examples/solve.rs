@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! solve write DIR NAME...        # NAME: gripper-N, blocks-N, logistics-C-P
-//! solve run DOMAIN PROBLEM [--optimal] [--timeout-s S]
+//! solve run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]
 //! ```
 //!
 //! `run` prints `status=found cost=N expanded=N generated=N evaluated=N
@@ -56,14 +56,24 @@ fn write(dir: &str, names: &[String]) -> Result<(), String> {
 fn run(args: &[String]) -> Result<(), String> {
     let start = Instant::now();
     let [domain_path, problem_path, rest @ ..] = args else {
-        return Err("run DOMAIN PROBLEM [--optimal] [--timeout-s S]".into());
+        return Err("run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]".into());
     };
     let mut strategy = Strategy::SATISFICING;
     let mut timeout = None;
+    let mut print_plan = false;
     let mut rest = rest.iter();
     while let Some(arg) = rest.next() {
         match arg.as_str() {
             "--optimal" => strategy = Strategy::OPTIMAL,
+            "--plan" => print_plan = true,
+            "--weight" => {
+                let w = rest.next().ok_or("--weight needs a value")?;
+                let weight = w.parse().map_err(|e| format!("--weight: {e}"))?;
+                strategy = Strategy::Weighted {
+                    heuristic: ecology_actions::HeuristicKind::Ff,
+                    weight,
+                };
+            }
             "--timeout-s" => {
                 let s = rest.next().ok_or("--timeout-s needs a value")?;
                 let s: f64 = s.parse().map_err(|e| format!("--timeout-s: {e}"))?;
@@ -101,6 +111,9 @@ fn run(args: &[String]) -> Result<(), String> {
         Verdict::Found(plan) => {
             let valid =
                 ecology_actions::validate(&domain, &problem, &plan.calls()) == Ok(plan.cost);
+            if print_plan {
+                print!("{plan}");
+            }
             println!(
                 "status=found cost={} optimal={} {counts} valid={valid}",
                 plan.cost, outcome.optimal
@@ -121,7 +134,7 @@ fn main() -> ExitCode {
         },
         Some((cmd, rest)) if cmd == "run" => run(rest),
         _ => Err(
-            "usage: solve write DIR NAME... | solve run DOMAIN PROBLEM [--optimal] [--timeout-s S]"
+            "usage: solve write DIR NAME... | solve run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]"
                 .into(),
         ),
     };

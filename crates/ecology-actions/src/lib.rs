@@ -33,6 +33,7 @@
 //! ```
 
 mod heuristic;
+mod improve;
 mod lmcut;
 pub mod oracle;
 pub mod problems;
@@ -98,6 +99,15 @@ pub enum Strategy {
     AStar {
         /// The heuristic.
         heuristic: HeuristicKind,
+    },
+    /// Weighted A* (best-first on `g + weight * h`): slower than greedy
+    /// search, cheaper plans; with an admissible heuristic the plan costs at
+    /// most `weight` times the optimum.
+    Weighted {
+        /// The heuristic.
+        heuristic: HeuristicKind,
+        /// The weight of `h`, at least 1.
+        weight: u64,
     },
 }
 
@@ -364,7 +374,13 @@ impl<'t> Search<'t> {
                 heuristic,
                 preferred,
             } => (heuristic, Algorithm::Greedy { preferred }),
-            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar),
+            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar { weight: 1 }),
+            Strategy::Weighted { heuristic, weight } => (
+                heuristic,
+                Algorithm::AStar {
+                    weight: weight.max(1),
+                },
+            ),
         };
         let initial = task.fit(&request.initial);
         // Both the search and the heuristic go without the operators that
@@ -381,7 +397,7 @@ impl<'t> Search<'t> {
             None
         };
         Search {
-            optimal_search: algorithm == Algorithm::AStar && engine.is_admissible(),
+            optimal_search: algorithm == (Algorithm::AStar { weight: 1 }) && engine.is_admissible(),
             engine,
             task,
             excluded,
@@ -427,7 +443,10 @@ impl<'t> Search<'t> {
         let (verdict, optimal) = match self.result {
             None | Some(StepResult::Continue) => (Verdict::BudgetExceeded, false),
             Some(StepResult::Solved(node)) => {
-                let ops = self.engine.path(node);
+                let mut ops = self.engine.path(node);
+                if !self.optimal_search {
+                    improve::eliminate_actions(self.task, &self.initial, &mut ops);
+                }
                 (
                     Verdict::Found(Plan::from_ops(self.task, &ops)),
                     self.optimal_search,

@@ -68,8 +68,22 @@ struct Node {
 /// Which algorithm runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Algorithm {
-    Greedy { preferred: bool },
-    AStar,
+    Greedy {
+        preferred: bool,
+    },
+    /// Best-first on `g + weight * h`: A* with weight 1.
+    AStar {
+        weight: u64,
+    },
+}
+
+impl Algorithm {
+    fn weight(self) -> Option<u64> {
+        match self {
+            Algorithm::AStar { weight } => Some(weight),
+            Algorithm::Greedy { .. } => None,
+        }
+    }
 }
 
 /// The result of one step.
@@ -173,7 +187,12 @@ impl<'t> Engine<'t> {
     fn push(&mut self, id: u32, g: u64, h: u64, preferred: bool) {
         self.counter += 1;
         let entry = match self.algorithm {
-            Algorithm::AStar => Reverse((g.saturating_add(h), h, self.counter, id)),
+            Algorithm::AStar { weight } => Reverse((
+                g.saturating_add(h.saturating_mul(weight)),
+                h,
+                self.counter,
+                id,
+            )),
             Algorithm::Greedy { .. } => Reverse((h, 0, self.counter, id)),
         };
         if preferred {
@@ -206,8 +225,11 @@ impl<'t> Engine<'t> {
             if node.closed {
                 continue;
             }
-            if self.algorithm == Algorithm::AStar
-                && node.g.saturating_add(node.h.unwrap_or(u64::MAX)) != priority
+            if let Some(weight) = self.algorithm.weight()
+                && node
+                    .g
+                    .saturating_add(node.h.unwrap_or(u64::MAX).saturating_mul(weight))
+                    != priority
             {
                 continue;
             }
@@ -221,7 +243,7 @@ impl<'t> Engine<'t> {
             return StepResult::Exhausted;
         };
         self.scratch.words.copy_from_slice(self.registry.get(id));
-        if self.algorithm == Algorithm::AStar && self.task.is_goal(&self.scratch) {
+        if self.algorithm.weight().is_some() && self.task.is_goal(&self.scratch) {
             return StepResult::Solved(id);
         }
         self.nodes[id as usize].closed = true;
@@ -274,7 +296,7 @@ impl<'t> Engine<'t> {
                 }
                 let is_preferred = preferred.binary_search(&op).is_ok();
                 self.push(child, new_g, h, is_preferred);
-            } else if self.algorithm == Algorithm::AStar {
+            } else if self.algorithm.weight().is_some() {
                 let node = &mut self.nodes[child as usize];
                 if let Some(h) = node.h
                     && new_g < node.g

@@ -18,8 +18,16 @@ const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_TASK: &str = include_str!("../../../domains/peis-home-task.problem");
 
 /// Every strategy the tests exercise: the satisficing ones, then the optimal ones.
-const SATISFICING: [Strategy; 3] = [
+const SATISFICING: [Strategy; 5] = [
     Strategy::SATISFICING,
+    Strategy::Weighted {
+        heuristic: HeuristicKind::Ff,
+        weight: 3,
+    },
+    Strategy::Weighted {
+        heuristic: HeuristicKind::LmCut,
+        weight: 2,
+    },
     Strategy::Greedy {
         heuristic: HeuristicKind::Add,
         preferred: false,
@@ -569,6 +577,12 @@ fn agree_with_oracle(inst: &Instance) -> Result<(), TestCaseError> {
                 } else {
                     prop_assert!(plan.cost >= *cost);
                 }
+                // Weighted A* with an admissible heuristic is bounded.
+                if let Strategy::Weighted { heuristic, weight } = strategy
+                    && heuristic.is_admissible()
+                {
+                    prop_assert!(plan.cost <= weight * *cost, "{:?}\n{}", strategy, plan);
+                }
             }
             (Verdict::Unsolvable(_), Cheapest::Unsolvable) => {}
             (got, want) => {
@@ -715,5 +729,34 @@ fn incremental_lm_cut_is_admissible_and_dominates_h_max_off_the_plan() {
     assert!(
         2 * same > total,
         "only {same} of {total} states valued alike"
+    );
+}
+
+/// A detour (an action and the one that undoes it) before an optimal plan
+/// is removed by action elimination, and what remains is still a plan.
+#[test]
+fn action_elimination_removes_a_detour() {
+    let inst = problems::blocks(5, 3).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let optimal = solve(&inst.domain, &inst.problem, Strategy::OPTIMAL);
+    let start = task.initial();
+    let mut detour = None;
+    task.for_each_applicable(start, |a| {
+        let next = task.apply(start, a);
+        task.for_each_applicable(&next, |b| {
+            if detour.is_none() && task.apply(&next, b) == *start {
+                detour = Some((a, b));
+            }
+        });
+    });
+    let (a, b) = detour.expect("blocks moves can be undone");
+    let mut ops = vec![a, b];
+    ops.extend(optimal.steps.iter().map(|s| s.op));
+    crate::improve::eliminate_actions(&task, start, &mut ops);
+    let plan = Plan::from_ops(&task, &ops);
+    assert_eq!(plan.cost, optimal.cost);
+    assert_eq!(
+        validate(&inst.domain, &inst.problem, &plan.calls()),
+        Ok(optimal.cost)
     );
 }
