@@ -1,5 +1,5 @@
-//! The search engines: greedy best-first search (with preferred operators)
-//! and A*, as loops of expansion steps over an arena of nodes.
+//! The search engines: greedy best-first search (with preferred operators),
+//! A* and weighted A*, as loops of expansion steps over an arena of nodes.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
