@@ -62,6 +62,7 @@ impl HeuristicKind {
             HeuristicKind::Ff => Box::new(HFf {
                 explore: Exploration::new(relaxed),
                 marked: Vec::new(),
+                seen: Vec::new(),
                 stack: Vec::new(),
             }),
             HeuristicKind::LmCut => Box::new(crate::lmcut::LmCut::new(relaxed)),
@@ -413,6 +414,7 @@ impl Heuristic for HAdd {
 struct HFf {
     explore: Exploration,
     marked: Vec<bool>,
+    seen: Vec<bool>,
     stack: Vec<u32>,
 }
 
@@ -432,7 +434,9 @@ impl Heuristic for HFf {
         self.marked.resize(e.relaxed.ops.len(), false);
         self.stack.clear();
         self.stack.extend(&e.relaxed.goal);
-        let mut seen = vec![false; e.relaxed.facts];
+        let seen = &mut self.seen;
+        seen.clear();
+        seen.resize(e.relaxed.facts, false);
         let mut total = 0u64;
         while let Some(f) = self.stack.pop() {
             if seen[f as usize] || e.cost[f as usize] == 0 {

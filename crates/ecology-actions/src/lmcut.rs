@@ -119,6 +119,8 @@ pub(crate) struct LmCut {
     /// `2 * round` when the fact is in the goal zone of the current cut,
     /// `2 * round + 1` when it was reached before the goal zone.
     zone: Vec<u32>,
+    /// `round` when the operator adds a fact of the goal zone.
+    into_zone: Vec<u32>,
     round: u32,
     queue: Queue,
     stack: Vec<u32>,
@@ -171,6 +173,7 @@ impl LmCut {
             },
             fact_cost: vec![INF; facts + 2],
             zone: vec![0; facts + 2],
+            into_zone: vec![0; ops],
             round: 0,
             queue: Queue::default(),
             stack: Vec::new(),
@@ -313,6 +316,7 @@ impl LmCut {
             cost,
             supporter,
             zone,
+            into_zone,
             stack,
             goal_fact,
             round,
@@ -325,6 +329,7 @@ impl LmCut {
         while let Some(f) = stack.pop() {
             for &op in achievers.get(f as usize) {
                 let op = op as usize;
+                into_zone[op] = *round;
                 let p = supporter[op];
                 if cost[op] == 0 && p != NONE && zone[p as usize] != goal_mark {
                     zone[p as usize] = goal_mark;
@@ -343,6 +348,7 @@ impl LmCut {
             eff,
             supported,
             zone,
+            into_zone,
             stack,
             cut,
             start_fact,
@@ -364,11 +370,10 @@ impl LmCut {
             while next != NONE {
                 let op = next as usize;
                 next = supported.next[op];
-                let effects = eff.get(op);
-                if effects.iter().any(|&e| zone[e as usize] == goal_mark) {
+                if into_zone[op] == *round {
                     cut.push(op as u32);
                 } else {
-                    for &e in effects {
+                    for &e in eff.get(op) {
                         if zone[e as usize] != before_mark {
                             zone[e as usize] = before_mark;
                             stack.push(e);
@@ -382,6 +387,7 @@ impl LmCut {
     fn next_round(&mut self) {
         if self.round >= u32::MAX / 2 - 1 {
             self.zone.fill(0);
+            self.into_zone.fill(0);
             self.round = 0;
         }
         self.round += 1;
