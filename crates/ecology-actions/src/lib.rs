@@ -88,7 +88,9 @@ impl Clock for NoClock {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Strategy {
     /// Greedy best-first search: fast, not optimal. With `preferred`, the
-    /// heuristic's preferred operators get their own queue.
+    /// heuristic's preferred operators get their own queue. Like every
+    /// search that is not proven optimal, its plan is then shortened by
+    /// action elimination (detours removed; never costlier).
     Greedy {
         /// The heuristic.
         heuristic: HeuristicKind,
