@@ -760,3 +760,43 @@ fn action_elimination_removes_a_detour() {
         Ok(optimal.cost)
     );
 }
+
+/// Operators unreachable from the problem's start are left out per request:
+/// replanning from elsewhere still has them.
+#[test]
+fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
+    let (domain, problem) = load(
+        "(define (domain d) (:requirements :strips :typing) (:types room)
+           (:predicates (at ?x - room) (door ?x ?y - room))
+           (:action go :parameters (?x ?y - room)
+             :precondition (and (at ?x) (door ?x ?y))
+             :effect (and (at ?y) (not (at ?x)))))",
+        "(define (problem p) (:domain d) (:objects a b c e - room)
+           (:init (at a) (door a b) (door c e)) (:goal (at e)))",
+    );
+    let task = ground(&domain, &problem).expect("grounds");
+    for strategy in [Strategy::SATISFICING, Strategy::OPTIMAL] {
+        let options = Options {
+            strategy,
+            budget: Budget::default(),
+        };
+        let from_start = plan(&Request::new(&task), &options, &NoClock);
+        assert!(matches!(from_start.verdict, Verdict::Unsolvable(_)));
+        let elsewhere = task
+            .state_from([
+                ("at", vec!["c"]),
+                ("door", vec!["a", "b"]),
+                ("door", vec!["c", "e"]),
+            ])
+            .expect("a state of this task");
+        let again = plan(
+            &Request::replan(&task, elsewhere, Vec::new()),
+            &options,
+            &NoClock,
+        );
+        let Verdict::Found(found) = again.verdict else {
+            panic!("{strategy:?}: {:?}", again.verdict)
+        };
+        assert_eq!(found.to_string(), "(go c e)\n; cost = 1\n");
+    }
+}
