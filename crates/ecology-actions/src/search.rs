@@ -289,17 +289,17 @@ impl<'t> Engine<'t> {
                 successors.push(op);
             }
         });
-        let parent_state = self.scratch.clone();
+        // The parent stays in the registry: each child starts from there.
         let mut result = StepResult::Continue;
         for &op in &successors {
             self.generated += 1;
-            self.scratch.words.copy_from_slice(&parent_state.words);
+            self.scratch.words.copy_from_slice(self.registry.get(id));
             self.task.apply_in_place(&mut self.scratch, op);
             let new_g = g.saturating_add(self.task.operator(op).cost);
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if is_new {
-                let state = self.scratch.clone();
-                let h = self.evaluate(&state);
+                self.evaluated += 1;
+                let h = self.heuristic.estimate(&self.scratch, &mut Vec::new());
                 self.nodes.push(Node {
                     parent: id,
                     op: op.0,
@@ -309,7 +309,7 @@ impl<'t> Engine<'t> {
                 self.closed.push(false);
                 let Some(h) = h else { continue };
                 if let Algorithm::Greedy { .. } = self.algorithm {
-                    if self.task.is_goal(&state) {
+                    if self.task.is_goal(&self.scratch) {
                         result = StepResult::Solved(child);
                         break;
                     }
