@@ -181,6 +181,9 @@ impl LmCut {
         }
     }
 
+    // The phases below stay out of line so that profiles tell them apart;
+    // each runs a few times per evaluation, so the calls cost nothing.
+
     /// h-max from `state` with the full operator costs, every reachable fact
     /// explored (the cuts need all of them).
     #[inline(never)]
