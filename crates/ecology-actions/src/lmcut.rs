@@ -9,52 +9,12 @@
 //! preconditions are the goal facts. So h-max of the goal is h-max of
 //! `goal`, and the goal zone grows from `goal` alone.
 
-use crate::heuristic::{Heuristic, Relaxed};
+use crate::heuristic::{Heuristic, Lists, Relaxed};
 use crate::queue::Queue;
 use crate::task::{OpId, State};
 
 const INF: u64 = u64::MAX;
 const NONE: u32 = u32::MAX;
-
-/// Lists of `u32` stored flat: list `i` is `items[start[i]..start[i + 1]]`.
-#[derive(Debug, Clone, Default)]
-struct Lists {
-    start: Vec<u32>,
-    items: Vec<u32>,
-}
-
-impl Lists {
-    fn from_lists<'a>(lists: impl IntoIterator<Item = &'a [u32]>) -> Lists {
-        let mut out = Lists {
-            start: vec![0],
-            items: Vec::new(),
-        };
-        for list in lists {
-            out.items.extend_from_slice(list);
-            out.start.push(out.items.len() as u32);
-        }
-        out
-    }
-
-    /// The lists `i` appears in, for `i` in `0..n`: the reverse relation.
-    fn inverse(&self, n: usize) -> Lists {
-        let mut lists = vec![Vec::new(); n];
-        for i in 0..self.len() {
-            for &x in self.get(i) {
-                lists[x as usize].push(i as u32);
-            }
-        }
-        Lists::from_lists(lists.iter().map(Vec::as_slice))
-    }
-
-    fn len(&self) -> usize {
-        self.start.len() - 1
-    }
-
-    fn get(&self, i: usize) -> &[u32] {
-        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
-    }
-}
 
 /// The operators whose supporter each fact is, as intrusive doubly linked
 /// lists: the cut search and the incremental update then follow exactly
