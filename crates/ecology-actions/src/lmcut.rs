@@ -165,6 +165,9 @@ impl LmCut {
             ..
         } = self;
         fact_cost.fill(INF);
+        // Operators this state cannot reach must have no supporter: the goal
+        // zone follows supporters of zero-cost operators.
+        supporter.fill(NONE);
         supported.head.fill(NONE);
         cost.copy_from_slice(base_cost);
         for (slot, w) in unsatisfied.iter_mut().zip(pre.start.windows(2)) {
