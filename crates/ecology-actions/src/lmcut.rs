@@ -85,6 +85,8 @@ pub(crate) struct LmCut {
     queue: Queue,
     stack: Vec<u32>,
     cut: Vec<u32>,
+    /// The facts of the state being evaluated, for every round's cut search.
+    state_facts: Vec<u32>,
 }
 
 impl LmCut {
@@ -138,6 +140,7 @@ impl LmCut {
             queue: Queue::default(),
             stack: Vec::new(),
             cut: Vec::new(),
+            state_facts: Vec::new(),
         }
     }
 
@@ -162,6 +165,7 @@ impl LmCut {
             fact_cost,
             queue,
             start_fact,
+            state_facts,
             ..
         } = self;
         fact_cost.fill(INF);
@@ -176,9 +180,11 @@ impl LmCut {
         queue.clear();
         fact_cost[*start_fact as usize] = 0;
         queue.push(0, *start_fact);
+        state_facts.clear();
         relaxed.state_facts(state, |f| {
             fact_cost[f as usize] = 0;
             queue.push(0, f);
+            state_facts.push(f);
         });
         while let Some((c, f)) = queue.pop() {
             if c > fact_cost[f as usize] {
@@ -308,9 +314,9 @@ impl LmCut {
     /// Forward from the state through the justification graph, stopping at
     /// the goal zone: the operators crossing into it form the cut.
     #[inline(never)]
-    fn find_cut(&mut self, state: &State) {
+    fn find_cut(&mut self) {
         let LmCut {
-            relaxed,
+            state_facts,
             eff,
             supported,
             zone,
@@ -327,10 +333,10 @@ impl LmCut {
         stack.clear();
         zone[*start_fact as usize] = before_mark;
         stack.push(*start_fact);
-        relaxed.state_facts(state, |f| {
+        for &f in state_facts.iter() {
             zone[f as usize] = before_mark;
             stack.push(f);
-        });
+        }
         while let Some(f) = stack.pop() {
             let mut next = supported.head[f as usize];
             while next != NONE {
@@ -381,7 +387,7 @@ impl Heuristic for LmCut {
         while self.fact_cost[self.goal_fact as usize] != 0 {
             self.next_round();
             self.mark_goal_zone();
-            self.find_cut(state);
+            self.find_cut();
             let m = self
                 .cut
                 .iter()
