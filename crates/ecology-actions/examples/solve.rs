@@ -8,7 +8,8 @@
 //! ```
 //!
 //! `run` prints `status=found cost=N expanded=N generated=N evaluated=N
-//! ms=T ground_ms=T valid=BOOL` (or `status=unsolvable|timeout`); `ms` runs
+//! ms=T ground_ms=T operators=N initial_h=N valid=BOOL` (or
+//! `status=unsolvable|timeout`); `ms` runs
 //! from before reading the files to the end of the search, so it includes
 //! reading, parsing and grounding, like the whole-process time the script
 //! measures for both planners. The plan is checked by the validator
@@ -101,11 +102,13 @@ fn run(args: &[String]) -> Result<(), String> {
     let ms = start.elapsed().as_secs_f64() * 1000.0;
     let s = &outcome.stats;
     let counts = format!(
-        "expanded={} generated={} evaluated={} ms={ms:.1} ground_ms={ground_ms:.1} operators={}",
+        "expanded={} generated={} evaluated={} ms={ms:.1} ground_ms={ground_ms:.1} operators={} initial_h={}",
         s.expanded,
         s.generated,
         s.evaluated,
-        task.operators().len()
+        task.operators().len(),
+        s.initial_h
+            .map_or("dead-end".to_string(), |h| h.to_string())
     );
     match &outcome.verdict {
         Verdict::Found(plan) => {
