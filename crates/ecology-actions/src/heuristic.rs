@@ -62,9 +62,10 @@ impl HeuristicKind {
             HeuristicKind::Ff => Box::new(HFf {
                 explore: Exploration::new(relaxed),
                 marked: Vec::new(),
+                seen: Vec::new(),
                 stack: Vec::new(),
             }),
-            HeuristicKind::LmCut => Box::new(LmCut::new(relaxed)),
+            HeuristicKind::LmCut => Box::new(crate::lmcut::LmCut::new(relaxed)),
         }
     }
 }
@@ -112,6 +113,8 @@ pub(crate) struct Relaxed {
     is_goal: Vec<bool>,
     /// The goal is false for a static reason.
     impossible: bool,
+    /// `(atom, complement fact)` for the atoms that have a complement.
+    complemented: Vec<(u32, u32)>,
 }
 
 impl Relaxed {
@@ -168,7 +171,14 @@ impl Relaxed {
         for &g in &goal {
             is_goal[g as usize] = true;
         }
+        let complemented = complement
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c != u32::MAX)
+            .map(|(a, &c)| (a as u32, c))
+            .collect();
         Relaxed {
+            complemented,
             is_goal,
             facts: facts as usize,
             atoms,
@@ -181,15 +191,77 @@ impl Relaxed {
     }
 
     /// Calls `f` with each fact true in `state`.
-    fn state_facts(&self, state: &State, mut f: impl FnMut(u32)) {
-        for a in 0..self.atoms {
-            let holds = state.holds(crate::task::AtomId(a as u32));
-            if holds {
-                f(a as u32);
-            } else if self.complement[a] != u32::MAX {
-                f(self.complement[a]);
+    pub(crate) fn state_facts(&self, state: &State, mut f: impl FnMut(u32)) {
+        for a in state.atoms() {
+            if (a.0 as usize) < self.atoms {
+                f(a.0);
             }
         }
+        for &(a, c) in &self.complemented {
+            if !state.holds(crate::task::AtomId(a)) {
+                f(c);
+            }
+        }
+    }
+
+    /// How many facts: atoms and complements.
+    pub(crate) fn facts(&self) -> usize {
+        self.facts
+    }
+
+    /// Each relaxed operator's preconditions, effects and cost.
+    pub(crate) fn ops(&self) -> impl Iterator<Item = (&[u32], &[u32], u64)> + '_ {
+        self.ops.iter().map(|o| (&o.pre[..], &o.add[..], o.cost))
+    }
+
+    /// The goal facts.
+    pub(crate) fn goal(&self) -> &[u32] {
+        &self.goal
+    }
+
+    /// Whether the goal is false for a static reason.
+    pub(crate) fn impossible(&self) -> bool {
+        self.impossible
+    }
+}
+
+/// Lists of `u32` stored flat: list `i` is `items[start[i]..start[i + 1]]`.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Lists {
+    pub(crate) start: Vec<u32>,
+    pub(crate) items: Vec<u32>,
+}
+
+impl Lists {
+    pub(crate) fn from_lists<'a>(lists: impl IntoIterator<Item = &'a [u32]>) -> Lists {
+        let mut out = Lists {
+            start: vec![0],
+            items: Vec::new(),
+        };
+        for list in lists {
+            out.items.extend_from_slice(list);
+            out.start.push(out.items.len() as u32);
+        }
+        out
+    }
+
+    /// The lists `i` appears in, for `i` in `0..n`: the reverse relation.
+    pub(crate) fn inverse(&self, n: usize) -> Lists {
+        let mut lists = vec![Vec::new(); n];
+        for i in 0..self.len() {
+            for &x in self.get(i) {
+                lists[x as usize].push(i as u32);
+            }
+        }
+        Lists::from_lists(lists.iter().map(Vec::as_slice))
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    pub(crate) fn get(&self, i: usize) -> &[u32] {
+        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
     }
 }
 
@@ -212,13 +284,29 @@ struct Exploration {
     /// The precondition that made each operator fire last (its h-max argmax).
     last_pre: Vec<u32>,
     heap: BinaryHeap<Reverse<(u64, u32)>>,
+    /// The relaxed task laid out flat for the hot loops: each operator's
+    /// precondition count, effects and cost, each fact's consumers (in
+    /// operator order, as in `relaxed`, so ties break the same way).
+    pre_count: Vec<u32>,
+    add: Lists,
+    base_cost: Vec<u64>,
+    consumers: Lists,
+    no_pre: Vec<u32>,
 }
 
 impl Exploration {
     fn new(relaxed: Relaxed) -> Exploration {
         let facts = relaxed.facts;
         let ops = relaxed.ops.len();
+        let consumers = Lists::from_lists(relaxed.pre_of.iter().map(Vec::as_slice));
         Exploration {
+            pre_count: relaxed.ops.iter().map(|o| o.pre.len() as u32).collect(),
+            add: Lists::from_lists(relaxed.ops.iter().map(|o| &o.add[..])),
+            base_cost: relaxed.ops.iter().map(|o| o.cost).collect(),
+            consumers,
+            no_pre: (0..ops as u32)
+                .filter(|&i| relaxed.ops[i as usize].pre.is_empty())
+                .collect(),
             relaxed,
             cost: vec![INF; facts],
             supporter: vec![u32::MAX; facts],
@@ -243,53 +331,68 @@ impl Exploration {
         if self.relaxed.impossible {
             return None;
         }
-        self.cost.fill(INF);
-        self.supporter.fill(u32::MAX);
-        self.last_pre.fill(u32::MAX);
-        self.heap.clear();
-        for (i, o) in self.relaxed.ops.iter().enumerate() {
-            self.unsatisfied[i] = o.pre.len() as u32;
-            self.op_cost[i] = 0;
-        }
         let Exploration {
             relaxed,
             cost,
+            supporter,
+            unsatisfied,
+            op_cost,
+            last_pre,
             heap,
-            ..
+            pre_count,
+            add,
+            base_cost,
+            consumers,
+            no_pre,
         } = self;
+        cost.fill(INF);
+        supporter.fill(u32::MAX);
+        last_pre.fill(u32::MAX);
+        heap.clear();
+        unsatisfied.copy_from_slice(pre_count);
+        op_cost.fill(0);
+        let costs: &[u64] = costs.unwrap_or(base_cost);
+        let mut fire = |i: usize, op_cost: u64, cost: &mut [u64], heap: &mut BinaryHeap<_>| {
+            let value = op_cost.saturating_add(costs[i]);
+            for &g in add.get(i) {
+                if value < cost[g as usize] {
+                    cost[g as usize] = value;
+                    supporter[g as usize] = i as u32;
+                    heap.push(Reverse((value, g)));
+                }
+            }
+        };
         relaxed.state_facts(state, |f| {
             cost[f as usize] = 0;
             heap.push(Reverse((0, f)));
         });
-        for i in 0..self.relaxed.ops.len() {
-            if self.relaxed.ops[i].pre.is_empty() {
-                self.fire(i, costs);
-            }
+        for &i in no_pre.iter() {
+            fire(i as usize, 0, cost, heap);
         }
-        let mut goals_left = self.relaxed.goal.len();
+        let mut goals_left = relaxed.goal.len();
         loop {
             if goals_left == 0 && !full {
                 break;
             }
-            let Some(Reverse((c, f))) = self.heap.pop() else {
+            let Some(Reverse((c, f))) = heap.pop() else {
                 break;
             };
-            if c > self.cost[f as usize] {
+            if c > cost[f as usize] {
                 continue;
             }
-            if self.relaxed.is_goal[f as usize] {
+            if relaxed.is_goal[f as usize] {
                 goals_left -= 1;
             }
-            for j in 0..self.relaxed.pre_of[f as usize].len() {
-                let i = self.relaxed.pre_of[f as usize][j] as usize;
-                self.op_cost[i] = match combine {
-                    Combine::Sum => self.op_cost[i].saturating_add(c),
-                    Combine::Max => self.op_cost[i].max(c),
+            for &i in consumers.get(f as usize) {
+                let i = i as usize;
+                op_cost[i] = match combine {
+                    Combine::Sum => op_cost[i].saturating_add(c),
+                    Combine::Max => op_cost[i].max(c),
                 };
-                self.unsatisfied[i] -= 1;
-                if self.unsatisfied[i] == 0 {
-                    self.last_pre[i] = f;
-                    self.fire(i, costs);
+                unsatisfied[i] -= 1;
+                if unsatisfied[i] == 0 {
+                    last_pre[i] = f;
+                    fire(i, op_cost[i], cost, heap);
                 }
             }
         }
@@ -297,27 +400,14 @@ impl Exploration {
             return None;
         }
         let mut total = 0u64;
-        for &g in &self.relaxed.goal {
-            let c = self.cost[g as usize];
+        for &g in &relaxed.goal {
+            let c = cost[g as usize];
             total = match combine {
                 Combine::Sum => total.saturating_add(c),
                 Combine::Max => total.max(c),
             };
         }
         Some(total)
-    }
-
-    fn fire(&mut self, i: usize, costs: Option<&[u64]>) {
-        let op_cost = costs.map_or(self.relaxed.ops[i].cost, |c| c[i]);
-        let value = self.op_cost[i].saturating_add(op_cost);
-        for k in 0..self.relaxed.ops[i].add.len() {
-            let g = self.relaxed.ops[i].add[k] as usize;
-            if value < self.cost[g] {
-                self.cost[g] = value;
-                self.supporter[g] = i as u32;
-                self.heap.push(Reverse((value, g as u32)));
-            }
-        }
     }
 }
 
@@ -382,6 +472,7 @@ impl Heuristic for HAdd {
 struct HFf {
     explore: Exploration,
     marked: Vec<bool>,
+    seen: Vec<bool>,
     stack: Vec<u32>,
 }
 
@@ -401,7 +492,9 @@ impl Heuristic for HFf {
         self.marked.resize(e.relaxed.ops.len(), false);
         self.stack.clear();
         self.stack.extend(&e.relaxed.goal);
-        let mut seen = vec![false; e.relaxed.facts];
+        let seen = &mut self.seen;
+        seen.clear();
+        seen.resize(e.relaxed.facts, false);
         let mut total = 0u64;
         while let Some(f) = self.stack.pop() {
             if seen[f as usize] || e.cost[f as usize] == 0 {
@@ -424,11 +517,12 @@ impl Heuristic for HFf {
     }
 }
 
-/// LM-cut (Helmert and Domshlak): repeatedly finds a cut of operators that
-/// every relaxed plan must use, adds its cheapest cost, and lowers the cut's
-/// costs by it. Admissible.
+/// LM-cut (Helmert and Domshlak) computing h-max from scratch after every
+/// cut: the straightforward version [`crate::lmcut::LmCut`] replaced, kept
+/// as a test oracle. Admissible.
+#[cfg(test)]
 #[derive(Debug, Clone)]
-struct LmCut {
+pub(crate) struct LmCutFromScratch {
     explore: Exploration,
     costs: Vec<u64>,
     in_zone: Vec<bool>,
@@ -438,8 +532,9 @@ struct LmCut {
     no_pre: Vec<u32>,
 }
 
-impl LmCut {
-    fn new(relaxed: Relaxed) -> LmCut {
+#[cfg(test)]
+impl LmCutFromScratch {
+    pub(crate) fn new(relaxed: Relaxed) -> LmCutFromScratch {
         let mut adders = vec![Vec::new(); relaxed.facts];
         for (i, o) in relaxed.ops.iter().enumerate() {
             for &f in &o.add {
@@ -447,7 +542,7 @@ impl LmCut {
             }
         }
         let facts = relaxed.facts;
-        LmCut {
+        LmCutFromScratch {
             costs: relaxed.ops.iter().map(|o| o.cost).collect(),
             explore: Exploration::new(relaxed),
             in_zone: vec![false; facts],
@@ -459,7 +554,8 @@ impl LmCut {
     }
 }
 
-impl Heuristic for LmCut {
+#[cfg(test)]
+impl Heuristic for LmCutFromScratch {
     fn name(&self) -> &'static str {
         "lmcut"
     }

@@ -33,8 +33,11 @@
 //! ```
 
 mod heuristic;
+mod improve;
+mod lmcut;
 pub mod oracle;
 pub mod problems;
+mod queue;
 mod search;
 mod task;
 mod validate;
@@ -85,7 +88,9 @@ impl Clock for NoClock {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Strategy {
     /// Greedy best-first search: fast, not optimal. With `preferred`, the
-    /// heuristic's preferred operators get their own queue.
+    /// heuristic's preferred operators get their own queue. Like every
+    /// search that is not proven optimal, its plan is then shortened by
+    /// action elimination (detours removed; never costlier).
     Greedy {
         /// The heuristic.
         heuristic: HeuristicKind,
@@ -96,6 +101,15 @@ pub enum Strategy {
     AStar {
         /// The heuristic.
         heuristic: HeuristicKind,
+    },
+    /// Weighted A* (best-first on `g + weight * h`): slower than greedy
+    /// search, cheaper plans; with an admissible heuristic the plan costs at
+    /// most `weight` times the optimum.
+    Weighted {
+        /// The heuristic.
+        heuristic: HeuristicKind,
+        /// The weight of `h`, at least 1.
+        weight: u64,
     },
 }
 
@@ -362,11 +376,21 @@ impl<'t> Search<'t> {
                 heuristic,
                 preferred,
             } => (heuristic, Algorithm::Greedy { preferred }),
-            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar),
+            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar { weight: 1 }),
+            Strategy::Weighted { heuristic, weight } => (
+                heuristic,
+                Algorithm::AStar {
+                    weight: weight.max(1),
+                },
+            ),
         };
-        let heuristic = kind.build(task, &excluded);
         let initial = task.fit(&request.initial);
-        let engine = Engine::new(task, &initial, excluded.clone(), heuristic, algorithm);
+        // Both the search and the heuristic go without the operators that
+        // cannot matter from this start; `excluded` stays as asked, for
+        // explaining unreachable goals.
+        let useless = task.useless_operators(&initial, &excluded);
+        let heuristic = kind.build(task, &useless);
+        let engine = Engine::new(task, &initial, useless, heuristic, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))
         } else if engine.initial_h.is_none() {
@@ -375,7 +399,7 @@ impl<'t> Search<'t> {
             None
         };
         Search {
-            optimal_search: algorithm == Algorithm::AStar && engine.is_admissible(),
+            optimal_search: algorithm == (Algorithm::AStar { weight: 1 }) && engine.is_admissible(),
             engine,
             task,
             excluded,
@@ -421,7 +445,10 @@ impl<'t> Search<'t> {
         let (verdict, optimal) = match self.result {
             None | Some(StepResult::Continue) => (Verdict::BudgetExceeded, false),
             Some(StepResult::Solved(node)) => {
-                let ops = self.engine.path(node);
+                let mut ops = self.engine.path(node);
+                if !self.optimal_search {
+                    improve::eliminate_actions(self.task, &self.initial, &mut ops);
+                }
                 (
                     Verdict::Found(Plan::from_ops(self.task, &ops)),
                     self.optimal_search,

@@ -1,20 +1,22 @@
-//! The search engines: greedy best-first search (with preferred operators)
-//! and A*, as loops of expansion steps over an arena of nodes.
+//! The search engines: greedy best-first search (with preferred operators),
+//! A* and weighted A*, as loops of expansion steps over an arena of nodes.
 
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::BinaryHeap;
 
 use crate::heuristic::Heuristic;
 use crate::task::{OpId, State, Task};
 
-/// States stored once, flat, with a hash index: node `i` has state `i`.
+/// States stored once, flat, with an open-addressing hash index of node
+/// ids: node `i` has state `i`. Per state: its words and at most two `u32`
+/// slots, nothing else (no stored hash, no chain links).
 #[derive(Debug, Default)]
 struct Registry {
     words: usize,
+    len: usize,
     data: Vec<u64>,
-    /// First node of each hash value; collisions chain through `next`.
-    first: HashMap<u64, u32>,
-    next: Vec<u32>,
+    /// Node ids by hash, linear probing, at most half full; `NONE` is empty.
+    slots: Vec<u32>,
 }
 
 fn hash_words(words: &[u64]) -> u64 {
@@ -32,44 +34,86 @@ impl Registry {
         &self.data[start..start + self.words]
     }
 
+    /// The slot to look for `state` in first: the hash's high bits, which
+    /// the final multiplication mixes best.
+    fn home(&self, state: &[u64]) -> usize {
+        let bits = self.slots.len().trailing_zeros();
+        (hash_words(state) >> (64 - bits)) as usize
+    }
+
+    fn grow(&mut self) {
+        let capacity = (self.slots.len() * 2).max(1024);
+        self.slots = vec![NONE; capacity];
+        let mask = capacity - 1;
+        for id in 0..self.len as u32 {
+            let mut i = self.home(self.get(id));
+            while self.slots[i] != NONE {
+                i = (i + 1) & mask;
+            }
+            self.slots[i] = id;
+        }
+    }
+
     /// The node of `state`, inserting it as node `len` if new; `true` if new.
     fn insert(&mut self, state: &[u64]) -> (u32, bool) {
-        let hash = hash_words(state);
-        let mut at = self.first.get(&hash).copied();
-        while let Some(id) = at {
+        if (self.len + 1) * 2 > self.slots.len() {
+            self.grow();
+        }
+        let mask = self.slots.len() - 1;
+        let mut i = self.home(state);
+        loop {
+            let id = self.slots[i];
+            if id == NONE {
+                break;
+            }
             if self.get(id) == state {
                 return (id, false);
             }
-            at = match self.next[id as usize] {
-                u32::MAX => None,
-                n => Some(n),
-            };
+            i = (i + 1) & mask;
         }
-        let id = self.next.len() as u32;
+        let id = self.len as u32;
         self.data.extend_from_slice(state);
-        let previous = self.first.insert(hash, id);
-        self.next.push(previous.unwrap_or(u32::MAX));
+        self.slots[i] = id;
+        self.len += 1;
         (id, true)
     }
 }
 
 const NONE: u32 = u32::MAX;
 
+/// What a search keeps per state: 24 bytes (whether it is closed is a
+/// separate bit vector).
 #[derive(Debug, Clone, Copy)]
 struct Node {
+    g: u64,
+    /// `DEAD`: a dead end.
+    h: u64,
     parent: u32,
     op: u32,
-    g: u64,
-    /// `None`: a dead end.
-    h: Option<u64>,
-    closed: bool,
 }
+
+/// The `h` of a dead end.
+const DEAD: u64 = u64::MAX;
 
 /// Which algorithm runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Algorithm {
-    Greedy { preferred: bool },
-    AStar,
+    Greedy {
+        preferred: bool,
+    },
+    /// Best-first on `g + weight * h`: A* with weight 1.
+    AStar {
+        weight: u64,
+    },
+}
+
+impl Algorithm {
+    fn weight(self) -> Option<u64> {
+        match self {
+            Algorithm::AStar { weight } => Some(weight),
+            Algorithm::Greedy { .. } => None,
+        }
+    }
 }
 
 /// The result of one step.
@@ -87,10 +131,11 @@ pub(crate) struct Engine<'t> {
     algorithm: Algorithm,
     registry: Registry,
     nodes: Vec<Node>,
-    /// (priority, tie-break, counter, node); the tie-break is h under A*.
-    open: BinaryHeap<Reverse<(u64, u64, u64, u32)>>,
-    preferred_open: BinaryHeap<Reverse<(u64, u64, u64, u32)>>,
-    counter: u64,
+    closed: Vec<bool>,
+    /// (priority, tie-break, node): the tie-break is h under A*, then the
+    /// older node first.
+    open: BinaryHeap<Reverse<(u64, u64, u32)>>,
+    preferred_open: BinaryHeap<Reverse<(u64, u64, u32)>>,
     /// Expansions left from the preferred queue before alternating again.
     boost: u64,
     best_h: u64,
@@ -132,9 +177,9 @@ impl<'t> Engine<'t> {
                 ..Registry::default()
             },
             nodes: Vec::new(),
+            closed: Vec::new(),
             open: BinaryHeap::new(),
             preferred_open: BinaryHeap::new(),
-            counter: 0,
             boost: 0,
             best_h: u64::MAX,
             turn: false,
@@ -153,9 +198,9 @@ impl<'t> Engine<'t> {
             parent: NONE,
             op: NONE,
             g: 0,
-            h,
-            closed: false,
+            h: h.unwrap_or(DEAD),
         });
+        engine.closed.push(false);
         if let Some(h) = h {
             engine.best_h = h;
             engine.push(id, 0, h, false);
@@ -171,10 +216,11 @@ impl<'t> Engine<'t> {
     }
 
     fn push(&mut self, id: u32, g: u64, h: u64, preferred: bool) {
-        self.counter += 1;
         let entry = match self.algorithm {
-            Algorithm::AStar => Reverse((g.saturating_add(h), h, self.counter, id)),
-            Algorithm::Greedy { .. } => Reverse((h, 0, self.counter, id)),
+            Algorithm::AStar { weight } => {
+                Reverse((g.saturating_add(h.saturating_mul(weight)), h, id))
+            }
+            Algorithm::Greedy { .. } => Reverse((h, 0, id)),
         };
         if preferred {
             self.preferred_open.push(entry);
@@ -197,17 +243,17 @@ impl<'t> Engine<'t> {
             } else {
                 self.open.pop()
             };
-            let Reverse((priority, _, _, id)) = match entry {
+            let Reverse((priority, _, id)) = match entry {
                 Some(e) => e,
                 None if self.open.is_empty() && self.preferred_open.is_empty() => return None,
                 None => continue,
             };
-            let node = self.nodes[id as usize];
-            if node.closed {
+            if self.closed[id as usize] {
                 continue;
             }
-            if self.algorithm == Algorithm::AStar
-                && node.g.saturating_add(node.h.unwrap_or(u64::MAX)) != priority
+            let node = self.nodes[id as usize];
+            if let Some(weight) = self.algorithm.weight()
+                && node.g.saturating_add(node.h.saturating_mul(weight)) != priority
             {
                 continue;
             }
@@ -221,10 +267,10 @@ impl<'t> Engine<'t> {
             return StepResult::Exhausted;
         };
         self.scratch.words.copy_from_slice(self.registry.get(id));
-        if self.algorithm == Algorithm::AStar && self.task.is_goal(&self.scratch) {
+        if self.algorithm.weight().is_some() && self.task.is_goal(&self.scratch) {
             return StepResult::Solved(id);
         }
-        self.nodes[id as usize].closed = true;
+        self.closed[id as usize] = true;
         self.expanded += 1;
         let g = self.nodes[id as usize].g;
         let use_preferred = matches!(self.algorithm, Algorithm::Greedy { preferred: true });
@@ -243,27 +289,27 @@ impl<'t> Engine<'t> {
                 successors.push(op);
             }
         });
-        let parent_state = self.scratch.clone();
+        // The parent stays in the registry: each child starts from there.
         let mut result = StepResult::Continue;
         for &op in &successors {
             self.generated += 1;
-            self.scratch.words.copy_from_slice(&parent_state.words);
+            self.scratch.words.copy_from_slice(self.registry.get(id));
             self.task.apply_in_place(&mut self.scratch, op);
             let new_g = g.saturating_add(self.task.operator(op).cost);
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if is_new {
-                let state = self.scratch.clone();
-                let h = self.evaluate(&state);
+                self.evaluated += 1;
+                let h = self.heuristic.estimate(&self.scratch, &mut Vec::new());
                 self.nodes.push(Node {
                     parent: id,
                     op: op.0,
                     g: new_g,
-                    h,
-                    closed: false,
+                    h: h.unwrap_or(DEAD),
                 });
+                self.closed.push(false);
                 let Some(h) = h else { continue };
                 if let Algorithm::Greedy { .. } = self.algorithm {
-                    if self.task.is_goal(&state) {
+                    if self.task.is_goal(&self.scratch) {
                         result = StepResult::Solved(child);
                         break;
                     }
@@ -274,15 +320,14 @@ impl<'t> Engine<'t> {
                 }
                 let is_preferred = preferred.binary_search(&op).is_ok();
                 self.push(child, new_g, h, is_preferred);
-            } else if self.algorithm == Algorithm::AStar {
+            } else if self.algorithm.weight().is_some() {
                 let node = &mut self.nodes[child as usize];
-                if let Some(h) = node.h
-                    && new_g < node.g
-                {
+                if node.h != DEAD && new_g < node.g {
+                    let h = node.h;
                     node.g = new_g;
                     node.parent = id;
                     node.op = op.0;
-                    node.closed = false;
+                    self.closed[child as usize] = false;
                     self.push(child, new_g, h, false);
                 }
             }

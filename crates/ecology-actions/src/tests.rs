@@ -18,8 +18,16 @@ const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_TASK: &str = include_str!("../../../domains/peis-home-task.problem");
 
 /// Every strategy the tests exercise: the satisficing ones, then the optimal ones.
-const SATISFICING: [Strategy; 3] = [
+const SATISFICING: [Strategy; 5] = [
     Strategy::SATISFICING,
+    Strategy::Weighted {
+        heuristic: HeuristicKind::Ff,
+        weight: 3,
+    },
+    Strategy::Weighted {
+        heuristic: HeuristicKind::LmCut,
+        weight: 2,
+    },
     Strategy::Greedy {
         heuristic: HeuristicKind::Add,
         preferred: false,
@@ -569,6 +577,12 @@ fn agree_with_oracle(inst: &Instance) -> Result<(), TestCaseError> {
                 } else {
                     prop_assert!(plan.cost >= *cost);
                 }
+                // Weighted A* with an admissible heuristic is bounded.
+                if let Strategy::Weighted { heuristic, weight } = strategy
+                    && heuristic.is_admissible()
+                {
+                    prop_assert!(plan.cost <= weight * *cost, "{:?}\n{}", strategy, plan);
+                }
             }
             (Verdict::Unsolvable(_), Cheapest::Unsolvable) => {}
             (got, want) => {
@@ -590,6 +604,10 @@ proptest! {
         let inst = problems::random_small(seed).map_err(|e| TestCaseError::fail(e.to_string()))?;
         agree_with_oracle(&inst)?;
         check_replanning(&inst.domain, &inst.problem);
+        if let Ok(task) = ground(&inst.domain, &inst.problem) {
+            let states = random_states(&task, seed, 3, 6);
+            check_lm_cut_on(&task, &states).map_err(TestCaseError::fail)?;
+        }
     }
 }
 
@@ -618,4 +636,167 @@ fn grounding_stops_at_its_memory_limit() {
     );
     // With the default limit the same task grounds.
     assert!(crate::ground(&domain, &problem).is_ok());
+}
+
+/// States reached by random walks from the start of `task`, seeded.
+fn random_states(task: &Task, seed: u64, walks: usize, depth: usize) -> Vec<crate::State> {
+    let mut rng = problems::Rng::new(seed);
+    let mut states = Vec::new();
+    for _ in 0..walks {
+        let mut state = task.initial().clone();
+        for _ in 0..rng.below(depth + 1) {
+            let mut ops = Vec::new();
+            task.for_each_applicable(&state, |op| ops.push(op));
+            if ops.is_empty() {
+                break;
+            }
+            state = task.apply(&state, ops[rng.below(ops.len())]);
+        }
+        states.push(state);
+    }
+    states
+}
+
+/// LM-cut with incremental h-max against the from-scratch LM-cut it
+/// replaced and against the truth, on states off the optimal path: both
+/// LM-cuts are at least h-max and at most the optimal cost from the state
+/// (found by A* with h-max, which does not depend on LM-cut), and they call
+/// the same states dead ends. Returns how many states both valued equally.
+fn check_lm_cut_on(task: &Task, states: &[crate::State]) -> Result<usize, String> {
+    let mut hmax = HeuristicKind::Max.build(task, &[]);
+    let mut lmcut = HeuristicKind::LmCut.build(task, &[]);
+    let mut scratch =
+        crate::heuristic::LmCutFromScratch::new(crate::heuristic::Relaxed::new(task, &[]));
+    let mut same = 0;
+    for state in states {
+        let (max, cut, old) = (
+            hmax.estimate(state, &mut Vec::new()),
+            lmcut.estimate(state, &mut Vec::new()),
+            crate::Heuristic::estimate(&mut scratch, state, &mut Vec::new()),
+        );
+        let options = Options {
+            strategy: Strategy::AStar {
+                heuristic: HeuristicKind::Max,
+            },
+            budget: Budget::default(),
+        };
+        let truth = match plan(
+            &Request::replan(task, state.clone(), Vec::new()),
+            &options,
+            &NoClock,
+        )
+        .verdict
+        {
+            Verdict::Found(p) => Some(p.cost),
+            _ => None,
+        };
+        match (max, cut, old, truth) {
+            (Some(max), Some(cut), Some(old), Some(truth)) => {
+                if !(max <= cut && cut <= truth && max <= old && old <= truth) {
+                    return Err(format!(
+                        "h-max {max}, LM-cut {cut}, from scratch {old}, optimum {truth}"
+                    ));
+                }
+                same += usize::from(cut == old);
+            }
+            // All three see the same relaxed dead ends, which are real; a
+            // real dead end need not be seen.
+            (None, None, None, None) => same += 1,
+            (Some(_), Some(cut), Some(old), None) => same += usize::from(cut == old),
+            other => return Err(format!("dead ends disagree: {other:?}")),
+        }
+    }
+    Ok(same)
+}
+
+#[test]
+fn incremental_lm_cut_is_admissible_and_dominates_h_max_off_the_plan() {
+    let mut total = 0;
+    let mut same = 0;
+    for inst in [
+        problems::gripper(3).expect("generates"),
+        problems::blocks(5, 3).expect("generates"),
+        problems::blocks(6, 11).expect("generates"),
+        problems::logistics(2, 2, 4).expect("generates"),
+    ] {
+        let task = ground(&inst.domain, &inst.problem).expect("grounds");
+        let states = random_states(&task, 17, 30, 12);
+        total += states.len();
+        same += check_lm_cut_on(&task, &states).unwrap_or_else(|e| panic!("{}: {e}", inst.name));
+    }
+    // Ties in h-max may pick other supporters than from scratch and so
+    // other cuts, but most states get the same value.
+    assert!(
+        2 * same > total,
+        "only {same} of {total} states valued alike"
+    );
+}
+
+/// A detour (an action and the one that undoes it) before an optimal plan
+/// is removed by action elimination, and what remains is still a plan.
+#[test]
+fn action_elimination_removes_a_detour() {
+    let inst = problems::blocks(5, 3).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let optimal = solve(&inst.domain, &inst.problem, Strategy::OPTIMAL);
+    let start = task.initial();
+    let mut detour = None;
+    task.for_each_applicable(start, |a| {
+        let next = task.apply(start, a);
+        task.for_each_applicable(&next, |b| {
+            if detour.is_none() && task.apply(&next, b) == *start {
+                detour = Some((a, b));
+            }
+        });
+    });
+    let (a, b) = detour.expect("blocks moves can be undone");
+    let mut ops = vec![a, b];
+    ops.extend(optimal.steps.iter().map(|s| s.op));
+    crate::improve::eliminate_actions(&task, start, &mut ops);
+    let plan = Plan::from_ops(&task, &ops);
+    assert_eq!(plan.cost, optimal.cost);
+    assert_eq!(
+        validate(&inst.domain, &inst.problem, &plan.calls()),
+        Ok(optimal.cost)
+    );
+}
+
+/// Operators unreachable from the problem's start are left out per request:
+/// replanning from elsewhere still has them.
+#[test]
+fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
+    let (domain, problem) = load(
+        "(define (domain d) (:requirements :strips :typing) (:types room)
+           (:predicates (at ?x - room) (door ?x ?y - room))
+           (:action go :parameters (?x ?y - room)
+             :precondition (and (at ?x) (door ?x ?y))
+             :effect (and (at ?y) (not (at ?x)))))",
+        "(define (problem p) (:domain d) (:objects a b c e - room)
+           (:init (at a) (door a b) (door c e)) (:goal (at e)))",
+    );
+    let task = ground(&domain, &problem).expect("grounds");
+    for strategy in [Strategy::SATISFICING, Strategy::OPTIMAL] {
+        let options = Options {
+            strategy,
+            budget: Budget::default(),
+        };
+        let from_start = plan(&Request::new(&task), &options, &NoClock);
+        assert!(matches!(from_start.verdict, Verdict::Unsolvable(_)));
+        let elsewhere = task
+            .state_from([
+                ("at", vec!["c"]),
+                ("door", vec!["a", "b"]),
+                ("door", vec!["c", "e"]),
+            ])
+            .expect("a state of this task");
+        let again = plan(
+            &Request::replan(&task, elsewhere, Vec::new()),
+            &options,
+            &NoClock,
+        );
+        let Verdict::Found(found) = again.verdict else {
+            panic!("{strategy:?}: {:?}", again.verdict)
+        };
+        assert_eq!(found.to_string(), "(go c e)\n; cost = 1\n");
+    }
 }
