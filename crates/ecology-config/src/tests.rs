@@ -57,6 +57,42 @@ fn components(config: &Configuration) -> Vec<String> {
     out
 }
 
+/// The paper's Fig. 6, configuration 2: the ceiling cameras and the tracking system.
+const CAMERAS_80: &str = "\
+(ceiling-cameras hsm ca1) on hsm:ca1 (On) cost 20\n\
+(navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20\n\
+(pose-tracking astrid s1) on astrid:s1 (On) cost 20\n\
+(tracking-system hsm tr1 astrid) on hsm:tr1 (On) cost 20\n\
+astrid:s1 → astrid:tc1 (position astrid) cost 0\n\
+hsm:ca1 → hsm:tr1 (image hsm) cost 0\n\
+hsm:tr1 → astrid:s1 (global-pos astrid) cost 0\n\
+total 80\n\
+";
+
+/// The paper's Fig. 6, configuration 3: Astrid's laser (off, started) and scan matching.
+const LASER_170: &str = "\
+(laser astrid l1) on astrid:l1 (Off) cost 120\n\
+(navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20\n\
+(odometry astrid od1) on astrid:od1 (On) cost 10\n\
+(scan-matching astrid s1) on astrid:s1 (On) cost 20\n\
+astrid:l1 → astrid:s1 (range-scan astrid) cost 0\n\
+astrid:od1 → astrid:s1 (odometry astrid) cost 0\n\
+astrid:s1 → astrid:tc1 (position astrid) cost 0\n\
+total 170\n\
+";
+
+/// The paper's Fig. 6, configuration 4: Pippi's camera watches Astrid.
+const PIPPI_190: &str = "\
+(camera pippi ca2) on pippi:ca2 (On) cost 20\n\
+(navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20\n\
+(object-localizer pippi ol2 astrid) on pippi:ol2 (On) cost 130\n\
+(pose-tracking astrid s1) on astrid:s1 (On) cost 20\n\
+astrid:s1 → astrid:tc1 (position astrid) cost 0\n\
+pippi:ca2 → pippi:ol2 (image pippi) cost 0\n\
+pippi:ol2 → astrid:s1 (global-pos astrid) cost 0\n\
+total 190\n\
+";
+
 /// What a configuration does, in a stable order: each functionality with its
 /// component, power and cost, each channel with its ends and cost, and the
 /// total, checked to be the sum of its parts (costs are additive).
@@ -152,35 +188,10 @@ fn all_lists_the_three_position_sources_cheapest_first() {
     assert_eq!(costs, [80, 170, 190]);
     assert!(outcome.configurations.iter().all(|c| c.optimal));
     // The cameras, the laser with scan matching, Pippi watching Astrid.
-    expect![[r#"
-        (ceiling-cameras hsm ca1) on hsm:ca1 (On) cost 20
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (pose-tracking astrid s1) on astrid:s1 (On) cost 20
-        (tracking-system hsm tr1 astrid) on hsm:tr1 (On) cost 20
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        hsm:ca1 → hsm:tr1 (image hsm) cost 0
-        hsm:tr1 → astrid:s1 (global-pos astrid) cost 0
-        total 80
-        --
-        (laser astrid l1) on astrid:l1 (Off) cost 120
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (odometry astrid od1) on astrid:od1 (On) cost 10
-        (scan-matching astrid s1) on astrid:s1 (On) cost 20
-        astrid:l1 → astrid:s1 (range-scan astrid) cost 0
-        astrid:od1 → astrid:s1 (odometry astrid) cost 0
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        total 170
-        --
-        (camera pippi ca2) on pippi:ca2 (On) cost 20
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (object-localizer pippi ol2 astrid) on pippi:ol2 (On) cost 130
-        (pose-tracking astrid s1) on astrid:s1 (On) cost 20
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        pippi:ca2 → pippi:ol2 (image pippi) cost 0
-        pippi:ol2 → astrid:s1 (global-pos astrid) cost 0
-        total 190
-    "#]]
-    .assert_eq(&shapes(&outcome));
+    assert_eq!(
+        shapes(&outcome),
+        [CAMERAS_80, LASER_170, PIPPI_190].join("--\n")
+    );
 }
 
 // The paper, Section VIII step 6: without the tracking system, the laser (off, started) at 170.
@@ -197,32 +208,12 @@ fn excluding_the_tracking_system_switches_the_laser_on() {
     assert_eq!(laser.power, Power::Off);
     assert_eq!(laser.cost, 120, "start-up 100 plus default 20");
     assert!(!best.uses("hsm", "tr1"));
-    expect![[r#"
-        (laser astrid l1) on astrid:l1 (Off) cost 120
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (odometry astrid od1) on astrid:od1 (On) cost 10
-        (scan-matching astrid s1) on astrid:s1 (On) cost 20
-        astrid:l1 → astrid:s1 (range-scan astrid) cost 0
-        astrid:od1 → astrid:s1 (odometry astrid) cost 0
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        total 170
-    "#]]
-    .assert_eq(&shape(best));
+    assert_eq!(shape(best), LASER_170);
 
     let outcome = home("(navigate astrid bedroom)", &["hsm:tr1", "astrid:l1"]);
     let best = &outcome.configurations[0];
     assert!(!best.uses("hsm", "tr1") && !best.uses("astrid", "l1"));
-    expect![[r#"
-        (camera pippi ca2) on pippi:ca2 (On) cost 20
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (object-localizer pippi ol2 astrid) on pippi:ol2 (On) cost 130
-        (pose-tracking astrid s1) on astrid:s1 (On) cost 20
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        pippi:ca2 → pippi:ol2 (image pippi) cost 0
-        pippi:ol2 → astrid:s1 (global-pos astrid) cost 0
-        total 190
-    "#]]
-    .assert_eq(&shape(best));
+    assert_eq!(shape(best), PIPPI_190);
 }
 
 #[test]
@@ -260,17 +251,7 @@ fn excluding_a_peis_excludes_its_components() {
             .iter()
             .all(|c| c.from_peis != "hsm" && c.to_peis != "hsm")
     );
-    expect![[r#"
-        (laser astrid l1) on astrid:l1 (Off) cost 120
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (odometry astrid od1) on astrid:od1 (On) cost 10
-        (scan-matching astrid s1) on astrid:s1 (On) cost 20
-        astrid:l1 → astrid:s1 (range-scan astrid) cost 0
-        astrid:od1 → astrid:s1 (odometry astrid) cost 0
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        total 170
-    "#]]
-    .assert_eq(&shape(best));
+    assert_eq!(shape(best), LASER_170);
     let outcome = home("(navigate astrid bedroom)", &["hsm", "pippi", "astrid:l1"]);
     let text = outcome.explanation.expect("explained").to_string();
     assert!(text.contains("PEIS hsm is excluded"), "{text}");
@@ -470,35 +451,20 @@ fn channel_costs_count_between_peis() {
     let costs: Vec<u64> = outcome.configurations.iter().map(|c| c.cost).collect();
     assert_eq!(costs, [170, 180, 190], "the cameras now cost 80 + 100");
     // The remote channel hsm → astrid carries the 100.
-    expect![[r#"
-        (laser astrid l1) on astrid:l1 (Off) cost 120
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (odometry astrid od1) on astrid:od1 (On) cost 10
-        (scan-matching astrid s1) on astrid:s1 (On) cost 20
-        astrid:l1 → astrid:s1 (range-scan astrid) cost 0
-        astrid:od1 → astrid:s1 (odometry astrid) cost 0
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        total 170
-        --
-        (ceiling-cameras hsm ca1) on hsm:ca1 (On) cost 20
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (pose-tracking astrid s1) on astrid:s1 (On) cost 20
-        (tracking-system hsm tr1 astrid) on hsm:tr1 (On) cost 20
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        hsm:ca1 → hsm:tr1 (image hsm) cost 0
-        hsm:tr1 → astrid:s1 (global-pos astrid) cost 100
-        total 180
-        --
-        (camera pippi ca2) on pippi:ca2 (On) cost 20
-        (navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20
-        (object-localizer pippi ol2 astrid) on pippi:ol2 (On) cost 130
-        (pose-tracking astrid s1) on astrid:s1 (On) cost 20
-        astrid:s1 → astrid:tc1 (position astrid) cost 0
-        pippi:ca2 → pippi:ol2 (image pippi) cost 0
-        pippi:ol2 → astrid:s1 (global-pos astrid) cost 0
-        total 190
-    "#]]
-    .assert_eq(&shapes(&outcome));
+    let cameras = "\
+(ceiling-cameras hsm ca1) on hsm:ca1 (On) cost 20\n\
+(navigation astrid tc1 bedroom) on astrid:tc1 (On) cost 20\n\
+(pose-tracking astrid s1) on astrid:s1 (On) cost 20\n\
+(tracking-system hsm tr1 astrid) on hsm:tr1 (On) cost 20\n\
+astrid:s1 → astrid:tc1 (position astrid) cost 0\n\
+hsm:ca1 → hsm:tr1 (image hsm) cost 0\n\
+hsm:tr1 → astrid:s1 (global-pos astrid) cost 100\n\
+total 180\n\
+";
+    assert_eq!(
+        shapes(&outcome),
+        [LASER_170, cameras, PIPPI_190].join("--\n")
+    );
 }
 
 /// Prefers Astrid's own components, whatever they cost.
@@ -980,22 +946,29 @@ fn a_time_budget_stops_grounding() {
         seed: 3,
     })
     .expect("generates");
-    let request = instance.request();
+    let (outcome, reads) = out_of_time(&instance.request(), Duration::from_secs(3));
+    assert_eq!(outcome.stats.expanded, 0);
+    // It stopped early: a handful of readings, not one per 256 items of the whole graph.
+    assert!(reads <= 4, "read the clock {reads} times");
+}
+
+/// Plans `request` under a time budget of `limit` on a [`Ticking`] clock,
+/// checks that it ran out with nothing found and no bound, and returns the
+/// outcome and how many times the planner read the clock.
+fn out_of_time(request: &Request<'_>, limit: Duration) -> (Outcome, u64) {
     let options = Options {
         count: 1,
         budget: Budget {
             max_expansions: None,
-            max_time: Some(Duration::from_secs(3)),
+            max_time: Some(limit),
         },
     };
     let clock = Ticking::default();
-    let outcome = plan(&request, &options, &clock).expect("valid");
+    let outcome = plan(request, &options, &clock).expect("valid");
     assert_eq!(outcome.status, Status::BudgetExceeded);
     assert!(outcome.configurations.is_empty());
     assert_eq!(outcome.lower_bound, None);
-    assert_eq!(outcome.stats.expanded, 0);
-    // It stopped early: a handful of readings, not one per 256 items of the whole graph.
-    assert!(clock.0.get() <= 4, "read the clock {} times", clock.0.get());
+    (outcome, clock.0.get())
 }
 
 #[test]
@@ -1003,22 +976,10 @@ fn a_time_budget_stops_reading_the_state() {
     // 128 PEIS: over 16,000 channel costs. The clock ticks a second at each
     // reading; the second look, 2,048 facts in, is past the budget.
     let instance = synthetic::sharing(synthetic::Sharing::base(128, 1)).expect("generates");
-    let request = instance.request();
-    let options = Options {
-        count: 1,
-        budget: Budget {
-            max_expansions: None,
-            max_time: Some(Duration::from_millis(1500)),
-        },
-    };
-    let clock = Ticking::default();
-    let outcome = plan(&request, &options, &clock).expect("valid");
-    assert_eq!(outcome.status, Status::BudgetExceeded);
-    assert!(outcome.configurations.is_empty());
-    assert_eq!(outcome.lower_bound, None);
+    let (outcome, reads) = out_of_time(&instance.request(), Duration::from_millis(1500));
     // Cut before grounding anything.
     assert_eq!(outcome.stats.alternatives, 0);
-    assert!(clock.0.get() <= 4, "read the clock {} times", clock.0.get());
+    assert!(reads <= 4, "read the clock {reads} times");
 }
 
 /// A clock that advances one millisecond each time it is read.

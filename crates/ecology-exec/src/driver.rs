@@ -45,16 +45,7 @@ pub async fn drive<S: TupleSpace>(
     exec: &mut Executive,
     config: DriverConfig,
 ) -> Result<RunStatus, TupleError> {
-    drive_until(
-        space,
-        clock,
-        exec,
-        config,
-        |_| {},
-        std::future::pending(),
-        None,
-    )
-    .await
+    drive_observed(space, clock, exec, config, |_| {}).await
 }
 
 /// [`drive`], calling `observe` with every log entry as soon as the executive

@@ -12,6 +12,63 @@ fn is_name_char(c: char) -> bool {
     c.is_ascii_alphanumeric() || c == '-' || c == '_'
 }
 
+/// What every name type shares: `as_str`, `Display` and `Debug` as its text,
+/// `FromStr` through its validating `new`, and `Borrow<str>` (names hash and
+/// compare as their text, so maps keyed by them can be looked up by `&str`).
+macro_rules! text_name {
+    ($name:ident) => {
+        impl $name {
+            /// The name as text.
+            pub fn as_str(&self) -> &str {
+                &self.0
+            }
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(&self.0)
+            }
+        }
+
+        impl fmt::Debug for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                fmt::Debug::fmt(&*self.0, f)
+            }
+        }
+
+        impl std::str::FromStr for $name {
+            type Err = ValidationError;
+            fn from_str(s: &str) -> Result<Self, Self::Err> {
+                Self::new(s)
+            }
+        }
+
+        impl Borrow<str> for $name {
+            fn borrow(&self) -> &str {
+                &self.0
+            }
+        }
+    };
+}
+
+text_name!(PeisId);
+text_name!(ComponentId);
+text_name!(Key);
+text_name!(Mimetype);
+
+/// What is wrong with `name` as a PEIS or component name of at most `max` bytes.
+fn name_problem(name: &str, max: usize, too_long: &'static str) -> Option<&'static str> {
+    if name.is_empty() {
+        Some("it is empty")
+    } else if name.len() > max {
+        Some(too_long)
+    } else if !name.chars().all(is_name_char) {
+        Some("only letters, digits, '-' and '_' are allowed")
+    } else {
+        None
+    }
+}
+
 /// The name of a PEIS, such as `astrid`: 1 to 255 characters from `[A-Za-z0-9_-]`.
 ///
 /// Cloning is cheap (a reference count).
@@ -21,46 +78,13 @@ pub struct PeisId(Arc<str>);
 impl PeisId {
     /// Validates `name` as a PEIS name.
     pub fn new(name: &str) -> Result<Self, ValidationError> {
-        let reason = if name.is_empty() {
-            Some("it is empty")
-        } else if name.len() > MAX_NAME_LEN {
-            Some("it is longer than 255 bytes")
-        } else if !name.chars().all(is_name_char) {
-            Some("only letters, digits, '-' and '_' are allowed")
-        } else {
-            None
-        };
-        match reason {
+        match name_problem(name, MAX_NAME_LEN, "it is longer than 255 bytes") {
             Some(reason) => Err(ValidationError::PeisId {
                 name: name.to_owned(),
                 reason,
             }),
             None => Ok(Self(name.into())),
         }
-    }
-
-    /// The name as text.
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-}
-
-impl fmt::Display for PeisId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl fmt::Debug for PeisId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        fmt::Debug::fmt(&*self.0, f)
-    }
-}
-
-impl std::str::FromStr for PeisId {
-    type Err = ValidationError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::new(s)
     }
 }
 
@@ -99,33 +123,9 @@ impl Key {
         Self(key.into())
     }
 
-    /// The key as dotted text.
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-
     /// The segments of the key, in order.
     pub fn segments(&self) -> std::str::Split<'_, char> {
         self.0.split('.')
-    }
-}
-
-impl fmt::Display for Key {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl fmt::Debug for Key {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        fmt::Debug::fmt(&*self.0, f)
-    }
-}
-
-impl std::str::FromStr for Key {
-    type Err = ValidationError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::new(s)
     }
 }
 
@@ -143,65 +143,13 @@ pub struct ComponentId(Arc<str>);
 impl ComponentId {
     /// Validates `name` as a component name.
     pub fn new(name: &str) -> Result<Self, ValidationError> {
-        let reason = if name.is_empty() {
-            Some("it is empty")
-        } else if name.len() > MAX_COMPONENT_LEN {
-            Some("it is longer than 234 bytes")
-        } else if !name.chars().all(is_name_char) {
-            Some("only letters, digits, '-' and '_' are allowed")
-        } else {
-            None
-        };
-        match reason {
+        match name_problem(name, MAX_COMPONENT_LEN, "it is longer than 234 bytes") {
             Some(reason) => Err(ValidationError::ComponentId {
                 name: name.to_owned(),
                 reason,
             }),
             None => Ok(Self(name.into())),
         }
-    }
-
-    /// The name as text.
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-}
-
-impl fmt::Display for ComponentId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl fmt::Debug for ComponentId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        fmt::Debug::fmt(&*self.0, f)
-    }
-}
-
-impl std::str::FromStr for ComponentId {
-    type Err = ValidationError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::new(s)
-    }
-}
-
-// Names hash and compare as their text, so maps keyed by them can be looked up by `&str`.
-impl Borrow<str> for PeisId {
-    fn borrow(&self) -> &str {
-        &self.0
-    }
-}
-
-impl Borrow<str> for ComponentId {
-    fn borrow(&self) -> &str {
-        &self.0
-    }
-}
-
-impl Borrow<str> for Key {
-    fn borrow(&self) -> &str {
-        &self.0
     }
 }
 
@@ -243,23 +191,6 @@ impl Mimetype {
     /// `application/octet-stream`.
     pub fn octet_stream() -> Self {
         Self(Self::OCTET_STREAM.into())
-    }
-
-    /// The mimetype as text.
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-}
-
-impl fmt::Display for Mimetype {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl fmt::Debug for Mimetype {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        fmt::Debug::fmt(&*self.0, f)
     }
 }
 
