@@ -47,6 +47,12 @@ impl Rng {
         self.next_u64() % n.max(1)
     }
 
+    /// Uniform in `0..n` (`n` > 0), as an index: [`Rng::below`] for lengths and counts.
+    pub fn index(&mut self, n: usize) -> usize {
+        // usize is at most 64 bits here, so both conversions are exact.
+        usize::try_from(self.below(u64::try_from(n).unwrap_or(u64::MAX))).unwrap_or(0)
+    }
+
     /// True with probability `p`.
     pub fn chance(&mut self, p: f64) -> bool {
         self.uniform() <= p
