@@ -5,8 +5,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use ecology_tuples::{
-    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Tuple, TupleSpace, Value,
-    VirtualClock,
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, Tuple, TupleEvent,
+    TuplePattern, TupleSpace, Value, VirtualClock,
 };
 
 use crate::{Component, ComponentError, ComponentSpec, Context, run_host};
@@ -58,6 +58,40 @@ impl Fixture {
             if passed >= d {
                 break;
             }
+            self.clock.advance(step);
+            passed += step;
+        }
+    }
+
+    /// Lets virtual time pass in 10 ms steps until robot's `k` reads `want`, failing once
+    /// `within` of virtual time has passed: each step waits for the tuple's change itself (for a
+    /// moment of real time, in which the host's tasks run) rather than for a number of yields.
+    async fn wait_for(&self, k: &str, want: &str, within: Duration) {
+        let step = Duration::from_millis(10);
+        let mut changes = self
+            .other
+            .subscribe(TuplePattern::exact(
+                PeisId::new("robot").expect("name"),
+                &key(k),
+            ))
+            .await
+            .expect("subscribe");
+        let mut passed = Duration::ZERO;
+        loop {
+            while let Ok(Some(event)) =
+                tokio::time::timeout(Duration::from_millis(5), changes.next()).await
+            {
+                if let TupleEvent::Changed(t) = event
+                    && t.text().ok() == Some(want)
+                {
+                    return;
+                }
+            }
+            assert!(
+                passed < within,
+                "{k} did not read {want:?} within {within:?} of virtual time; it reads {:?}",
+                self.get(k).await
+            );
             self.clock.advance(step);
             passed += step;
         }
@@ -116,14 +150,14 @@ fn echo() -> Arc<dyn Component<InProcessPeis>> {
 #[tokio::test]
 async fn the_init_component_publishes_and_starts_components() {
     let f = start(vec![spec("l1", false, echo())]).await;
-    f.pass(Duration::ZERO).await;
-    assert_eq!(f.get("components.l1.type").await.as_deref(), Some("laser"));
-    assert_eq!(f.get("components.l1.cost").await.as_deref(), Some("100"));
-    assert_eq!(
-        f.get("components.l1.currState").await.as_deref(),
-        Some("off")
-    );
-    assert_eq!(f.get("l1.status").await.as_deref(), Some("idle"));
+    f.wait_for("components.l1.type", "laser", Duration::from_millis(10))
+        .await;
+    f.wait_for("components.l1.cost", "100", Duration::from_millis(100))
+        .await;
+    f.wait_for("components.l1.currState", "off", Duration::from_millis(100))
+        .await;
+    f.wait_for("l1.status", "idle", Duration::from_millis(100))
+        .await;
 
     f.set("l1.params", "(laser robot l1)").await;
     f.set("components.l1.reqState", "on").await;
@@ -133,32 +167,23 @@ async fn the_init_component_publishes_and_starts_components() {
         Some("off"),
         "still starting up"
     );
-    f.pass(Duration::from_millis(600)).await;
-    assert_eq!(
-        f.get("components.l1.currState").await.as_deref(),
-        Some("on")
-    );
-    assert_eq!(f.get("l1.status").await.as_deref(), Some("running"));
-    assert_eq!(
-        f.get("l1.out.range-scan").await.as_deref(),
-        Some("robot l1")
-    );
+    f.wait_for("components.l1.currState", "on", Duration::from_millis(600))
+        .await;
+    f.wait_for("l1.status", "running", Duration::from_millis(100))
+        .await;
+    f.wait_for("l1.out.range-scan", "robot l1", Duration::from_millis(100))
+        .await;
 
     // New params restart the body with them.
     f.set("l1.params", "(laser robot l2)").await;
-    f.pass(Duration::from_millis(200)).await;
-    assert_eq!(
-        f.get("l1.out.range-scan").await.as_deref(),
-        Some("robot l2")
-    );
+    f.wait_for("l1.out.range-scan", "robot l2", Duration::from_millis(200))
+        .await;
 
     f.set("components.l1.reqState", "off").await;
-    f.pass(Duration::from_millis(100)).await;
-    assert_eq!(
-        f.get("components.l1.currState").await.as_deref(),
-        Some("off")
-    );
-    assert_eq!(f.get("l1.status").await.as_deref(), Some("idle"));
+    f.wait_for("components.l1.currState", "off", Duration::from_millis(100))
+        .await;
+    f.wait_for("l1.status", "idle", Duration::from_millis(100))
+        .await;
     f.stop().await;
 }
 
@@ -187,10 +212,12 @@ async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
     f.set("a.params", "(x)").await;
     f.set("b.params", "(y)").await;
     f.set("c.params", "(laser robot c)").await;
-    f.pass(Duration::from_millis(500)).await;
-    assert_eq!(f.get("a.status").await.as_deref(), Some("error"));
-    assert_eq!(f.get("a.cause").await.as_deref(), Some("lens cracked"));
-    assert_eq!(f.get("b.status").await.as_deref(), Some("error"));
+    f.wait_for("a.status", "error", Duration::from_millis(500))
+        .await;
+    f.wait_for("a.cause", "lens cracked", Duration::from_millis(100))
+        .await;
+    f.wait_for("b.status", "error", Duration::from_millis(100))
+        .await;
     assert!(
         f.get("b.cause")
             .await
@@ -222,12 +249,12 @@ async fn switching_on_again_restarts_a_body_that_failed() {
         });
     let f = start(vec![spec("a", true, fails_once)]).await;
     f.set("a.params", "(x)").await;
-    f.pass(Duration::from_millis(100)).await;
-    assert_eq!(f.get("a.status").await.as_deref(), Some("error"));
+    f.wait_for("a.status", "error", Duration::from_millis(100))
+        .await;
     // It is on, so `on` used to change nothing and the component stayed dead.
     f.set("components.a.reqState", "on").await;
-    f.pass(Duration::from_millis(100)).await;
-    assert_eq!(f.get("a.status").await.as_deref(), Some("running"));
+    f.wait_for("a.status", "running", Duration::from_millis(100))
+        .await;
     assert_eq!(attempts.load(std::sync::atomic::Ordering::Relaxed), 2);
     f.stop().await;
 }
@@ -253,19 +280,21 @@ async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
         });
     let f = start(vec![spec("l1", true, echo()), spec("s1", true, consumer)]).await;
     f.set("s1.params", "(scan-matching robot s1)").await;
-    f.pass(Duration::from_millis(200)).await;
-    assert_eq!(f.get("s1.status").await.as_deref(), Some("waiting"));
-    assert_eq!(f.get("s1.cause").await.as_deref(), Some("range-scan"));
+    f.wait_for("s1.status", "waiting", Duration::from_millis(200))
+        .await;
+    f.wait_for("s1.cause", "range-scan", Duration::from_millis(100))
+        .await;
     // Wire the input to the laser's output, as the deployer does.
     f.set("l1.params", "(laser robot l1)").await;
     f.set("s1.mi-range-scan", "(meta robot l1.out.range-scan)")
         .await;
-    f.pass(Duration::from_millis(300)).await;
-    assert_eq!(f.get("s1.status").await.as_deref(), Some("running"));
-    assert_eq!(f.get("s1.cause").await.as_deref(), Some("robot l1"));
+    f.wait_for("s1.status", "running", Duration::from_millis(300))
+        .await;
+    f.wait_for("s1.cause", "robot l1", Duration::from_millis(100))
+        .await;
     // The producer stops: the input goes stale.
     f.set("components.l1.reqState", "off").await;
-    f.pass(Duration::from_millis(600)).await;
-    assert_eq!(f.get("s1.status").await.as_deref(), Some("waiting"));
+    f.wait_for("s1.status", "waiting", Duration::from_millis(600))
+        .await;
     f.stop().await;
 }
