@@ -593,6 +593,11 @@ impl Merge {
     }
 }
 
+/// How many more times a present PEIS that answered nothing is asked for its tuples.
+const CATCH_UP_ATTEMPTS: u32 = 5;
+/// The pause before the first of those; each next one waits one more of these.
+const CATCH_UP_PAUSE: std::time::Duration = std::time::Duration::from_millis(200);
+
 /// Aborts a task when dropped: the catch-up task of a subscription.
 struct AbortOnDrop(JoinHandle<()>);
 
@@ -680,7 +685,8 @@ impl TupleSpace for ZenohPeis {
         // Peers do not relay, and they meet through gossip: a PEIS that links
         // to this one after the snapshot has tuples that will never arrive as
         // changes. Each PEIS that appears is asked for its matching tuples.
-        let (appeared, mut appearances) = mpsc::unbounded_channel::<PeisId>();
+        let (appeared, mut appearances) = mpsc::unbounded_channel::<(PeisId, u32)>();
+        let retry = appeared.clone();
         let owners = pattern.owner.clone();
         let alive = match &pattern.owner {
             ecology_tuples::OwnerPattern::Exact(id) => wire::alive_key_expr(id),
@@ -695,7 +701,7 @@ impl TupleSpace for ZenohPeis {
                     && let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str())
                     && owners.matches(&id)
                 {
-                    let _ = appeared.send(id);
+                    let _ = appeared.send((id, 0));
                 }
             })
             .await
@@ -705,19 +711,56 @@ impl TupleSpace for ZenohPeis {
             let merge = merge.clone();
             let key = pattern.key.clone();
             tokio::spawn(async move {
-                while let Some(id) = appearances.recv().await {
+                // PEIS to ask again, and when: present but silent so far (their presence can
+                // arrive before the link that carries their answers).
+                let mut again: Vec<(tokio::time::Instant, PeisId, u32)> = Vec::new();
+                loop {
+                    let due = again.iter().map(|(at, _, _)| *at).min();
+                    let (id, attempt) = tokio::select! {
+                        got = appearances.recv() => match got {
+                            Some(next) => next,
+                            None => return,
+                        },
+                        () = async {
+                            match due {
+                                Some(at) => tokio::time::sleep_until(at).await,
+                                None => std::future::pending().await,
+                            }
+                        } => {
+                            let now = tokio::time::Instant::now();
+                            let Some(i) = again.iter().position(|(at, _, _)| *at <= now) else {
+                                continue;
+                            };
+                            let (_, id, attempt) = again.swap_remove(i);
+                            (id, attempt)
+                        }
+                    };
                     let theirs = TuplePattern {
-                        owner: ecology_tuples::OwnerPattern::Exact(id),
+                        owner: ecology_tuples::OwnerPattern::Exact(id.clone()),
                         key: key.clone(),
                     };
-                    // A PEIS that does not answer is caught up with by its next changes.
-                    if let Ok(tuples) = query_tuples(&core, &theirs).await {
-                        lock(&merge).catch_up(tuples);
+                    match query_tuples(&core, &theirs).await {
+                        Ok(tuples) if !tuples.is_empty() => lock(&merge).catch_up(tuples),
+                        _ if attempt < CATCH_UP_ATTEMPTS => {
+                            let at = tokio::time::Instant::now() + CATCH_UP_PAUSE * (attempt + 1);
+                            again.push((at, id, attempt + 1));
+                        }
+                        // A PEIS that never answers is caught up with by its next changes.
+                        _ => {}
                     }
                 }
             })
         };
         let snapshot = self.query_tuples(&pattern).await?;
+        // Every present PEIS the snapshot heard nothing from is asked on its own.
+        let heard: BTreeSet<PeisId> = snapshot.iter().map(|t| t.owner.clone()).collect();
+        if let Ok(alive) = alive_peis(core).await {
+            for id in alive {
+                if id != core.me && !heard.contains(&id) && pattern.owner.matches(&id) {
+                    let _ = retry.send((id, 0));
+                }
+            }
+        }
         lock(&merge).finish_snapshot(snapshot);
         let guard = (subscriber, watcher, AbortOnDrop(catch_up));
         Ok(Subscription::from_channel(rx, guard))

@@ -230,7 +230,7 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
         .decode(shot["data"].as_str().expect("a screenshot"))
         .expect("base64");
     assert!(png.starts_with(b"\x89PNG"), "not a PNG");
-    let file = root().join("target/view-screenshot.png");
+    let file = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("view-screenshot.png");
     std::fs::write(&file, &png).expect("save the screenshot");
     println!("screenshot: {} ({} bytes)", file.display(), png.len());
 
