@@ -32,6 +32,7 @@
 //! assert_eq!(found.to_string(), "(go a b)\n(go b c)\n; cost = 2\n");
 //! ```
 
+pub mod conditional;
 mod heuristic;
 mod improve;
 mod lmcut;
@@ -50,10 +51,14 @@ use std::time::Duration;
 
 use ecology_domain::{Call, Name};
 
+pub use conditional::{
+    ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
+    ConditionalVerdict, PlanTree, plan_conditional,
+};
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
-    AtomId, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, OpId, Operator, State,
-    StateError, Task, ground, ground_within,
+    AtomId, Chance, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, MAX_OUTCOMES,
+    MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
 };
 pub use validate::{PlanError, validate};
 

@@ -12,6 +12,7 @@ mod keys;
 mod network;
 mod peis;
 mod plan;
+mod plan_conditional;
 mod processes;
 mod router;
 mod sweep;
