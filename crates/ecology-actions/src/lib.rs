@@ -37,6 +37,7 @@ mod heuristic;
 mod improve;
 mod lmcut;
 pub mod oracle;
+pub mod oracle_conditional;
 pub mod problems;
 mod queue;
 mod search;
@@ -45,6 +46,8 @@ mod validate;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_conditional;
 
 use std::fmt;
 use std::time::Duration;
