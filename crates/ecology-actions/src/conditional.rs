@@ -222,7 +222,8 @@ impl fmt::Display for Tree<'_> {
 
 /// `p` with at most 6 decimals, for people.
 pub fn round(p: f64) -> f64 {
-    (p * 1e6).round() / 1e6
+    // `+ 0.0` turns -0 (an empty sum) into 0.
+    (p * 1e6).round() / 1e6 + 0.0
 }
 
 /// What the conditional planner concluded.
@@ -444,7 +445,8 @@ impl<'t> Engine<'t> {
             .zip(&b.goal)
             .filter(|(_, g)| **g)
             .map(|(p, _)| p)
-            .sum()
+            .sum::<f64>()
+            + 0.0
     }
 
     /// Recomputes node `id`'s value: its bound if unexpanded, else the best
