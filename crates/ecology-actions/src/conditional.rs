@@ -291,12 +291,18 @@ fn key_of(states: &[State], probs: &[f64]) -> BeliefKey {
     )
 }
 
+/// An observation: each observed atom and whether it holds.
+type Observation = Vec<(AtomId, bool)>;
+
+/// States with their probabilities (not necessarily summing to 1).
+type Weighted = Vec<(State, f64)>;
+
 #[derive(Debug, Clone)]
 struct Choice {
     op: OpId,
     cost: u64,
     /// (probability, observation, node).
-    children: Vec<(f64, Vec<(AtomId, bool)>, u32)>,
+    children: Vec<(f64, Observation, u32)>,
 }
 
 #[derive(Debug, Clone)]
@@ -521,7 +527,7 @@ impl<'t> Engine<'t> {
         for op in ops {
             let o = self.task.operator(op);
             // Successor states grouped by observation.
-            let mut groups: Vec<(Vec<bool>, Vec<(State, f64)>)> = Vec::new();
+            let mut groups: Vec<(Vec<bool>, Weighted)> = Vec::new();
             for (s, &p) in b.states.iter().zip(&b.probs) {
                 for (q, add, del) in o.each_outcome() {
                     let mut next = s.clone();

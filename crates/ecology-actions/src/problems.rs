@@ -372,7 +372,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
 /// effect, some observing an atom (`:observe`), and an uncertain initial
 /// fact.
 pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
-    let mut rng = Rng::new(seed ^ 0x5eed_0f_c0ffee);
+    let mut rng = Rng::new(seed ^ 0x5eed_0fc0_ffee);
     let mut d = String::new();
     let _ = writeln!(
         d,

@@ -638,6 +638,9 @@ enum CLit {
     },
 }
 
+/// An effect of a schema with names resolved: `(is_add, predicate, args)`.
+type CEffect = (bool, u32, Vec<Arg>);
+
 /// A schema compiled for grounding: its precondition literals, which of them
 /// are fluent (the rest are checked while binding), its effects as
 /// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
@@ -650,7 +653,7 @@ struct Schema<'a> {
     costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
     configure: Option<(&'a Call, Vec<Arg>)>,
     /// Each `probabilistic` form's outcomes (the rest, "nothing happens", included).
-    chances: Vec<Vec<(f64, Vec<(bool, u32, Vec<Arg>)>)>>,
+    chances: Vec<Vec<(f64, Vec<CEffect>)>>,
     observe: Vec<(u32, Vec<Arg>)>,
 }
 
