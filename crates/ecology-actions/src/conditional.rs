@@ -720,6 +720,11 @@ pub fn evaluate(task: &Task, belief: &[(f64, State)], tree: &PlanTree) -> Option
 /// How many expansions run between two readings of the clock.
 const EXPANSIONS_PER_CHECK: usize = 16;
 
+/// How many tips one walk over the best partial plan collects: expanding
+/// them all before walking again keeps the walks (linear in the plan's
+/// size) from dominating on large plans.
+const TIPS_PER_WALK: usize = 1024;
+
 /// Plans conditionally for `request`, stopping when the budget runs out.
 pub fn plan_conditional(
     request: &ConditionalRequest<'_>,
@@ -804,17 +809,25 @@ pub fn plan_conditional(
     let solve = |engine: &mut Engine<'_>| -> bool {
         engine.stats.rounds += 1;
         loop {
-            let tips = engine.tips(root, EXPANSIONS_PER_CHECK);
+            // Never more expansions than the budget has left.
+            let left = options
+                .budget
+                .max_expansions
+                .map_or(u64::MAX, |m| m.saturating_sub(engine.stats.expanded));
+            let batch = (TIPS_PER_WALK as u64).min(left.max(1)) as usize;
+            let tips = engine.tips(root, batch);
             if tips.is_empty() {
                 return true;
             }
-            if over(engine) {
-                return false;
+            for chunk in tips.chunks(EXPANSIONS_PER_CHECK) {
+                if over(engine) {
+                    return false;
+                }
+                for &tip in chunk {
+                    engine.expand(tip);
+                }
+                engine.propagate(chunk.iter().copied());
             }
-            for &tip in &tips {
-                engine.expand(tip);
-            }
-            engine.propagate(tips);
         }
     };
     let plan_of = |engine: &Engine<'_>| {
