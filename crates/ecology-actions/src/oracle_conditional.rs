@@ -282,6 +282,35 @@ pub fn most_probable(
     horizon: u32,
     max_nodes: usize,
 ) -> Exhaustive {
+    exhaustive(domain, problem, horizon, max_nodes, &better)
+}
+
+/// The plan of at most `horizon` actions per branch with the highest
+/// `lambda * success - cost` (the more probable of equal ones), and its
+/// success probability and expected cost, as [`most_probable`] finds it.
+pub fn best_for_lambda(
+    domain: &Domain,
+    problem: &Problem,
+    horizon: u32,
+    lambda: f64,
+    max_nodes: usize,
+) -> Exhaustive {
+    let scored = move |(p, c): (f64, f64), (q, d): (f64, f64)| {
+        let (a, b) = (lambda * p - c, lambda * q - d);
+        a > b + EPSILON || (a > b - EPSILON && p > q + EPSILON)
+    };
+    exhaustive(domain, problem, horizon, max_nodes, &scored)
+}
+
+type Better<'a> = &'a dyn Fn((f64, f64), (f64, f64)) -> bool;
+
+fn exhaustive(
+    domain: &Domain,
+    problem: &Problem,
+    horizon: u32,
+    max_nodes: usize,
+    better: Better<'_>,
+) -> Exhaustive {
     let oracle = Oracle {
         semantics: Semantics::new(domain, problem),
         domain,
@@ -313,7 +342,9 @@ pub fn most_probable(
     }
     let mut nodes = 0usize;
     let start = oracle.initial(problem);
-    match best(&oracle, &instances, &start, horizon, &mut nodes, max_nodes) {
+    match best(
+        &oracle, &instances, &start, horizon, &mut nodes, max_nodes, better,
+    ) {
         Some((success, cost)) => Exhaustive::Best { success, cost },
         None => Exhaustive::TooLarge,
     }
@@ -331,6 +362,7 @@ fn best(
     depth: u32,
     nodes: &mut usize,
     max_nodes: usize,
+    better: Better<'_>,
 ) -> Option<(f64, f64)> {
     *nodes += 1;
     if *nodes > max_nodes {
@@ -364,7 +396,15 @@ fn best(
                 continue;
             }
             let normal = merge(worlds.into_iter().map(|(x, p)| (x, p / w)).collect());
-            let (bp, bc) = best(oracle, instances, &normal, depth - 1, nodes, max_nodes)?;
+            let (bp, bc) = best(
+                oracle,
+                instances,
+                &normal,
+                depth - 1,
+                nodes,
+                max_nodes,
+                better,
+            )?;
             p += w * bp;
             c += w * bc;
         }

@@ -97,7 +97,7 @@ fn the_deterministic_planner_refuses_nothing_but_the_task_says_it_is_uncertain()
 #[test]
 fn random_uncertain_problems_agree_with_the_oracle() {
     let (mut checked, mut too_large, mut below, mut cheaper) = (0, 0, 0, 0);
-    let (mut zero, mut sure, mut branching) = (0, 0, 0);
+    let (mut zero, mut sure, mut branching, mut hull_checks) = (0, 0, 0, 0);
     for seed in 0..200 {
         let inst = problems::random_uncertain(seed).expect("generated");
         let task = ground(&inst.domain, &inst.problem).expect("ground");
@@ -176,6 +176,40 @@ fn random_uncertain_problems_agree_with_the_oracle() {
                 close(p, met.success) && close(c, met.expected_cost),
                 "seed {seed}"
             );
+            // No plan that some lambda prefers (a vertex of the hull) meets
+            // the threshold more cheaply. The lambdas avoid round numbers,
+            // where plans would tie. (On every fourth problem: the
+            // exhaustive search is slow in a debug build.)
+            let lambdas: &[f64] = if seed % 4 == 0 {
+                &[0.13, 0.37, 0.71, 1.3, 2.9, 6.1, 12.7, 40.3, 101.9]
+            } else {
+                &[]
+            };
+            for &lambda in lambdas {
+                let exhaustive = oracle_conditional::best_for_lambda(
+                    &inst.domain,
+                    &inst.problem,
+                    horizon,
+                    lambda,
+                    200_000,
+                );
+                let Exhaustive::Best {
+                    success: p,
+                    cost: c,
+                } = exhaustive
+                else {
+                    continue;
+                };
+                if p >= threshold - EPSILON {
+                    hull_checks += 1;
+                    assert!(
+                        met.expected_cost <= c + 1e-6,
+                        "seed {seed}: lambda {lambda} finds ({p}, {c}), cheaper than ({}, {})",
+                        met.success,
+                        met.expected_cost
+                    );
+                }
+            }
         }
         // A threshold over it is not, and the answer is the best probability.
         if success < 0.99 {
@@ -194,7 +228,8 @@ fn random_uncertain_problems_agree_with_the_oracle() {
     eprintln!(
         "checked {checked}, too large for the exhaustive search {too_large}, \
          below a threshold {below}, cheaper under a threshold {cheaper}; \
-         best probability 0: {zero}, 1: {sure}; plans that branch: {branching}"
+         best probability 0: {zero}, 1: {sure}; plans that branch: {branching}; \
+         hull vertices compared {hull_checks}"
     );
     assert!(
         checked >= 180,
@@ -203,6 +238,7 @@ fn random_uncertain_problems_agree_with_the_oracle() {
     // The generator is worth its name: most problems are solvable, some
     // plans branch on observations, some thresholds buy cheaper plans.
     assert!(zero < checked / 2 && branching >= 5 && below > 10 && cheaper > 5);
+    assert!(hull_checks > 50, "{hull_checks}");
 }
 
 /// Whether the plan has a node with two branches or more.
