@@ -36,7 +36,8 @@ pub struct ConditionalOptions {
     /// The most actions on any branch.
     pub horizon: u32,
     /// The deterministic heuristic on the determinized task: `Max`,
-    /// `LmCut` or `Blind` (an inadmissible one would cut off plans).
+    /// `LmCut` or `Blind`. An inadmissible one would cut off plans, so it
+    /// is replaced by `LmCut`.
     pub heuristic: HeuristicKind,
     /// When to stop early.
     pub budget: Budget,
