@@ -67,30 +67,7 @@ pub use validate::{PlanError, validate};
 
 use search::{Algorithm, Engine, StepResult};
 
-/// Limits on one search; `None` means unlimited.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Budget {
-    /// Nodes expanded at most.
-    pub max_expansions: Option<u64>,
-    /// Time at most, as measured by the caller's [`Clock`].
-    pub max_time: Option<Duration>,
-}
-
-/// Time since the search started, from the caller (the planner reads no clock).
-pub trait Clock {
-    /// Time elapsed since the planner was called.
-    fn elapsed(&self) -> Duration;
-}
-
-/// A clock that never advances: no time budget, and `micros` reads 0.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct NoClock;
-
-impl Clock for NoClock {
-    fn elapsed(&self) -> Duration {
-        Duration::ZERO
-    }
-}
+pub use ecology_core::{Budget, Clock, NoClock};
 
 /// Which search runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

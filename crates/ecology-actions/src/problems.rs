@@ -6,6 +6,7 @@
 //! exercised too. Randomness comes from a seeded generator: the same seed
 //! gives the same problem everywhere.
 
+pub use ecology_core::Rng;
 use std::fmt::Write;
 
 use ecology_domain::{Diagnostics, Domain, Problem};
@@ -16,36 +17,6 @@ pub const GRIPPER: &str = include_str!("../../../domains/pddl/gripper.pddl");
 pub const BLOCKS: &str = include_str!("../../../domains/pddl/blocks.pddl");
 /// The logistics domain's source (with action costs).
 pub const LOGISTICS: &str = include_str!("../../../domains/pddl/logistics.pddl");
-
-/// SplitMix64: a tiny, well-mixed, seedable generator.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// A generator from a seed.
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed)
-    }
-
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// A number in `0..n` (`n` > 0).
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n.max(1) as u64) as usize
-    }
-
-    /// True with probability `p`.
-    pub fn chance(&mut self, p: f64) -> bool {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-}
 
 /// A generated problem, as text and parsed.
 #[derive(Debug, Clone)]
@@ -135,7 +106,7 @@ pub fn gripper(balls: usize) -> Result<Instance, GeneratorError> {
 fn towers(blocks: usize, rng: &mut Rng) -> Vec<Vec<usize>> {
     let mut order: Vec<usize> = (0..blocks).collect();
     for i in (1..order.len()).rev() {
-        order.swap(i, rng.below(i + 1));
+        order.swap(i, rng.index(i + 1));
     }
     let mut towers: Vec<Vec<usize>> = Vec::new();
     for b in order {
@@ -210,16 +181,16 @@ pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, 
         );
     }
     for a in 0..planes {
-        let _ = write!(p, " (at plane{a} ap{})", rng.below(cities));
+        let _ = write!(p, " (at plane{a} ap{})", rng.index(cities));
     }
     for from in 0..cities {
         for to in 0..cities {
-            let cost = if from == to { 0 } else { 5 + rng.below(10) };
+            let cost = if from == to { 0 } else { 5 + rng.index(10) };
             let _ = write!(p, " (= (flight-cost ap{from} ap{to}) {cost})");
         }
     }
     let place = |rng: &mut Rng| {
-        let c = rng.below(cities);
+        let c = rng.index(cities);
         if rng.chance(0.5) {
             format!("ap{c}")
         } else {
@@ -265,14 +236,14 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         // Parameters: ?x - t0 and ?y ?z - t1.
         let vars = [("x", "t0"), ("y", "t1"), ("z", "t1")];
         let arg = |rng: &mut Rng, ty: &str| -> &'static str {
-            match (ty, rng.below(2)) {
+            match (ty, rng.index(2)) {
                 ("t0", _) => "?x",
                 (_, 0) => "?y",
                 _ => "?z",
             }
         };
         let atom = |rng: &mut Rng| -> String {
-            match rng.below(8) {
+            match rng.index(8) {
                 0 | 1 => format!("(p0 {})", arg(rng, "t0")),
                 2..=4 => format!("(p1 {} {})", arg(rng, "t0"), arg(rng, "t1")),
                 5 | 6 => format!("(p2 {})", arg(rng, "t1")),
@@ -280,7 +251,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
             }
         };
         let mut pre = Vec::new();
-        for _ in 0..1 + rng.below(2) {
+        for _ in 0..1 + rng.index(2) {
             let a = atom(&mut rng);
             pre.push(if rng.chance(0.25) {
                 format!("(not {a})")
@@ -292,7 +263,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
             pre.push("(not (= ?y ?z))".to_string());
         }
         let mut eff = Vec::new();
-        for _ in 0..2 + rng.below(2) {
+        for _ in 0..2 + rng.index(2) {
             let a = atom(&mut rng);
             eff.push(if rng.chance(0.25) {
                 format!("(not {a})")
@@ -302,7 +273,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         }
         if action_costs {
             if rng.chance(0.5) {
-                eff.push(format!("(increase (total-cost) {})", rng.below(4)));
+                eff.push(format!("(increase (total-cost) {})", rng.index(4)));
             } else {
                 eff.push("(increase (total-cost) (weight ?y))".to_string());
             }
@@ -317,7 +288,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         );
     }
     d.push_str(")\n");
-    let t0 = 1 + rng.below(2);
+    let t0 = 1 + rng.index(2);
     let t1 = 2;
     let mut p = String::new();
     let _ = writeln!(p, "(define (problem random-{seed}) (:domain random-{seed})");
@@ -349,13 +320,13 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     }
     if action_costs {
         for j in 0..t1 {
-            let _ = write!(p, " (= (weight u{j}) {})", rng.below(5));
+            let _ = write!(p, " (= (weight u{j}) {})", rng.index(5));
         }
     }
     p.push_str(")\n  (:goal (and");
     // Goals that do not hold yet, so that most problems need a plan.
-    for _ in 0..1 + rng.below(2) {
-        let k = rng.below(ground.len());
+    for _ in 0..1 + rng.index(2) {
+        let k = rng.index(ground.len());
         if initial[k] {
             let _ = write!(p, " (not {})", ground[k]);
         } else {
@@ -382,7 +353,7 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
         "  (:types t0 t1)\n  (:predicates (p0 ?a - t0) (p1 ?a - t0 ?b - t1) (p2 ?b - t1) (flag))\n",
     );
     let atom = |rng: &mut Rng| -> String {
-        match rng.below(7) {
+        match rng.index(7) {
             0 | 1 => "(p0 ?x)".to_string(),
             2 | 3 => "(p1 ?x ?y)".to_string(),
             4 | 5 => "(p2 ?y)".to_string(),
@@ -404,10 +375,10 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
         ("1/3", "1/3"),
     ];
     for k in 0..4 {
-        let pre: Vec<String> = (0..rng.below(3)).map(|_| literal(&mut rng)).collect();
-        let mut eff: Vec<String> = (0..1 + rng.below(3)).map(|_| literal(&mut rng)).collect();
+        let pre: Vec<String> = (0..rng.index(3)).map(|_| literal(&mut rng)).collect();
+        let mut eff: Vec<String> = (0..1 + rng.index(3)).map(|_| literal(&mut rng)).collect();
         if rng.chance(0.6) {
-            let (p, q) = PROBABILITIES[rng.below(PROBABILITIES.len())];
+            let (p, q) = PROBABILITIES[rng.index(PROBABILITIES.len())];
             eff.push(format!(
                 "(probabilistic {p} {} {q} (and {}))",
                 literal(&mut rng),
@@ -445,12 +416,12 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
             let _ = write!(p, " {g}");
         }
     }
-    let (a, b) = (rng.below(ground.len()), rng.below(ground.len()));
-    let (pa, pb) = PROBABILITIES[rng.below(PROBABILITIES.len())];
+    let (a, b) = (rng.index(ground.len()), rng.index(ground.len()));
+    let (pa, pb) = PROBABILITIES[rng.index(PROBABILITIES.len())];
     let _ = write!(p, " (probabilistic {pa} {} {pb} {})", ground[a], ground[b]);
     p.push_str(")\n  (:goal (and");
-    for _ in 0..1 + rng.below(2) {
-        let k = rng.below(ground.len());
+    for _ in 0..1 + rng.index(2) {
+        let k = rng.index(ground.len());
         if initial[k] {
             let _ = write!(p, " (not {})", ground[k]);
         } else {

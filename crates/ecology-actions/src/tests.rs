@@ -644,13 +644,13 @@ fn random_states(task: &Task, seed: u64, walks: usize, depth: usize) -> Vec<crat
     let mut states = Vec::new();
     for _ in 0..walks {
         let mut state = task.initial().clone();
-        for _ in 0..rng.below(depth + 1) {
+        for _ in 0..rng.index(depth + 1) {
             let mut ops = Vec::new();
             task.for_each_applicable(&state, |op| ops.push(op));
             if ops.is_empty() {
                 break;
             }
-            state = task.apply(&state, ops[rng.below(ops.len())]);
+            state = task.apply(&state, ops[rng.index(ops.len())]);
         }
         states.push(state);
     }

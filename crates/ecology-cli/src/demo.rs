@@ -184,7 +184,7 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         if let Some(hub) = &hub {
             match &update {
                 Update::Log(entry) => {
-                    if let Ok(line) = serde_json::from_str(&entry.json_line()) {
+                    if let Ok(line) = serde_json::from_str(&crate::log_json::json_line(entry)) {
                         hub.update(|v| v.log(&line));
                     }
                 }
@@ -196,7 +196,7 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         match update {
             Update::Tuple(_) | Update::Presence(_) => {}
             Update::Log(entry) if json => {
-                let _ = writeln!(out, "{}", entry.json_line());
+                let _ = writeln!(out, "{}", crate::log_json::json_line(&entry));
             }
             Update::Log(entry) => {
                 let _ = writeln!(out, "{entry}");

@@ -9,6 +9,7 @@ mod configure;
 mod demo;
 mod input;
 mod keys;
+mod log_json;
 mod network;
 mod peis;
 mod plan;

@@ -12,7 +12,7 @@ use ecology_zenoh::{Security, ZenohError, ZenohOptions, ZenohPeis};
 /// How to reach the ecology.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct NetArgs {
-    /// Endpoint to listen on, such as tcp/127.0.0.1:7447, or tls/… with --keys (repeatable).
+    /// Endpoint to listen on, such as tcp/127.0.0.1:7447, or quic/… with --keys (repeatable).
     #[arg(long, global = true, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
     /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable).
@@ -123,6 +123,7 @@ pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure>
 
 /// The multi-thread runtime Zenoh needs.
 pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    ecology_zenoh::log_from_env();
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

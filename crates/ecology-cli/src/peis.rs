@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use clap::Args;
 use ecology_sim::{PeisDef, Scenario, WORLD};
-use ecology_tuples::{PeisId, SystemClock, TupleSpace};
+use ecology_tuples::{KeyPattern, OwnerPattern, PeisId, SystemClock, TuplePattern, TupleSpace};
 
 use crate::network::{self, JoinFailure, NetArgs};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
@@ -217,12 +217,23 @@ pub fn join_failed(failure: JoinFailure) -> u8 {
     }
 }
 
-/// The PEIS of `names` that `space` cannot see now.
+/// The PEIS of `names` that `space` cannot use yet: not present, or present but not yet
+/// answering for its tuples (its presence can arrive before a link that carries its answers).
 pub async fn missing_peis<S: TupleSpace>(space: &S, names: &[PeisId]) -> Vec<PeisId> {
     let present = space.peers().await.unwrap_or_default();
-    names
-        .iter()
-        .filter(|n| !present.contains(n))
-        .cloned()
-        .collect()
+    let mut missing = Vec::new();
+    for name in names {
+        let answers = present.contains(name)
+            && space
+                .get_matching(TuplePattern {
+                    owner: OwnerPattern::Exact(name.clone()),
+                    key: KeyPattern::any(),
+                })
+                .await
+                .is_ok_and(|tuples| !tuples.is_empty());
+        if !answers {
+            missing.push(name.clone());
+        }
+    }
+    missing
 }

@@ -53,12 +53,6 @@ pub struct PlanArgs {
     pub horizon: u32,
 }
 
-impl ecology_actions::Clock for WallClock {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
-
 /// `ecology plan ...`
 pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
     let clock = WallClock(Instant::now());

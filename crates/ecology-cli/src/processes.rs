@@ -134,11 +134,11 @@ impl Spawner {
     }
 }
 
-/// A free TLS endpoint on 127.0.0.1: every process of the launch proves its name.
+/// A free QUIC endpoint on 127.0.0.1: every process of the launch proves its name.
 fn free_endpoint() -> anyhow::Result<String> {
-    let listener =
-        std::net::TcpListener::bind("127.0.0.1:0").context("finding a free port on 127.0.0.1")?;
-    Ok(format!("tls/127.0.0.1:{}", listener.local_addr()?.port()))
+    let socket =
+        std::net::UdpSocket::bind("127.0.0.1:0").context("finding a free port on 127.0.0.1")?;
+    Ok(format!("quic/127.0.0.1:{}", socket.local_addr()?.port()))
 }
 
 /// A keys directory for one launch: every process a member, the executive with its role, and

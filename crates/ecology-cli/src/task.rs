@@ -217,7 +217,7 @@ async fn execute(
         &mut exec,
         driver,
         |entry| {
-            let line = entry.json_line();
+            let line = crate::log_json::json_line(entry);
             let mut out = std::io::stdout().lock();
             let _ = if json {
                 writeln!(out, "{line}")

@@ -45,6 +45,8 @@ use std::time::Duration;
 use ecology_domain::{Call, Domain, EcologyState, Power};
 
 pub use cost::{CostModel, PaperCost};
+/// The budget and the caller's clock live in `ecology-core`, shared with the action planner.
+pub use ecology_core::{Budget, Clock, NoClock};
 pub use explain::Explanation;
 
 use compile::{Callee, Compiled};
@@ -112,15 +114,6 @@ impl fmt::Display for Exclusion {
     }
 }
 
-/// Limits on one search; `None` means unlimited.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Budget {
-    /// Nodes expanded at most.
-    pub max_expansions: Option<u64>,
-    /// Time at most, as measured by the caller's [`Clock`].
-    pub max_time: Option<Duration>,
-}
-
 /// How to search.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {
@@ -136,22 +129,6 @@ impl Default for Options {
             count: 1,
             budget: Budget::default(),
         }
-    }
-}
-
-/// Time since the search started, from the caller (the planner reads no clock).
-pub trait Clock {
-    /// Time elapsed since the planner was called.
-    fn elapsed(&self) -> Duration;
-}
-
-/// A clock that never advances: no time budget, and `micros` reads 0.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct NoClock;
-
-impl Clock for NoClock {
-    fn elapsed(&self) -> Duration {
-        Duration::ZERO
     }
 }
 

@@ -24,6 +24,10 @@ use crate::{ChannelInstance, Configuration, FunctionalityInstance};
 
 const NO_PARENT: u32 = u32::MAX;
 
+/// A wire: the consumer's component, the information, the producer's and
+/// the consumer's instance.
+type Wire = (ComponentKey, GInfo, u32, u32);
+
 /// A component: (PEIS, component).
 type ComponentKey = (Sym, Sym);
 
@@ -591,8 +595,41 @@ impl<'a> Engine<'a> {
     /// Turns a complete decomposition into a configuration, or says why it is
     /// not admissible.
     fn assemble(&self, partial: &Partial) -> Result<Configuration, Inadmissible> {
+        let (by_component, order) = self.instances_by_component(partial)?;
+        let wires = self.wires(partial)?;
+        self.check_wires(partial, &wires)?;
+        self.check_inputs_connected(partial, &order, &wires)?;
+        // Labels, once per functionality instance: channels name them again.
+        let labels: HashMap<u32, String> = order
+            .iter()
+            .map(|&at| (at, self.label(partial, at)))
+            .collect();
+        // Cost: distinct components, plus distinct channels between PEIS.
+        let (functionalities, components_cost) =
+            self.functionality_instances(partial, &order, &labels);
+        let (channels, channels_cost) =
+            self.channel_instances(partial, &wires, &by_component, &labels);
+        Ok(Configuration {
+            cost: components_cost.saturating_add(channels_cost),
+            optimal: false,
+            functionalities,
+            channels,
+        })
+    }
+
+    /// The component running the functionality instance at `inst`, if it is one.
+    fn component_at(&self, partial: &Partial, inst: u32) -> Option<ComponentKey> {
+        let f = self.graph.func(partial.insts[inst as usize].item);
+        f.map(|f| (f.peis, f.component))
+    }
+
+    /// Functionality instances, one per component: the first instance on
+    /// each component, and those components in order of first use.
+    fn instances_by_component(
+        &self,
+        partial: &Partial,
+    ) -> Result<(HashMap<ComponentKey, u32>, Vec<u32>), Inadmissible> {
         let c = &self.ctx.compiled;
-        // Functionality instances, one per component.
         let mut by_component: HashMap<ComponentKey, u32> = HashMap::new();
         let mut order: Vec<u32> = Vec::new();
         for (at, inst) in partial.insts.iter().enumerate() {
@@ -616,12 +653,15 @@ impl<'a> Engine<'a> {
                 }
             }
         }
-        let key = |inst: u32| {
-            let f = self.graph.func(partial.insts[inst as usize].item);
-            f.map(|f| (f.peis, f.component))
-        };
-        // Wires: (consumer component, info) → producer instance.
-        let mut wires: Vec<(ComponentKey, GInfo, u32, u32)> = Vec::new();
+        Ok((by_component, order))
+    }
+
+    /// Wires: (consumer component, info) → producer instance, resolved
+    /// through the methods' channels; one producer per consumer input.
+    fn wires(&self, partial: &Partial) -> Result<Vec<Wire>, Inadmissible> {
+        let c = &self.ctx.compiled;
+        let key = |inst: u32| self.component_at(partial, inst);
+        let mut wires: Vec<Wire> = Vec::new();
         for inst in &partial.insts {
             let ItemKind::Task { alts, .. } = &self.graph.item(inst.item).kind else {
                 continue;
@@ -656,9 +696,14 @@ impl<'a> Engine<'a> {
                 }
             }
         }
-        // Every wire carries an output of its producer to an input of its
-        // consumer, at a sufficient rate.
-        for (_, info, producer, consumer) in &wires {
+        Ok(wires)
+    }
+
+    /// Every wire carries an output of its producer to an input of its
+    /// consumer, at a sufficient rate.
+    fn check_wires(&self, partial: &Partial, wires: &[Wire]) -> Result<(), Inadmissible> {
+        let c = &self.ctx.compiled;
+        for (_, info, producer, consumer) in wires {
             let pf = self.graph.func(partial.insts[*producer as usize].item);
             let cf = self.graph.func(partial.insts[*consumer as usize].item);
             let (Some(pf), Some(cf)) = (pf, cf) else {
@@ -704,8 +749,18 @@ impl<'a> Engine<'a> {
                 ));
             }
         }
-        // Every input of every functionality is connected.
-        for &at in &order {
+        Ok(())
+    }
+
+    /// Every input of every functionality is connected.
+    fn check_inputs_connected(
+        &self,
+        partial: &Partial,
+        order: &[u32],
+        wires: &[Wire],
+    ) -> Result<(), Inadmissible> {
+        let c = &self.ctx.compiled;
+        for &at in order {
             let item = partial.insts[at as usize].item;
             let Some(f) = self.graph.func(item) else {
                 continue;
@@ -726,16 +781,21 @@ impl<'a> Engine<'a> {
                 }
             }
         }
-        // Labels, once per functionality instance: channels name them again.
-        let labels: HashMap<u32, String> = order
-            .iter()
-            .map(|&at| (at, self.label(partial, at)))
-            .collect();
-        let label_at = |at: u32| labels.get(&at).cloned().unwrap_or_default();
-        // Cost: distinct components, plus distinct channels between PEIS.
+        Ok(())
+    }
+
+    /// The functionality instances of the components in `order`, and what
+    /// the components cost together.
+    fn functionality_instances(
+        &self,
+        partial: &Partial,
+        order: &[u32],
+        labels: &HashMap<u32, String>,
+    ) -> (Vec<FunctionalityInstance>, u64) {
+        let c = &self.ctx.compiled;
         let mut cost: u64 = 0;
         let mut functionalities = Vec::new();
-        for &at in &order {
+        for &at in order {
             let item = partial.insts[at as usize].item;
             let Some(f) = self.graph.func(item) else {
                 continue;
@@ -744,7 +804,7 @@ impl<'a> Engine<'a> {
             let schema = &c.funcs[f.func as usize];
             let args = self.binding_of(item);
             functionalities.push(FunctionalityInstance {
-                label: label_at(at),
+                label: labels.get(&at).cloned().unwrap_or_default(),
                 name: self.callee_name(Callee::Func(f.func)).to_string(),
                 args: self
                     .graph
@@ -772,10 +832,33 @@ impl<'a> Engine<'a> {
                     .ground_postcondition(f.func, &self.graph.item(item).args),
             });
         }
+        (functionalities, cost)
+    }
+
+    /// The distinct channels of `wires` (producer, consumer, information),
+    /// and what those between PEIS cost together.
+    fn channel_instances(
+        &self,
+        partial: &Partial,
+        wires: &[Wire],
+        by_component: &HashMap<ComponentKey, u32>,
+        labels: &HashMap<u32, String>,
+    ) -> (Vec<ChannelInstance>, u64) {
+        let c = &self.ctx.compiled;
+        let label_of = |k: ComponentKey| {
+            by_component
+                .get(&k)
+                .and_then(|at| labels.get(at))
+                .cloned()
+                .unwrap_or_default()
+        };
+        let mut cost: u64 = 0;
         let mut channels = Vec::new();
         let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> = HashSet::new();
-        for (ckey, info, producer, _) in &wires {
-            let Some(pkey) = key(*producer) else { continue };
+        for (ckey, info, producer, _) in wires {
+            let Some(pkey) = self.component_at(partial, *producer) else {
+                continue;
+            };
             if !seen.insert((pkey, *ckey, info.clone())) {
                 continue;
             }
@@ -786,11 +869,6 @@ impl<'a> Engine<'a> {
                 0
             };
             cost = cost.saturating_add(channel_cost);
-            let label_of = |k: ComponentKey| {
-                by_component
-                    .get(&k)
-                    .map_or(String::new(), |&at| label_at(at))
-            };
             channels.push(ChannelInstance {
                 from: label_of(pkey),
                 to: label_of(*ckey),
@@ -804,11 +882,6 @@ impl<'a> Engine<'a> {
                 cost: channel_cost,
             });
         }
-        Ok(Configuration {
-            cost,
-            optimal: false,
-            functionalities,
-            channels,
-        })
+        (channels, cost)
     }
 }

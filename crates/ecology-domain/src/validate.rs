@@ -61,6 +61,59 @@ fn names(params: &[Param]) -> HashSet<&str> {
     params.iter().map(|p| &*p.name).collect()
 }
 
+/// The check that a method's variables are bound: by its task's arguments or
+/// a positive precondition (else no grounding can give them a value). Each
+/// variable is reported once per place.
+struct Unbound<'a> {
+    method: &'a Method,
+    /// The method's parameters.
+    params: HashSet<&'a str>,
+    /// The parameters the task's arguments and positive preconditions bind.
+    bound: HashSet<&'a str>,
+    reported: HashSet<(String, usize)>,
+}
+
+impl<'a> Unbound<'a> {
+    fn new(method: &'a Method, params: HashSet<&'a str>) -> Self {
+        let mut bound: HashSet<&str> = method.task.args.iter().filter_map(Term::var).collect();
+        for literal in &method.precondition {
+            if let Literal::Pos(atom) = literal {
+                bound.extend(atom.args.iter().filter_map(Term::var));
+            }
+        }
+        Unbound {
+            method,
+            params,
+            bound,
+            reported: HashSet::new(),
+        }
+    }
+
+    /// Reports each parameter among `terms` (at `span`) that nothing binds.
+    fn check(&mut self, v: &mut Validator, terms: &[Term], span: Span) {
+        for term in terms {
+            if let Term::Var(var) = term
+                && self.params.contains(&**var)
+                && !self.bound.contains(&**var)
+                && self.reported.insert((var.to_string(), span.start))
+            {
+                v.diags.push(
+                    Diagnostic::error(
+                        span,
+                        format!(
+                            "variable `?{var}` is bound neither by the task `{}` nor by a precondition",
+                            self.method.task
+                        ),
+                    )
+                    .with_note(format!(
+                        "a positive precondition such as `(pc ?p TYPE ?{var})` binds it"
+                    )),
+                );
+            }
+        }
+    }
+}
+
 #[derive(Default)]
 struct Validator {
     diags: Vec<Diagnostic>,
@@ -314,14 +367,25 @@ impl Validator {
         let what = format!("method `{}`", m.name);
         self.unique_params(&m.params, &what);
         let params = names(&m.params);
-        // The task's arguments and positive preconditions bind variables.
-        let mut bound: HashSet<&str> = m.task.args.iter().filter_map(Term::var).collect();
+        self.vars_declared(&m.task.args, m.task.span, &params, &what);
+        self.method_task_arity(domain, m);
+        self.literal_vars(&m.precondition, &params, &what);
+        self.literal_arities(domain, &m.precondition, false);
+        let mut unbound = Unbound::new(m, params);
         for literal in &m.precondition {
-            if let Literal::Pos(atom) = literal {
-                bound.extend(atom.args.iter().filter_map(Term::var));
+            if !matches!(literal, Literal::Pos(_)) {
+                let terms: Vec<Term> = literal.terms().cloned().collect();
+                unbound.check(self, &terms, literal.span());
             }
         }
-        self.vars_declared(&m.task.args, m.task.span, &params, &what);
+        let callees = self.method_subtasks(domain, m, &what, &mut unbound);
+        self.method_channels(domain, m, &what, &mut unbound, &callees);
+        self.method_redirects(domain, m, &what, &mut unbound, &callees);
+        self.method_interface(domain, m);
+    }
+
+    /// The method's task is called with as many arguments as it takes.
+    fn method_task_arity(&mut self, domain: &Domain, m: &Method) {
         if let Some(task) = domain.task(&m.task.name)
             && task.params.len() != m.task.args.len()
         {
@@ -336,37 +400,17 @@ impl Validator {
                 ),
             );
         }
-        self.literal_vars(&m.precondition, &params, &what);
-        self.literal_arities(domain, &m.precondition, false);
-        let mut reported: HashSet<(String, usize)> = HashSet::new();
-        let mut check_bound = |v: &mut Validator, terms: &[Term], span: Span| {
-            for term in terms {
-                if let Term::Var(var) = term
-                    && params.contains(&**var)
-                    && !bound.contains(&**var)
-                    && reported.insert((var.to_string(), span.start))
-                {
-                    v.diags.push(
-                        Diagnostic::error(
-                            span,
-                            format!(
-                                "variable `?{var}` is bound neither by the task `{}` nor by a precondition",
-                                m.task
-                            ),
-                        )
-                        .with_note(format!(
-                            "a positive precondition such as `(pc ?p TYPE ?{var})` binds it"
-                        )),
-                    );
-                }
-            }
-        };
-        for literal in &m.precondition {
-            if !matches!(literal, Literal::Pos(_)) {
-                let terms: Vec<Term> = literal.terms().cloned().collect();
-                check_bound(self, &terms, literal.span());
-            }
-        }
+    }
+
+    /// Labels are unique and subtasks call what exists with bound variables;
+    /// returns the callee of each label (`None`: unknown).
+    fn method_subtasks<'a>(
+        &mut self,
+        domain: &'a Domain,
+        m: &'a Method,
+        what: &str,
+        unbound: &mut Unbound<'_>,
+    ) -> HashMap<&'a str, Option<Callee<'a>>> {
         let mut callees: HashMap<&str, Option<Callee>> = HashMap::new();
         for (i, sub) in m.subtasks.iter().enumerate() {
             if let Some(first) = m.subtasks[..i].iter().find(|s| s.label == sub.label) {
@@ -379,16 +423,28 @@ impl Validator {
                 );
                 continue;
             }
-            self.vars_declared(&sub.call.args, sub.call.span, &params, &what);
-            check_bound(self, &sub.call.args, sub.call.span);
+            self.vars_declared(&sub.call.args, sub.call.span, &unbound.params, what);
+            unbound.check(self, &sub.call.args, sub.call.span);
             let callee = self.callee(domain, &sub.call);
             callees.insert(&sub.label, callee);
         }
+        callees
+    }
+
+    /// Each channel joins two different labelled subtasks that produce and consume its information.
+    fn method_channels<'a>(
+        &mut self,
+        domain: &Domain,
+        m: &'a Method,
+        what: &str,
+        unbound: &mut Unbound<'_>,
+        callees: &HashMap<&str, Option<Callee<'a>>>,
+    ) {
         for channel in &m.channels {
-            self.vars_declared(&channel.info.args, channel.info.span, &params, &what);
-            check_bound(self, &channel.info.args, channel.info.span);
-            let from = self.label(m, &channel.from, channel.span, &callees);
-            let to = self.label(m, &channel.to, channel.span, &callees);
+            self.vars_declared(&channel.info.args, channel.info.span, &unbound.params, what);
+            unbound.check(self, &channel.info.args, channel.info.span);
+            let from = self.label(m, &channel.from, channel.span, callees);
+            let to = self.label(m, &channel.to, channel.span, callees);
             if channel.from == channel.to {
                 self.error(channel.span, "a channel from a subtask to itself");
                 continue;
@@ -400,50 +456,69 @@ impl Validator {
                 self.carries(domain, callee, call, &channel.info, Direction::Input);
             }
         }
+    }
+
+    /// Each `:inputs`/`:outputs` redirect names a subtask that carries its information.
+    fn method_redirects<'a>(
+        &mut self,
+        domain: &Domain,
+        m: &'a Method,
+        what: &str,
+        unbound: &mut Unbound<'_>,
+        callees: &HashMap<&str, Option<Callee<'a>>>,
+    ) {
         for (redirects, direction) in [
             (&m.inputs, Direction::Input),
             (&m.outputs, Direction::Output),
         ] {
             for redirect in redirects {
-                self.vars_declared(&redirect.info.args, redirect.info.span, &params, &what);
-                check_bound(self, &redirect.info.args, redirect.info.span);
-                if let Some((callee, call)) =
-                    self.label(m, &redirect.label, redirect.span, &callees)
+                self.vars_declared(
+                    &redirect.info.args,
+                    redirect.info.span,
+                    &unbound.params,
+                    what,
+                );
+                unbound.check(self, &redirect.info.args, redirect.info.span);
+                if let Some((callee, call)) = self.label(m, &redirect.label, redirect.span, callees)
                 {
                     self.carries(domain, callee, call, &redirect.info, direction);
                 }
             }
         }
-        // A task that declares its inputs and outputs holds every method to them.
-        if let Some(task) = domain.task(&m.task.name) {
-            let subst: HashMap<&str, &Term> = task
-                .params
-                .iter()
-                .map(|p| &*p.name)
-                .zip(&m.task.args)
-                .collect();
-            for (declared, provided, word) in [
-                (&task.outputs, &m.outputs, "output"),
-                (&task.inputs, &m.inputs, "input"),
-            ] {
-                for info in declared {
-                    let wanted = substitute(&info.args, &subst);
-                    if !provided
-                        .iter()
-                        .any(|r| r.info.name == info.name && compatible(&r.info.args, &wanted))
-                    {
-                        self.diags.push(
-                            Diagnostic::error(
-                                m.name_span,
-                                format!(
-                                    "method `{}` does not say which subtask handles {word} {info} of task `{}`",
-                                    m.name, task.name
-                                ),
-                            )
-                            .with_secondary(info.span, "declared here")
-                            .with_note(format!("add `:{word}s ((({} ...) LABEL))`", info.name)),
-                        );
-                    }
+    }
+
+    /// A task that declares its inputs and outputs holds every method to them.
+    fn method_interface(&mut self, domain: &Domain, m: &Method) {
+        let Some(task) = domain.task(&m.task.name) else {
+            return;
+        };
+        let subst: HashMap<&str, &Term> = task
+            .params
+            .iter()
+            .map(|p| &*p.name)
+            .zip(&m.task.args)
+            .collect();
+        for (declared, provided, word) in [
+            (&task.outputs, &m.outputs, "output"),
+            (&task.inputs, &m.inputs, "input"),
+        ] {
+            for info in declared {
+                let wanted = substitute(&info.args, &subst);
+                if !provided
+                    .iter()
+                    .any(|r| r.info.name == info.name && compatible(&r.info.args, &wanted))
+                {
+                    self.diags.push(
+                        Diagnostic::error(
+                            m.name_span,
+                            format!(
+                                "method `{}` does not say which subtask handles {word} {info} of task `{}`",
+                                m.name, task.name
+                            ),
+                        )
+                        .with_secondary(info.span, "declared here")
+                        .with_note(format!("add `:{word}s ((({} ...) LABEL))`", info.name)),
+                    );
                 }
             }
         }

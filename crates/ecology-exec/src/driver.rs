@@ -45,16 +45,7 @@ pub async fn drive<S: TupleSpace>(
     exec: &mut Executive,
     config: DriverConfig,
 ) -> Result<RunStatus, TupleError> {
-    drive_until(
-        space,
-        clock,
-        exec,
-        config,
-        |_| {},
-        std::future::pending(),
-        None,
-    )
-    .await
+    drive_observed(space, clock, exec, config, |_| {}).await
 }
 
 /// [`drive`], calling `observe` with every log entry as soon as the executive
@@ -194,8 +185,8 @@ pub async fn drive_until<S: TupleSpace>(
                 }
                 Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
                 event = presence.next() => match event {
-                    Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p.to_string())),
-                    Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p.to_string())),
+                    Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p)),
+                    Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p)),
                     None => Vec::new(),
                 },
                 event = tuples.next() => match event {
@@ -226,8 +217,8 @@ pub async fn drive_until<S: TupleSpace>(
 /// The executive's event for tuple `t` (a value that is not text reads as empty).
 fn tuple_event(t: &Tuple) -> Event {
     Event::Tuple {
-        owner: t.owner.to_string(),
-        key: t.key.to_string(),
+        owner: t.owner.clone(),
+        key: t.key.clone(),
         value: t.text().unwrap_or_default().to_string(),
         epoch: t.epoch,
         seq: t.seq,
@@ -255,11 +246,7 @@ impl<S: TupleSpace> RemoteSets<S> {
         }
     }
 
-    fn send(&mut self, owner: String, key: String, value: String) {
-        let (Ok(owner), Ok(key)) = (PeisId::new(&owner), Key::new(&key)) else {
-            // The executive builds these from names it read from the space, so they are valid.
-            return;
-        };
+    fn send(&mut self, owner: PeisId, key: Key, value: String) {
         self.queued
             .entry(owner.clone())
             .or_default()
@@ -287,8 +274,8 @@ impl<S: TupleSpace> RemoteSets<S> {
                     .await
             };
             let failure = result.err().map(|e| Event::RemoteSetFailed {
-                owner: owner.to_string(),
-                key: key.to_string(),
+                owner: owner.clone(),
+                key,
                 reason: e.to_string(),
             });
             (owner, failure)

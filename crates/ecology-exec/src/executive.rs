@@ -23,6 +23,8 @@ use std::time::Duration;
 
 use ecology_config::{Clock as PlannerClock, Configuration, Exclusion, NoClock, Options, Request};
 use ecology_domain::{Call, Domain, EcologyState};
+use ecology_tuples::contract::{self, ComponentField};
+use ecology_tuples::{ComponentId, Key, PeisId};
 
 use crate::log::{LogEntry, LogEvent};
 use crate::mirror::{Change, Mirror};
@@ -39,9 +41,9 @@ pub enum Event {
     /// A tuple was set (DESIGN section 5); `seq` increases per owner and key.
     Tuple {
         /// The owner PEIS.
-        owner: String,
+        owner: PeisId,
         /// The dotted key.
-        key: String,
+        key: Key,
         /// The value, as text.
         value: String,
         /// The run of the owner that wrote it (0 when unknown); a greater epoch means the owner restarted.
@@ -52,16 +54,16 @@ pub enum Event {
     /// A remote set the executive asked for failed (the owner refused it or could not be reached).
     RemoteSetFailed {
         /// The PEIS that owns the tuple.
-        owner: String,
+        owner: PeisId,
         /// The dotted key.
-        key: String,
+        key: Key,
         /// Why.
         reason: String,
     },
     /// A PEIS appeared.
-    PeisJoined(String),
+    PeisJoined(PeisId),
     /// A PEIS disappeared (left, crashed or lost).
-    PeisLeft(String),
+    PeisLeft(PeisId),
     /// A timer fired.
     Timer(TimerId),
 }
@@ -72,9 +74,9 @@ pub enum Command {
     /// Ask `owner` to set its tuple `key` to `value` (a remote set).
     RemoteSet {
         /// The PEIS that owns the tuple.
-        owner: String,
+        owner: PeisId,
         /// The dotted key.
-        key: String,
+        key: Key,
         /// The value.
         value: String,
     },
@@ -153,16 +155,73 @@ pub enum RunStatus {
     },
 }
 
-type ComponentKey = (String, String);
+/// A component of the ecology: its PEIS and its name there.
+type ComponentKey = (PeisId, ComponentId);
+
+/// The typed names of the component `peis`:`component` of a configuration;
+/// `None` when either is not a valid name in the tuple space (the planner
+/// reads names from facts, which may say anything).
+fn component_key(peis: &str, component: &str) -> Option<ComponentKey> {
+    Some((PeisId::new(peis).ok()?, ComponentId::new(component).ok()?))
+}
+
+/// The first component of `config` whose PEIS or name is not valid in the
+/// tuple space: it cannot be deployed.
+fn invalid_component(config: &Configuration) -> Option<(String, String)> {
+    let functionalities = config
+        .functionalities
+        .iter()
+        .map(|f| (&f.peis, &f.component));
+    let producers = config
+        .channels
+        .iter()
+        .map(|c| (&c.from_peis, &c.from_component));
+    functionalities
+        .chain(producers)
+        .find(|(p, c)| component_key(p, c).is_none())
+        .map(|(p, c)| (p.clone(), c.clone()))
+}
+
+/// The components of `config`'s functionalities that `keep` selects.
+fn components_of(
+    config: &Configuration,
+    keep: impl Fn(&ecology_config::FunctionalityInstance) -> bool,
+) -> Vec<ComponentKey> {
+    config
+        .functionalities
+        .iter()
+        .filter(|f| keep(f))
+        .filter_map(|f| component_key(&f.peis, &f.component))
+        .collect()
+}
+
+/// The remote set that switches `component` on or off.
+fn req_state(component: &ComponentKey, state: &str) -> Command {
+    Command::RemoteSet {
+        owner: component.0.clone(),
+        key: ComponentField::ReqState.key(&component.1),
+        value: state.to_string(),
+    }
+}
+
+/// The remote set that gives `component` its functionality instance (empty: none).
+fn params(component: &ComponentKey, value: String) -> Command {
+    Command::RemoteSet {
+        owner: component.0.clone(),
+        key: ComponentField::Params.key(&component.1),
+        value,
+    }
+}
 
 /// The key of the meta-tuple that wires channel `c` into its consumer:
 /// `C.mi-INFO`, or `C.mi-INFO.ARG…` when the consumer has another input of
 /// the same kind in `all` (two images from two cameras), so that the two
-/// never share a key.
+/// never share a key. `None` when the information's name makes no valid key.
 fn input_key(
+    consumer: &ComponentId,
     c: &ecology_config::ChannelInstance,
     all: &[ecology_config::ChannelInstance],
-) -> String {
+) -> Option<Key> {
     let shared = all.iter().any(|other| {
         other.to_peis == c.to_peis
             && other.to_component == c.to_component
@@ -170,7 +229,7 @@ fn input_key(
             && other.info != c.info
     });
     if !shared {
-        return format!("{}.mi-{}", c.to_component, c.info_name);
+        return contract::input_key(consumer, &c.info_name, &[]).ok();
     }
     let args: Vec<&str> = c
         .info
@@ -183,7 +242,7 @@ fn input_key(
                 .all(|ch| ch.is_ascii_alphanumeric() || ch == '_' || ch == '-')
         })
         .collect();
-    format!("{}.mi-{}.{}", c.to_component, c.info_name, args.join("."))
+    contract::input_key(consumer, &c.info_name, &args).ok()
 }
 
 fn micros(d: Duration) -> u64 {
@@ -346,7 +405,9 @@ impl Executive {
                         } => self.on_status((peis, component), &status, &mut out),
                         Change::Restarted { peis } => {
                             if self.run.is_some() {
-                                self.record(LogEvent::PeisRestarted { peis: peis.clone() });
+                                self.record(LogEvent::PeisRestarted {
+                                    peis: peis.to_string(),
+                                });
                             }
                             self.forget(&peis);
                             self.on_peis_gone(&peis, format!("PEIS {peis} restarted"), &mut out);
@@ -362,14 +423,18 @@ impl Executive {
                 let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
                 self.mirror.joined(&peis);
                 if !was_present && self.run.is_some() {
-                    self.record(LogEvent::PeisJoined { peis });
+                    self.record(LogEvent::PeisJoined {
+                        peis: peis.to_string(),
+                    });
                 }
             }
             Event::PeisLeft(peis) => {
                 let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
                 self.mirror.left(&peis);
                 if was_present && self.run.is_some() {
-                    self.record(LogEvent::PeisLeft { peis: peis.clone() });
+                    self.record(LogEvent::PeisLeft {
+                        peis: peis.to_string(),
+                    });
                 }
                 self.forget(&peis);
                 self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), &mut out);
@@ -381,7 +446,7 @@ impl Executive {
 
     /// A PEIS that comes back starts afresh: forget what was written to its
     /// components, so a new deploy writes it again.
-    fn forget(&mut self, peis: &str) {
+    fn forget(&mut self, peis: &PeisId) {
         self.params.retain(|(p, _), _| p != peis);
         self.started.retain(|(p, _)| p != peis);
     }
@@ -448,8 +513,8 @@ impl Executive {
         let mut unavailable = Vec::new();
         for (p, c, cause) in self.mirror.in_error() {
             let exclusion = Exclusion::Component {
-                peis: p.clone(),
-                component: c.clone(),
+                peis: p.to_string(),
+                component: c.to_string(),
             };
             if !exclusions.contains(&exclusion) {
                 exclusions.push(exclusion);
@@ -513,28 +578,33 @@ impl Executive {
             alternatives: outcome.configurations.iter().map(|c| c.cost).collect(),
             reconfiguration,
         });
+        if let Some((peis, component)) = invalid_component(&chosen) {
+            let cause = "its PEIS or component name is not valid in the tuple space".to_string();
+            self.exclude(vec![(peis, component)], cause, out);
+            return;
+        }
         self.deploy(chosen, out);
     }
 
+    /// Switches on, parameterizes and wires the components of `config`,
+    /// whose names are all valid (`invalid_component` is `None`).
     fn deploy(&mut self, config: Configuration, out: &mut Vec<Command>) {
         let mut switched_on = Vec::new();
         let mut pending = BTreeSet::new();
         let mut finished = Vec::new();
         for f in &config.functionalities {
-            let key = (f.peis.clone(), f.component.clone());
+            let Some(key) = component_key(&f.peis, &f.component) else {
+                continue;
+            };
             let view = self.mirror.component(&f.peis, &f.component);
             let on = view.is_some_and(|v| v.on);
             if !on {
-                out.push(Command::RemoteSet {
-                    owner: f.peis.clone(),
-                    key: format!("components.{}.reqState", f.component),
-                    value: "on".to_string(),
-                });
+                out.push(req_state(&key, "on"));
                 self.started.insert(key.clone());
                 switched_on.push(format!("{}:{}", f.peis, f.component));
             }
-            let params = f.call();
-            let unchanged = self.params.get(&key) == Some(&params);
+            let call = f.call();
+            let unchanged = self.params.get(&key) == Some(&call);
             // A component kept from the previous configuration with the same
             // params is ready if it runs, and may even have finished its step.
             let status = view.and_then(|v| v.status.as_deref());
@@ -543,12 +613,8 @@ impl Executive {
                 finished.push(key.clone());
             }
             if !unchanged {
-                out.push(Command::RemoteSet {
-                    owner: f.peis.clone(),
-                    key: format!("{}.params", f.component),
-                    value: params.clone(),
-                });
-                self.params.insert(key.clone(), params);
+                out.push(params(&key, call.clone()));
+                self.params.insert(key.clone(), call);
             }
             if !ready {
                 pending.insert(key);
@@ -557,9 +623,24 @@ impl Executive {
         let mut channels = Vec::new();
         let mut deferred = Vec::new();
         for c in &config.channels {
+            channels.push(format!(
+                "{}:{} → {}:{} {}",
+                c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
+            ));
+            let (Some(producer), Some(consumer)) = (
+                component_key(&c.from_peis, &c.from_component),
+                component_key(&c.to_peis, &c.to_component),
+            ) else {
+                continue;
+            };
+            // An information name that makes no valid key cannot be wired; the
+            // consumer then reports what it misses.
+            let Some(key) = input_key(&consumer.1, c, &config.channels) else {
+                continue;
+            };
             let wire = Command::RemoteSet {
-                owner: c.to_peis.clone(),
-                key: input_key(c, &config.channels),
+                owner: consumer.0,
+                key,
                 value: format!(
                     "(meta {} {}.out.{})",
                     c.from_peis, c.from_component, c.info_name
@@ -567,16 +648,11 @@ impl Executive {
             };
             // Make-before-break: an input is re-pointed only once its new
             // producer runs, so its consumer never reads from nothing.
-            let producer = (c.from_peis.clone(), c.from_component.clone());
             if pending.contains(&producer) {
                 deferred.push((producer, wire));
             } else {
                 out.push(wire);
             }
-            channels.push(format!(
-                "{}:{} → {}:{} {}",
-                c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
-            ));
         }
         self.record(LogEvent::Deployed {
             switched_on,
@@ -622,18 +698,14 @@ impl Executive {
             let unneeded: Vec<ComponentKey> = self
                 .started
                 .iter()
-                .filter(|(p, c)| !config.uses(p, c))
+                .filter(|(p, c)| !config.uses(p.as_str(), c.as_str()))
                 .cloned()
                 .collect();
-            for (p, c) in unneeded {
-                out.push(Command::RemoteSet {
-                    owner: p.clone(),
-                    key: format!("components.{c}.reqState"),
-                    value: "off".to_string(),
-                });
-                self.started.remove(&(p.clone(), c.clone()));
-                self.params.remove(&(p.clone(), c.clone()));
-                switched_off.push(format!("{p}:{c}"));
+            for key in unneeded {
+                out.push(req_state(&key, "off"));
+                self.started.remove(&key);
+                self.params.remove(&key);
+                switched_off.push(format!("{}:{}", key.0, key.1));
             }
         }
         self.running = config;
@@ -648,14 +720,12 @@ impl Executive {
     fn arm_waiting_timers(&mut self, out: &mut Vec<Command>) {
         let Some(run) = &self.run else { return };
         let Some(config) = &run.config else { return };
-        let waiting: Vec<ComponentKey> = config
-            .functionalities
-            .iter()
-            .map(|f| (f.peis.clone(), f.component.clone()))
+        let waiting: Vec<ComponentKey> = components_of(config, |_| true)
+            .into_iter()
             .filter(|k| !run.waiting.contains_key(k) && !run.failed.contains(k))
             .filter(|(p, c)| {
                 self.mirror
-                    .component(p, c)
+                    .component(p.as_str(), c.as_str())
                     .is_some_and(|v| v.status.as_deref() == Some("waiting"))
             })
             .collect();
@@ -671,7 +741,7 @@ impl Executive {
         self.run
             .as_ref()
             .and_then(|r| r.config.as_ref())
-            .is_some_and(|c| c.uses(&key.0, &key.1))
+            .is_some_and(|c| c.uses(key.0.as_str(), key.1.as_str()))
     }
 
     fn on_status(&mut self, key: ComponentKey, status: &str, out: &mut Vec<Command>) {
@@ -709,7 +779,7 @@ impl Executive {
             "error" => {
                 let cause = self
                     .mirror
-                    .component(&key.0, &key.1)
+                    .component(key.0.as_str(), key.1.as_str())
                     .and_then(|c| c.cause.clone())
                     .unwrap_or_else(|| "error".to_string());
                 self.failure(vec![key], cause, out);
@@ -725,16 +795,11 @@ impl Executive {
     }
 
     /// A PEIS left or restarted: every component of the configuration on it failed.
-    fn on_peis_gone(&mut self, peis: &str, cause: String, out: &mut Vec<Command>) {
+    fn on_peis_gone(&mut self, peis: &PeisId, cause: String, out: &mut Vec<Command>) {
         let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
             return;
         };
-        let lost: Vec<ComponentKey> = config
-            .functionalities
-            .iter()
-            .filter(|f| f.peis == peis)
-            .map(|f| (f.peis.clone(), f.component.clone()))
-            .collect();
+        let lost = components_of(config, |f| f.peis == peis.as_str());
         if !lost.is_empty() {
             self.failure(lost, cause, out);
         }
@@ -744,19 +809,18 @@ impl Executive {
     /// configuration, that component failed (it cannot be switched on or wired).
     fn on_remote_set_failed(
         &mut self,
-        owner: String,
-        key: String,
+        owner: PeisId,
+        key: Key,
         reason: String,
         out: &mut Vec<Command>,
     ) {
-        let component = key
-            .strip_prefix("components.")
-            .and_then(|k| k.strip_suffix(".reqState"))
-            .or_else(|| key.split_once('.').map(|(c, _)| c))
-            .map(str::to_string);
+        // `components.C.reqState`, or `C.params` and `C.mi-…`: the component is the first segment.
+        let component = ComponentField::parse(&key)
+            .map(|(c, _)| c)
+            .or_else(|| key.segments().next().and_then(|c| ComponentId::new(c).ok()));
         self.record(LogEvent::RemoteSetFailed {
-            owner: owner.clone(),
-            key: key.clone(),
+            owner: owner.to_string(),
+            key: key.to_string(),
             reason: reason.clone(),
         });
         if let Some(component) = component {
@@ -787,7 +851,12 @@ impl Executive {
                 // pending one is on (and so waits for something) are all blamed.
                 let starting: Vec<ComponentKey> = pending
                     .iter()
-                    .filter(|(p, c)| !self.mirror.component(p, c).is_some_and(|v| v.on))
+                    .filter(|(p, c)| {
+                        !self
+                            .mirror
+                            .component(p.as_str(), c.as_str())
+                            .is_some_and(|v| v.on)
+                    })
                     .cloned()
                     .collect();
                 let (late, cause) = if starting.is_empty() {
@@ -817,7 +886,7 @@ impl Executive {
             run.waiting.remove(&key);
             let cause = self
                 .mirror
-                .component(&key.0, &key.1)
+                .component(key.0.as_str(), key.1.as_str())
                 .and_then(|c| c.cause.clone())
                 .map_or_else(
                     || format!("waiting for longer than {:?}", self.config.waiting_grace),
@@ -842,18 +911,29 @@ impl Executive {
         if fresh.is_empty() {
             return;
         }
-        for key in &fresh {
-            run.failed.insert(key.clone());
+        run.failed.extend(fresh.iter().cloned());
+        let names = fresh
+            .into_iter()
+            .map(|(p, c)| (p.to_string(), c.to_string()))
+            .collect();
+        self.exclude(names, cause, out);
+    }
+
+    /// Excludes the components `failed` (PEIS and name) for the rest of the
+    /// action, logs why, and reconfigures.
+    fn exclude(&mut self, failed: Vec<(String, String)>, cause: String, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        for (peis, component) in &failed {
             run.excluded.push(Exclusion::Component {
-                peis: key.0.clone(),
-                component: key.1.clone(),
+                peis: peis.clone(),
+                component: component.clone(),
             });
         }
         let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
-        for (peis, component) in &fresh {
+        for (peis, component) in failed {
             self.record(LogEvent::Failure {
-                peis: peis.clone(),
-                component: component.clone(),
+                peis,
+                component,
                 cause: cause.clone(),
             });
         }
@@ -867,12 +947,7 @@ impl Executive {
             return;
         }
         let Some(config) = &run.config else { return };
-        let finishing: Vec<ComponentKey> = config
-            .functionalities
-            .iter()
-            .filter(|f| !f.postcondition.is_empty())
-            .map(|f| (f.peis.clone(), f.component.clone()))
-            .collect();
+        let finishing = components_of(config, |f| !f.postcondition.is_empty());
         // An action is done when every functionality with a postcondition
         // reports `done`; one whose configuration has none (it only provides
         // information) is done as soon as its configuration runs.
@@ -928,23 +1003,15 @@ impl Executive {
         }
         self.finished = true;
         let mut switched_off = Vec::new();
-        for (p, c) in std::mem::take(&mut self.started) {
-            out.push(Command::RemoteSet {
-                owner: p.clone(),
-                key: format!("components.{c}.reqState"),
-                value: "off".to_string(),
-            });
-            self.params.remove(&(p.clone(), c.clone()));
-            switched_off.push(format!("{p}:{c}"));
+        for key in std::mem::take(&mut self.started) {
+            out.push(req_state(&key, "off"));
+            self.params.remove(&key);
+            switched_off.push(format!("{}:{}", key.0, key.1));
         }
         let mut stopped = Vec::new();
-        for ((p, c), _) in std::mem::take(&mut self.params) {
-            out.push(Command::RemoteSet {
-                owner: p.clone(),
-                key: format!("{c}.params"),
-                value: String::new(),
-            });
-            stopped.push(format!("{p}:{c}"));
+        for (key, _) in std::mem::take(&mut self.params) {
+            out.push(params(&key, String::new()));
+            stopped.push(format!("{}:{}", key.0, key.1));
         }
         self.running = None;
         if !switched_off.is_empty() || !stopped.is_empty() {

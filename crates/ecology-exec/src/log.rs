@@ -1,8 +1,7 @@
 //! The executive's event log: every step, timestamped, printable as a
-//! readable timeline (`Display`) and as JSON lines ([`LogEntry::json_line`]:
-//! one object per event with `"t"` in seconds and `"event"` named by
-//! [`LogEvent::name`]). The JSON form is built explicitly here, at the edge;
-//! the log types themselves are not serializable.
+//! readable timeline (`Display`). [`LogEvent::name`] names each event for
+//! the JSON-lines form, which `ecology-cli` builds (JSON lives at the edge;
+//! the log types themselves are not serializable).
 
 use std::fmt;
 use std::time::Duration;
@@ -171,85 +170,6 @@ impl LogEvent {
             LogEvent::TaskDone => "task_done",
             LogEvent::TaskFailed { .. } => "task_failed",
         }
-    }
-}
-
-impl LogEntry {
-    /// The entry as one line of JSON: `{"t": 12.5, "event": "failure", ...fields}`.
-    pub fn json_line(&self) -> String {
-        use serde_json::json;
-        let mut object = match &self.event {
-            LogEvent::Plan { actions } => json!({ "actions": actions }),
-            LogEvent::Replanned { failed, actions } => {
-                json!({ "failed": failed, "actions": actions })
-            }
-            LogEvent::ActionStarted { index, action } => {
-                json!({ "index": index, "action": action })
-            }
-            LogEvent::StateAcquired {
-                peis,
-                components,
-                unavailable,
-                ..
-            } => {
-                json!({ "peis": peis, "components": components, "unavailable": unavailable })
-            }
-            LogEvent::Configuration {
-                goal,
-                cost,
-                optimal,
-                functionalities,
-                alternatives,
-                reconfiguration,
-                micros,
-            } => json!({
-                "micros": micros,
-                "goal": goal,
-                "cost": cost,
-                "optimal": optimal,
-                "functionalities": functionalities,
-                "alternatives": alternatives,
-                "reconfiguration": reconfiguration,
-            }),
-            LogEvent::Deployed {
-                switched_on,
-                channels,
-            } => json!({ "switched_on": switched_on, "channels": channels }),
-            LogEvent::Running { switched_off } => json!({ "switched_off": switched_off }),
-            LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } => {
-                json!({ "peis": peis, "component": component, "cause": cause })
-            }
-            LogEvent::Reconfiguration { excluded } => json!({ "excluded": excluded }),
-            LogEvent::PeisJoined { peis }
-            | LogEvent::PeisLeft { peis }
-            | LogEvent::PeisRestarted { peis } => json!({ "peis": peis }),
-            LogEvent::RemoteSetFailed { owner, key, reason } => {
-                json!({ "owner": owner, "key": key, "reason": reason })
-            }
-            LogEvent::Released {
-                switched_off,
-                stopped,
-            } => json!({ "switched_off": switched_off, "stopped": stopped }),
-            LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
-            LogEvent::ActionFailed {
-                index,
-                action,
-                reason,
-            } => {
-                json!({ "index": index, "action": action, "reason": reason })
-            }
-            LogEvent::TaskDone => json!({}),
-            LogEvent::TaskFailed { reason } => json!({ "reason": reason }),
-        };
-        if let Some(fields) = object.as_object_mut() {
-            fields.insert("t".to_string(), json!(self.t.as_secs_f64()));
-            fields.insert("event".to_string(), json!(self.event.name()));
-        }
-        object.to_string()
     }
 }
 

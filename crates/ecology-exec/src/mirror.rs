@@ -13,6 +13,8 @@
 use std::collections::{BTreeMap, HashMap};
 
 use ecology_domain::{EcologyState, Fact};
+use ecology_tuples::contract::ComponentField;
+use ecology_tuples::{ComponentId, Key, PeisId};
 
 /// What the mirror knows of one component.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -41,7 +43,7 @@ pub struct PeisView {
     /// The run that was current when it last left: its late tuples do not make it present again.
     left_epoch: Option<u64>,
     /// Its components, by name.
-    pub components: BTreeMap<String, ComponentView>,
+    pub components: BTreeMap<ComponentId, ComponentView>,
 }
 
 /// A change the mirror saw that matters to the executive.
@@ -50,16 +52,16 @@ pub enum Change {
     /// A component's status changed.
     Status {
         /// The PEIS.
-        peis: String,
+        peis: PeisId,
         /// The component.
-        component: String,
+        component: ComponentId,
         /// The new status.
         status: String,
     },
     /// The PEIS started a new run (it restarted): its components start afresh.
     Restarted {
         /// The PEIS.
-        peis: String,
+        peis: PeisId,
     },
     /// Anything else (types, costs, on/off, causes).
     Other,
@@ -68,8 +70,8 @@ pub enum Change {
 /// The executive's mirror of the ecology's tuples.
 #[derive(Debug, Clone, Default)]
 pub struct Mirror {
-    peis: BTreeMap<String, PeisView>,
-    last_seq: HashMap<(String, String), u64>,
+    peis: BTreeMap<PeisId, PeisView>,
+    last_seq: HashMap<(PeisId, Key), u64>,
 }
 
 impl Mirror {
@@ -79,7 +81,7 @@ impl Mirror {
     }
 
     /// Every PEIS seen.
-    pub fn peis(&self) -> &BTreeMap<String, PeisView> {
+    pub fn peis(&self) -> &BTreeMap<PeisId, PeisView> {
         &self.peis
     }
 
@@ -89,8 +91,8 @@ impl Mirror {
     }
 
     /// A PEIS joined.
-    pub fn joined(&mut self, peis: &str) {
-        let view = self.peis.entry(peis.to_string()).or_default();
+    pub fn joined(&mut self, peis: &PeisId) {
+        let view = self.peis.entry(peis.clone()).or_default();
         view.present = true;
         view.left_epoch = None;
     }
@@ -99,7 +101,7 @@ impl Mirror {
     ///
     /// The versions seen are kept: a PEIS that was only cut off (frozen, or its network lost) comes
     /// back with the same run and continues its numbering, so its old tuples still read as old.
-    pub fn left(&mut self, peis: &str) {
+    pub fn left(&mut self, peis: &PeisId) {
         if let Some(view) = self.peis.get_mut(peis) {
             view.present = false;
             view.left_epoch = Some(view.epoch);
@@ -110,14 +112,14 @@ impl Mirror {
     /// update is a duplicate, out of order or from an earlier run of its owner.
     pub fn apply(
         &mut self,
-        owner: &str,
-        key: &str,
+        owner: &PeisId,
+        key: &Key,
         value: &str,
         epoch: u64,
         seq: u64,
     ) -> Vec<Change> {
         let mut changes = Vec::new();
-        let view = self.peis.entry(owner.to_string()).or_default();
+        let view = self.peis.entry(owner.clone()).or_default();
         // Epoch 0 is a writer that does not say (a plain Zenoh put): its updates are not ordered by run.
         if epoch != 0 && view.epoch != 0 && epoch < view.epoch {
             return changes;
@@ -127,14 +129,14 @@ impl Mirror {
                 view.components.clear();
                 self.last_seq.retain(|(o, _), _| o != owner);
                 changes.push(Change::Restarted {
-                    peis: owner.to_string(),
+                    peis: owner.clone(),
                 });
             }
             view.epoch = epoch;
         }
         let slot = self
             .last_seq
-            .entry((owner.to_string(), key.to_string()))
+            .entry((owner.clone(), key.clone()))
             .or_insert(0);
         if seq <= *slot && *slot != 0 {
             return changes;
@@ -161,8 +163,10 @@ impl Mirror {
             if !view.present {
                 continue;
             }
+            let name = name.as_str();
             state.insert(Fact::new("peis", &[name]));
             for (c, comp) in &view.components {
+                let c = c.as_str();
                 let Some(ty) = &comp.ty else { continue };
                 state.insert(Fact::new("pc", &[name, ty, c]));
                 if let Some(cost) = comp.cost {
@@ -181,7 +185,7 @@ impl Mirror {
     }
 
     /// The components of present PEIS that report `error`, with their cause.
-    pub fn in_error(&self) -> Vec<(String, String, String)> {
+    pub fn in_error(&self) -> Vec<(PeisId, ComponentId, String)> {
         self.peis
             .iter()
             .filter(|(_, view)| view.present)
@@ -210,43 +214,29 @@ impl Mirror {
 
 impl PeisView {
     /// Takes in tuple `key` = `value` of this PEIS (`owner`).
-    fn update(&mut self, owner: &str, key: &str, value: &str) -> Option<Change> {
+    fn update(&mut self, owner: &PeisId, key: &Key, value: &str) -> Option<Change> {
         let value = value.trim();
-        if let Some(rest) = key.strip_prefix("components.") {
-            let Some((component, field)) = rest.rsplit_once('.') else {
-                return Some(Change::Other);
-            };
-            let c = self.components.entry(component.to_string()).or_default();
-            match field {
-                "type" => c.ty = Some(value.to_string()),
-                "cost" => c.cost = value.parse().ok(),
-                "currState" => c.on = value == "on",
-                _ => {}
-            }
-            return Some(Change::Other);
-        }
-        let Some((component, field)) = key.split_once('.') else {
+        // Keys outside the contract's fixed fields (outputs, inputs, anything else) change nothing here.
+        let Some((component, field)) = ComponentField::parse(key) else {
             return Some(Change::Other);
         };
-        let c = self.components.entry(component.to_string()).or_default();
+        let c = self.components.entry(component.clone()).or_default();
         match field {
-            "status" => {
+            ComponentField::Type => c.ty = Some(value.to_string()),
+            ComponentField::Cost => c.cost = value.parse().ok(),
+            ComponentField::CurrState => c.on = value == "on",
+            ComponentField::ReqState => {}
+            ComponentField::Status => {
                 c.status = Some(value.to_string());
-                Some(Change::Status {
-                    peis: owner.to_string(),
-                    component: component.to_string(),
+                return Some(Change::Status {
+                    peis: owner.clone(),
+                    component,
                     status: value.to_string(),
-                })
+                });
             }
-            "cause" => {
-                c.cause = Some(value.to_string());
-                Some(Change::Other)
-            }
-            "params" => {
-                c.params = Some(value.to_string());
-                Some(Change::Other)
-            }
-            _ => Some(Change::Other),
+            ComponentField::Cause => c.cause = Some(value.to_string()),
+            ComponentField::Params => c.params = Some(value.to_string()),
         }
+        Some(Change::Other)
     }
 }

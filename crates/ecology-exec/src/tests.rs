@@ -7,6 +7,8 @@ use std::time::Duration;
 
 use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 
+use ecology_tuples::{Key, PeisId};
+
 use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, TimerId};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
@@ -14,6 +16,14 @@ const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
 
 fn secs(s: f64) -> Duration {
     Duration::from_secs_f64(s)
+}
+
+fn peis(name: &str) -> PeisId {
+    PeisId::new(name).expect("a PEIS name")
+}
+
+fn key(text: &str) -> Key {
+    Key::new(text).expect("a key")
 }
 
 /// Something scheduled in the scripted ecology.
@@ -154,6 +164,7 @@ impl Ecology {
             Command::StartTimer { id, after } => exec_timers.push((self.now + *after, *id)),
             Command::CancelTimer(id) => exec_timers.retain(|(_, t)| t != id),
             Command::RemoteSet { owner, key, value } => {
+                let (owner, key) = (&owner.to_string(), key.as_str());
                 if self.gone.contains(owner) {
                     return;
                 }
@@ -255,14 +266,14 @@ impl Ecology {
                     Due::Deliver(EventOrd::Tuple(owner, key, value, seq)) => exec.handle(
                         next,
                         Event::Tuple {
-                            owner,
-                            key,
+                            owner: peis(&owner),
+                            key: self::key(&key),
                             value,
                             epoch: 1,
                             seq,
                         },
                     ),
-                    Due::Deliver(EventOrd::Left(p)) => exec.handle(next, Event::PeisLeft(p)),
+                    Due::Deliver(EventOrd::Left(p)) => exec.handle(next, Event::PeisLeft(peis(&p))),
                     Due::SwitchedOn(p, c) => {
                         if let Some(comp) = self.components.get_mut(&(p.clone(), c.clone())) {
                             comp.on = true;
@@ -546,8 +557,8 @@ fn tuple(owner: &str, key: &str, value: &str, seq: u64) -> Event {
 
 fn tuple_of_run(owner: &str, key: &str, value: &str, epoch: u64, seq: u64) -> Event {
     Event::Tuple {
-        owner: owner.to_string(),
-        key: key.to_string(),
+        owner: peis(owner),
+        key: self::key(key),
         value: value.to_string(),
         epoch,
         seq,
@@ -670,7 +681,7 @@ fn set_of<'a>(commands: &'a [Command], owner: &str, key: &str) -> Option<&'a str
             owner: o,
             key: k,
             value,
-        } if o == owner && k == key => Some(value.as_str()),
+        } if o.as_str() == owner && k.as_str() == key => Some(value.as_str()),
         _ => None,
     })
 }
@@ -852,13 +863,13 @@ fn a_restarted_peis_fails_its_components_and_its_new_run_counts() {
 #[test]
 fn a_late_tuple_does_not_bring_back_a_peis_that_left() {
     let mut exec = running_first_action();
-    exec.handle(secs(2.0), Event::PeisLeft("hsm".to_string()));
+    exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
     // Sent before it left, delivered after: hsm stays absent.
     exec.handle(secs(2.1), tuple("hsm", "ca1.status", "running", 7));
     assert!(!exec.mirror().peis()["hsm"].present);
     // Its presence coming back does bring it back, with the same run's numbering.
-    exec.handle(secs(3.0), Event::PeisJoined("hsm".to_string()));
+    exec.handle(secs(3.0), Event::PeisJoined(peis("hsm")));
     assert!(exec.mirror().peis()["hsm"].present);
     exec.handle(secs(3.1), tuple("hsm", "ca1.status", "error", 6));
     let view = exec.mirror().component("hsm", "ca1").cloned();
@@ -873,8 +884,8 @@ fn a_failed_remote_set_fails_its_component() {
     exec.handle(
         secs(2.0),
         Event::RemoteSetFailed {
-            owner: "hsm".to_string(),
-            key: "tr1.params".to_string(),
+            owner: peis("hsm"),
+            key: key("tr1.params"),
             reason: "remote set of tr1.params is not allowed by hsm".to_string(),
         },
     );
@@ -896,8 +907,8 @@ fn a_failed_remote_set_fails_its_component() {
     exec.handle(
         secs(2.5),
         Event::RemoteSetFailed {
-            owner: "pippi".to_string(),
-            key: "components.ol2.reqState".to_string(),
+            owner: peis("pippi"),
+            key: key("components.ol2.reqState"),
             reason: "pippi cannot be reached".to_string(),
         },
     );

@@ -13,8 +13,10 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
+use ecology_tuples::contract::{ComponentField, input_key, output_key};
 use ecology_tuples::{
-    Clock, Key, PeisId, Subscription, Timestamp, Tuple, TupleError, TupleEvent, TupleSpace, Value,
+    Clock, ComponentId, PeisId, Subscription, Timestamp, Tuple, TupleError, TupleEvent, TupleSpace,
+    Value,
 };
 
 /// A boxed, sendable future: what a component body returns.
@@ -75,10 +77,6 @@ impl<S: TupleSpace> std::fmt::Debug for Context<S> {
     }
 }
 
-fn key(text: &str) -> Result<Key, ComponentError> {
-    Key::new(text).map_err(|e| ComponentError::Space(e.to_string()))
-}
-
 impl<S: TupleSpace> Context<S> {
     pub(crate) fn new(
         space: S,
@@ -128,35 +126,39 @@ impl<S: TupleSpace> Context<S> {
         &self.clock
     }
 
+    /// This component's name as the contract's keys take it.
+    fn component_id(&self) -> Result<ComponentId, ComponentError> {
+        ComponentId::new(&self.component).map_err(|e| ComponentError::Space(e.to_string()))
+    }
+
     /// Reports `C.status` (and `C.cause`, cleared when `None`).
     pub async fn status(&self, status: &str, cause: Option<&str>) -> Result<(), ComponentError> {
-        let c = &self.component;
+        let c = self.component_id()?;
         self.space
             .set(
-                key(&format!("{c}.cause"))?,
+                ComponentField::Cause.key(&c),
                 Value::text(cause.unwrap_or("")),
             )
             .await?;
         self.space
-            .set(key(&format!("{c}.status"))?, Value::text(status))
+            .set(ComponentField::Status.key(&c), Value::text(status))
             .await?;
         Ok(())
     }
 
     /// Publishes output `info` as `C.out.INFO`.
     pub async fn output(&self, info: &str, value: Value) -> Result<Tuple, ComponentError> {
-        let c = &self.component;
-        Ok(self
-            .space
-            .set(key(&format!("{c}.out.{info}"))?, value)
-            .await?)
+        let key = output_key(&self.component_id()?, info)
+            .map_err(|e| ComponentError::Space(e.to_string()))?;
+        Ok(self.space.set(key, value).await?)
     }
 
     /// Follows the inputs `infos` through their `C.mi-INFO` meta-tuples.
     pub async fn inputs(&self, infos: &[&str]) -> Result<Inputs, ComponentError> {
         let mut subscriptions = Vec::new();
         for info in infos {
-            let meta = key(&format!("{}.mi-{info}", self.component))?;
+            let meta = input_key(&self.component_id()?, info, &[])
+                .map_err(|e| ComponentError::Space(e.to_string()))?;
             let sub = self.space.subscribe_meta(self.peis().clone(), meta).await?;
             subscriptions.push((info.to_string(), sub));
         }

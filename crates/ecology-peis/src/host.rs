@@ -17,8 +17,9 @@ use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
+use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, Key, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+    Clock, ComponentId, Key, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
 };
 use tokio::task::{AbortHandle, JoinSet};
 
@@ -74,8 +75,11 @@ struct State<S: TupleSpace> {
 
 type Outcome = (String, u64, Result<(), ComponentError>);
 
-fn key(text: &str) -> Result<Key, HostError> {
-    Key::new(text).map_err(|_| HostError::InvalidName(text.to_string()))
+/// The contract's key for `field` of component `c`.
+fn field(c: &str, field: ComponentField) -> Result<Key, HostError> {
+    ComponentId::new(c)
+        .map(|id| field.key(&id))
+        .map_err(|_| HostError::InvalidName(c.to_string()))
 }
 
 /// Runs one PEIS with `components` on `space` until `shutdown` completes.
@@ -90,26 +94,20 @@ pub async fn run_host<S: TupleSpace>(
     for spec in components {
         let c = spec.name.clone();
         space
-            .set(
-                key(&format!("components.{c}.type"))?,
-                Value::text(&spec.kind),
-            )
+            .set(field(&c, ComponentField::Type)?, Value::text(&spec.kind))
             .await?;
         space
             .set(
-                key(&format!("components.{c}.cost"))?,
+                field(&c, ComponentField::Cost)?,
                 Value::text(spec.cost.to_string()),
             )
             .await?;
         let power = if spec.on { "on" } else { "off" };
         space
-            .set(
-                key(&format!("components.{c}.currState"))?,
-                Value::text(power),
-            )
+            .set(field(&c, ComponentField::CurrState)?, Value::text(power))
             .await?;
         space
-            .set(key(&format!("{c}.status"))?, Value::text("idle"))
+            .set(field(&c, ComponentField::Status)?, Value::text("idle"))
             .await?;
         states.insert(
             c,
@@ -145,8 +143,8 @@ pub async fn run_host<S: TupleSpace>(
             () = &mut shutdown => break,
             event = requests.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
-                let Some(c) = t.key.as_str().strip_prefix("components.").and_then(|k| k.strip_suffix(".reqState")) else { continue };
-                let Some(state) = states.get_mut(c) else { continue };
+                let Some((c, ComponentField::ReqState)) = ComponentField::parse(&t.key) else { continue };
+                let Some(state) = states.get_mut(c.as_str()) else { continue };
                 match t.text().unwrap_or("") {
                     "on" if !state.on && state.starting_until.is_none() => {
                         state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
@@ -166,8 +164,8 @@ pub async fn run_host<S: TupleSpace>(
                         if state.on {
                             state.on = false;
                             let c = c.to_string();
-                            space.set(key(&format!("components.{c}.currState"))?, Value::text("off")).await?;
-                            space.set(key(&format!("{c}.status"))?, Value::text("idle")).await?;
+                            space.set(field(&c, ComponentField::CurrState)?, Value::text("off")).await?;
+                            space.set(field(&c, ComponentField::Status)?, Value::text("idle")).await?;
                         }
                     }
                     _ => {}
@@ -175,15 +173,15 @@ pub async fn run_host<S: TupleSpace>(
             }
             event = params.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
-                let Some(c) = t.key.as_str().strip_suffix(".params") else { continue };
-                let Some(state) = states.get_mut(c) else { continue };
+                let Some((c, ComponentField::Params)) = ComponentField::parse(&t.key) else { continue };
+                let Some(state) = states.get_mut(c.as_str()) else { continue };
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
                 let stopping = state.params.is_none() && state.task.is_some();
                 if state.on {
                     let c = c.to_string();
                     start(&space, &clock, &mut states, &c, &mut tasks).await?;
                     if stopping {
-                        space.set(key(&format!("{c}.status"))?, Value::text("idle")).await?;
+                        space.set(field(&c, ComponentField::Status)?, Value::text("idle")).await?;
                     }
                 }
             }
@@ -205,8 +203,8 @@ pub async fn run_host<S: TupleSpace>(
                 }
                 state.task = None;
                 if let Err(e) = result {
-                    space.set(key(&format!("{c}.cause"))?, Value::text(e.to_string())).await?;
-                    space.set(key(&format!("{c}.status"))?, Value::text("error")).await?;
+                    space.set(field(&c, ComponentField::Cause)?, Value::text(e.to_string())).await?;
+                    space.set(field(&c, ComponentField::Status)?, Value::text("error")).await?;
                 }
             }
             () = wake => {
@@ -221,7 +219,7 @@ pub async fn run_host<S: TupleSpace>(
                         state.starting_until = None;
                         state.on = true;
                     }
-                    space.set(key(&format!("components.{c}.currState"))?, Value::text("on")).await?;
+                    space.set(field(&c, ComponentField::CurrState)?, Value::text("on")).await?;
                     start(&space, &clock, &mut states, &c, &mut tasks).await?;
                 }
             }
@@ -231,13 +229,10 @@ pub async fn run_host<S: TupleSpace>(
     for (c, state) in &states {
         if state.on {
             space
-                .set(
-                    key(&format!("components.{c}.currState"))?,
-                    Value::text("off"),
-                )
+                .set(field(c, ComponentField::CurrState)?, Value::text("off"))
                 .await?;
             space
-                .set(key(&format!("{c}.status"))?, Value::text("idle"))
+                .set(field(c, ComponentField::Status)?, Value::text("idle"))
                 .await?;
         }
     }
@@ -263,7 +258,10 @@ async fn start<S: TupleSpace>(
         return Ok(());
     };
     space
-        .set(key(&format!("{c}.status"))?, Value::text("initializing"))
+        .set(
+            field(c, ComponentField::Status)?,
+            Value::text("initializing"),
+        )
         .await?;
     let ctx = Context::new(space.clone(), c.to_string(), params, clock.clone());
     let body = state.spec.body.clone();

@@ -18,8 +18,8 @@ use std::time::Duration;
 use ecology_peis::{BoxFuture, Component, ComponentError, Context, Inputs};
 use ecology_tuples::{Subscription, TupleEvent, TuplePattern, TupleSpace, Value};
 
-use crate::rng::Rng;
 use crate::world::{MAX_SPEED, MAX_TURN, Map, Pose, wrap_angle};
+use ecology_core::Rng;
 
 /// The name of the PEIS that holds the world's ground truth.
 pub const WORLD: &str = "world";

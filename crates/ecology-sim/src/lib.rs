@@ -13,7 +13,6 @@
 mod components;
 mod host;
 mod replan;
-mod rng;
 mod run;
 mod scenario;
 mod schedule;
@@ -24,9 +23,9 @@ mod world_peis;
 mod tests;
 
 pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
+pub use ecology_core::Rng;
 pub use host::{host_peis, parse_fault, simulated_components};
 pub use replan::WorldReplanner;
-pub use rng::Rng;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
 pub use scenario::{
     ComponentDef, FaultKind, FaultSpec, PeisDef, PlanError, Scenario, ScenarioError, Trigger,

@@ -368,18 +368,77 @@ struct Hosted {
     task: AbortHandle,
 }
 
+/// The PEIS hosts the simulation loop owns: every host task (crashed ones
+/// are aborted), the ones running now, and the signal that stops them.
+struct Hosts {
+    tasks: JoinSet<(String, Result<(), HostError>)>,
+    running: BTreeMap<String, Hosted>,
+    stop: watch::Sender<bool>,
+    stopped: watch::Receiver<bool>,
+}
+
+impl Hosts {
+    fn new() -> Hosts {
+        let (stop, stopped) = watch::channel(false);
+        Hosts {
+            tasks: JoinSet::new(),
+            running: BTreeMap::new(),
+            stop,
+            stopped,
+        }
+    }
+
+    /// A host that stopped on its own failed (a crashed PEIS's host is aborted).
+    fn failed(&mut self) -> Option<RunError> {
+        while let Some(joined) = self.tasks.try_join_next() {
+            if let Ok((peis, Err(error))) = joined
+                && self.running.contains_key(&peis)
+            {
+                return Some(RunError::Host { peis, error });
+            }
+        }
+        None
+    }
+
+    /// Stops every host and waits for them; the first that failed, if any.
+    async fn shut_down(mut self) -> Option<RunError> {
+        let _ = self.stop.send(true);
+        let mut failure = None;
+        while let Some(joined) = self.tasks.join_next().await {
+            if let Ok((peis, Err(error))) = joined
+                && self.running.contains_key(&peis)
+                && failure.is_none()
+            {
+                failure = Some(RunError::Host { peis, error });
+            }
+        }
+        failure
+    }
+}
+
+/// The last two status tuples of each (PEIS, key), to deliver again as
+/// duplicates and late arrivals.
+type Recent = BTreeMap<(String, String), Vec<Tuple>>;
+
+/// Keeps `tuple` among the last two of its (PEIS, key).
+fn remember(recent: &mut Recent, tuple: Tuple) {
+    let history = recent
+        .entry((tuple.owner.to_string(), tuple.key.to_string()))
+        .or_default();
+    history.push(tuple);
+    if history.len() > 2 {
+        history.remove(0);
+    }
+}
+
 impl Simulation {
-    fn start_host(
-        &self,
-        def: &PeisDef,
-        hosts: &mut JoinSet<(String, Result<(), HostError>)>,
-        stop: &watch::Receiver<bool>,
-    ) -> Result<Hosted, TupleError> {
+    /// Starts the host of `def` among `hosts` (not yet counted as running).
+    fn start_host(&self, def: &PeisDef, hosts: &mut Hosts) -> Result<Hosted, TupleError> {
         let handle = self.space.join(
             PeisId::new(&def.name).map_err(TupleError::Invalid)?,
             PeisOptions::default(),
         )?;
-        let mut stop = stop.clone();
+        let mut stop = hosts.stopped.clone();
         let name = def.name.clone();
         let host = run_host(
             handle.clone(),
@@ -389,8 +448,103 @@ impl Simulation {
                 let _ = stop.wait_for(|s| *s).await;
             },
         );
-        let task = hosts.spawn(async move { (name, host.await) });
+        let task = hosts.tasks.spawn(async move { (name, host.await) });
         Ok(Hosted { handle, task })
+    }
+
+    /// The faults of the schedule due at `now`, taken out of it.
+    fn due_faults(&self, now: Timestamp) -> Vec<FaultSpec> {
+        let mut schedule = lock(&self.schedule);
+        let (due, later): (Vec<_>, Vec<_>) = schedule.drain(..).partition(|(at, _)| *at <= now);
+        *schedule = later;
+        due.into_iter().map(|(_, f)| f).collect()
+    }
+
+    /// Injects `fault` at `now` (`t` into the run); an error only when a
+    /// revived PEIS cannot join the space.
+    fn inject(
+        &self,
+        fault: FaultSpec,
+        now: Timestamp,
+        t: Duration,
+        recent: &Recent,
+        hosts: &mut Hosts,
+    ) -> Result<(), RunError> {
+        let component = fault.component.clone().unwrap_or_default();
+        let target = format!("{}:{component}", fault.peis);
+        match fault.kind {
+            FaultKind::Fail => {
+                self.faults.update(&fault.peis, &component, |s| {
+                    s.failed = Some(fault.cause.clone());
+                });
+                self.note(t, format!("{target} fails: {}", fault.cause));
+            }
+            FaultKind::Stall => {
+                self.faults
+                    .update(&fault.peis, &component, |s| s.stalled = true);
+                self.note(t, format!("{target} stalls (stops publishing)"));
+            }
+            FaultKind::Recover => {
+                self.faults
+                    .update(&fault.peis, &component, |s| *s = Default::default());
+                self.note(t, format!("{target} recovers"));
+            }
+            FaultKind::Duplicate | FaultKind::Late => {
+                let key = (fault.peis.clone(), format!("{component}.status"));
+                let history = recent.get(&key).map(Vec::as_slice).unwrap_or_default();
+                let (tuple, what) = match (fault.kind, history) {
+                    (FaultKind::Duplicate, [.., last]) => (last, "again"),
+                    (_, [older, _]) => (older, "late, after a newer one"),
+                    _ => return Ok(()),
+                };
+                self.space.redeliver(tuple.clone());
+                self.note(
+                    t,
+                    format!(
+                        "{target}.status `{}` (seq {}) delivered {what}",
+                        tuple.text().unwrap_or(""),
+                        tuple.seq
+                    ),
+                );
+            }
+            FaultKind::Kill => {
+                if let Some(hosted) = hosts.running.remove(&fault.peis) {
+                    hosted.task.abort();
+                    hosted.handle.vanish();
+                    self.note(t, format!("PEIS {} crashes", fault.peis));
+                }
+            }
+            FaultKind::Revive => self.revive(fault, now, t, hosts)?,
+        }
+        Ok(())
+    }
+
+    /// Starts the host of a crashed PEIS again; while the space still holds
+    /// it present (its lease has not run out), tries again shortly.
+    fn revive(
+        &self,
+        fault: FaultSpec,
+        now: Timestamp,
+        t: Duration,
+        hosts: &mut Hosts,
+    ) -> Result<(), RunError> {
+        if hosts.running.contains_key(&fault.peis) {
+            return Ok(());
+        }
+        let Some(def) = self.peis.iter().find(|p| p.name == fault.peis).cloned() else {
+            return Ok(());
+        };
+        match self.start_host(&def, hosts) {
+            Ok(hosted) => {
+                hosts.running.insert(def.name.clone(), hosted);
+                self.note(t, format!("PEIS {} starts again", fault.peis));
+            }
+            Err(TupleError::AlreadyPresent(_)) => {
+                lock(&self.schedule).push((now.saturating_add(Duration::from_millis(500)), fault))
+            }
+            Err(e) => return Err(RunError::Space(e)),
+        }
+        Ok(())
     }
 
     fn note(&self, t: Duration, what: String) {
@@ -409,18 +563,16 @@ impl Simulation {
         // duplicates and late arrivals.
         let pattern = TuplePattern::parse("*:*.status").map_err(TupleError::Invalid)?;
         let mut statuses = space.subscribe(pattern).await?;
-        let mut recent: BTreeMap<(String, String), Vec<Tuple>> = BTreeMap::new();
-        let (stop_hosts, hosts_stopped) = watch::channel(false);
-        let mut hosts = JoinSet::new();
-        let mut running: BTreeMap<String, Hosted> = BTreeMap::new();
+        let mut recent = Recent::new();
+        let mut hosts = Hosts::new();
         for def in self.peis.clone() {
-            let hosted = self.start_host(&def, &mut hosts, &hosts_stopped)?;
-            running.insert(def.name.clone(), hosted);
+            let hosted = self.start_host(&def, &mut hosts)?;
+            hosts.running.insert(def.name.clone(), hosted);
         }
         let wall_start = Instant::now();
         let mut next_progress = Duration::from_secs(1);
         let mut failure = None;
-        'steps: loop {
+        loop {
             for _ in 0..SETTLE_PASSES {
                 tokio::task::yield_now().await;
             }
@@ -429,105 +581,24 @@ impl Simulation {
             }
             let now = self.shared.now();
             let t = now.saturating_duration_since(self.start);
-
-            // A host that stopped on its own failed (a crashed PEIS's host is aborted).
-            while let Some(joined) = hosts.try_join_next() {
-                if let Ok((peis, Err(error))) = joined
-                    && running.contains_key(&peis)
-                {
-                    failure = Some(RunError::Host { peis, error });
-                    break 'steps;
-                }
+            failure = hosts.failed();
+            if failure.is_some() {
+                break;
             }
-
             while let Some(event) = statuses.try_next() {
                 if let TupleEvent::Changed(tuple) = event {
-                    let history = recent
-                        .entry((tuple.owner.to_string(), tuple.key.to_string()))
-                        .or_default();
-                    history.push(tuple);
-                    if history.len() > 2 {
-                        history.remove(0);
-                    }
+                    remember(&mut recent, tuple);
                 }
             }
-
             // Faults that are due.
-            let due: Vec<FaultSpec> = {
-                let mut schedule = lock(&self.schedule);
-                let (due, later): (Vec<_>, Vec<_>) =
-                    schedule.drain(..).partition(|(at, _)| *at <= now);
-                *schedule = later;
-                due.into_iter().map(|(_, f)| f).collect()
-            };
-            for fault in due {
-                let component = fault.component.clone().unwrap_or_default();
-                let target = format!("{}:{component}", fault.peis);
-                match fault.kind {
-                    FaultKind::Fail => {
-                        self.faults.update(&fault.peis, &component, |s| {
-                            s.failed = Some(fault.cause.clone());
-                        });
-                        self.note(t, format!("{target} fails: {}", fault.cause));
-                    }
-                    FaultKind::Stall => {
-                        self.faults
-                            .update(&fault.peis, &component, |s| s.stalled = true);
-                        self.note(t, format!("{target} stalls (stops publishing)"));
-                    }
-                    FaultKind::Recover => {
-                        self.faults
-                            .update(&fault.peis, &component, |s| *s = Default::default());
-                        self.note(t, format!("{target} recovers"));
-                    }
-                    FaultKind::Duplicate | FaultKind::Late => {
-                        let key = (fault.peis.clone(), format!("{component}.status"));
-                        let history = recent.get(&key).map(Vec::as_slice).unwrap_or_default();
-                        let (tuple, what) = match (fault.kind, history) {
-                            (FaultKind::Duplicate, [.., last]) => (last, "again"),
-                            (_, [older, _]) => (older, "late, after a newer one"),
-                            _ => continue,
-                        };
-                        self.space.redeliver(tuple.clone());
-                        self.note(
-                            t,
-                            format!(
-                                "{target}.status `{}` (seq {}) delivered {what}",
-                                tuple.text().unwrap_or(""),
-                                tuple.seq
-                            ),
-                        );
-                    }
-                    FaultKind::Kill => {
-                        if let Some(hosted) = running.remove(&fault.peis) {
-                            hosted.task.abort();
-                            hosted.handle.vanish();
-                            self.note(t, format!("PEIS {} crashes", fault.peis));
-                        }
-                    }
-                    FaultKind::Revive => {
-                        if running.contains_key(&fault.peis) {
-                            continue;
-                        }
-                        let Some(def) = self.peis.iter().find(|p| p.name == fault.peis).cloned()
-                        else {
-                            continue;
-                        };
-                        match self.start_host(&def, &mut hosts, &hosts_stopped) {
-                            Ok(hosted) => {
-                                running.insert(def.name.clone(), hosted);
-                                self.note(t, format!("PEIS {} starts again", fault.peis));
-                            }
-                            // Still present until its lease runs out: try again shortly.
-                            Err(TupleError::AlreadyPresent(_)) => lock(&self.schedule)
-                                .push((now.saturating_add(Duration::from_millis(500)), fault)),
-                            Err(e) => {
-                                failure = Some(RunError::Space(e));
-                                break 'steps;
-                            }
-                        }
-                    }
+            for fault in self.due_faults(now) {
+                if let Err(e) = self.inject(fault, now, t, &recent, &mut hosts) {
+                    failure = Some(e);
+                    break;
                 }
+            }
+            if failure.is_some() {
+                break;
             }
 
             // One step of the world, published, then time moves on.
@@ -545,16 +616,8 @@ impl Simulation {
                 tokio::time::sleep_until(due.into()).await;
             }
         }
-        let _ = stop_hosts.send(true);
-        while let Some(joined) = hosts.join_next().await {
-            if let Ok((peis, Err(error))) = joined
-                && running.contains_key(&peis)
-                && failure.is_none()
-            {
-                failure = Some(RunError::Host { peis, error });
-            }
-        }
-        match failure {
+        let stopped = hosts.shut_down().await;
+        match failure.or(stopped) {
             Some(e) => Err(e),
             None => Ok(world.into_world()),
         }

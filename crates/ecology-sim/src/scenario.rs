@@ -414,217 +414,11 @@ impl Scenario {
                 .map_err(|e| check.at(p.span(), format!("cannot read {}: {e}", p.get_ref())))
         };
 
-        // The task: a domain, and a problem to plan for or a plan.
-        let domain_bytes = read_named(&parsed.task.domain)?;
-        let domain = parse_domain(&domain_bytes).map_err(|d| {
-            ScenarioError::Task(d.render(parsed.task.domain.get_ref(), &domain_bytes))
-        })?;
-        let mut planned_problem = None;
-        let plan = match (&parsed.task.problem, &parsed.task.plan) {
-            (Some(problem), None) => {
-                let (plan, parsed_problem) = plan_for(&domain, problem, &read_named)?;
-                planned_problem = Some((parsed_problem, PathBuf::from(problem.get_ref())));
-                plan
-            }
-            (None, Some(steps)) => {
-                let mut plan = Vec::new();
-                for step in steps {
-                    let goal = match &step.get_ref().configure {
-                        None => None,
-                        Some(text) => Some(parse_goal(text).map_err(|d| {
-                            check.at(
-                                step.span(),
-                                format!("configure goal: {}", d.render("<goal>", text.as_bytes())),
-                            )
-                        })?),
-                    };
-                    plan.push(PlannedAction {
-                        action: step.get_ref().action.clone(),
-                        goal,
-                    });
-                }
-                plan
-            }
-            _ => {
-                return Err(check.at(
-                    parsed.task.domain.span(),
-                    "[task] needs exactly one of `problem` (to plan for) or `plan`",
-                ));
-            }
-        };
-
-        // The map.
-        let mut map = Map::default();
-        for room in &parsed.map.rooms {
-            let r = room.get_ref();
-            if r.x[1] <= r.x[0]
-                || r.y[1] <= r.y[0]
-                || !r.x.iter().chain(&r.y).all(|v| v.is_finite())
-            {
-                return Err(check.at(room.span(), format!("room {} has no area", r.name)));
-            }
-            check.name(&r.name, "room", room.span())?;
-            if map.room(&r.name).is_some() {
-                return Err(check.at(room.span(), format!("room {} is defined twice", r.name)));
-            }
-            map.rooms.push(Room {
-                name: r.name.clone(),
-                x0: r.x[0],
-                y0: r.y[0],
-                x1: r.x[1],
-                y1: r.y[1],
-            });
-        }
-        for door in &parsed.map.doors {
-            let d = door.get_ref();
-            for name in &d.between {
-                if map.room(name).is_none() {
-                    return Err(check.at(door.span(), format!("door to unknown room {name}")));
-                }
-            }
-            map.doors.push(Door {
-                a: d.between[0].clone(),
-                b: d.between[1].clone(),
-                x: d.at[0],
-                y: d.at[1],
-            });
-        }
-        let inside = |x: f64, y: f64, span: Range<usize>, what: &str| {
-            if map.room_at(x, y).is_some() {
-                Ok(())
-            } else {
-                Err(check.at(span, format!("{what} at ({x}, {y}) is in no room")))
-            }
-        };
-        let mut world = World {
-            map: map.clone(),
-            robots: Default::default(),
-            things: Default::default(),
-            residents: Default::default(),
-        };
-        for robot in &parsed.robots {
-            let r = robot.get_ref();
-            check.name(&r.name, "robot", robot.span())?;
-            inside(r.at[0], r.at[1], robot.span(), &r.name)?;
-            world.robots.insert(
-                r.name.clone(),
-                Robot {
-                    name: r.name.clone(),
-                    pose: Pose::new(r.at[0], r.at[1], r.at[2]),
-                    command: (0.0, 0.0),
-                    command_age: 0.0,
-                },
-            );
-        }
-        for thing in &parsed.things {
-            let t = thing.get_ref();
-            check.name(&t.name, "thing", thing.span())?;
-            inside(t.at[0], t.at[1], thing.span(), &t.name)?;
-            world.things.insert(
-                t.name.clone(),
-                Thing {
-                    name: t.name.clone(),
-                    at: (t.at[0], t.at[1]),
-                    holder: None,
-                },
-            );
-        }
-        for resident in &parsed.residents {
-            let r = resident.get_ref();
-            check.name(&r.name, "resident", resident.span())?;
-            inside(r.at[0], r.at[1], resident.span(), &r.name)?;
-            world.residents.insert(
-                r.name.clone(),
-                Resident {
-                    name: r.name.clone(),
-                    at: (r.at[0], r.at[1]),
-                    awake: !r.asleep,
-                },
-            );
-        }
-
-        // The PEIS.
+        let (domain, plan, planned_problem) = parse_task(&check, &parsed.task, &read_named)?;
+        let map = parse_map(&check, &parsed.map)?;
+        let world = parse_world(&check, &parsed, map)?;
         let peis = check_peis(&check, &parsed.peis)?;
-
-        // The faults.
-        let mut faults = Vec::new();
-        for fault in &parsed.faults {
-            let f = fault.get_ref();
-            let here = |message: String| check.at(fault.span(), message);
-            let kind = match f.what.as_str() {
-                "fail" => FaultKind::Fail,
-                "stall" => FaultKind::Stall,
-                "recover" => FaultKind::Recover,
-                "duplicate" => FaultKind::Duplicate,
-                "late" => FaultKind::Late,
-                "kill" => FaultKind::Kill,
-                "revive" => FaultKind::Revive,
-                other => {
-                    return Err(here(format!(
-                        "unknown fault `{other}` (known: fail, stall, recover, kill, revive, duplicate, late)"
-                    )));
-                }
-            };
-            let Some(target) = peis.iter().find(|p| p.name == f.peis) else {
-                return Err(here(format!("fault on unknown PEIS {}", f.peis)));
-            };
-            let needs_component = matches!(
-                kind,
-                FaultKind::Fail
-                    | FaultKind::Stall
-                    | FaultKind::Recover
-                    | FaultKind::Duplicate
-                    | FaultKind::Late
-            );
-            match (&f.component, needs_component) {
-                (Some(c), true) if !target.components.iter().any(|d| &d.id == c) => {
-                    return Err(here(format!("{} has no component {c}", f.peis)));
-                }
-                (None, true) => return Err(here(format!("`{}` needs a component", f.what))),
-                (Some(_), false) => {
-                    return Err(here(format!(
-                        "`{}` acts on a whole PEIS: drop `component`",
-                        f.what
-                    )));
-                }
-                _ => {}
-            }
-            let delay = seconds(f.delay).ok_or_else(|| here("delay must be seconds".into()))?;
-            let trigger = match (f.at, &f.after) {
-                (Some(at), None) => Trigger::At(
-                    seconds(at).ok_or_else(|| here("`at` must be seconds".into()))? + delay,
-                ),
-                (None, Some(after)) => {
-                    if !EVENTS.contains(&after.event.as_str()) {
-                        return Err(here(format!(
-                            "unknown event `{}` (known: {})",
-                            after.event,
-                            EVENTS.join(", ")
-                        )));
-                    }
-                    if after.action.is_some_and(|a| a == 0 || a > plan.len()) {
-                        return Err(here(format!("the plan has actions 1 to {}", plan.len())));
-                    }
-                    Trigger::After {
-                        event: after.event.clone(),
-                        action: after.action,
-                        delay,
-                    }
-                }
-                _ => return Err(here("a fault needs exactly one of `at` or `after`".into())),
-            };
-            faults.push(FaultSpec {
-                kind,
-                peis: f.peis.clone(),
-                component: f.component.clone(),
-                trigger,
-                cause: f
-                    .cause
-                    .clone()
-                    .unwrap_or_else(|| "injected failure".to_string()),
-            });
-        }
-
+        let faults = parse_faults(&check, &parsed.faults, &peis, plan.len())?;
         let time_limit = seconds(parsed.time_limit)
             .ok_or_else(|| check.at(0..0, "time_limit must be a positive number of seconds"))?;
         let action_timeout = seconds(parsed.action_timeout)
@@ -643,6 +437,243 @@ impl Scenario {
             peis,
             faults,
         })
+    }
+}
+
+/// What the `[task]` table gives: the domain, the plan, and the problem planned for (if any).
+type ParsedTask = (Domain, Vec<PlannedAction>, Option<(Problem, PathBuf)>);
+
+/// The task: a domain, and a problem to plan for or a plan.
+fn parse_task(
+    check: &Checker<'_>,
+    task: &TaskFile,
+    read_named: &ReadNamed<'_>,
+) -> Result<ParsedTask, ScenarioError> {
+    let domain_bytes = read_named(&task.domain)?;
+    let domain = parse_domain(&domain_bytes)
+        .map_err(|d| ScenarioError::Task(d.render(task.domain.get_ref(), &domain_bytes)))?;
+    let mut planned_problem = None;
+    let plan = match (&task.problem, &task.plan) {
+        (Some(problem), None) => {
+            let (plan, parsed_problem) = plan_for(&domain, problem, read_named)?;
+            planned_problem = Some((parsed_problem, PathBuf::from(problem.get_ref())));
+            plan
+        }
+        (None, Some(steps)) => {
+            let mut plan = Vec::new();
+            for step in steps {
+                let goal = match &step.get_ref().configure {
+                    None => None,
+                    Some(text) => Some(parse_goal(text).map_err(|d| {
+                        check.at(
+                            step.span(),
+                            format!("configure goal: {}", d.render("<goal>", text.as_bytes())),
+                        )
+                    })?),
+                };
+                plan.push(PlannedAction {
+                    action: step.get_ref().action.clone(),
+                    goal,
+                });
+            }
+            plan
+        }
+        _ => {
+            return Err(check.at(
+                task.domain.span(),
+                "[task] needs exactly one of `problem` (to plan for) or `plan`",
+            ));
+        }
+    };
+    Ok((domain, plan, planned_problem))
+}
+
+/// The map: rooms with an area and unique names, doors between known rooms.
+fn parse_map(check: &Checker<'_>, file: &MapFile) -> Result<Map, ScenarioError> {
+    let mut map = Map::default();
+    for room in &file.rooms {
+        let r = room.get_ref();
+        if r.x[1] <= r.x[0] || r.y[1] <= r.y[0] || !r.x.iter().chain(&r.y).all(|v| v.is_finite()) {
+            return Err(check.at(room.span(), format!("room {} has no area", r.name)));
+        }
+        check.name(&r.name, "room", room.span())?;
+        if map.room(&r.name).is_some() {
+            return Err(check.at(room.span(), format!("room {} is defined twice", r.name)));
+        }
+        map.rooms.push(Room {
+            name: r.name.clone(),
+            x0: r.x[0],
+            y0: r.y[0],
+            x1: r.x[1],
+            y1: r.y[1],
+        });
+    }
+    for door in &file.doors {
+        let d = door.get_ref();
+        for name in &d.between {
+            if map.room(name).is_none() {
+                return Err(check.at(door.span(), format!("door to unknown room {name}")));
+            }
+        }
+        map.doors.push(Door {
+            a: d.between[0].clone(),
+            b: d.between[1].clone(),
+            x: d.at[0],
+            y: d.at[1],
+        });
+    }
+    Ok(map)
+}
+
+/// The world on `map`: robots, things and residents, each inside a room.
+fn parse_world(check: &Checker<'_>, parsed: &File, map: Map) -> Result<World, ScenarioError> {
+    let inside = |x: f64, y: f64, span: Range<usize>, what: &str| {
+        if map.room_at(x, y).is_some() {
+            Ok(())
+        } else {
+            Err(check.at(span, format!("{what} at ({x}, {y}) is in no room")))
+        }
+    };
+    let mut world = World {
+        map: map.clone(),
+        robots: Default::default(),
+        things: Default::default(),
+        residents: Default::default(),
+    };
+    for robot in &parsed.robots {
+        let r = robot.get_ref();
+        check.name(&r.name, "robot", robot.span())?;
+        inside(r.at[0], r.at[1], robot.span(), &r.name)?;
+        world.robots.insert(
+            r.name.clone(),
+            Robot {
+                name: r.name.clone(),
+                pose: Pose::new(r.at[0], r.at[1], r.at[2]),
+                command: (0.0, 0.0),
+                command_age: 0.0,
+            },
+        );
+    }
+    for thing in &parsed.things {
+        let t = thing.get_ref();
+        check.name(&t.name, "thing", thing.span())?;
+        inside(t.at[0], t.at[1], thing.span(), &t.name)?;
+        world.things.insert(
+            t.name.clone(),
+            Thing {
+                name: t.name.clone(),
+                at: (t.at[0], t.at[1]),
+                holder: None,
+            },
+        );
+    }
+    for resident in &parsed.residents {
+        let r = resident.get_ref();
+        check.name(&r.name, "resident", resident.span())?;
+        inside(r.at[0], r.at[1], resident.span(), &r.name)?;
+        world.residents.insert(
+            r.name.clone(),
+            Resident {
+                name: r.name.clone(),
+                at: (r.at[0], r.at[1]),
+                awake: !r.asleep,
+            },
+        );
+    }
+    Ok(world)
+}
+
+/// The faults: known kinds on known PEIS and components, each triggered at
+/// a time or after a known event of an action of the plan (`actions` long).
+fn parse_faults(
+    check: &Checker<'_>,
+    files: &[Spanned<FaultFile>],
+    peis: &[PeisDef],
+    actions: usize,
+) -> Result<Vec<FaultSpec>, ScenarioError> {
+    let mut faults = Vec::new();
+    for fault in files {
+        let f = fault.get_ref();
+        let here = |message: String| check.at(fault.span(), message);
+        let kind = match f.what.as_str() {
+            "fail" => FaultKind::Fail,
+            "stall" => FaultKind::Stall,
+            "recover" => FaultKind::Recover,
+            "duplicate" => FaultKind::Duplicate,
+            "late" => FaultKind::Late,
+            "kill" => FaultKind::Kill,
+            "revive" => FaultKind::Revive,
+            other => {
+                return Err(here(format!(
+                    "unknown fault `{other}` (known: fail, stall, recover, kill, revive, duplicate, late)"
+                )));
+            }
+        };
+        let Some(target) = peis.iter().find(|p| p.name == f.peis) else {
+            return Err(here(format!("fault on unknown PEIS {}", f.peis)));
+        };
+        let needs_component = matches!(
+            kind,
+            FaultKind::Fail
+                | FaultKind::Stall
+                | FaultKind::Recover
+                | FaultKind::Duplicate
+                | FaultKind::Late
+        );
+        match (&f.component, needs_component) {
+            (Some(c), true) if !target.components.iter().any(|d| &d.id == c) => {
+                return Err(here(format!("{} has no component {c}", f.peis)));
+            }
+            (None, true) => return Err(here(format!("`{}` needs a component", f.what))),
+            (Some(_), false) => {
+                return Err(here(format!(
+                    "`{}` acts on a whole PEIS: drop `component`",
+                    f.what
+                )));
+            }
+            _ => {}
+        }
+        let trigger = fault_trigger(f, actions).map_err(here)?;
+        faults.push(FaultSpec {
+            kind,
+            peis: f.peis.clone(),
+            component: f.component.clone(),
+            trigger,
+            cause: f
+                .cause
+                .clone()
+                .unwrap_or_else(|| "injected failure".to_string()),
+        });
+    }
+    Ok(faults)
+}
+
+/// When fault `f` fires: at a time, or after an event of the plan's actions
+/// (`actions` of them), plus its delay.
+fn fault_trigger(f: &FaultFile, actions: usize) -> Result<Trigger, String> {
+    let delay = seconds(f.delay).ok_or_else(|| "delay must be seconds".to_string())?;
+    match (f.at, &f.after) {
+        (Some(at), None) => Ok(Trigger::At(
+            seconds(at).ok_or_else(|| "`at` must be seconds".to_string())? + delay,
+        )),
+        (None, Some(after)) => {
+            if !EVENTS.contains(&after.event.as_str()) {
+                return Err(format!(
+                    "unknown event `{}` (known: {})",
+                    after.event,
+                    EVENTS.join(", ")
+                ));
+            }
+            if after.action.is_some_and(|a| a == 0 || a > actions) {
+                return Err(format!("the plan has actions 1 to {actions}"));
+            }
+            Ok(Trigger::After {
+                event: after.event.clone(),
+                action: after.action,
+                delay,
+            })
+        }
+        _ => Err("a fault needs exactly one of `at` or `after`".to_string()),
     }
 }
 

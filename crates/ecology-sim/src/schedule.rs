@@ -4,8 +4,8 @@
 
 use std::time::Duration;
 
-use crate::rng::Rng;
 use crate::scenario::{FaultKind, FaultSpec, Scenario, Trigger};
+use ecology_core::Rng;
 
 /// How long a schedule's faults are spread over, from the start.
 const SPREAD: Duration = Duration::from_secs(30);

@@ -9,7 +9,7 @@
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt::Write as _;
 
-use crate::rng::Rng;
+use ecology_core::Rng;
 
 /// A 2-D pose: position in metres, heading in radians.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -19,8 +19,8 @@ use ecology_tuples::{
 };
 
 use crate::components::WORLD;
-use crate::rng::Rng;
 use crate::world::World;
+use ecology_core::Rng;
 
 fn key(text: &str) -> Result<Key, TupleError> {
     Key::new(text).map_err(TupleError::Invalid)

@@ -9,7 +9,8 @@ use tokio::task::JoinHandle;
 
 use crate::clock::Clock;
 use crate::error::TupleError;
-use crate::model::{Key, PeisId, PresenceEvent, Timestamp, Tuple, TupleEvent, Value};
+use crate::model::{PresenceEvent, Timestamp, Tuple, TupleEvent, Value};
+use crate::name::{Key, PeisId};
 use crate::owned::OwnedTuples;
 use crate::pattern::TuplePattern;
 use crate::space::{PeisOptions, TupleSpace};

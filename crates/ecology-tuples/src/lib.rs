@@ -9,9 +9,11 @@
 //! ([`VirtualClock`] in tests); `ecology-zenoh` implements the same [`TupleSpace`] over the network.
 
 mod clock;
+pub mod contract;
 mod error;
 mod in_process;
 mod model;
+mod name;
 mod owned;
 mod pattern;
 mod space;
@@ -24,11 +26,13 @@ pub mod conformance;
 mod tests;
 
 pub use clock::{Clock, Sleep, SystemClock, VirtualClock};
-pub use error::{TupleError, ValidationError};
+pub use error::TupleError;
 pub use in_process::{InProcessPeis, InProcessSpace};
 pub use model::{
-    Key, Limits, MAX_NAME_LEN, MetaPointer, Mimetype, PeisId, PresenceEvent, RemovalReason,
-    Timestamp, Tuple, TupleEvent, Value,
+    Limits, MetaPointer, PresenceEvent, RemovalReason, Timestamp, Tuple, TupleEvent, Value,
+};
+pub use name::{
+    ComponentId, Key, MAX_COMPONENT_LEN, MAX_NAME_LEN, Mimetype, PeisId, ValidationError,
 };
 pub use owned::OwnedTuples;
 pub use pattern::{KeyPattern, OwnerPattern, Segment, TuplePattern};

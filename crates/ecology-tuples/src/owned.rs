@@ -2,7 +2,8 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
-use crate::model::{Key, PeisId, RemovalReason, Timestamp, Tuple, TupleEvent, Value};
+use crate::model::{RemovalReason, Timestamp, Tuple, TupleEvent, Value};
+use crate::name::{Key, PeisId};
 use crate::pattern::KeyPattern;
 
 /// The store of one owner's tuples. It does not validate: callers check keys and limits first.

@@ -2,8 +2,7 @@
 
 use std::fmt;
 
-use crate::error::ValidationError;
-use crate::model::{Key, MAX_NAME_LEN, PeisId};
+use crate::name::{Key, MAX_NAME_LEN, PeisId, ValidationError};
 
 /// One segment of a [`KeyPattern`].
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]

@@ -4,7 +4,8 @@ use std::future::Future;
 use std::time::Duration;
 
 use crate::error::TupleError;
-use crate::model::{Key, Limits, MetaPointer, PeisId, Tuple, Value};
+use crate::model::{Limits, MetaPointer, Tuple, Value};
+use crate::name::{Key, PeisId};
 use crate::pattern::{KeyPattern, TuplePattern};
 use crate::subscription::{PresenceSubscription, Resubscribe, Subscription};
 

@@ -8,7 +8,8 @@ use std::task::{Context, Poll};
 use tokio::sync::mpsc;
 
 use crate::error::TupleError;
-use crate::model::{Key, MetaPointer, PeisId, PresenceEvent, TupleEvent};
+use crate::model::{MetaPointer, PresenceEvent, TupleEvent};
+use crate::name::{Key, PeisId};
 
 /// A future that opens a subscription on the target of a meta-tuple.
 pub type SubscribeFuture = Pin<Box<dyn Future<Output = Result<Subscription, TupleError>> + Send>>;

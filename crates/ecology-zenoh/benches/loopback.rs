@@ -133,7 +133,7 @@ fn security(keys: Option<&str>, name: &str) -> Security {
 /// A free endpoint for the ecology side: TLS when it runs with keys.
 fn ecology_endpoint(keys: Option<&str>) -> String {
     match keys {
-        Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+        Some(_) => free_endpoint().replacen("tcp/", "quic/", 1),
         None => free_endpoint(),
     }
 }
@@ -314,7 +314,7 @@ async fn publisher() {
     println!(
         "zenoh loopback, two processes, {PAYLOAD}-byte values, {THROUGHPUT} back to back, {LATENCY} paced at 200 us{}",
         if keys.is_some() {
-            "; ecology side over mutual TLS with access rules, raw side plain TCP"
+            "; ecology side over QUIC with mutual TLS and access rules, raw side plain TCP"
         } else {
             ""
         }

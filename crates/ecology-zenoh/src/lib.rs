@@ -18,6 +18,12 @@ pub use router::{RouterOptions, run_router};
 
 use ecology_tuples::TupleError;
 
+/// Sends Zenoh's own log to stderr when the `RUST_LOG` environment variable asks for it (such as
+/// `RUST_LOG=zenoh_transport=debug`); does nothing otherwise.
+pub fn log_from_env() {
+    zenoh::try_init_log_from_env();
+}
+
 /// Why a PEIS could not join an ecology over Zenoh.
 #[derive(Debug, thiserror::Error)]
 pub enum ZenohError {

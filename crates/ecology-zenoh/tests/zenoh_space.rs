@@ -575,8 +575,8 @@ impl Drop for TempKeys {
     }
 }
 
-fn free_tls_endpoint() -> String {
-    free_endpoint().replacen("tcp/", "tls/", 1)
+fn free_quic_endpoint() -> String {
+    free_endpoint().replacen("tcp/", "quic/", 1)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -590,7 +590,7 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
             ("pippi", Role::Peis),
         ],
     );
-    let hsm_endpoint = free_tls_endpoint();
+    let hsm_endpoint = free_quic_endpoint();
     let hsm = ZenohPeis::open(keys.options("hsm", &hsm_endpoint, &[]))
         .await
         .expect("hsm joins over TLS");
@@ -599,14 +599,14 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         .expect("set");
     let executive = ZenohPeis::open(keys.options(
         "executive",
-        &free_tls_endpoint(),
+        &free_quic_endpoint(),
         std::slice::from_ref(&hsm_endpoint),
     ))
     .await
     .expect("executive joins over TLS");
     let pippi = ZenohPeis::open(keys.options(
         "pippi",
-        &free_tls_endpoint(),
+        &free_quic_endpoint(),
         std::slice::from_ref(&hsm_endpoint),
     ))
     .await
@@ -688,7 +688,7 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
     let mut tcp = keys.options("pippi", &free_endpoint(), &[]);
     tcp.name = peis("pippi");
     match ZenohPeis::open(tcp).await {
-        Err(e) => assert!(e.to_string().contains("write tls/127.0.0.1:"), "{e}"),
+        Err(e) => assert!(e.to_string().contains("write quic/127.0.0.1:"), "{e}"),
         Ok(_) => panic!("a tcp endpoint was accepted with keys"),
     }
     for space in [pippi, executive, hsm] {
@@ -808,7 +808,7 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
             ("mallory", Role::Peis),
         ],
     );
-    let watcher_endpoint = free_tls_endpoint();
+    let watcher_endpoint = free_quic_endpoint();
     let watcher = ZenohPeis::open(keys.options("watcher", &watcher_endpoint, &[]))
         .await
         .expect("watcher joins");
@@ -851,7 +851,7 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
     // hsm joins although a token under its name was declared first, and works.
     let hsm = ZenohPeis::open(keys.options(
         "hsm",
-        &free_tls_endpoint(),
+        &free_quic_endpoint(),
         std::slice::from_ref(&watcher_endpoint),
     ))
     .await
@@ -865,7 +865,7 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
     }
     let executive = ZenohPeis::open(keys.options(
         "executive",
-        &free_tls_endpoint(),
+        &free_quic_endpoint(),
         std::slice::from_ref(&watcher_endpoint),
     ))
     .await
@@ -1004,12 +1004,12 @@ async fn an_outsider_without_a_certificate_cannot_join() {
         return;
     };
     let keys = TempKeys::new("outsider", &[("hsm", Role::Peis)]);
-    let endpoint = free_tls_endpoint();
+    let endpoint = free_quic_endpoint();
     let hsm = ZenohPeis::open(keys.options("hsm", &endpoint, &[]))
         .await
         .expect("hsm joins");
-    // Over TLS without a certificate, and over plain TCP to the TLS port.
-    for connect in [endpoint.clone(), endpoint.replacen("tls/", "tcp/", 1)] {
+    // Over QUIC without a certificate, and over plain TCP to the same port.
+    for connect in [endpoint.clone(), endpoint.replacen("quic/", "tcp/", 1)] {
         let attacker = Attacker::spawn(
             &python,
             &["--connect".into(), connect, "--victim".into(), "hsm".into()],

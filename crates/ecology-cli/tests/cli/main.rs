@@ -704,7 +704,7 @@ fn keys_make_an_ecology_and_processes_use_them() {
     ]);
     assert_ne!(tcp.status.code(), Some(0));
     assert!(
-        stderr(&tcp).contains("write tls/127.0.0.1:0"),
+        stderr(&tcp).contains("write quic/127.0.0.1:0"),
         "{}",
         stderr(&tcp)
     );
@@ -716,7 +716,7 @@ fn keys_make_an_ecology_and_processes_use_them() {
         "--keys",
         d,
         "--listen",
-        "tls/127.0.0.1:0",
+        "quic/127.0.0.1:0",
     ]);
     assert_ne!(stranger.status.code(), Some(0));
     assert!(

@@ -217,7 +217,7 @@ fn through_a_router(secured: bool) {
     if secured {
         make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
         secure = vec!["--keys", &keys];
-        router_endpoint = router_endpoint.replacen("tcp/", "tls/", 1);
+        router_endpoint = router_endpoint.replacen("tcp/", "quic/", 1);
     }
     let mut args = vec!["router", "--listen", &router_endpoint];
     args.extend(&secure);
@@ -508,7 +508,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     let k = keys.display().to_string();
     make_keys(&k, &["world", "astrid", "hsm", "mallory"], &[]);
     // The world first, so the attacker has somewhere to connect before hsm exists.
-    let world_endpoint = free_endpoint().replacen("tcp/", "tls/", 1);
+    let world_endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
     let scenario = fixture.scenario();
     let _world = Proc::start(
         "world",
@@ -547,7 +547,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
                 "--name",
                 name,
                 "--listen",
-                &free_endpoint().replacen("tcp/", "tls/", 1),
+                &free_endpoint().replacen("tcp/", "quic/", 1),
                 "--connect",
                 &world_endpoint,
                 "--keys",
@@ -558,6 +558,10 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     };
     let _astrid = peis("astrid");
     let _hsm = peis("hsm");
+    // The executive joins while the forged tokens are held, and plans; then the attack starts and
+    // goes on until the task ends.
+    let mut task = task_on(&world_endpoint, Some(&k), &fixture, &[]);
+    task.wait_for("the first configuration", |l| is_event(l, "configuration"));
     attacker.say("go");
     let report = attacker.wait_for("its report", |l| l.starts_with('{')).text;
     println!("attacker: {report}");
@@ -566,8 +570,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
         "{report}"
     );
     attacker.wait_for("attacking", |l| l == "attacking");
-
-    let (code, lines) = task_on(&world_endpoint, Some(&k), &fixture, &[]).finish();
+    let (code, lines) = task.finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
     assert!(

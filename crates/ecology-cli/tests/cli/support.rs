@@ -293,11 +293,11 @@ impl Ecology {
         Ecology::start_with(fixture, hsm_extra, None)
     }
 
-    /// As [`Ecology::start`], every process with `--keys keys` on TLS endpoints when given.
+    /// As [`Ecology::start`], every process with `--keys keys` on QUIC endpoints when given.
     pub fn start_with(fixture: &Fixture, hsm_extra: &[&str], keys: Option<&str>) -> Ecology {
         let scenario = fixture.scenario();
         let endpoint = || match keys {
-            Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+            Some(_) => free_endpoint().replacen("tcp/", "quic/", 1),
             None => free_endpoint(),
         };
         let secured: Vec<&str> = keys.map_or(vec![], |k| vec!["--keys", k]);
@@ -343,7 +343,7 @@ impl Ecology {
 }
 
 /// The executive on `fixture`'s plan, connected to the world at `world_endpoint`, printing JSON
-/// lines; with `--keys keys` on a TLS endpoint when given.
+/// lines; with `--keys keys` on a QUIC endpoint when given.
 pub fn task_on(
     world_endpoint: &str,
     keys: Option<&str>,
@@ -354,7 +354,7 @@ pub fn task_on(
     let plan = fixture.plan();
     args.push(&plan);
     let listen = match keys {
-        Some(_) => free_endpoint().replacen("tcp/", "tls/", 1),
+        Some(_) => free_endpoint().replacen("tcp/", "quic/", 1),
         None => free_endpoint(),
     };
     if let Some(keys) = keys {

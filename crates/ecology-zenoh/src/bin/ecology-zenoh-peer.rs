@@ -7,59 +7,56 @@ use std::io::{BufRead, Write};
 use std::process::ExitCode;
 use std::time::Duration;
 
+use clap::Parser;
 use ecology_tuples::{Key, PeisId, TupleSpace, Value};
 use ecology_zenoh::{ZenohOptions, ZenohPeis};
 
+/// Hosts one PEIS over Zenoh until standard input closes.
+#[derive(Debug, Parser)]
+#[command(name = "ecology-zenoh-peer")]
 struct Args {
-    options: ZenohOptions,
+    /// The PEIS's name.
+    #[arg(long)]
+    name: PeisId,
+    /// Zenoh endpoints to listen on.
+    #[arg(long)]
+    listen: Vec<String>,
+    /// Zenoh endpoints to connect to.
+    #[arg(long)]
+    connect: Vec<String>,
+    /// The presence lease, in milliseconds.
+    #[arg(long = "lease-ms")]
+    lease_ms: Option<u64>,
+    /// Text tuples to set, as KEY=VALUE.
+    #[arg(value_parser = parse_tuple)]
     tuples: Vec<(Key, String)>,
 }
 
-fn parse_args(mut args: impl Iterator<Item = String>) -> Result<Args, String> {
-    let mut name = None;
-    let mut listen = Vec::new();
-    let mut connect = Vec::new();
-    let mut lease = None;
-    let mut tuples = Vec::new();
-    while let Some(arg) = args.next() {
-        let mut value = |flag: &str| args.next().ok_or_else(|| format!("{flag} needs a value"));
-        match arg.as_str() {
-            "--name" => name = Some(PeisId::new(&value("--name")?).map_err(|e| e.to_string())?),
-            "--listen" => listen.push(value("--listen")?),
-            "--connect" => connect.push(value("--connect")?),
-            "--lease-ms" => {
-                let ms: u64 = value("--lease-ms")?
-                    .parse()
-                    .map_err(|e| format!("--lease-ms: {e}"))?;
-                lease = Some(Duration::from_millis(ms));
-            }
-            other => {
-                let (k, v) = other
-                    .split_once('=')
-                    .ok_or_else(|| format!("unexpected argument {other:?}"))?;
-                tuples.push((Key::new(k).map_err(|e| e.to_string())?, v.to_owned()));
-            }
+/// `KEY=VALUE` as a key and its text.
+fn parse_tuple(arg: &str) -> Result<(Key, String), String> {
+    let (k, v) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("expected KEY=VALUE, got {arg:?}"))?;
+    Ok((Key::new(k).map_err(|e| e.to_string())?, v.to_owned()))
+}
+
+impl Args {
+    fn options(&self) -> ZenohOptions {
+        let mut options = ZenohOptions::new(self.name.clone());
+        options.listen.clone_from(&self.listen);
+        options.connect.clone_from(&self.connect);
+        if let Some(ms) = self.lease_ms {
+            options.peis.lease = Duration::from_millis(ms);
         }
+        options
     }
-    let mut options = ZenohOptions::new(name.ok_or("--name is required")?);
-    options.listen = listen;
-    options.connect = connect;
-    if let Some(lease) = lease {
-        options.peis.lease = lease;
-    }
-    Ok(Args { options, tuples })
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> ExitCode {
-    let args = match parse_args(std::env::args().skip(1)) {
-        Ok(args) => args,
-        Err(message) => {
-            eprintln!("ecology-zenoh-peer: {message}");
-            return ExitCode::from(2);
-        }
-    };
-    let peis = match ZenohPeis::open(args.options).await {
+    // Bad arguments exit with 2, as before clap.
+    let args = Args::parse();
+    let peis = match ZenohPeis::open(args.options()).await {
         Ok(peis) => peis,
         Err(e) => {
             eprintln!("ecology-zenoh-peer: {e}");

@@ -1,0 +1,83 @@
+//! The executive's log as JSON lines: one object per event with `"t"` in
+//! seconds and `"event"` named by [`LogEvent::name`], for `--json`, the
+//! executive's `log` tuple and the live view. Built here, at the edge, so the
+//! executive's types stay free of serialization.
+
+use ecology_exec::{LogEntry, LogEvent};
+use serde_json::json;
+
+/// The entry as one line of JSON: `{"t": 12.5, "event": "failure", ...fields}`.
+pub fn json_line(entry: &LogEntry) -> String {
+    let mut object = match &entry.event {
+        LogEvent::Plan { actions } => json!({ "actions": actions }),
+        LogEvent::Replanned { failed, actions } => {
+            json!({ "failed": failed, "actions": actions })
+        }
+        LogEvent::ActionStarted { index, action } => {
+            json!({ "index": index, "action": action })
+        }
+        LogEvent::StateAcquired {
+            peis,
+            components,
+            unavailable,
+            ..
+        } => {
+            json!({ "peis": peis, "components": components, "unavailable": unavailable })
+        }
+        LogEvent::Configuration {
+            goal,
+            cost,
+            optimal,
+            functionalities,
+            alternatives,
+            reconfiguration,
+            micros,
+        } => json!({
+            "micros": micros,
+            "goal": goal,
+            "cost": cost,
+            "optimal": optimal,
+            "functionalities": functionalities,
+            "alternatives": alternatives,
+            "reconfiguration": reconfiguration,
+        }),
+        LogEvent::Deployed {
+            switched_on,
+            channels,
+        } => json!({ "switched_on": switched_on, "channels": channels }),
+        LogEvent::Running { switched_off } => json!({ "switched_off": switched_off }),
+        LogEvent::Failure {
+            peis,
+            component,
+            cause,
+        } => {
+            json!({ "peis": peis, "component": component, "cause": cause })
+        }
+        LogEvent::Reconfiguration { excluded } => json!({ "excluded": excluded }),
+        LogEvent::PeisJoined { peis }
+        | LogEvent::PeisLeft { peis }
+        | LogEvent::PeisRestarted { peis } => json!({ "peis": peis }),
+        LogEvent::RemoteSetFailed { owner, key, reason } => {
+            json!({ "owner": owner, "key": key, "reason": reason })
+        }
+        LogEvent::Released {
+            switched_off,
+            stopped,
+        } => json!({ "switched_off": switched_off, "stopped": stopped }),
+        LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
+        LogEvent::ActionFailed {
+            index,
+            action,
+            reason,
+        } => {
+            json!({ "index": index, "action": action, "reason": reason })
+        }
+        LogEvent::TaskDone => json!({}),
+        LogEvent::TaskFailed { reason } => json!({ "reason": reason }),
+    };
+    if let Some(fields) = object.as_object_mut() {
+        fields.insert("t".to_string(), json!(entry.t.as_secs_f64()));
+        fields.insert("event".to_string(), json!(entry.event.name()));
+    }
+    object.to_string()
+}

@@ -1,0 +1,14 @@
+//! What the sans-IO core of Ecology shares, written once: time from the
+//! caller ([`Clock`], [`NoClock`]), limits on a search ([`Budget`]) and
+//! seeded randomness ([`Rng`]).
+//!
+//! It reads no clock, does no IO and depends on no runtime, so the planners
+//! (`ecology-config`, `ecology-actions`) and the simulation can all use it.
+
+mod budget;
+mod clock;
+mod rng;
+
+pub use budget::Budget;
+pub use clock::{Clock, NoClock};
+pub use rng::Rng;

@@ -1,0 +1,108 @@
+//! The tuple keys of the component contract (docs/components.md), spelt once for the PEIS runtime and the executive.
+//!
+//! A PEIS's init component publishes `components.C.type`, `.cost` and `.currState` and takes
+//! `components.C.reqState`; each component publishes `C.status` and `C.cause`, takes `C.params`,
+//! writes its outputs as `C.out.INFO` and reads its inputs through `C.mi-INFO` meta-tuples.
+//! Building these keys from a [`ComponentField`] makes a misspelt one a compile error.
+
+use crate::name::{ComponentId, Key, ValidationError};
+
+/// One tuple of the contract that names a component and a fixed field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ComponentField {
+    /// `components.C.type`: the component's type (init component).
+    Type,
+    /// `components.C.cost`: its cost (init component).
+    Cost,
+    /// `components.C.currState`: `on` or `off` (init component).
+    CurrState,
+    /// `components.C.reqState`: `on` or `off`, as asked by remote set.
+    ReqState,
+    /// `C.status`: `initializing`, `idle`, `running`, `waiting`, `done` or `error`.
+    Status,
+    /// `C.cause`: why the component reports what it does.
+    Cause,
+    /// `C.params`: the functionality instance it runs (empty: none).
+    Params,
+}
+
+impl ComponentField {
+    const ALL: [ComponentField; 7] = [
+        ComponentField::Type,
+        ComponentField::Cost,
+        ComponentField::CurrState,
+        ComponentField::ReqState,
+        ComponentField::Status,
+        ComponentField::Cause,
+        ComponentField::Params,
+    ];
+
+    /// The last segment of the key.
+    pub fn name(self) -> &'static str {
+        match self {
+            ComponentField::Type => "type",
+            ComponentField::Cost => "cost",
+            ComponentField::CurrState => "currState",
+            ComponentField::ReqState => "reqState",
+            ComponentField::Status => "status",
+            ComponentField::Cause => "cause",
+            ComponentField::Params => "params",
+        }
+    }
+
+    /// Whether the init component owns the field (`components.C.FIELD`) rather than the component (`C.FIELD`).
+    fn of_init(self) -> bool {
+        matches!(
+            self,
+            ComponentField::Type
+                | ComponentField::Cost
+                | ComponentField::CurrState
+                | ComponentField::ReqState
+        )
+    }
+
+    /// The key of this field of `component`.
+    pub fn key(self, component: &ComponentId) -> Key {
+        let text = if self.of_init() {
+            format!("components.{component}.{}", self.name())
+        } else {
+            format!("{component}.{}", self.name())
+        };
+        // A component name is one segment short enough for the longest field
+        // (`MAX_COMPONENT_LEN`), so the key is valid by construction.
+        Key::from_checked(text)
+    }
+
+    /// The component and field `key` is, when it is one of the contract's fixed fields.
+    pub fn parse(key: &Key) -> Option<(ComponentId, ComponentField)> {
+        let text = key.as_str();
+        let (of_init, rest) = match text.strip_prefix("components.") {
+            Some(rest) => (true, rest),
+            None => (false, text),
+        };
+        let (component, field) = rest.split_once('.')?;
+        let field = ComponentField::ALL
+            .into_iter()
+            .find(|f| f.of_init() == of_init && f.name() == field)?;
+        Some((ComponentId::new(component).ok()?, field))
+    }
+}
+
+/// The key `C.out.INFO` where `component` writes its output `info`.
+pub fn output_key(component: &ComponentId, info: &str) -> Result<Key, ValidationError> {
+    Key::new(&format!("{component}.out.{info}"))
+}
+
+/// The meta-tuple key `C.mi-INFO` through which `component` reads its input
+/// `info`; `args` tell apart two inputs of the same kind (`C.mi-INFO.ARG…`).
+pub fn input_key(
+    component: &ComponentId,
+    info: &str,
+    args: &[&str],
+) -> Result<Key, ValidationError> {
+    if args.is_empty() {
+        Key::new(&format!("{component}.mi-{info}"))
+    } else {
+        Key::new(&format!("{component}.mi-{info}.{}", args.join(".")))
+    }
+}
