@@ -32,10 +32,12 @@
 //! assert_eq!(found.to_string(), "(go a b)\n(go b c)\n; cost = 2\n");
 //! ```
 
+pub mod conditional;
 mod heuristic;
 mod improve;
 mod lmcut;
 pub mod oracle;
+pub mod oracle_conditional;
 pub mod problems;
 mod queue;
 mod search;
@@ -44,16 +46,22 @@ mod validate;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_conditional;
 
 use std::fmt;
 use std::time::Duration;
 
 use ecology_domain::{Call, Name};
 
+pub use conditional::{
+    ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
+    ConditionalVerdict, PlanTree, plan_conditional,
+};
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
-    AtomId, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, OpId, Operator, State,
-    StateError, Task, ground, ground_within,
+    AtomId, Chance, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, MAX_OUTCOMES,
+    MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
 };
 pub use validate::{PlanError, validate};
 

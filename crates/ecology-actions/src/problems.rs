@@ -336,3 +336,185 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     p.push_str(")))\n");
     instance(format!("random-{seed}"), d, p, None)
 }
+
+/// A random small problem with uncertainty, for property tests of the
+/// conditional planner against [`crate::oracle_conditional`]: four actions
+/// over one `t0` and two `t1` objects, some with a `(probabilistic ...)`
+/// effect, some observing an atom (`:observe`), and an uncertain initial
+/// fact.
+pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed ^ 0x5eed_0fc0_ffee);
+    let mut d = String::new();
+    let _ = writeln!(
+        d,
+        "(define (domain runc-{seed})\n  (:requirements :strips :typing :negative-preconditions :probabilistic-effects)"
+    );
+    d.push_str(
+        "  (:types t0 t1)\n  (:predicates (p0 ?a - t0) (p1 ?a - t0 ?b - t1) (p2 ?b - t1) (flag))\n",
+    );
+    let atom = |rng: &mut Rng| -> String {
+        match rng.index(7) {
+            0 | 1 => "(p0 ?x)".to_string(),
+            2 | 3 => "(p1 ?x ?y)".to_string(),
+            4 | 5 => "(p2 ?y)".to_string(),
+            _ => "(flag)".to_string(),
+        }
+    };
+    let literal = |rng: &mut Rng| -> String {
+        let a = atom(rng);
+        if rng.chance(0.2) {
+            format!("(not {a})")
+        } else {
+            a
+        }
+    };
+    const PROBABILITIES: [(&str, &str); 4] = [
+        ("0.5", "0.5"),
+        ("0.7", "0.3"),
+        ("0.2", "0.6"),
+        ("1/3", "1/3"),
+    ];
+    for k in 0..4 {
+        let pre: Vec<String> = (0..rng.index(3)).map(|_| literal(&mut rng)).collect();
+        let mut eff: Vec<String> = (0..1 + rng.index(3)).map(|_| literal(&mut rng)).collect();
+        if rng.chance(0.6) {
+            let (p, q) = PROBABILITIES[rng.index(PROBABILITIES.len())];
+            eff.push(format!(
+                "(probabilistic {p} {} {q} (and {}))",
+                literal(&mut rng),
+                literal(&mut rng)
+            ));
+        }
+        let observe = if rng.chance(0.5) {
+            format!(" :observe {}", atom(&mut rng))
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            d,
+            "  (:action a{k} :parameters (?x - t0 ?y - t1) :precondition (and {}) :effect (and {}){observe})",
+            pre.join(" "),
+            eff.join(" ")
+        );
+    }
+    d.push_str(")\n");
+    let ground = [
+        "(flag)",
+        "(p0 o0)",
+        "(p1 o0 u0)",
+        "(p1 o0 u1)",
+        "(p2 u0)",
+        "(p2 u1)",
+    ];
+    let mut p = String::new();
+    let _ = writeln!(p, "(define (problem runc-{seed}) (:domain runc-{seed})");
+    p.push_str("  (:objects o0 - t0 u0 u1 - t1)\n  (:init");
+    let mut initial = [false; 6];
+    for (g, holds) in ground.iter().zip(&mut initial) {
+        if rng.chance(0.4) {
+            *holds = true;
+            let _ = write!(p, " {g}");
+        }
+    }
+    let (a, b) = (rng.index(ground.len()), rng.index(ground.len()));
+    let (pa, pb) = PROBABILITIES[rng.index(PROBABILITIES.len())];
+    let _ = write!(p, " (probabilistic {pa} {} {pb} {})", ground[a], ground[b]);
+    p.push_str(")\n  (:goal (and");
+    for _ in 0..1 + rng.index(2) {
+        let k = rng.index(ground.len());
+        if initial[k] {
+            let _ = write!(p, " (not {})", ground[k]);
+        } else {
+            let _ = write!(p, " {}", ground[k]);
+        }
+    }
+    p.push_str(")))\n");
+    instance(format!("random-uncertain-{seed}"), d, p, None)
+}
+
+/// The triangle tireworld domain of IPPC 2006/2008 (Little and Thiébaux,
+/// "Probabilistic planning vs. replanning", 2007), reimplemented: a car
+/// drives from one corner of a triangular road map to another; each move
+/// flattens the tire with probability 1/2, and spares lie only off the
+/// shortest road. IPPC's planners observe the state fully, so `move-car`
+/// here observes whether the tire is flat (`:observe`).
+pub const TIREWORLD: &str = "(define (domain triangle-tire)
+  (:requirements :typing :strips :probabilistic-effects)
+  (:types location)
+  (:predicates (vehicle-at ?loc - location) (spare-in ?loc - location)
+    (road ?from - location ?to - location) (not-flattire) (hasspare))
+  (:action move-car
+    :parameters (?from - location ?to - location)
+    :precondition (and (vehicle-at ?from) (road ?from ?to) (not-flattire))
+    :effect (and (vehicle-at ?to) (not (vehicle-at ?from))
+                 (probabilistic 0.5 (not (not-flattire))))
+    :observe (not-flattire))
+  (:action loadtire
+    :parameters (?loc - location)
+    :precondition (and (vehicle-at ?loc) (spare-in ?loc))
+    :effect (and (hasspare) (not (spare-in ?loc))))
+  (:action changetire
+    :parameters ()
+    :precondition (hasspare)
+    :effect (and (not (hasspare)) (not-flattire))))
+";
+
+/// Triangle tireworld problem `n` (IPPC's p0n): a triangle of side
+/// `2n + 1` locations, from its corner `l-1-1` to `l-1-(2n+1)`. The road
+/// along the top is the shortest and has no spares; the roads along the
+/// other two sides have a spare at every location, so a plan reaches the
+/// goal surely by taking them (with a long enough horizon).
+pub fn tireworld(n: usize) -> Result<Instance, GeneratorError> {
+    let m = 2 * n + 1;
+    // Row i (1-based) has m + 1 - i locations.
+    let len = |i: usize| m + 1 - i;
+    let loc = |i: usize, j: usize| format!("l-{i}-{j}");
+    let mut objects = Vec::new();
+    let mut facts: Vec<String> = vec![
+        format!("(vehicle-at {})", loc(1, 1)),
+        "(not-flattire)".into(),
+    ];
+    for i in 1..=m {
+        for j in 1..=len(i) {
+            objects.push(loc(i, j));
+        }
+    }
+    for i in 1..=m {
+        let odd = i % 2 == 1;
+        if odd {
+            for j in 1..len(i) {
+                facts.push(format!("(road {} {})", loc(i, j), loc(i, j + 1)));
+            }
+            if i > 1 {
+                facts.push(format!("(spare-in {})", loc(i, 1)));
+                if len(i) > 1 {
+                    facts.push(format!("(spare-in {})", loc(i, len(i))));
+                }
+            }
+            if i < m {
+                // Down to the even row below and diagonally back up.
+                for j in 1..=len(i + 1) {
+                    facts.push(format!("(road {} {})", loc(i, j), loc(i + 1, j)));
+                    facts.push(format!("(road {} {})", loc(i + 1, j), loc(i, j + 1)));
+                }
+            }
+        } else {
+            for j in 1..=len(i) {
+                facts.push(format!("(spare-in {})", loc(i, j)));
+            }
+            for j in (1..=len(i + 1)).step_by(2) {
+                facts.push(format!("(road {} {})", loc(i, j), loc(i + 1, j)));
+                facts.push(format!("(road {} {})", loc(i + 1, j), loc(i, j + 1)));
+            }
+        }
+    }
+    let mut p = String::new();
+    let _ = writeln!(
+        p,
+        "(define (problem triangle-tire-{n}) (:domain triangle-tire)"
+    );
+    let _ = writeln!(p, "  (:objects {} - location)", objects.join(" "));
+    let _ = writeln!(p, "  (:init {})", facts.join(" "));
+    let _ = writeln!(p, "  (:goal (vehicle-at {})))", loc(1, m));
+    instance(format!("tireworld-{n}"), TIREWORLD.to_string(), p, None)
+}

@@ -101,7 +101,49 @@ pub struct Operator {
     pub cost: u64,
     /// Its ground `:configure` goal, if the schema has one.
     pub configure: Option<Call>,
+    /// Its probabilistic outcomes, each with its complete add and delete
+    /// lists; empty for a deterministic operator, whose one outcome is
+    /// `add`/`del`. When not empty, `add` and `del` hold what every outcome
+    /// does, and only the conditional planner applies the operator.
+    pub outcomes: Vec<Chance>,
+    /// The atoms whose truth the operator reveals after its effects (`:observe`).
+    pub observe: Vec<AtomId>,
 }
+
+/// One outcome of a probabilistic operator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chance {
+    /// Its probability, in `(0, 1]`; an operator's outcomes sum to 1.
+    pub probability: f64,
+    /// Atoms it makes true.
+    pub add: Vec<AtomId>,
+    /// Atoms it makes false (none of them also in `add`).
+    pub del: Vec<AtomId>,
+}
+
+impl Operator {
+    /// Each outcome as `(probability, add, del)`: the one outcome of a
+    /// deterministic operator, with probability 1.
+    pub fn each_outcome(&self) -> impl Iterator<Item = (f64, &[AtomId], &[AtomId])> {
+        let deterministic = self
+            .outcomes
+            .is_empty()
+            .then_some((1.0, &self.add[..], &self.del[..]));
+        deterministic.into_iter().chain(
+            self.outcomes
+                .iter()
+                .map(|o| (o.probability, &o.add[..], &o.del[..])),
+        )
+    }
+}
+
+/// Outcomes one operator may have at most (the product of its
+/// `probabilistic` forms' outcomes).
+pub const MAX_OUTCOMES: usize = 4096;
+
+/// Possible initial worlds a problem may have at most (the product of its
+/// uncertain facts' outcomes).
+pub const MAX_WORLDS: usize = 65_536;
 
 impl fmt::Display for Operator {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -139,6 +181,15 @@ pub enum GroundError {
     TooMuchMemory {
         /// The limit that was reached, in MiB.
         limit_mib: usize,
+    },
+    /// An action has more outcomes than [`MAX_OUTCOMES`], or the initial
+    /// state more possible worlds than [`MAX_WORLDS`].
+    #[error("{what} has more than {limit} possible outcomes; the problem is too large")]
+    TooUncertain {
+        /// The action schema, or `the initial state`.
+        what: String,
+        /// The limit that was reached.
+        limit: usize,
     },
     /// Grounding took longer than its time limit.
     #[error("grounding took longer than the time limit of {limit:?}")]
@@ -221,6 +272,9 @@ pub struct Task {
     statics: HashSet<Vec<u32>>,
     operators: Vec<Operator>,
     initial: State,
+    /// The possible initial worlds with their probabilities (summing to 1):
+    /// `[(1, initial)]` unless the problem has uncertain facts.
+    initial_belief: Vec<(f64, State)>,
     goal: Vec<AtomId>,
     goal_neg: Vec<AtomId>,
     goal_false: Vec<String>,
@@ -251,6 +305,61 @@ impl Task {
     /// The problem's initial state.
     pub fn initial(&self) -> &State {
         &self.initial
+    }
+
+    /// The possible initial worlds and their probabilities: the problem's
+    /// certain `:init` facts plus one outcome of each uncertain fact.
+    /// [`Task::initial`] holds the certain facts alone.
+    pub fn initial_belief(&self) -> &[(f64, State)] {
+        &self.initial_belief
+    }
+
+    /// Whether the task needs the conditional planner: an operator with
+    /// probabilistic outcomes or observations, or an uncertain initial state.
+    pub fn is_uncertain(&self) -> bool {
+        self.initial_belief.len() > 1
+            || self
+                .operators
+                .iter()
+                .any(|o| !o.outcomes.is_empty() || !o.observe.is_empty())
+    }
+
+    /// The all-outcomes determinization: every outcome of every operator
+    /// becomes a deterministic operator of its own, and the initial state is
+    /// the certain facts. Returns it with, for each of its operators, the
+    /// operator of `self` it comes from. Any plan that reaches the goal in
+    /// some outcome sequence is a plan of it, so its admissible heuristics
+    /// bound the cost of reaching the goal in `self` from below.
+    pub fn determinized(&self) -> (Task, Vec<OpId>) {
+        let mut task = self.clone();
+        let mut origin = Vec::new();
+        task.operators.clear();
+        for (i, o) in self.operators.iter().enumerate() {
+            for (_, add, del) in o.each_outcome() {
+                task.operators.push(Operator {
+                    add: add.to_vec(),
+                    del: del.to_vec(),
+                    outcomes: Vec::new(),
+                    observe: Vec::new(),
+                    ..o.clone()
+                });
+                origin.push(OpId(i as u32));
+            }
+        }
+        task.initial_belief = vec![(1.0, task.initial.clone())];
+        task.index_operators();
+        (task, origin)
+    }
+
+    fn index_operators(&mut self) {
+        self.by_first_pre = vec![Vec::new(); self.atoms.len()];
+        self.no_pre.clear();
+        for (i, o) in self.operators.iter().enumerate() {
+            match o.pre.first() {
+                Some(a) => self.by_first_pre[a.index()].push(OpId(i as u32)),
+                None => self.no_pre.push(OpId(i as u32)),
+            }
+        }
     }
 
     /// Atoms the goal requires to hold.
@@ -529,6 +638,9 @@ enum CLit {
     },
 }
 
+/// An effect of a schema with names resolved: `(is_add, predicate, args)`.
+type CEffect = (bool, u32, Vec<Arg>);
+
 /// A schema compiled for grounding: its precondition literals, which of them
 /// are fluent (the rest are checked while binding), its effects as
 /// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
@@ -540,6 +652,9 @@ struct Schema<'a> {
     effects: Vec<(bool, u32, Vec<Arg>)>,
     costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
     configure: Option<(&'a Call, Vec<Arg>)>,
+    /// Each `probabilistic` form's outcomes (the rest, "nothing happens", included).
+    chances: Vec<Vec<(f64, Vec<CEffect>)>>,
+    observe: Vec<(u32, Vec<Arg>)>,
 }
 
 struct Grounder<'a> {
@@ -576,11 +691,25 @@ pub fn ground_within(
 ) -> Result<Task, GroundError> {
     let mut fluent_predicates: HashSet<&str> = HashSet::new();
     for action in &domain.actions {
-        for effect in &action.effects {
+        let outcomes = action.chances.iter().flat_map(|c| &c.outcomes);
+        for effect in action.effects.iter().chain(outcomes.flat_map(|o| &o.items)) {
             if let Effect::Add(a) | Effect::Del(a) = effect {
                 fluent_predicates.insert(&a.predicate);
             }
         }
+        // What is observed is what the plan branches on: it stays in the state.
+        for atom in &action.observe {
+            fluent_predicates.insert(&atom.predicate);
+        }
+    }
+    // So is what the initial state is unsure of.
+    for atom in problem
+        .uncertain
+        .iter()
+        .flat_map(|u| &u.outcomes)
+        .flat_map(|o| &o.items)
+    {
+        fluent_predicates.insert(&atom.predicate);
     }
     let task = Task {
         predicates: Vec::new(),
@@ -592,6 +721,7 @@ pub fn ground_within(
         statics: HashSet::new(),
         operators: Vec::new(),
         initial: State::empty(0),
+        initial_belief: Vec::new(),
         goal: Vec::new(),
         goal_neg: Vec::new(),
         goal_false: Vec::new(),
@@ -652,6 +782,7 @@ pub fn ground_within(
         g.fluent_values.insert((call.name.clone(), args), *value);
     }
     let initial_atoms: Vec<AtomId> = initial_keys.into_iter().map(|k| g.intern(k)).collect();
+    let uncertain = g.uncertain(&fluent_predicates)?;
     g.goal(&fluent_predicates)?;
     for action in &domain.actions {
         g.action(action, &fluent_predicates)?;
@@ -661,14 +792,21 @@ pub fn ground_within(
     for a in initial_atoms {
         initial.set(a);
     }
+    task.initial_belief = uncertain
+        .into_iter()
+        .map(|(p, atoms)| {
+            let mut state = initial.clone();
+            state
+                .words
+                .resize(task.initial.words.len().max(initial.words.len()), 0);
+            for a in atoms {
+                state.set(a);
+            }
+            (p, state)
+        })
+        .collect();
     task.initial = initial;
-    task.by_first_pre = vec![Vec::new(); task.atoms.len()];
-    for (i, o) in task.operators.iter().enumerate() {
-        match o.pre.first() {
-            Some(a) => task.by_first_pre[a.index()].push(OpId(i as u32)),
-            None => task.no_pre.push(OpId(i as u32)),
-        }
-    }
+    task.index_operators();
     Ok(task)
 }
 
@@ -720,6 +858,71 @@ impl Grounder<'_> {
             }
         }
         false
+    }
+
+    /// The possible worlds of the problem's uncertain facts: for each
+    /// combination of outcomes, its probability and the atoms it adds to
+    /// the certain init (`[(1, [])]` when nothing is uncertain).
+    fn uncertain(
+        &mut self,
+        fluent: &HashSet<&str>,
+    ) -> Result<Vec<(f64, Vec<AtomId>)>, GroundError> {
+        let problem = self.problem;
+        let mut worlds: Vec<(f64, Vec<AtomId>)> = vec![(1.0, Vec::new())];
+        for form in &problem.uncertain {
+            let mut outcomes: Vec<(f64, Vec<AtomId>)> = Vec::new();
+            for o in &form.outcomes {
+                let mut atoms = Vec::new();
+                for atom in &o.items {
+                    let p = self.predicate(&atom.predicate, fluent);
+                    let mut key = vec![p];
+                    for t in &atom.args {
+                        match t {
+                            Term::Const(c) => key.push(self.object(c)),
+                            Term::Var(v) => return Err(GroundError::VariableInGoal(v.to_string())),
+                        }
+                    }
+                    atoms.push(self.intern(key));
+                }
+                outcomes.push((o.probability, atoms));
+            }
+            outcomes.push((form.rest(), Vec::new()));
+            outcomes.retain(|(p, _)| *p > 0.0);
+            if worlds.len().saturating_mul(outcomes.len()) > MAX_WORLDS {
+                return Err(GroundError::TooUncertain {
+                    what: "the initial state".into(),
+                    limit: MAX_WORLDS,
+                });
+            }
+            worlds = worlds
+                .iter()
+                .flat_map(|(p, atoms)| {
+                    outcomes.iter().map(move |(q, more)| {
+                        let mut all = atoms.clone();
+                        all.extend(more);
+                        (p * q, all)
+                    })
+                })
+                .collect();
+        }
+        // Outcomes that add the same atoms are the same world.
+        for (_, atoms) in &mut worlds {
+            atoms.sort_unstable();
+            atoms.dedup();
+        }
+        worlds.sort_by(|a, b| a.1.cmp(&b.1));
+        let mut merged: Vec<(f64, Vec<AtomId>)> = Vec::new();
+        for (p, atoms) in worlds {
+            match merged.last_mut() {
+                Some((q, last)) if *last == atoms => *q += p,
+                _ => merged.push((p, atoms)),
+            }
+        }
+        let total: f64 = merged.iter().map(|(p, _)| p).sum();
+        for (p, _) in &mut merged {
+            *p /= total;
+        }
+        Ok(merged)
     }
 
     fn goal(&mut self, fluent: &HashSet<&str>) -> Result<(), GroundError> {
@@ -819,6 +1022,37 @@ impl Grounder<'_> {
             Some(call) => Some((call, self.resolve_all(action, &call.args)?)),
             None => None,
         };
+        let mut chances = Vec::new();
+        let mut combinations = 1usize;
+        for form in &action.chances {
+            let mut outcomes = Vec::new();
+            for o in &form.outcomes {
+                let mut effects = Vec::new();
+                for effect in &o.items {
+                    if let Effect::Add(atom) | Effect::Del(atom) = effect {
+                        let p = self.predicate(&atom.predicate, fluent);
+                        let args = self.resolve_all(action, &atom.args)?;
+                        effects.push((matches!(effect, Effect::Add(_)), p, args));
+                    }
+                }
+                outcomes.push((o.probability, effects));
+            }
+            outcomes.push((form.rest(), Vec::new()));
+            outcomes.retain(|(p, _)| *p > 0.0);
+            combinations = combinations.saturating_mul(outcomes.len());
+            chances.push(outcomes);
+        }
+        if combinations > MAX_OUTCOMES {
+            return Err(GroundError::TooUncertain {
+                what: format!("action `{}`", action.name),
+                limit: MAX_OUTCOMES,
+            });
+        }
+        let mut observe = Vec::new();
+        for atom in &action.observe {
+            let p = self.predicate(&atom.predicate, fluent);
+            observe.push((p, self.resolve_all(action, &atom.args)?));
+        }
         let n = action.params.len();
         let mut checks: Vec<Vec<usize>> = vec![Vec::new(); n + 1];
         let mut dynamic = Vec::new();
@@ -863,6 +1097,8 @@ impl Grounder<'_> {
             effects,
             costs,
             configure,
+            chances,
+            observe,
         };
         let lits = &schema.lits;
         let mut binding = vec![0u32; n];
@@ -946,6 +1182,8 @@ impl Grounder<'_> {
             effects,
             costs,
             configure,
+            chances,
+            observe,
         } = schema;
         if self.task.operators.len() >= self.limits.max_operators {
             return Err(GroundError::TooLarge {
@@ -1009,11 +1247,71 @@ impl Grounder<'_> {
             let id = self.intern(key);
             if *is_add { &mut add } else { &mut del }.push(id);
         }
+        // Every combination of the `probabilistic` forms' outcomes, each
+        // with the common effects: adding wins over deleting within it.
+        let mut outcomes: Vec<Chance> = Vec::new();
+        if !chances.is_empty() {
+            let mut combos: Vec<(f64, Vec<AtomId>, Vec<AtomId>)> =
+                vec![(1.0, add.clone(), del.clone())];
+            for form in chances {
+                let mut next = Vec::with_capacity(combos.len() * form.len());
+                for (p, a, d) in &combos {
+                    for (q, effects) in form {
+                        let (mut a, mut d) = (a.clone(), d.clone());
+                        for (is_add, predicate, args) in effects {
+                            let mut key = vec![*predicate];
+                            key.extend(args.iter().map(value));
+                            let id = self.intern(key);
+                            if *is_add { &mut a } else { &mut d }.push(id);
+                        }
+                        next.push((p * q, a, d));
+                    }
+                }
+                combos = next;
+            }
+            for (probability, mut a, mut d) in combos {
+                a.sort_unstable();
+                a.dedup();
+                d.sort_unstable();
+                d.dedup();
+                d.retain(|x| !a.contains(x));
+                match outcomes.iter_mut().find(|o| o.add == a && o.del == d) {
+                    Some(same) => same.probability += probability,
+                    None => outcomes.push(Chance {
+                        probability,
+                        add: a,
+                        del: d,
+                    }),
+                }
+            }
+        }
         add.sort_unstable();
         add.dedup();
         del.sort_unstable();
         del.dedup();
         del.retain(|a| !add.contains(a));
+        if outcomes.len() == 1 {
+            // Every outcome does the same: a deterministic operator.
+            let only = outcomes.pop().unwrap_or_else(|| unreachable!());
+            add = only.add;
+            del = only.del;
+        } else {
+            // What every outcome does, for code that reads `add`/`del`.
+            let first = outcomes.first().map(|o| (o.add.clone(), o.del.clone()));
+            if let Some((mut a, mut d)) = first {
+                a.retain(|x| outcomes.iter().all(|o| o.add.contains(x)));
+                d.retain(|x| outcomes.iter().all(|o| o.del.contains(x)));
+                add = a;
+                del = d;
+            }
+        }
+        let mut observed = Vec::new();
+        for (predicate, args) in observe {
+            let mut key = vec![*predicate];
+            key.extend(args.iter().map(value));
+            observed.push(self.intern(key));
+        }
+        observed.dedup();
         let configure = configure.as_ref().map(|(call, args)| Call {
             name: call.name.clone(),
             args: args
@@ -1034,6 +1332,8 @@ impl Grounder<'_> {
             del,
             cost,
             configure,
+            outcomes,
+            observe: observed,
         };
         self.bytes = self.bytes.saturating_add(operator_bytes(&operator));
         if self.bytes > self.limits.max_bytes {
@@ -1054,7 +1354,15 @@ fn operator_bytes(op: &Operator) -> usize {
             .map(|n| n.len() + 2 * size_of::<usize>())
             .sum::<usize>()
     };
-    let atoms = op.pre.len() + op.pre_neg.len() + op.add.len() + op.del.len();
+    let atoms = op.pre.len()
+        + op.pre_neg.len()
+        + op.add.len()
+        + op.del.len()
+        + op.observe.len()
+        + op.outcomes
+            .iter()
+            .map(|o| o.add.len() + o.del.len() + 4)
+            .sum::<usize>();
     let configure = op.configure.as_ref().map_or(0, |c| {
         c.name.len() + c.args.len() * (size_of::<Term>() + 16)
     });

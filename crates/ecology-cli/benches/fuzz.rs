@@ -29,6 +29,8 @@ const TIME_BOUND: Duration = Duration::from_secs(1);
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
 const PEIS_HOME_TASK: &str = include_str!("../../../domains/peis-home-task.problem");
+const UNCERTAIN: &str = include_str!("../../../domains/peis-home-uncertain.eco");
+const NEWSPAPER: &str = include_str!("../../../domains/newspaper-uncertain.problem");
 const KITCHEN: &str = include_str!("../../../scenarios/kitchen.toml");
 const PLAN: &str = "(move astrid living-room entrance)  ; configure (navigate astrid entrance)\n(wake astrid johanna bedroom)  ; configure (wake-up astrid johanna)\n";
 
@@ -88,6 +90,8 @@ struct Entry {
 
 fn entries() -> Vec<Entry> {
     let domain = ecology_domain::parse_domain(PEIS_HOME.as_bytes()).expect("the reference domain");
+    let uncertain =
+        ecology_domain::parse_domain(UNCERTAIN.as_bytes()).expect("the uncertain domain");
     let text = |bytes: &[u8]| String::from_utf8_lossy(bytes).into_owned();
     let wire = ecology_zenoh::wire::Metadata::of_tuple(&ecology_tuples::Tuple {
         owner: ecology_tuples::PeisId::new("astrid").expect("name"),
@@ -104,7 +108,7 @@ fn entries() -> Vec<Entry> {
     vec![
         Entry {
             name: ".eco domain",
-            seeds: vec![PEIS_HOME.into()],
+            seeds: vec![PEIS_HOME.into(), UNCERTAIN.into()],
             call: Box::new(|b| drop(ecology_domain::parse_domain(b))),
         },
         Entry {
@@ -124,6 +128,11 @@ fn entries() -> Vec<Entry> {
             name: "PDDL problem",
             seeds: vec![PEIS_HOME_TASK.into()],
             call: Box::new(move |b| drop(ecology_domain::parse_problem_for(&domain, b))),
+        },
+        Entry {
+            name: "uncertain problem",
+            seeds: vec![NEWSPAPER.into()],
+            call: Box::new(move |b| drop(ecology_domain::parse_problem_for(&uncertain, b))),
         },
         Entry {
             name: "scenario TOML",

@@ -13,6 +13,7 @@ mod log_json;
 mod network;
 mod peis;
 mod plan;
+mod plan_conditional;
 mod processes;
 mod router;
 mod sweep;

@@ -41,6 +41,16 @@ pub struct PlanArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Plan conditionally: probabilistic outcomes, sensing actions and
+    /// uncertain initial states; the plan is a tree branching on observations.
+    #[arg(long)]
+    pub conditional: bool,
+    /// With --conditional: the least success probability wanted (default: the most probable plan).
+    #[arg(long, value_name = "P", requires = "conditional")]
+    pub min_probability: Option<f64>,
+    /// With --conditional: the most actions on any branch.
+    #[arg(long, value_name = "N", requires = "conditional", default_value_t = 20)]
+    pub horizon: u32,
 }
 
 /// `ecology plan ...`
@@ -89,6 +99,17 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
                 return Ok(EXIT_BAD_INPUT);
             }
         }
+    }
+    if args.conditional {
+        return crate::plan_conditional::run(args, &task, excluded, &clock);
+    }
+    if task.is_uncertain() {
+        eprintln!(
+            "error: {}: the problem has probabilistic effects, observations or uncertain facts; \
+             plan it with --conditional",
+            args.problem.display()
+        );
+        return Ok(EXIT_BAD_INPUT);
     }
     let strategy = match (args.optimal, args.heuristic) {
         (false, None) => Strategy::SATISFICING,

@@ -24,13 +24,16 @@ mod validate;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_uncertain;
 
 pub use diagnostic::{Diagnostic, Diagnostics, Span, line_col, render};
 pub use model::{
     Action, Atom, Call, ChannelSpec, Domain, Effect, Functionality, Info, Literal, Method, Metric,
-    Name, NumExpr, Param, PredicateDecl, Problem, Redirect, Subtask, Task, Term, TypeDecl,
+    Name, NumExpr, Param, PredicateDecl, Probabilistic, Problem, Redirect, Subtask, Task, Term,
+    TypeDecl, Weighted,
 };
-pub use parse::SUPPORTED_REQUIREMENTS;
+pub use parse::{PROBABILITY_EPSILON, SUPPORTED_REQUIREMENTS};
 pub use problem::check_problem;
 pub use state::{ComponentCost, EcologyState, Fact, Power};
 pub use validate::ECOLOGY_PREDICATES;

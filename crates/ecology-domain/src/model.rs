@@ -298,6 +298,36 @@ pub enum Effect {
     IncreaseCost(NumExpr, Span),
 }
 
+/// One outcome of a `(probabilistic ...)` form: its probability and what
+/// then happens (effects in an action, atoms in a problem's `:init`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Weighted<T> {
+    /// In `[0, 1]`.
+    pub probability: f64,
+    /// The effects or atoms of this outcome (a conjunction).
+    pub items: Vec<T>,
+    /// The outcome in the source.
+    pub span: Span,
+}
+
+/// `(probabilistic P1 X1 P2 X2 ...)` or `(oneof X1 X2 ...)`: exactly one
+/// outcome happens, outcome `i` with probability `Pi`; with probability
+/// `1 - sum(Pi)` none does (nothing changes).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Probabilistic<T> {
+    /// The outcomes; their probabilities sum to at most 1.
+    pub outcomes: Vec<Weighted<T>>,
+    /// The whole form.
+    pub span: Span,
+}
+
+impl<T> Probabilistic<T> {
+    /// The probability that no outcome happens.
+    pub fn rest(&self) -> f64 {
+        (1.0 - self.outcomes.iter().map(|o| o.probability).sum::<f64>()).max(0.0)
+    }
+}
+
 /// An action schema for the action planner.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Action {
@@ -311,6 +341,13 @@ pub struct Action {
     pub effects: Vec<Effect>,
     /// The configuration goal that performs it, if any.
     pub configure: Option<Call>,
+    /// `(probabilistic P1 E1 P2 E2 ...)` effects: each picks one of its
+    /// outcomes independently of the others, on top of `effects`, which
+    /// always happen. Empty for a deterministic action.
+    pub chances: Vec<Probabilistic<Effect>>,
+    /// `:observe`: the atoms whose truth the action reveals, read in the
+    /// state after its effects (a sensing action). Empty when it senses nothing.
+    pub observe: Vec<Atom>,
     /// The whole `(:action ...)` form.
     pub span: Span,
     /// The name in the source.
@@ -431,6 +468,10 @@ pub struct Problem {
     pub init: Vec<Atom>,
     /// Numeric fluents of `(:init ...)`: `(= (road-length a b) 5)`.
     pub numeric_init: Vec<(Call, u64)>,
+    /// Uncertain facts of `(:init ...)`: `(probabilistic 0.7 (at n e) 0.3 (at n k))`
+    /// or `(oneof ...)`, each independent of the others; the initial state is
+    /// `init` plus one outcome of each (a distribution over possible worlds).
+    pub uncertain: Vec<Probabilistic<Atom>>,
     /// `(:goal ...)`, a conjunction.
     pub goal: Vec<Literal>,
     /// `(:metric ...)`, if given.

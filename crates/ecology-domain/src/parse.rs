@@ -8,6 +8,9 @@ use crate::diagnostic::{Diagnostic, Span};
 use crate::model::*;
 use crate::syntax::Sexp;
 
+/// How far above 1 a sum of probabilities may go (decimal rounding, `1/3`).
+pub const PROBABILITY_EPSILON: f64 = 1e-6;
+
 /// The requirements the language supports.
 pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
     "strips",
@@ -15,6 +18,7 @@ pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
     "negative-preconditions",
     "equality",
     "action-costs",
+    "probabilistic-effects",
 ];
 
 /// What kind of atom a token is.
@@ -728,7 +732,13 @@ impl Parser {
         let what = format!("action `{name}`");
         let fields = self.fields(
             &items[2..],
-            &[":parameters", ":precondition", ":effect", ":configure"],
+            &[
+                ":parameters",
+                ":precondition",
+                ":effect",
+                ":configure",
+                ":observe",
+            ],
             &what,
         );
         let params = Self::field(&fields, ":parameters")
@@ -738,23 +748,161 @@ impl Parser {
             .map(|c| self.condition(c))
             .unwrap_or_default();
         let mut effects = Vec::new();
+        let mut chances = Vec::new();
         if let Some(sexp) = Self::field(&fields, ":effect") {
-            self.effect_into(sexp, &mut effects);
+            self.effect_into(sexp, &mut effects, Some(&mut chances));
         }
         let configure = Self::field(&fields, ":configure")
             .and_then(|c| self.call(c, "a configuration goal like `(navigate ?r ?to)`"));
+        let observe = Self::field(&fields, ":observe")
+            .map(|o| self.observe(o))
+            .unwrap_or_default();
         Some(Action {
             name,
             params,
             precondition,
             effects,
             configure,
+            chances,
+            observe,
             span: form.span,
             name_span: name_sexp.span,
         })
     }
 
-    fn effect_into(&mut self, sexp: &Sexp, out: &mut Vec<Effect>) {
+    /// `:observe`: an atom, a list of atoms or `(and ...)` of atoms.
+    fn observe(&mut self, sexp: &Sexp) -> Vec<Atom> {
+        let mut atoms = Vec::new();
+        for literal in self.condition(sexp) {
+            match literal {
+                Literal::Pos(atom) => atoms.push(atom),
+                other => self.push(
+                    Diagnostic::error(other.span(), "`:observe` lists atoms, such as `(at ?t ?x)`")
+                        .with_note("the action reveals whether each atom holds, true or false"),
+                ),
+            }
+        }
+        atoms
+    }
+
+    /// A probability: a number in `[0, 1]`, decimal (`0.7`) or a fraction (`1/3`).
+    fn probability(&mut self, sexp: &Sexp) -> Option<f64> {
+        let text = sexp.atom().filter(|t| classify(t) == AtomKind::Number);
+        let Some(text) = text else {
+            self.push(
+                Diagnostic::error(sexp.span, "expected a probability like `0.7` or `1/3`")
+                    .with_note("`(probabilistic P1 OUTCOME1 P2 OUTCOME2 ...)`"),
+            );
+            return None;
+        };
+        let value = match text.split_once('/') {
+            Some((num, den))
+                if is_well_formed_number(num) && den.bytes().all(|b| b.is_ascii_digit()) =>
+            {
+                match (num.parse::<f64>(), den.parse::<f64>()) {
+                    (Ok(n), Ok(d)) if d > 0.0 => Some(n / d),
+                    _ => None,
+                }
+            }
+            Some(_) => None,
+            None if self.check_number(text, sexp.span) => text.parse::<f64>().ok(),
+            None => return None,
+        };
+        match value {
+            Some(p) if (0.0..=1.0).contains(&p) => Some(p),
+            Some(_) => {
+                self.push(
+                    Diagnostic::error(sexp.span, format!("probability `{text}` is not in [0, 1]"))
+                        .with_label("out of range"),
+                );
+                None
+            }
+            None => {
+                self.error(sexp.span, format!("malformed probability `{text}`"));
+                None
+            }
+        }
+    }
+
+    /// `(probabilistic P1 X1 P2 X2 ...)` or `(oneof X1 X2 ...)`, whose
+    /// outcomes `item` reads; checks that the probabilities sum to at most 1.
+    pub(crate) fn probabilistic<T>(
+        &mut self,
+        sexp: &Sexp,
+        items: &[Sexp],
+        mut item: impl FnMut(&mut Self, &Sexp) -> Vec<T>,
+    ) -> Option<Probabilistic<T>> {
+        let oneof = items.first().and_then(Sexp::atom) == Some("oneof");
+        let mut outcomes = Vec::new();
+        if oneof {
+            let n = items.len() - 1;
+            if n == 0 {
+                self.error(sexp.span, "`oneof` needs at least one outcome");
+                return None;
+            }
+            for x in &items[1..] {
+                outcomes.push(Weighted {
+                    probability: 1.0 / n as f64,
+                    items: item(self, x),
+                    span: x.span,
+                });
+            }
+        } else {
+            let rest = &items[1..];
+            if rest.is_empty() || rest.len() % 2 != 0 {
+                self.push(
+                    Diagnostic::error(
+                        sexp.span,
+                        "`probabilistic` takes pairs of a probability and an outcome",
+                    )
+                    .with_note(
+                        "`(probabilistic 0.7 (at newspaper entrance) 0.3 (at newspaper kitchen))`",
+                    ),
+                );
+                return None;
+            }
+            let mut ok = true;
+            for pair in rest.chunks(2) {
+                let probability = self.probability(&pair[0]);
+                let items = item(self, &pair[1]);
+                match probability {
+                    Some(probability) => outcomes.push(Weighted {
+                        probability,
+                        items,
+                        span: pair[0].span.to(pair[1].span),
+                    }),
+                    None => ok = false,
+                }
+            }
+            let sum: f64 = outcomes.iter().map(|o| o.probability).sum();
+            if ok && sum > 1.0 + PROBABILITY_EPSILON {
+                self.push(
+                    Diagnostic::error(
+                        sexp.span,
+                        format!("the probabilities sum to {sum}, more than 1"),
+                    )
+                    .with_note("outcomes exclude each other: their probabilities sum to at most 1 (the rest is \"nothing happens\")"),
+                );
+                return None;
+            }
+            if !ok {
+                return None;
+            }
+        }
+        Some(Probabilistic {
+            outcomes,
+            span: sexp.span,
+        })
+    }
+
+    /// Reads an effect into `out`; a `(probabilistic ...)` form goes to
+    /// `chances`, which is `None` inside one (they do not nest).
+    fn effect_into(
+        &mut self,
+        sexp: &Sexp,
+        out: &mut Vec<Effect>,
+        mut chances: Option<&mut Vec<Probabilistic<Effect>>>,
+    ) {
         let Some(items) = sexp.list() else {
             self.error(sexp.span, "expected an effect in parentheses");
             return;
@@ -764,16 +912,30 @@ impl Parser {
         };
         if head.list().is_some() {
             for item in items {
-                self.effect_into(item, out);
+                self.effect_into(item, out, chances.as_deref_mut());
             }
             return;
         }
         match head.atom() {
             Some("and") => {
                 for item in &items[1..] {
-                    self.effect_into(item, out);
+                    self.effect_into(item, out, chances.as_deref_mut());
                 }
             }
+            Some("probabilistic" | "oneof") => match chances {
+                Some(chances) => {
+                    let form = self.probabilistic(sexp, items, |p, x| {
+                        let mut effects = Vec::new();
+                        p.effect_into(x, &mut effects, None);
+                        effects
+                    });
+                    chances.extend(form);
+                }
+                None => self.push(
+                    Diagnostic::error(head.span, "probabilistic effects do not nest")
+                        .with_note("write the combined outcomes in one `(probabilistic ...)`"),
+                ),
+            },
             Some("not") => match items {
                 [_, inner] => {
                     if let Some(atom) = self.atom(inner) {
@@ -950,6 +1112,27 @@ impl Parser {
         out
     }
 
+    /// An outcome of an uncertain `:init` fact: a ground atom or `(and ...)` of them.
+    fn ground_atoms(&mut self, sexp: &Sexp) -> Vec<Atom> {
+        let mut atoms = Vec::new();
+        for literal in self.condition(sexp) {
+            match literal {
+                Literal::Pos(atom) => match atom.args.iter().find_map(Term::var) {
+                    Some(var) => self.error(
+                        atom.span,
+                        format!("`:init` facts are ground, but `?{var}` is a variable"),
+                    ),
+                    None => atoms.push(atom),
+                },
+                other => self.push(
+                    Diagnostic::error(other.span(), "an uncertain `:init` outcome lists atoms")
+                        .with_note("what is not listed is false (closed world)"),
+                ),
+            }
+        }
+        atoms
+    }
+
     /// The items of a problem after `(problem NAME)`.
     pub(crate) fn problem_body(&mut self, name: Name, items: &[Sexp]) -> Problem {
         let mut problem = Problem {
@@ -982,6 +1165,14 @@ impl Parser {
                                 if let (Some(fluent), Some(value)) = (fluent, value) {
                                     problem.numeric_init.push((fluent, value));
                                 }
+                            }
+                            Some([head, ..])
+                                if matches!(head.atom(), Some("probabilistic" | "oneof")) =>
+                            {
+                                let items = item.list().unwrap_or_default();
+                                let form =
+                                    self.probabilistic(item, items, |p, x| p.ground_atoms(x));
+                                problem.uncertain.extend(form);
                             }
                             _ => {
                                 if let Some(atom) = self.atom(item) {

@@ -62,6 +62,14 @@ pub fn check_problem(domain: &Domain, problem: &Problem) -> Result<(), Diagnosti
     for atom in &problem.init {
         c.atom(atom, &domain.predicates, "predicate");
     }
+    for atom in problem
+        .uncertain
+        .iter()
+        .flat_map(|u| &u.outcomes)
+        .flat_map(|o| &o.items)
+    {
+        c.atom(atom, &domain.predicates, "predicate");
+    }
     for (call, _) in &problem.numeric_init {
         if &*call.name == "total-cost" && call.args.is_empty() {
             continue;

@@ -9,6 +9,8 @@ use std::collections::{HashMap, HashSet};
 use crate::diagnostic::{Diagnostic, Span};
 use crate::model::*;
 
+mod uncertain;
+
 /// Facts of the ecology state with a fixed meaning, and their arities.
 pub const ECOLOGY_PREDICATES: &[(&str, usize)] = &[
     ("peis", 1),
@@ -49,6 +51,7 @@ pub(crate) fn validate(domain: &mut Domain) -> Vec<Diagnostic> {
     }
     for action in &domain.actions {
         v.action(domain, action);
+        v.uncertain_action(domain, action);
     }
     v.recursion(domain);
     v.diags

@@ -18,6 +18,7 @@ const OTHERS: &[&str] = &[
     "cargo bench -p ecology-cli --bench faults",
     "cargo bench -p ecology-exec --bench reconfigure",
     "cargo bench -p ecology-actions --bench plan",
+    "cargo bench -p ecology-actions --bench conditional",
     "cargo bench -p ecology-zenoh --bench loopback",
     "LOOPBACK_TLS=1 cargo bench -p ecology-zenoh --bench loopback",
     "scripts/bench-actions",
