@@ -558,11 +558,9 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     };
     let _astrid = peis("astrid");
     let _hsm = peis("hsm");
-    // The executive joins while the forged tokens are held, and plans; then the attack starts and
-    // goes on until the task ends.
-    let mut task = task_on(&world_endpoint, Some(&k), &fixture, &[]);
-    task.wait_for("the first configuration", |l| is_event(l, "configuration"));
+    // The attack's burst starts as the executive joins, and goes on until the task ends.
     attacker.say("go");
+    let task = task_on(&world_endpoint, Some(&k), &fixture, &[]);
     let report = attacker.wait_for("its report", |l| l.starts_with('{')).text;
     println!("attacker: {report}");
     assert!(
