@@ -532,12 +532,7 @@ impl<'t> Engine<'t> {
             for (s, &p) in b.states.iter().zip(&b.probs) {
                 for (q, add, del) in o.each_outcome() {
                     let mut next = s.clone();
-                    for &a in del {
-                        next.clear(a);
-                    }
-                    for &a in add {
-                        next.set(a);
-                    }
+                    next.change(add, del);
                     let seen: Vec<bool> = o.observe.iter().map(|&a| next.holds(a)).collect();
                     match groups.iter_mut().find(|(g, _)| *g == seen) {
                         Some((_, states)) => states.push((next, p * q)),
@@ -689,12 +684,7 @@ pub fn evaluate(task: &Task, belief: &[(f64, State)], tree: &PlanTree) -> Option
                 }
                 for (q, add, del) in o.each_outcome() {
                     let mut next = s.clone();
-                    for &a in del {
-                        next.clear(a);
-                    }
-                    for &a in add {
-                        next.set(a);
-                    }
+                    next.change(add, del);
                     let k = branches
                         .iter()
                         .position(|b| b.observation.iter().all(|&(a, v)| next.holds(a) == v))?;

@@ -39,6 +39,16 @@ pub struct State {
 }
 
 impl State {
+    /// Applies an effect: deletes first, then adds, so an atom both deleted and added holds.
+    pub(crate) fn change(&mut self, add: &[AtomId], del: &[AtomId]) {
+        for &a in del {
+            self.clear(a);
+        }
+        for &a in add {
+            self.set(a);
+        }
+    }
+
     pub(crate) fn empty(atoms: usize) -> State {
         State {
             words: vec![0; atoms.div_ceil(64).max(1)],
@@ -406,12 +416,7 @@ impl Task {
 
     pub(crate) fn apply_in_place(&self, state: &mut State, op: OpId) {
         let o = &self.operators[op.index()];
-        for &a in &o.del {
-            state.clear(a);
-        }
-        for &a in &o.add {
-            state.set(a);
-        }
+        state.change(&o.add, &o.del);
     }
 
     /// Calls `f` with every operator applicable in `state`.
