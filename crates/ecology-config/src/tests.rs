@@ -538,14 +538,36 @@ fn bad_goals_are_request_errors() {
     }
 }
 
-/// A clock that advances one second each time it is read.
-#[derive(Debug, Default)]
-struct Ticking(std::cell::Cell<u64>);
+/// A clock that advances one `step` each time it is read, and counts its reads.
+#[derive(Debug)]
+struct Stepping {
+    step: Duration,
+    reads: std::cell::Cell<u64>,
+}
 
-impl Clock for Ticking {
+impl Stepping {
+    /// One second a read.
+    fn seconds() -> Self {
+        Self::by(Duration::from_secs(1))
+    }
+
+    /// One millisecond a read.
+    fn millis() -> Self {
+        Self::by(Duration::from_millis(1))
+    }
+
+    fn by(step: Duration) -> Self {
+        Self {
+            step,
+            reads: std::cell::Cell::new(0),
+        }
+    }
+}
+
+impl Clock for Stepping {
     fn elapsed(&self) -> Duration {
-        self.0.set(self.0.get() + 1);
-        Duration::from_secs(self.0.get())
+        self.reads.set(self.reads.get() + 1);
+        self.step * u32::try_from(self.reads.get()).unwrap_or(u32::MAX)
     }
 }
 
@@ -576,7 +598,7 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
         },
     ] {
         let options = Options { count: 1, budget };
-        let outcome = plan(&request, &options, &Ticking::default()).expect("valid");
+        let outcome = plan(&request, &options, &Stepping::seconds()).expect("valid");
         assert_eq!(outcome.status, Status::BudgetExceeded);
         if let Some(found) = outcome.configurations.first() {
             assert!(!found.optimal);
@@ -599,7 +621,7 @@ fn budgets_hold_for_the_provider_search() {
     let optimum = full.configurations[0].cost;
     let with = |budget| {
         let options = Options { count: 1, budget };
-        plan(&request, &options, &Counting::default()).expect("valid")
+        plan(&request, &options, &Stepping::millis()).expect("valid")
     };
     // No node: nothing found, but a bound.
     let none = with(Budget {
@@ -612,13 +634,13 @@ fn budgets_hold_for_the_provider_search() {
     assert!(none.lower_bound.is_some_and(|lb| lb <= optimum));
     // A few nodes, or a little time: the dive's configuration, flagged, with its gap.
     let reads = {
-        let clock = Counting::default();
+        let clock = Stepping::millis();
         let budget = Budget {
             max_expansions: None,
             max_time: Some(Duration::from_secs(3600)),
         };
         plan(&request, &Options { count: 1, budget }, &clock).expect("valid");
-        clock.0.get()
+        clock.reads.get()
     };
     // The first budget of time (a millisecond per clock reading) that finds
     // one without proving it.
@@ -952,7 +974,7 @@ fn a_time_budget_stops_grounding() {
     assert!(reads <= 4, "read the clock {reads} times");
 }
 
-/// Plans `request` under a time budget of `limit` on a [`Ticking`] clock,
+/// Plans `request` under a time budget of `limit` on a [`Stepping::seconds`] clock,
 /// checks that it ran out with nothing found and no bound, and returns the
 /// outcome and how many times the planner read the clock.
 fn out_of_time(request: &Request<'_>, limit: Duration) -> (Outcome, u64) {
@@ -963,12 +985,12 @@ fn out_of_time(request: &Request<'_>, limit: Duration) -> (Outcome, u64) {
             max_time: Some(limit),
         },
     };
-    let clock = Ticking::default();
+    let clock = Stepping::seconds();
     let outcome = plan(request, &options, &clock).expect("valid");
     assert_eq!(outcome.status, Status::BudgetExceeded);
     assert!(outcome.configurations.is_empty());
     assert_eq!(outcome.lower_bound, None);
-    (outcome, clock.0.get())
+    (outcome, clock.reads.get())
 }
 
 #[test]
@@ -982,17 +1004,6 @@ fn a_time_budget_stops_reading_the_state() {
     assert!(reads <= 4, "read the clock {reads} times");
 }
 
-/// A clock that advances one millisecond each time it is read.
-#[derive(Debug, Default)]
-struct Counting(std::cell::Cell<u64>);
-
-impl Clock for Counting {
-    fn elapsed(&self) -> Duration {
-        self.0.set(self.0.get() + 1);
-        Duration::from_millis(self.0.get())
-    }
-}
-
 #[test]
 fn every_phase_of_the_provider_search_checks_the_budget() {
     let instance = synthetic::sharing(synthetic::Sharing::base(64, 2)).expect("generates");
@@ -1000,7 +1011,7 @@ fn every_phase_of_the_provider_search_checks_the_budget() {
     let full = plan(&request, &Options::default(), &NoClock).expect("valid");
     let optimum = full.configurations[0].cost;
     // How often an unlimited search reads the clock.
-    let clock = Counting::default();
+    let clock = Stepping::millis();
     let unlimited = Options {
         count: 1,
         budget: Budget {
@@ -1009,7 +1020,7 @@ fn every_phase_of_the_provider_search_checks_the_budget() {
         },
     };
     plan(&request, &unlimited, &clock).expect("valid");
-    let reads = clock.0.get();
+    let reads = clock.reads.get();
     // Every budget short of that stops somewhere: each outcome is flagged, its
     // configuration (if any) no cheaper than the optimum, its bound no higher.
     let mut mid_dive = false;
@@ -1021,7 +1032,7 @@ fn every_phase_of_the_provider_search_checks_the_budget() {
                 max_time: Some(Duration::from_millis(ms)),
             },
         };
-        let outcome = plan(&request, &options, &Counting::default()).expect("valid");
+        let outcome = plan(&request, &options, &Stepping::millis()).expect("valid");
         if outcome.status == Status::Proven {
             assert_eq!(outcome.configurations[0].cost, optimum, "{ms} ms");
             continue;
@@ -1050,7 +1061,7 @@ fn a_budget_cuts_a_long_list_short() {
     };
     let full = plan(&request, &thirty, &NoClock).expect("valid");
     assert_eq!(full.configurations.len(), 30);
-    let clock = Counting::default();
+    let clock = Stepping::millis();
     let unlimited = Options {
         budget: Budget {
             max_expansions: None,
@@ -1060,7 +1071,7 @@ fn a_budget_cuts_a_long_list_short() {
     };
     plan(&request, &unlimited, &clock).expect("valid");
     let mut shorter = false;
-    for ms in 0..clock.0.get() {
+    for ms in 0..clock.reads.get() {
         let options = Options {
             budget: Budget {
                 max_expansions: None,
@@ -1068,7 +1079,7 @@ fn a_budget_cuts_a_long_list_short() {
             },
             ..thirty
         };
-        let outcome = plan(&request, &options, &Counting::default()).expect("valid");
+        let outcome = plan(&request, &options, &Stepping::millis()).expect("valid");
         let n = outcome.configurations.len();
         // What it lists is the start of the whole list, all of it only when proven.
         for (got, want) in outcome.configurations.iter().zip(&full.configurations) {
