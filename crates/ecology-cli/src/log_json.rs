@@ -72,6 +72,16 @@ pub fn json_line(entry: &LogEntry) -> String {
         } => {
             json!({ "index": index, "action": action, "reason": reason })
         }
+        LogEvent::Observed {
+            index,
+            action,
+            observation,
+        } => json!({ "index": index, "action": action, "observation": observation }),
+        LogEvent::Branch {
+            observation,
+            probability,
+            actions,
+        } => json!({ "observation": observation, "probability": probability, "actions": actions }),
         LogEvent::TaskDone => json!({}),
         LogEvent::TaskFailed { reason } => json!({ "reason": reason }),
     };

@@ -159,7 +159,8 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
             Err(failure) => return Ok(join_failed(failure)),
         };
         let stop = network::stop_signal();
-        let world = &scenario.world;
+        // A thing whose place is uncertain lies where the seed draws it.
+        let world = scenario.world_for(seed);
         let robots: Vec<&str> = world.robots.keys().map(String::as_str).collect();
         say(&format!(
             "world ready: {} rooms, robots {}, {} things, {} residents; {}",
@@ -172,7 +173,7 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
         let result = ecology_sim::run_world(
             &space,
             Arc::new(SystemClock),
-            scenario.world.clone(),
+            world,
             seed,
             Duration::from_millis(args.step_ms),
             async {

@@ -180,6 +180,7 @@ pub fn run(launch: &Launch) -> anyhow::Result<u8> {
 fn plan_text(scenario: &Scenario) -> String {
     scenario
         .plan
+        .steps
         .iter()
         .map(|step| match &step.goal {
             Some(goal) => format!("{}  ; configure {goal}\n", step.action),

@@ -11,9 +11,7 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ecology_domain::EcologyState;
-use ecology_exec::{
-    DriverConfig, ExecConfig, Executive, PlannedAction, Replan, RunStatus, drive_until,
-};
+use ecology_exec::{DriverConfig, ExecConfig, Executive, Plan, Replan, RunStatus, drive_until};
 use ecology_sim::WorldReplanner;
 use ecology_tuples::{Key, PeisId, SystemClock, TupleSpace, Value};
 
@@ -90,7 +88,7 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
             let text = String::from_utf8(input::read_limited(path)?)
                 .map_err(|_| anyhow::anyhow!("{} is not UTF-8", path.display()))?;
             match ecology_exec::parse_plan(&text) {
-                Ok(plan) => plan,
+                Ok(plan) => Plan::from(plan),
                 Err(e) => {
                     eprintln!("error: {}:{}: {}", path.display(), e.line, e.message);
                     return Ok(EXIT_BAD_INPUT);
@@ -140,7 +138,7 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
 /// What the executive runs.
 struct Task<'a> {
     domain: &'a ecology_domain::Domain,
-    plan: Vec<PlannedAction>,
+    plan: Plan,
     config: ExecConfig,
     settle: Duration,
     replanner: Option<WorldReplanner>,

@@ -131,10 +131,10 @@ async fn run_once() -> Option<[f64; 5]> {
         .join(PeisId::new("executive").ok()?, PeisOptions::default())
         .ok()?;
     let domain = parse_domain(PEIS_HOME).ok()?;
-    let plan = vec![PlannedAction {
-        action: "(move astrid entrance bedroom)".to_string(),
-        goal: Some(parse_goal("(navigate astrid bedroom)").ok()?),
-    }];
+    let plan = vec![PlannedAction::new(
+        "(move astrid entrance bedroom)".to_string(),
+        Some(parse_goal("(navigate astrid bedroom)").ok()?),
+    )];
     let mut exec = Executive::new(domain, EcologyState::new(), plan, ExecConfig::default())
         .with_stopwatch(Box::new(Wall(Instant::now())));
     let driver_start: Timestamp = clock.now();

@@ -17,8 +17,9 @@ use ecology_tuples::{
     TupleSpace, Value,
 };
 
-use crate::executive::{Command, Event, Executive, PlannedAction, RunStatus, TimerId};
+use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
 use crate::log::LogEntry;
+use crate::plan::{Observation, Plan};
 
 /// How the driver runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -78,8 +79,14 @@ pub trait Replan: Send {
 
     /// A new plan without the action instances of `failed` (every one that
     /// failed in this task), from the world as the tuples `world` describe
-    /// it; `Err` says why there is none.
-    fn replan(&mut self, failed: &[String], world: &[Tuple]) -> Result<Vec<PlannedAction>, String>;
+    /// it and, under uncertainty, from the belief that what the task's
+    /// sensing actions `observed` leaves; `Err` says why there is none.
+    fn replan(
+        &mut self,
+        failed: &[String],
+        observed: &[Observation],
+        world: &[Tuple],
+    ) -> Result<Plan, String>;
 }
 
 /// [`drive_observed`], stopping the task when `stop` completes (an operator's
@@ -124,7 +131,7 @@ pub async fn drive_until<S: TupleSpace>(
                         .get_matching(replanner.observe())
                         .await
                         .unwrap_or_default();
-                    match replanner.replan(exec.failed_actions(), &world) {
+                    match replanner.replan(exec.failed_actions(), &exec.observations(), &world) {
                         Ok(plan) => exec.replan(elapsed(&clock), plan),
                         Err(why) => exec.abandon_because(elapsed(&clock), Some(&why)),
                     }

@@ -22,12 +22,15 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
 use ecology_config::{Clock as PlannerClock, Configuration, Exclusion, NoClock, Options, Request};
-use ecology_domain::{Call, Domain, EcologyState};
+use ecology_domain::{Domain, EcologyState};
 use ecology_tuples::contract::{self, ComponentField};
 use ecology_tuples::{ComponentId, Key, PeisId};
 
 use crate::log::{LogEntry, LogEvent};
 use crate::mirror::{Change, Mirror};
+use crate::plan::{
+    Observation, Plan, PlanBranch, PlannedAction, observations_text, parse_observations,
+};
 
 /// A timer the executive asked for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -122,16 +125,6 @@ impl Default for ExecConfig {
             },
         }
     }
-}
-
-/// One step of a plan: an action and the configuration goal that performs it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PlannedAction {
-    /// The action, like `(move astrid living-room entrance)`.
-    pub action: String,
-    /// Its `:configure` goal, like `(navigate astrid entrance)`; `None` when it
-    /// needs no configuration.
-    pub goal: Option<Call>,
 }
 
 /// Where a run stands.
@@ -271,6 +264,8 @@ struct ActionRun {
     /// Inputs to re-point once their new producer runs (make-before-break):
     /// the producer, and the remote set that wires its consumer.
     deferred: Vec<(ComponentKey, Command)>,
+    /// What the configuration reported of the atoms a sensing action reveals.
+    observed: BTreeMap<String, bool>,
 }
 
 /// Measures how long acquisition and planning take, for the log. The
@@ -301,7 +296,13 @@ pub struct Executive {
     stopwatch: Stopwatch,
     domain: Domain,
     world: EcologyState,
+    /// The actions of this plan so far: those run, the one running, and
+    /// those that follow before the next branching.
     plan: Vec<PlannedAction>,
+    /// What follows the last action of `plan`, by what it observes.
+    branches: Vec<PlanBranch>,
+    /// Everything the task's sensing actions observed, the latest value of each atom.
+    knowledge: BTreeMap<String, bool>,
     config: ExecConfig,
     mirror: Mirror,
     status: RunStatus,
@@ -322,19 +323,23 @@ pub struct Executive {
 }
 
 impl Executive {
-    /// An executive for `plan` in `domain`; `world` holds facts about the
-    /// world the configuration planner may need besides the acquired ones.
+    /// An executive for `plan` (a sequence of actions, or a conditional
+    /// [`Plan`]) in `domain`; `world` holds facts about the world the
+    /// configuration planner may need besides the acquired ones.
     pub fn new(
         domain: Domain,
         world: EcologyState,
-        plan: Vec<PlannedAction>,
+        plan: impl Into<Plan>,
         config: ExecConfig,
     ) -> Executive {
+        let plan = plan.into();
         Executive {
             stopwatch: Stopwatch(Box::new(NoClock)),
             domain,
             world,
-            plan,
+            plan: plan.steps,
+            branches: plan.branches,
+            knowledge: BTreeMap::new(),
             config,
             mirror: Mirror::new(),
             status: RunStatus::Idle,
@@ -403,6 +408,11 @@ impl Executive {
                             component,
                             status,
                         } => self.on_status((peis, component), &status, &mut out),
+                        Change::Observed {
+                            peis,
+                            component,
+                            literals,
+                        } => self.on_observed((peis, component), &literals, &mut out),
                         Change::Restarted { peis } => {
                             if self.run.is_some() {
                                 self.record(LogEvent::PeisRestarted {
@@ -488,6 +498,7 @@ impl Executive {
             waiting: BTreeMap::new(),
             done: BTreeSet::new(),
             deferred: Vec::new(),
+            observed: BTreeMap::new(),
         });
         if self.plan[index].goal.is_none() {
             self.finish_action(out);
@@ -951,12 +962,56 @@ impl Executive {
         // An action is done when every functionality with a postcondition
         // reports `done`; one whose configuration has none (it only provides
         // information) is done as soon as its configuration runs.
-        if finishing.iter().all(|k| run.done.contains(k)) {
+        let observed = self.plan[run.index]
+            .observe
+            .iter()
+            .all(|atom| run.observed.contains_key(atom));
+        if observed && finishing.iter().all(|k| run.done.contains(k)) {
             self.finish_action(out);
         }
     }
 
     fn finish_action(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        let index = run.index;
+        let action = self.plan[index].action.clone();
+        let observation: Vec<Observation> = self.plan[index]
+            .observe
+            .iter()
+            .filter_map(|atom| {
+                run.observed.get(atom).map(|&holds| Observation {
+                    atom: atom.clone(),
+                    holds,
+                })
+            })
+            .collect();
+        if !observation.is_empty() {
+            for o in &observation {
+                self.knowledge.insert(o.atom.clone(), o.holds);
+            }
+            self.record(LogEvent::Observed {
+                index,
+                action: action.clone(),
+                observation: observations_text(&observation),
+            });
+        }
+        let branch = if index + 1 == self.plan.len() && !self.branches.is_empty() {
+            let Some(chosen) = self.branches.iter().position(|b| {
+                b.observation
+                    .iter()
+                    .all(|o| self.knowledge.get(&o.atom) == Some(&o.holds))
+            }) else {
+                let reason = format!(
+                    "it observed {}, which no branch of the plan expects",
+                    observations_text(&self.observations())
+                );
+                self.fail_action(reason, out);
+                return;
+            };
+            Some(std::mem::take(&mut self.branches).swap_remove(chosen))
+        } else {
+            None
+        };
         let Some(run) = self.run.take() else { return };
         out.push(Command::CancelTimer(run.action_timer));
         for (_, id) in run.waiting {
@@ -965,11 +1020,56 @@ impl Executive {
         // Inputs still waiting for their producer are wired all the same:
         // the next action may keep them.
         out.extend(run.deferred.into_iter().map(|(_, wire)| wire));
-        self.record(LogEvent::ActionDone {
-            index: run.index,
-            action: self.plan[run.index].action.clone(),
-        });
-        self.start_action(run.index + 1, out);
+        self.record(LogEvent::ActionDone { index, action });
+        if let Some(branch) = branch {
+            self.record(LogEvent::Branch {
+                observation: observations_text(&branch.observation),
+                probability: branch.probability,
+                actions: branch.plan.steps.iter().map(|a| a.action.clone()).collect(),
+            });
+            self.plan.extend(branch.plan.steps);
+            self.branches = branch.plan.branches;
+        }
+        self.start_action(index + 1, out);
+    }
+
+    /// A component of the configuration reported what it observed.
+    fn on_observed(&mut self, key: ComponentKey, literals: &str, out: &mut Vec<Command>) {
+        if !self.in_current_config(&key) {
+            return;
+        }
+        let Some(run) = &mut self.run else { return };
+        let wanted = &self.plan[run.index].observe;
+        if wanted.is_empty() || run.failed.contains(&key) {
+            return;
+        }
+        match parse_observations(literals) {
+            Ok(read) => {
+                for o in read {
+                    if wanted.contains(&o.atom) {
+                        run.observed.insert(o.atom, o.holds);
+                    }
+                }
+                self.check_done(out);
+            }
+            Err(why) => {
+                let cause = format!("it wrote an observation that cannot be read: {why}");
+                self.failure(vec![key], cause, out);
+            }
+        }
+    }
+
+    /// What the task's sensing actions have observed so far (the latest
+    /// value of each atom): the evidence a replanner narrows the initial
+    /// belief with.
+    pub fn observations(&self) -> Vec<Observation> {
+        self.knowledge
+            .iter()
+            .map(|(atom, &holds)| Observation {
+                atom: atom.clone(),
+                holds,
+            })
+            .collect()
     }
 
     fn fail_action(&mut self, reason: String, out: &mut Vec<Command>) {
@@ -1036,14 +1136,16 @@ impl Executive {
     /// Action-level recovery: after an action failed, continue with a new
     /// plan (from the action planner, without the failed actions and from
     /// the world as observed).
-    pub fn replan(&mut self, now: Duration, plan: Vec<PlannedAction>) -> Vec<Command> {
+    pub fn replan(&mut self, now: Duration, plan: impl Into<Plan>) -> Vec<Command> {
         self.now = self.now.max(now);
         let mut out = Vec::new();
         if self.finished || !matches!(self.status, RunStatus::Failed { .. }) {
             return out;
         }
         let failed = self.failed_actions.last().cloned().unwrap_or_default();
-        self.plan = plan;
+        let plan = plan.into();
+        self.plan = plan.steps;
+        self.branches = plan.branches;
         let actions = self.plan.iter().map(|a| a.action.clone()).collect();
         self.record(LogEvent::Replanned { failed, actions });
         self.start_action(0, &mut out);

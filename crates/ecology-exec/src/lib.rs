@@ -11,13 +11,17 @@ mod driver;
 mod executive;
 mod log;
 mod mirror;
+mod plan;
 mod plan_file;
 
 #[cfg(test)]
 mod tests;
 
 pub use driver::{DriverConfig, Replan, drive, drive_observed, drive_until};
-pub use executive::{Command, Event, ExecConfig, Executive, PlannedAction, RunStatus, TimerId};
+pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, TimerId};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};
+pub use plan::{
+    Observation, Plan, PlanBranch, PlannedAction, observations_text, parse_observations,
+};
 pub use plan_file::{PlanFileError, parse_plan};

@@ -7,7 +7,7 @@ use std::fmt;
 use std::time::Duration;
 
 /// One logged event with its time.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct LogEntry {
     /// Time since the run started.
     pub t: Duration,
@@ -16,7 +16,7 @@ pub struct LogEntry {
 }
 
 /// What the executive did or saw.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum LogEvent {
     /// A plan of actions to execute.
     Plan {
@@ -129,6 +129,24 @@ pub enum LogEvent {
         /// The action.
         action: String,
     },
+    /// A sensing action's configuration reported what it was to observe.
+    Observed {
+        /// The action's index.
+        index: usize,
+        /// The action.
+        action: String,
+        /// What it observed: `(atom)` or `(not (atom))`, joined by spaces.
+        observation: String,
+    },
+    /// A conditional plan went on with the branch of what was observed.
+    Branch {
+        /// The branch's observation.
+        observation: String,
+        /// How probable the planner thought it.
+        probability: f64,
+        /// The branch's actions before its next branching.
+        actions: Vec<String>,
+    },
     /// An action failed: no configuration, or timeout.
     ActionFailed {
         /// Its index.
@@ -167,6 +185,8 @@ impl LogEvent {
             LogEvent::Released { .. } => "released",
             LogEvent::ActionDone { .. } => "action_done",
             LogEvent::ActionFailed { .. } => "action_failed",
+            LogEvent::Observed { .. } => "observed",
+            LogEvent::Branch { .. } => "branch",
             LogEvent::TaskDone => "task_done",
             LogEvent::TaskFailed { .. } => "task_failed",
         }
@@ -281,6 +301,23 @@ impl fmt::Display for LogEntry {
                 action,
                 reason,
             } => write!(f, "action {} FAILED: {action}\n{reason}", index + 1),
+            LogEvent::Observed { observation, .. } => write!(f, "  observed {observation}"),
+            LogEvent::Branch {
+                observation,
+                probability,
+                actions,
+            } => {
+                let then = if actions.is_empty() {
+                    "nothing left to do".to_string()
+                } else {
+                    actions.join(" → ")
+                };
+                write!(
+                    f,
+                    "branch on {observation} (probability {}): {then}",
+                    (probability * 1e4).round() / 1e4
+                )
+            }
             LogEvent::TaskDone => write!(f, "task done"),
             LogEvent::TaskFailed { reason } => write!(f, "task FAILED: {reason}"),
         }

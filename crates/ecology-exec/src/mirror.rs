@@ -63,6 +63,15 @@ pub enum Change {
         /// The PEIS.
         peis: PeisId,
     },
+    /// A component wrote what it observed (`C.observed`).
+    Observed {
+        /// The PEIS.
+        peis: PeisId,
+        /// The component.
+        component: ComponentId,
+        /// The literals it wrote, as text.
+        literals: String,
+    },
     /// Anything else (types, costs, on/off, causes).
     Other,
 }
@@ -236,6 +245,13 @@ impl PeisView {
             }
             ComponentField::Cause => c.cause = Some(value.to_string()),
             ComponentField::Params => c.params = Some(value.to_string()),
+            ComponentField::Observed => {
+                return Some(Change::Observed {
+                    peis: owner.clone(),
+                    component,
+                    literals: value.to_string(),
+                });
+            }
         }
         Some(Change::Other)
     }

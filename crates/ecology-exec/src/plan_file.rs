@@ -8,7 +8,7 @@
 
 use ecology_domain::parse_goal;
 
-use crate::executive::PlannedAction;
+use crate::plan::PlannedAction;
 
 /// A line of a plan file that is not an action.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -47,10 +47,7 @@ pub fn parse_plan(text: &str) -> Result<Vec<PlannedAction>, PlanFileError> {
             })?),
             None => None,
         };
-        plan.push(PlannedAction {
-            action: call.to_string(),
-            goal,
-        });
+        plan.push(PlannedAction::new(call.to_string(), goal));
     }
     if plan.is_empty() {
         return Err(PlanFileError {

@@ -338,9 +338,8 @@ impl Ecology {
 }
 
 fn plan() -> Vec<PlannedAction> {
-    let step = |action: &str, goal: &str| PlannedAction {
-        action: action.to_string(),
-        goal: Some(parse_goal(goal).expect("goal")),
+    let step = |action: &str, goal: &str| {
+        PlannedAction::new(action.to_string(), Some(parse_goal(goal).expect("goal")))
     };
     vec![
         step(
@@ -740,10 +739,10 @@ fn a_component_waiting_across_a_redeploy_is_still_timed() {
 
 #[test]
 fn an_action_whose_configuration_has_no_postcondition_is_done_once_it_runs() {
-    let localize = PlannedAction {
-        action: "(localize astrid)".to_string(),
-        goal: Some(parse_goal("(get-position astrid)").expect("goal")),
-    };
+    let localize = PlannedAction::new(
+        "(localize astrid)".to_string(),
+        Some(parse_goal("(get-position astrid)").expect("goal")),
+    );
     let exec =
         Ecology::from_facts(PEIS_HOME_FACTS).run(executive(vec![localize]), secs(600.0), |_, _| {});
     assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
@@ -776,10 +775,10 @@ const STEREO: &str = "
 #[test]
 fn two_inputs_of_the_same_kind_get_keys_of_their_own() {
     let domain = parse_domain(STEREO.as_bytes()).expect("domain");
-    let see = PlannedAction {
-        action: "(look robot)".to_string(),
-        goal: Some(parse_goal("(see robot)").expect("goal")),
-    };
+    let see = PlannedAction::new(
+        "(look robot)".to_string(),
+        Some(parse_goal("(see robot)").expect("goal")),
+    );
     let mut exec = Executive::new(
         domain,
         EcologyState::new(),

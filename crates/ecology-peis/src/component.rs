@@ -146,6 +146,19 @@ impl<S: TupleSpace> Context<S> {
         Ok(())
     }
 
+    /// Reports what a sensing component observed as `C.observed`: literals
+    /// over the domain's predicates, `(thing-at newspaper kitchen)` or
+    /// `(not (thing-at newspaper entrance))`, separated by spaces. The
+    /// executive completes a sensing action once its configuration has
+    /// reported every atom the action reveals.
+    pub async fn observed(&self, literals: &str) -> Result<(), ComponentError> {
+        let c = self.component_id()?;
+        self.space
+            .set(ComponentField::Observed.key(&c), Value::text(literals))
+            .await?;
+        Ok(())
+    }
+
     /// Publishes output `info` as `C.out.INFO`.
     pub async fn output(&self, info: &str, value: Value) -> Result<Tuple, ComponentError> {
         let key = output_key(&self.component_id()?, info)

@@ -120,7 +120,7 @@ impl<S: TupleSpace> Component<S> for Simulated {
                 ("cams", _) => body.cameras(None).await,
                 ("cam", _) => body.cameras(Some(3.5)).await,
                 ("tr-sys", _) => body.tracker(true).await,
-                ("obj-loc", _) => body.tracker(false).await,
+                ("obj-loc", _) => body.localizer().await,
                 ("laser", _) => body.laser().await,
                 ("odomet", _) => body.odometry().await,
                 ("self-loc", "scan-matching") => body.scan_matching().await,
@@ -191,6 +191,26 @@ impl Truth {
     fn map(&self) -> Option<Map> {
         self.text("map").and_then(Map::parse)
     }
+
+    /// Things lying somewhere (not held), with where.
+    fn things(&self) -> Vec<(String, (f64, f64))> {
+        self.latest
+            .iter()
+            .filter_map(|(k, v)| {
+                let name = k.strip_prefix("things.")?.strip_suffix(".at")?;
+                let mut xy = v.split_whitespace().map(str::parse::<f64>);
+                match (xy.next(), xy.next()) {
+                    (Some(Ok(x)), Some(Ok(y))) => Some((name.to_string(), (x, y))),
+                    _ => None,
+                }
+            })
+            .collect()
+    }
+
+    /// Whether `name` is a thing of the world (not a robot).
+    fn is_thing(&self, name: &str) -> bool {
+        self.latest.contains_key(&format!("things.{name}.holder"))
+    }
 }
 
 struct Body<S: TupleSpace> {
@@ -256,15 +276,22 @@ impl<S: TupleSpace> Body<S> {
     }
 
     /// Ceiling cameras (`range = None`: they see the whole home) or a robot's
-    /// camera (sees robots within `range` metres in the same room): `image`
-    /// holds the robots seen, as `NAME X Y THETA; …`.
+    /// camera (sees robots and things within `range` metres in the same
+    /// room): `image` holds what it sees, as `NAME X Y THETA; …` (a thing's
+    /// heading is 0).
     async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
         let mut truth = Truth::follow(self.ctx.space()).await?;
         let me = self.ctx.peis().to_string();
         loop {
             let stalled = self.injected()?;
             truth.poll();
-            let robots = truth.robots();
+            let mut robots = truth.robots();
+            robots.extend(
+                truth
+                    .things()
+                    .into_iter()
+                    .map(|(name, (x, y))| (name, Pose::new(x, y, 0.0))),
+            );
             if robots.is_empty() {
                 self.report("waiting", "ground truth").await?;
             } else {
@@ -333,6 +360,73 @@ impl<S: TupleSpace> Body<S> {
                         }
                     }
                 }
+            }
+            self.next(&mut inputs).await;
+        }
+    }
+
+    /// An object localizer: tracks a robot (`global-pos`, as [`Body::tracker`])
+    /// or, when its params name a thing, looks for the thing.
+    async fn localizer(&mut self) -> Result<(), ComponentError> {
+        let target = self.arg(2)?;
+        let mut truth = Truth::follow(self.ctx.space()).await?;
+        loop {
+            self.injected()?;
+            truth.poll();
+            if truth.map().is_some() {
+                break;
+            }
+            self.report("waiting", "ground truth").await?;
+            self.ctx.sleep(PERIOD).await;
+        }
+        if truth.is_thing(&target) {
+            self.look_for(&target, truth).await
+        } else {
+            self.tracker(false).await
+        }
+    }
+
+    /// A sensing component: looks for `thing` in the images and writes what
+    /// it saw as `C.observed`, in the PEIS-Home domain's words: `(thing-at
+    /// THING ROOM)` for the room it is seen in, and `(not (thing-at THING
+    /// ROOM))` for the room of this PEIS when it is not seen there.
+    async fn look_for(&mut self, thing: &str, mut truth: Truth) -> Result<(), ComponentError> {
+        let mut inputs = self.ctx.inputs(&["image"]).await?;
+        let me = self.ctx.peis().to_string();
+        loop {
+            let stalled = self.injected()?;
+            inputs.poll();
+            truth.poll();
+            if !inputs.missing(STALE).is_empty() {
+                self.report("waiting", "image").await?;
+                self.next(&mut inputs).await;
+                continue;
+            }
+            self.report("running", "").await?;
+            let map = truth.map().unwrap_or_default();
+            let image = inputs.latest("image").and_then(|t| t.text().ok());
+            let seen_in = image
+                .and_then(|image| {
+                    image.split(';').find_map(|entry| {
+                        let (name, pose) = entry.trim().split_once(' ')?;
+                        (name == thing).then(|| Pose::parse(pose)).flatten()
+                    })
+                })
+                .and_then(|pose| map.room_at(pose.x, pose.y))
+                .map(|room| room.name.clone());
+            let here = truth
+                .robot(&me)
+                .and_then(|eye| map.room_at(eye.x, eye.y))
+                .map(|room| room.name.clone());
+            let mut literals = Vec::new();
+            if let Some(room) = &seen_in {
+                literals.push(format!("(thing-at {thing} {room})"));
+            }
+            if let Some(room) = here.filter(|room| seen_in.as_ref() != Some(room)) {
+                literals.push(format!("(not (thing-at {thing} {room}))"));
+            }
+            if !stalled && !literals.is_empty() {
+                self.ctx.observed(&literals.join(" ")).await?;
             }
             self.next(&mut inputs).await;
         }

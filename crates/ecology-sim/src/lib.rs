@@ -12,6 +12,7 @@
 
 mod components;
 mod host;
+mod planning;
 mod replan;
 mod run;
 mod scenario;
@@ -25,11 +26,11 @@ mod tests;
 pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
 pub use ecology_core::Rng;
 pub use host::{host_peis, parse_fault, simulated_components};
+pub use planning::{PlanError, executive_plan, plan_actions};
 pub use replan::WorldReplanner;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
 pub use scenario::{
-    ComponentDef, FaultKind, FaultSpec, PeisDef, PlanError, Scenario, ScenarioError, Trigger,
-    plan_actions,
+    ComponentDef, FaultKind, FaultSpec, PeisDef, Place, Scenario, ScenarioError, Trigger,
 };
 pub use schedule::with_random_faults;
 pub use world::{

@@ -180,7 +180,7 @@ pub async fn run(
         clock: clock.clone(),
         shared: shared.clone(),
         start,
-        world: scenario.world.clone(),
+        world: scenario.world_for(options.seed),
         peis: scenario.peis.clone(),
         faults: Faults::default(),
         schedule: schedule.clone(),
@@ -289,7 +289,7 @@ pub async fn run(
     };
     let _ = stop.send(true);
     watching.abort_all();
-    let mut outcome = Ok(scenario.world.clone());
+    let mut outcome = Ok(scenario.world_for(options.seed));
     while let Some(joined) = tasks.join_next().await {
         outcome = match joined {
             Ok(result) => result,

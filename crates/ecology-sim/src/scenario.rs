@@ -3,18 +3,20 @@
 //! read into private serde types, checked, and turned into a [`Scenario`]
 //! of plain simulator types. Every error names the file, line and column.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use ecology_domain::{Domain, Problem, parse_domain, parse_goal, parse_problem_for};
-use ecology_exec::PlannedAction;
+use ecology_exec::{Plan, PlannedAction};
 use serde::Deserialize;
 use toml::Spanned;
 
 use crate::components::KINDS;
+use crate::planning::{PlanError, plan_actions};
 use crate::world::{Door, Map, Pose, Resident, Robot, Room, Thing, World};
+use ecology_core::Rng;
 
 /// Why a scenario could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -142,6 +144,15 @@ pub struct PeisDef {
     pub components: Vec<ComponentDef>,
 }
 
+/// A place where a thing may lie at the start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Place {
+    /// Where, in metres.
+    pub at: (f64, f64),
+    /// How probable.
+    pub probability: f64,
+}
+
 /// A loaded, checked scenario.
 #[derive(Debug, Clone)]
 pub struct Scenario {
@@ -162,10 +173,13 @@ pub struct Scenario {
     /// The problem the plan was made for (when the scenario gives one, not a
     /// plan), and its file as the scenario names it: for replanning.
     pub problem: Option<(Problem, PathBuf)>,
-    /// The plan to execute.
-    pub plan: Vec<PlannedAction>,
-    /// The world at the start.
+    /// The plan to execute (conditional when the problem is uncertain).
+    pub plan: Plan,
+    /// The world at the start (a thing with uncertain `places` lies at its first).
     pub world: World,
+    /// Things whose place at the start is uncertain: where each may lie, and
+    /// how probably; a run draws one by its seed ([`Scenario::world_for`]).
+    pub places: BTreeMap<String, Vec<Place>>,
     /// The PEIS and their components.
     pub peis: Vec<PeisDef>,
     /// The fault injections.
@@ -255,7 +269,15 @@ struct RobotFile {
 #[serde(deny_unknown_fields)]
 struct PlacedFile {
     name: String,
+    at: Option<[f64; 2]>,
+    places: Option<Vec<PlaceFile>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlaceFile {
     at: [f64; 2],
+    probability: f64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -416,9 +438,9 @@ impl Scenario {
 
         let (domain, plan, planned_problem) = parse_task(&check, &parsed.task, &read_named)?;
         let map = parse_map(&check, &parsed.map)?;
-        let world = parse_world(&check, &parsed, map)?;
+        let (world, places) = parse_world(&check, &parsed, map)?;
         let peis = check_peis(&check, &parsed.peis)?;
-        let faults = parse_faults(&check, &parsed.faults, &peis, plan.len())?;
+        let faults = parse_faults(&check, &parsed.faults, &peis, plan.depth())?;
         let time_limit = seconds(parsed.time_limit)
             .ok_or_else(|| check.at(0..0, "time_limit must be a positive number of seconds"))?;
         let action_timeout = seconds(parsed.action_timeout)
@@ -434,6 +456,7 @@ impl Scenario {
             domain,
             plan,
             world,
+            places,
             peis,
             faults,
         })
@@ -441,7 +464,7 @@ impl Scenario {
 }
 
 /// What the `[task]` table gives: the domain, the plan, and the problem planned for (if any).
-type ParsedTask = (Domain, Vec<PlannedAction>, Option<(Problem, PathBuf)>);
+type ParsedTask = (Domain, Plan, Option<(Problem, PathBuf)>);
 
 /// The task: a domain, and a problem to plan for or a plan.
 fn parse_task(
@@ -471,12 +494,9 @@ fn parse_task(
                         )
                     })?),
                 };
-                plan.push(PlannedAction {
-                    action: step.get_ref().action.clone(),
-                    goal,
-                });
+                plan.push(PlannedAction::new(step.get_ref().action.clone(), goal));
             }
-            plan
+            Plan::from(plan)
         }
         _ => {
             return Err(check.at(
@@ -526,7 +546,11 @@ fn parse_map(check: &Checker<'_>, file: &MapFile) -> Result<Map, ScenarioError> 
 }
 
 /// The world on `map`: robots, things and residents, each inside a room.
-fn parse_world(check: &Checker<'_>, parsed: &File, map: Map) -> Result<World, ScenarioError> {
+fn parse_world(
+    check: &Checker<'_>,
+    parsed: &File,
+    map: Map,
+) -> Result<(World, BTreeMap<String, Vec<Place>>), ScenarioError> {
     let inside = |x: f64, y: f64, span: Range<usize>, what: &str| {
         if map.room_at(x, y).is_some() {
             Ok(())
@@ -554,15 +578,34 @@ fn parse_world(check: &Checker<'_>, parsed: &File, map: Map) -> Result<World, Sc
             },
         );
     }
+    let mut uncertain = BTreeMap::new();
     for thing in &parsed.things {
         let t = thing.get_ref();
         check.name(&t.name, "thing", thing.span())?;
-        inside(t.at[0], t.at[1], thing.span(), &t.name)?;
+        let at = match (&t.at, &t.places) {
+            (Some(at), None) => (at[0], at[1]),
+            (None, Some(places)) => {
+                let places = parse_places(check, places, thing.span(), &t.name, &inside)?;
+                let first = places[0].at;
+                uncertain.insert(t.name.clone(), places);
+                first
+            }
+            _ => {
+                return Err(check.at(
+                    thing.span(),
+                    format!(
+                        "thing {} needs exactly one of `at` or `places` (where it may lie, with probabilities)",
+                        t.name
+                    ),
+                ));
+            }
+        };
+        inside(at.0, at.1, thing.span(), &t.name)?;
         world.things.insert(
             t.name.clone(),
             Thing {
                 name: t.name.clone(),
-                at: (t.at[0], t.at[1]),
+                at,
                 holder: None,
             },
         );
@@ -580,7 +623,70 @@ fn parse_world(check: &Checker<'_>, parsed: &File, map: Map) -> Result<World, Sc
             },
         );
     }
-    Ok(world)
+    Ok((world, uncertain))
+}
+
+/// A thing's uncertain places: each in a room, probabilities in (0, 1] summing to 1.
+fn parse_places(
+    check: &Checker<'_>,
+    places: &[PlaceFile],
+    span: Range<usize>,
+    name: &str,
+    inside: &dyn Fn(f64, f64, Range<usize>, &str) -> Result<(), ScenarioError>,
+) -> Result<Vec<Place>, ScenarioError> {
+    if places.is_empty() {
+        return Err(check.at(span, format!("thing {name} has no places")));
+    }
+    let mut out = Vec::new();
+    for place in places {
+        inside(place.at[0], place.at[1], span.clone(), name)?;
+        if !(place.probability > 0.0 && place.probability <= 1.0) {
+            return Err(check.at(
+                span,
+                format!(
+                    "a place of {name} has probability {}: it must be in (0, 1]",
+                    place.probability
+                ),
+            ));
+        }
+        out.push(Place {
+            at: (place.at[0], place.at[1]),
+            probability: place.probability,
+        });
+    }
+    let total: f64 = out.iter().map(|p| p.probability).sum();
+    if (total - 1.0).abs() > 1e-6 {
+        return Err(check.at(
+            span,
+            format!("the places of {name} have probabilities summing to {total}, not 1"),
+        ));
+    }
+    Ok(out)
+}
+
+impl Scenario {
+    /// The world at the start of a run with `seed`: each thing with
+    /// uncertain places lies at one drawn by its probability (the same seed
+    /// draws the same places).
+    pub fn world_for(&self, seed: u64) -> World {
+        let mut world = self.world.clone();
+        for (name, places) in &self.places {
+            let mut rng = Rng::derive(seed, &format!("places:{name}"));
+            let mut draw = rng.uniform();
+            let mut chosen = places[places.len() - 1].at;
+            for place in places {
+                if draw < place.probability {
+                    chosen = place.at;
+                    break;
+                }
+                draw -= place.probability;
+            }
+            if let Some(thing) = world.things.get_mut(name) {
+                thing.at = chosen;
+            }
+        }
+        world
+    }
 }
 
 /// The faults: known kinds on known PEIS and components, each triggered at
@@ -797,7 +903,7 @@ fn plan_for(
     domain: &Domain,
     problem: &Spanned<String>,
     read: &ReadNamed<'_>,
-) -> Result<(Vec<PlannedAction>, Problem), ScenarioError> {
+) -> Result<(Plan, Problem), ScenarioError> {
     let bytes = read(problem)?;
     let parsed = parse_problem_for(domain, &bytes)
         .map_err(|d| ScenarioError::Task(d.render(problem.get_ref(), &bytes)))?;
@@ -808,49 +914,4 @@ fn plan_for(
         PlanError::NoPlan(why) => ScenarioError::NoPlan(why),
     })?;
     Ok((plan, parsed))
-}
-
-/// Why a problem has no plan of actions.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum PlanError {
-    /// The problem cannot be grounded in the domain.
-    #[error("{0}")]
-    Task(String),
-    /// The action planner found no plan (or ran out of budget), and why.
-    #[error("no plan: {0}")]
-    NoPlan(String),
-}
-
-/// A plan for `problem` from the action planner (its default, satisficing
-/// search); each action carries its `:configure` goal.
-pub fn plan_actions(domain: &Domain, problem: &Problem) -> Result<Vec<PlannedAction>, PlanError> {
-    let task =
-        ecology_actions::ground(domain, problem).map_err(|e| PlanError::Task(e.to_string()))?;
-    run_action_planner(&ecology_actions::Request::new(&task)).map_err(PlanError::NoPlan)
-}
-
-/// The action planner's plan for `request`, each action with its
-/// `:configure` goal; `Err` says why there is none.
-pub(crate) fn run_action_planner(
-    request: &ecology_actions::Request<'_>,
-) -> Result<Vec<PlannedAction>, String> {
-    let outcome = ecology_actions::plan(
-        request,
-        &ecology_actions::Options::default(),
-        &ecology_actions::NoClock,
-    );
-    match outcome.verdict {
-        ecology_actions::Verdict::Found(plan) => Ok(plan
-            .steps
-            .iter()
-            .map(|step| PlannedAction {
-                action: step.to_string(),
-                goal: step.configure.clone(),
-            })
-            .collect()),
-        ecology_actions::Verdict::Unsolvable(why) => Err(why.to_string()),
-        ecology_actions::Verdict::BudgetExceeded => {
-            Err("the action planner's budget ran out".to_string())
-        }
-    }
 }

@@ -459,8 +459,8 @@ fn a_replan_starts_from_the_world_as_observed() {
         tuple("robots.pippi.pose", "4.000 1.500 3.1416"),
         tuple("residents.johanna.state", "asleep"),
     ];
-    let plan = replanner.replan(&[], &world).expect("a plan");
-    let actions: Vec<&str> = plan.iter().map(|a| a.action.as_str()).collect();
+    let plan = replanner.replan(&[], &[], &world).expect("a plan");
+    let actions: Vec<&str> = plan.steps.iter().map(|a| a.action.as_str()).collect();
     assert_eq!(
         actions,
         [
@@ -470,7 +470,10 @@ fn a_replan_starts_from_the_world_as_observed() {
     );
     // Johanna already awake: nothing left to do.
     let awake = vec![tuple("residents.johanna.state", "awake")];
-    assert_eq!(replanner.replan(&[], &awake).expect("a plan"), []);
+    assert_eq!(
+        replanner.replan(&[], &[], &awake).expect("a plan"),
+        ecology_exec::Plan::default()
+    );
 }
 
 fn bytes_of(text: &str) -> bytes::Bytes {

@@ -4,8 +4,8 @@
 //! space in real time ([`run_world`]).
 //!
 //! Tuples of the `world` PEIS: `map` (the rooms and doors, as text),
-//! `robots.NAME.pose` (`X Y THETA`), `things.NAME.holder` (the robot holding
-//! it, or empty) and `residents.NAME.state` (`asleep` or `awake`). It reads
+//! `robots.NAME.pose` (`X Y THETA`), `things.NAME.at` (`X Y` where it lies,
+//! empty while held), `things.NAME.holder` (the robot holding it, or empty) and `residents.NAME.state` (`asleep` or `awake`). It reads
 //! every component's `C.out.velocity` (`V W`: m/s and rad/s, for the robot
 //! that is the component's PEIS), `C.out.grasp` (the thing to grasp) and
 //! `C.out.sound` (a sound in the robot's room).
@@ -138,6 +138,13 @@ async fn publish_poses<S: TupleSpace>(world: &World, space: &S) -> Result<(), Tu
 async fn publish_things<S: TupleSpace>(world: &World, space: &S) -> Result<(), TupleError> {
     for (name, thing) in &world.things {
         let holder = thing.holder.clone().unwrap_or_default();
+        let at = match thing.holder {
+            Some(_) => String::new(),
+            None => format!("{:.3} {:.3}", thing.at.0, thing.at.1),
+        };
+        space
+            .set(key(&format!("things.{name}.at"))?, Value::text(at))
+            .await?;
         space
             .set(key(&format!("things.{name}.holder"))?, Value::text(holder))
             .await?;

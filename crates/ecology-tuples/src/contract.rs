@@ -1,7 +1,8 @@
 //! The tuple keys of the component contract (docs/components.md), spelt once for the PEIS runtime and the executive.
 //!
 //! A PEIS's init component publishes `components.C.type`, `.cost` and `.currState` and takes
-//! `components.C.reqState`; each component publishes `C.status` and `C.cause`, takes `C.params`,
+//! `components.C.reqState`; each component publishes `C.status` and `C.cause` (and, when it senses,
+//! `C.observed`), takes `C.params`,
 //! writes its outputs as `C.out.INFO` and reads its inputs through `C.mi-INFO` meta-tuples.
 //! Building these keys from a [`ComponentField`] makes a misspelt one a compile error.
 
@@ -24,10 +25,14 @@ pub enum ComponentField {
     Cause,
     /// `C.params`: the functionality instance it runs (empty: none).
     Params,
+    /// `C.observed`: what a sensing component saw, as literals over the
+    /// domain's predicates (`(thing-at newspaper kitchen)`,
+    /// `(not (thing-at newspaper entrance))`).
+    Observed,
 }
 
 impl ComponentField {
-    const ALL: [ComponentField; 7] = [
+    const ALL: [ComponentField; 8] = [
         ComponentField::Type,
         ComponentField::Cost,
         ComponentField::CurrState,
@@ -35,6 +40,7 @@ impl ComponentField {
         ComponentField::Status,
         ComponentField::Cause,
         ComponentField::Params,
+        ComponentField::Observed,
     ];
 
     /// The last segment of the key.
@@ -47,6 +53,7 @@ impl ComponentField {
             ComponentField::Status => "status",
             ComponentField::Cause => "cause",
             ComponentField::Params => "params",
+            ComponentField::Observed => "observed",
         }
     }
 

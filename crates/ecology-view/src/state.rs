@@ -145,6 +145,21 @@ impl View {
                 self.status = format!("action {}: {}", index.map_or(0, |i| i + 1), text("action"));
                 summary = format!("action started: {}", text("action"));
             }
+            "observed" => {
+                summary = format!("{} observed {}", text("action"), text("observation"));
+            }
+            "branch" => {
+                // The plan goes on with the branch's actions after the current one.
+                let upto = self.current.map_or(self.plan.len(), |i| i + 1);
+                self.plan.truncate(upto);
+                self.plan.extend(strings("actions"));
+                summary = format!(
+                    "branch on {} (probability {}): {}",
+                    text("observation"),
+                    entry["probability"],
+                    strings("actions").join(" → ")
+                );
+            }
             "action_done" => {
                 self.done.extend(index);
                 summary = format!("action done: {}", text("action"));

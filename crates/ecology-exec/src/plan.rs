@@ -1,0 +1,244 @@
+//! What the executive runs: a plan of actions that may branch on what a
+//! sensing action observes (a conditional plan, the class of PTLplan's), and
+//! the observations themselves.
+//!
+//! A [`Plan`] is a sequence of [`PlannedAction`]s followed by the
+//! [`PlanBranch`]es of its last action, each naming the observation that
+//! selects it; a plan without branches is the plain sequence the
+//! deterministic planner makes. An [`Observation`] is one ground atom and
+//! whether it was seen to hold, written `(thing-at newspaper kitchen)` or
+//! `(not (thing-at newspaper entrance))` in the `C.observed` tuple a sensing
+//! component writes.
+
+use std::fmt;
+
+use ecology_domain::{Call, parse_goal};
+
+/// One step of a plan: an action and the configuration goal that performs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedAction {
+    /// The action, like `(move astrid living-room entrance)`.
+    pub action: String,
+    /// Its `:configure` goal, like `(navigate astrid entrance)`; `None` when it
+    /// needs no configuration.
+    pub goal: Option<Call>,
+    /// The ground atoms the action reveals (a sensing action's `:observe`),
+    /// written `(thing-at newspaper kitchen)`; empty for an action that
+    /// senses nothing. The action is done only once its configuration has
+    /// reported every one of them.
+    pub observe: Vec<String>,
+}
+
+impl PlannedAction {
+    /// An action that senses nothing.
+    pub fn new(action: impl Into<String>, goal: Option<Call>) -> PlannedAction {
+        PlannedAction {
+            action: action.into(),
+            goal,
+            observe: Vec::new(),
+        }
+    }
+}
+
+/// A plan: actions in order, then (after a sensing action) one branch per
+/// possible observation.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Plan {
+    /// The actions before any branching.
+    pub steps: Vec<PlannedAction>,
+    /// What follows the last step, by what it observed; empty: the plan ends.
+    pub branches: Vec<PlanBranch>,
+}
+
+/// A branch of a conditional plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanBranch {
+    /// The observation that selects this branch: every atom with its value.
+    pub observation: Vec<Observation>,
+    /// How probable the planner thought this observation, given the path to it.
+    pub probability: f64,
+    /// The rest of the plan.
+    pub plan: Plan,
+}
+
+impl From<Vec<PlannedAction>> for Plan {
+    fn from(steps: Vec<PlannedAction>) -> Plan {
+        Plan {
+            steps,
+            branches: Vec::new(),
+        }
+    }
+}
+
+impl Plan {
+    /// Whether the plan branches anywhere.
+    pub fn is_conditional(&self) -> bool {
+        !self.branches.is_empty()
+    }
+
+    /// The most actions on one path through the plan.
+    pub fn depth(&self) -> usize {
+        self.steps.len()
+            + self
+                .branches
+                .iter()
+                .map(|b| b.plan.depth())
+                .max()
+                .unwrap_or(0)
+    }
+
+    /// Actions in the whole tree, every branch counted.
+    pub fn actions(&self) -> usize {
+        self.steps.len()
+            + self
+                .branches
+                .iter()
+                .map(|b| b.plan.actions())
+                .sum::<usize>()
+    }
+}
+
+/// One ground atom and whether it was seen to hold.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Observation {
+    /// The atom, like `(thing-at newspaper kitchen)` (as [`Call`] prints it).
+    pub atom: String,
+    /// Whether it holds.
+    pub holds: bool,
+}
+
+impl fmt::Display for Observation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.holds {
+            f.write_str(&self.atom)
+        } else {
+            write!(f, "(not {})", self.atom)
+        }
+    }
+}
+
+/// Observations joined by spaces, as the log and `C.observed` write them.
+pub fn observations_text(observations: &[Observation]) -> String {
+    observations
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The most literals one `C.observed` tuple is read for.
+const MAX_LITERALS: usize = 256;
+
+/// The literals of a `C.observed` value: `(atom …)` or `(not (atom …))`,
+/// separated by white space. `Err` says what is malformed.
+pub fn parse_observations(text: &str) -> Result<Vec<Observation>, String> {
+    let mut out = Vec::new();
+    for group in top_level_groups(text)? {
+        if out.len() == MAX_LITERALS {
+            return Err(format!("more than {MAX_LITERALS} literals"));
+        }
+        let inner = group[1..group.len() - 1].trim();
+        let negated = inner.strip_prefix("not").filter(|rest| {
+            rest.is_empty() || rest.starts_with(|c: char| c == '(' || c.is_whitespace())
+        });
+        let (holds, atom) = match negated {
+            Some(rest) => match &top_level_groups(rest)?[..] {
+                [atom] => (false, *atom),
+                _ => return Err(format!("`{group}`: `not` takes one atom")),
+            },
+            None => (true, group),
+        };
+        let call = parse_goal(atom).map_err(|d| {
+            format!(
+                "`{atom}` is not an atom: {}",
+                d.0.first().map_or("malformed", |d| d.message.as_str())
+            )
+        })?;
+        out.push(Observation {
+            atom: call.to_string(),
+            holds,
+        });
+    }
+    Ok(out)
+}
+
+/// The balanced `( … )` groups at the top level of `text`.
+fn top_level_groups(text: &str) -> Result<Vec<&str>, String> {
+    let mut groups = Vec::new();
+    let mut depth = 0usize;
+    let mut start = 0;
+    for (i, ch) in text.char_indices() {
+        match ch {
+            '(' => {
+                if depth == 0 {
+                    start = i;
+                }
+                depth += 1;
+            }
+            ')' => {
+                depth = depth
+                    .checked_sub(1)
+                    .ok_or_else(|| format!("unbalanced `)` at byte {i}"))?;
+                if depth == 0 {
+                    groups.push(&text[start..=i]);
+                }
+            }
+            c if depth == 0 && !c.is_whitespace() => {
+                return Err(format!("`{c}` outside parentheses at byte {i}"));
+            }
+            _ => {}
+        }
+    }
+    if depth > 0 {
+        return Err("unbalanced `(`".to_string());
+    }
+    Ok(groups)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn literals_read_positive_and_negative_atoms() {
+        let read = parse_observations(
+            "(thing-at newspaper   kitchen)\n(not (thing-at newspaper entrance))",
+        )
+        .unwrap();
+        assert_eq!(
+            read,
+            vec![
+                Observation {
+                    atom: "(thing-at newspaper kitchen)".to_string(),
+                    holds: true
+                },
+                Observation {
+                    atom: "(thing-at newspaper entrance)".to_string(),
+                    holds: false
+                },
+            ]
+        );
+        assert_eq!(
+            observations_text(&read),
+            "(thing-at newspaper kitchen) (not (thing-at newspaper entrance))"
+        );
+        assert_eq!(parse_observations("  ").unwrap(), vec![]);
+    }
+
+    #[test]
+    fn malformed_literals_are_errors_not_panics() {
+        for bad in [
+            "(a b",
+            "a b)",
+            "x (a b)",
+            "(not)",
+            "((a) b)",
+            "(not (a (b)))",
+            "()",
+        ] {
+            assert!(parse_observations(bad).is_err(), "{bad} was read");
+        }
+        let many = "(a b) ".repeat(MAX_LITERALS + 1);
+        assert!(parse_observations(&many).unwrap_err().contains("more than"));
+    }
+}

@@ -1,0 +1,125 @@
+//! The action planners as the simulator and `ecology task` use them: a plan
+//! for a problem (conditional when the problem is uncertain), and the
+//! planners' trees turned into the executive's [`Plan`].
+
+use ecology_actions::{ConditionalOptions, ConditionalRequest, ConditionalVerdict, PlanTree, Task};
+use ecology_domain::{Domain, Problem};
+use ecology_exec::{Observation, Plan, PlanBranch, PlannedAction};
+
+/// Why a problem has no plan of actions.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PlanError {
+    /// The problem cannot be grounded in the domain.
+    #[error("{0}")]
+    Task(String),
+    /// The action planner found no plan (or ran out of budget), and why.
+    #[error("no plan: {0}")]
+    NoPlan(String),
+}
+
+/// A plan for `problem`, each action with its `:configure` goal: from the
+/// action planner (its default, satisficing search), or, when the problem
+/// has uncertain outcomes or an uncertain initial state, the conditional
+/// planner's most probable plan, the cheapest in expectation among those.
+pub fn plan_actions(domain: &Domain, problem: &Problem) -> Result<Plan, PlanError> {
+    let task =
+        ecology_actions::ground(domain, problem).map_err(|e| PlanError::Task(e.to_string()))?;
+    if task.is_uncertain() {
+        run_conditional_planner(&ConditionalRequest::new(&task)).map_err(PlanError::NoPlan)
+    } else {
+        run_action_planner(&ecology_actions::Request::new(&task))
+            .map(Plan::from)
+            .map_err(PlanError::NoPlan)
+    }
+}
+
+/// The action planner's plan for `request`, each action with its
+/// `:configure` goal; `Err` says why there is none.
+pub(crate) fn run_action_planner(
+    request: &ecology_actions::Request<'_>,
+) -> Result<Vec<PlannedAction>, String> {
+    let outcome = ecology_actions::plan(
+        request,
+        &ecology_actions::Options::default(),
+        &ecology_actions::NoClock,
+    );
+    match outcome.verdict {
+        ecology_actions::Verdict::Found(plan) => Ok(plan
+            .steps
+            .iter()
+            .map(|step| PlannedAction::new(step.to_string(), step.configure.clone()))
+            .collect()),
+        ecology_actions::Verdict::Unsolvable(why) => Err(why.to_string()),
+        ecology_actions::Verdict::BudgetExceeded => {
+            Err("the action planner's budget ran out".to_string())
+        }
+    }
+}
+
+/// The conditional planner's most probable plan for `request` (default
+/// options); `Err` when no plan reaches the goal at all, or the budget ran
+/// out before one did.
+pub(crate) fn run_conditional_planner(request: &ConditionalRequest<'_>) -> Result<Plan, String> {
+    let outcome = ecology_actions::plan_conditional(
+        request,
+        &ConditionalOptions::default(),
+        &ecology_actions::NoClock,
+    );
+    let plan = match outcome.verdict {
+        ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan) => plan,
+        ConditionalVerdict::BudgetExceeded(_) => {
+            return Err("the conditional planner's budget ran out".to_string());
+        }
+    };
+    if plan.success <= ecology_actions::conditional::EPSILON {
+        return Err(
+            "no conditional plan reaches the goal with any probability within the horizon"
+                .to_string(),
+        );
+    }
+    Ok(executive_plan(request.task, &plan.root))
+}
+
+/// The conditional planner's tree as the executive's plan: actions in order
+/// until one that branches on what it observes.
+pub fn executive_plan(task: &Task, tree: &PlanTree) -> Plan {
+    let mut steps = Vec::new();
+    let mut node = tree;
+    loop {
+        let PlanTree::Act { step, branches } = node else {
+            return Plan::from(steps);
+        };
+        let operator = task.operator(step.op);
+        steps.push(PlannedAction {
+            action: step.to_string(),
+            goal: step.configure.clone(),
+            observe: operator
+                .observe
+                .iter()
+                .map(|&a| task.atom_name(a))
+                .collect(),
+        });
+        if let [only] = &branches[..]
+            && only.observation.is_empty()
+        {
+            node = &only.next;
+            continue;
+        }
+        let branches = branches
+            .iter()
+            .map(|b| PlanBranch {
+                observation: b
+                    .observation
+                    .iter()
+                    .map(|&(atom, holds)| Observation {
+                        atom: task.atom_name(atom),
+                        holds,
+                    })
+                    .collect(),
+                probability: b.probability,
+                plan: executive_plan(task, &b.next),
+            })
+            .collect();
+        return Plan { steps, branches };
+    }
+}
