@@ -204,7 +204,7 @@ mod tests {
         let read = parse_observations(
             "(thing-at newspaper   kitchen)\n(not (thing-at newspaper entrance))",
         )
-        .unwrap();
+        .expect("literals");
         assert_eq!(
             read,
             vec![
@@ -222,7 +222,7 @@ mod tests {
             observations_text(&read),
             "(thing-at newspaper kitchen) (not (thing-at newspaper entrance))"
         );
-        assert_eq!(parse_observations("  ").unwrap(), vec![]);
+        assert_eq!(parse_observations("  ").expect("nothing"), vec![]);
     }
 
     #[test]
@@ -239,6 +239,6 @@ mod tests {
             assert!(parse_observations(bad).is_err(), "{bad} was read");
         }
         let many = "(a b) ".repeat(MAX_LITERALS + 1);
-        assert!(parse_observations(&many).unwrap_err().contains("more than"));
+        assert!(parse_observations(&many).expect_err("too many").contains("more than"));
     }
 }

@@ -585,7 +585,7 @@ fn parse_world(
         let at = match (&t.at, &t.places) {
             (Some(at), None) => (at[0], at[1]),
             (None, Some(places)) => {
-                let places = parse_places(check, places, thing.span(), &t.name, &inside)?;
+                let places = parse_places(check, places, thing.span(), &t.name, &map)?;
                 let first = places[0].at;
                 uncertain.insert(t.name.clone(), places);
                 first
@@ -632,14 +632,20 @@ fn parse_places(
     places: &[PlaceFile],
     span: Range<usize>,
     name: &str,
-    inside: &dyn Fn(f64, f64, Range<usize>, &str) -> Result<(), ScenarioError>,
+    map: &Map,
 ) -> Result<Vec<Place>, ScenarioError> {
     if places.is_empty() {
         return Err(check.at(span, format!("thing {name} has no places")));
     }
     let mut out = Vec::new();
     for place in places {
-        inside(place.at[0], place.at[1], span.clone(), name)?;
+        let [x, y] = place.at;
+        if map.room_at(x, y).is_none() {
+            return Err(check.at(
+                span,
+                format!("a place of {name} at ({x}, {y}) is in no room"),
+            ));
+        }
         if !(place.probability > 0.0 && place.probability <= 1.0) {
             return Err(check.at(
                 span,
