@@ -16,6 +16,8 @@ mod plan_file;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_conditional;
 
 pub use driver::{DriverConfig, Replan, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, TimerId};

@@ -22,6 +22,8 @@ mod world_peis;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_conditional;
 
 pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
 pub use ecology_core::Rng;

@@ -11,23 +11,23 @@ use crate::{
     Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, match_scan, run, scan,
 };
 
-fn scenario_path(name: &str) -> PathBuf {
+pub(crate) fn scenario_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../scenarios")
         .join(name)
 }
 
-fn load(name: &str) -> Scenario {
+pub(crate) fn load(name: &str) -> Scenario {
     Scenario::load(&scenario_path(name)).expect("the scenario loads")
 }
 
-async fn run_seeded(scenario: &Scenario, seed: u64) -> Report {
+pub(crate) async fn run_seeded(scenario: &Scenario, seed: u64) -> Report {
     run(scenario, &RunOptions::seeded(seed), Box::new(|_| {}))
         .await
         .expect("the run completes")
 }
 
-fn timeline(report: &Report) -> String {
+pub(crate) fn timeline(report: &Report) -> String {
     let mut text = String::new();
     for (t, what) in &report.injected {
         text.push_str(&format!("{:>8.3}s  [sim] {what}\n", t.as_secs_f64()));
@@ -476,6 +476,6 @@ fn a_replan_starts_from_the_world_as_observed() {
     );
 }
 
-fn bytes_of(text: &str) -> bytes::Bytes {
+pub(crate) fn bytes_of(text: &str) -> bytes::Bytes {
     bytes::Bytes::copy_from_slice(text.as_bytes())
 }
