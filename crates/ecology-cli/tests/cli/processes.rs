@@ -669,3 +669,41 @@ fn http_get_json(port: u16, path: &str) -> Value {
         .and_then(|(_, body)| serde_json::from_str(body).ok())
         .unwrap_or(Value::Null)
 }
+
+/// A conditional plan over Zenoh: `ecology task` plans the uncertain problem conditionally, Astrid's
+/// object localizer (in her own `ecology peis` process) writes what it sees as `ol3.observed`, and
+/// the executive follows the branch of it. Seed 1 puts the newspaper at the entrance (the in-process
+/// tests run both branches).
+#[test]
+fn over_zenoh_a_conditional_plan_branches_on_what_a_peis_observes() {
+    let _one = one_at_a_time();
+    let (code, lines) = Proc::start(
+        "launcher",
+        &[
+            "run",
+            "scenarios/newspaper.toml",
+            "--processes",
+            "--seed",
+            "1",
+            "--json",
+        ],
+    )
+    .finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    let observed = named(&all, "observed");
+    assert_eq!(observed.len(), 1, "{all:#?}");
+    assert_eq!(observed[0]["action"], "(look astrid newspaper entrance)");
+    assert_eq!(observed[0]["observation"], "(thing-at newspaper entrance)");
+    let branch = named(&all, "branch");
+    assert_eq!(branch.len(), 1, "{all:#?}");
+    assert_eq!(
+        strings(&branch[0]["actions"]),
+        [
+            "(get astrid newspaper entrance)",
+            "(move astrid entrance bedroom)",
+            "(wake astrid johanna bedroom)"
+        ]
+    );
+    assert_eq!(named(&all, "task_done").len(), 1, "{all:#?}");
+}
