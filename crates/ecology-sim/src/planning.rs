@@ -2,7 +2,9 @@
 //! for a problem (conditional when the problem is uncertain), and the
 //! planners' trees turned into the executive's [`Plan`].
 
-use ecology_actions::{ConditionalOptions, ConditionalRequest, ConditionalVerdict, PlanTree, Task};
+use ecology_actions::{
+    Budget, ConditionalOptions, ConditionalRequest, ConditionalVerdict, PlanTree, Task,
+};
 use ecology_domain::{Domain, Problem};
 use ecology_exec::{Observation, Plan, PlanBranch, PlannedAction};
 
@@ -56,19 +58,30 @@ pub(crate) fn run_action_planner(
     }
 }
 
+/// How many beliefs the conditional planner may expand for one plan: a
+/// search over beliefs can grow exponentially, and the executive waits for
+/// it when it plans again.
+const CONDITIONAL_EXPANSIONS: u64 = 200_000;
+
 /// The conditional planner's most probable plan for `request` (default
-/// options); `Err` when no plan reaches the goal at all, or the budget ran
-/// out before one did.
+/// options, at most [`CONDITIONAL_EXPANSIONS`] beliefs expanded); `Err` when
+/// no plan reaches the goal at all, or the budget ran out first (a partial
+/// plan would stop where the search did).
 pub(crate) fn run_conditional_planner(request: &ConditionalRequest<'_>) -> Result<Plan, String> {
-    let outcome = ecology_actions::plan_conditional(
-        request,
-        &ConditionalOptions::default(),
-        &ecology_actions::NoClock,
-    );
+    let options = ConditionalOptions {
+        budget: Budget {
+            max_expansions: Some(CONDITIONAL_EXPANSIONS),
+            max_time: None,
+        },
+        ..ConditionalOptions::default()
+    };
+    let outcome = ecology_actions::plan_conditional(request, &options, &ecology_actions::NoClock);
     let plan = match outcome.verdict {
         ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan) => plan,
         ConditionalVerdict::BudgetExceeded(_) => {
-            return Err("the conditional planner's budget ran out".to_string());
+            return Err(format!(
+                "the conditional planner's budget ran out ({CONDITIONAL_EXPANSIONS} beliefs expanded)"
+            ));
         }
     };
     if plan.success <= ecology_actions::conditional::EPSILON {
