@@ -239,6 +239,10 @@ mod tests {
             assert!(parse_observations(bad).is_err(), "{bad} was read");
         }
         let many = "(a b) ".repeat(MAX_LITERALS + 1);
-        assert!(parse_observations(&many).expect_err("too many").contains("more than"));
+        assert!(
+            parse_observations(&many)
+                .expect_err("too many")
+                .contains("more than")
+        );
     }
 }

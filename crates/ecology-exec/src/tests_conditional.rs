@@ -9,8 +9,7 @@ use ecology_domain::{EcologyState, parse_domain, parse_goal};
 use ecology_tuples::{Key, PeisId};
 
 use crate::{
-    Event, ExecConfig, Executive, LogEvent, Observation, Plan, PlanBranch, PlannedAction,
-    RunStatus,
+    Event, ExecConfig, Executive, LogEvent, Observation, Plan, PlanBranch, PlannedAction, RunStatus,
 };
 
 /// A robot with an eye that looks for things.

@@ -121,7 +121,11 @@ async fn astrid_sees_the_newspaper_at_the_entrance_and_takes_it_there() {
         )],
         "{text}"
     );
-    assert_eq!(branches(&report), ["(thing-at newspaper entrance)"], "{text}");
+    assert_eq!(
+        branches(&report),
+        ["(thing-at newspaper entrance)"],
+        "{text}"
+    );
     assert!(
         started(&report).contains(&"(get astrid newspaper entrance)".to_string()),
         "{text}"

@@ -499,6 +499,54 @@ mod tests {
     }
 
     #[test]
+    fn a_branch_of_a_conditional_plan_replaces_what_followed_the_sensing_action() {
+        let mut view = View::new();
+        for line in [
+            r#"{"event":"plan","actions":["(move r a b)","(look r x b)"],"t":0}"#,
+            r#"{"event":"action_started","index":0,"action":"(move r a b)","t":0}"#,
+            r#"{"event":"action_done","index":0,"action":"(move r a b)","t":1}"#,
+            r#"{"event":"action_started","index":1,"action":"(look r x b)","t":1}"#,
+            r#"{"event":"observed","index":1,"action":"(look r x b)","observation":"(not (at x b))","t":2}"#,
+            r#"{"event":"action_done","index":1,"action":"(look r x b)","t":2}"#,
+            r#"{"event":"branch","observation":"(not (at x b))","probability":0.3,"actions":["(move r b c)","(get r x c)"],"t":2}"#,
+        ] {
+            view.log(&entry(line));
+        }
+        let snapshot = view.snapshot();
+        let plan: Vec<&str> = snapshot["plan"]
+            .as_array()
+            .expect("plan")
+            .iter()
+            .filter_map(|a| a["action"].as_str())
+            .collect();
+        assert_eq!(
+            plan,
+            [
+                "(move r a b)",
+                "(look r x b)",
+                "(move r b c)",
+                "(get r x c)"
+            ]
+        );
+        let texts: Vec<&str> = snapshot["timeline"]
+            .as_array()
+            .expect("timeline")
+            .iter()
+            .filter_map(|e| e["text"].as_str())
+            .collect();
+        assert!(
+            texts.contains(&"(look r x b) observed (not (at x b))"),
+            "{texts:?}"
+        );
+        assert!(
+            texts.contains(
+                &"branch on (not (at x b)) (probability 0.3): (move r b c) → (get r x c)"
+            ),
+            "{texts:?}"
+        );
+    }
+
+    #[test]
     fn odd_log_entries_and_values_do_not_break_the_view() {
         let mut view = View::new();
         view.log(&entry(
