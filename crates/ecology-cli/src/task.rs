@@ -88,7 +88,7 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
             let text = String::from_utf8(input::read_limited(path)?)
                 .map_err(|_| anyhow::anyhow!("{} is not UTF-8", path.display()))?;
             match ecology_exec::parse_plan(&text) {
-                Ok(plan) => Plan::from(plan),
+                Ok(plan) => plan,
                 Err(e) => {
                     eprintln!("error: {}:{}: {}", path.display(), e.line, e.message);
                     return Ok(EXIT_BAD_INPUT);

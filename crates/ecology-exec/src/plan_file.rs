@@ -1,14 +1,21 @@
 //! Plan files: a plan of actions as text, in the form `ecology plan` prints
-//! it, so that a plan can be saved, edited by hand and executed.
+//! it (and `ecology plan --conditional` for a conditional plan), so that a
+//! plan can be saved, edited by hand and executed.
 //!
 //! One action a line, an S-expression, optionally followed by its
 //! configuration goal: `(move astrid living-room entrance)  ; configure
 //! (navigate astrid entrance)`. Any other text after `;` is a comment, and
 //! lines that are empty or start with `;` are skipped.
+//!
+//! A conditional plan branches after a sensing action: indented under it,
+//! each branch is a line `if OBSERVATION ; probability P` (the observation
+//! as literals, `(thing-at newspaper entrance)` or `(not (thing-at newspaper
+//! entrance))`) followed by the branch's plan, indented further, ending with
+//! `done`. The atoms the branches name are what the sensing action observes.
 
 use ecology_domain::parse_goal;
 
-use crate::plan::PlannedAction;
+use crate::plan::{Plan, PlanBranch, PlannedAction, parse_observations};
 
 /// A line of a plan file that is not an action.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -20,40 +27,276 @@ pub struct PlanFileError {
     pub message: String,
 }
 
-/// The actions of plan file `text`, in order.
-pub fn parse_plan(text: &str) -> Result<Vec<PlannedAction>, PlanFileError> {
-    let mut plan = Vec::new();
-    for (i, raw) in text.lines().enumerate() {
-        let line = i + 1;
-        let fail = |message: String| PlanFileError { line, message };
-        let (action, comment) = raw.split_once(';').unwrap_or((raw, ""));
-        let action = action.trim();
-        if action.is_empty() {
-            continue;
-        }
-        let call = parse_goal(action).map_err(|d| {
-            fail(format!(
-                "`{action}` is not an action: {}",
-                d.0.first().map_or("malformed", |d| d.message.as_str())
-            ))
-        })?;
-        let goal = match comment.trim().strip_prefix("configure") {
-            Some(goal) => Some(parse_goal(goal.trim()).map_err(|d| {
-                fail(format!(
-                    "`{}` is not a configuration goal: {}",
-                    goal.trim(),
-                    d.0.first().map_or("malformed", |d| d.message.as_str())
-                ))
-            })?),
-            None => None,
-        };
-        plan.push(PlannedAction::new(call.to_string(), goal));
-    }
-    if plan.is_empty() {
+/// How deeply branches may nest.
+const MAX_DEPTH: usize = 64;
+
+/// One line of a plan file that says something.
+struct Line<'a> {
+    /// 1-based.
+    number: usize,
+    /// Spaces before it.
+    indent: usize,
+    /// The text before any `;`, trimmed.
+    text: &'a str,
+    /// The text after the first `;`, trimmed.
+    comment: &'a str,
+}
+
+/// The plan of plan file `text`.
+pub fn parse_plan(text: &str) -> Result<Plan, PlanFileError> {
+    let lines: Vec<Line<'_>> = text
+        .lines()
+        .enumerate()
+        .filter_map(|(i, raw)| {
+            let (body, comment) = raw.split_once(';').unwrap_or((raw, ""));
+            let body = body.trim_end();
+            let content = body.trim_start();
+            (!content.is_empty()).then(|| Line {
+                number: i + 1,
+                indent: body.len() - content.len(),
+                text: content,
+                comment: comment.trim(),
+            })
+        })
+        .collect();
+    let Some(first) = lines.first() else {
         return Err(PlanFileError {
             line: text.lines().count().max(1),
             message: "the plan has no action".to_string(),
         });
+    };
+    let mut at = 0;
+    let plan = block(&lines, &mut at, first.indent, 0)?;
+    if let Some(extra) = lines.get(at) {
+        return Err(PlanFileError {
+            line: extra.number,
+            message: "this line is indented less than the plan it ends".to_string(),
+        });
     }
     Ok(plan)
+}
+
+/// The plan whose lines start at `lines[*at]`, indented `indent`: actions,
+/// then either `done`, the end, or the branches of the last action.
+fn block(
+    lines: &[Line<'_>],
+    at: &mut usize,
+    indent: usize,
+    depth: usize,
+) -> Result<Plan, PlanFileError> {
+    let mut plan = Plan::default();
+    while let Some(line) = lines.get(*at) {
+        let fail = |message: String| PlanFileError {
+            line: line.number,
+            message,
+        };
+        if line.indent < indent {
+            break;
+        }
+        if line.indent > indent && !line.text.starts_with("if ") {
+            return Err(fail(
+                "an action indented more than the one before it".into(),
+            ));
+        }
+        if line.text.starts_with("if ") {
+            plan.branches = branches(lines, at, line.indent, depth)?;
+            let Some(sensing) = plan.steps.last_mut() else {
+                return Err(fail("a branch before any action".into()));
+            };
+            let mut atoms: Vec<String> = plan
+                .branches
+                .iter()
+                .flat_map(|b| b.observation.iter().map(|o| o.atom.clone()))
+                .collect();
+            atoms.sort();
+            atoms.dedup();
+            sensing.observe = atoms;
+            return Ok(plan);
+        }
+        *at += 1;
+        if line.text == "done" {
+            return Ok(plan);
+        }
+        plan.steps.push(action(line)?);
+    }
+    Ok(plan)
+}
+
+/// The `if` lines at `indent` from `lines[*at]`, each with its plan.
+fn branches(
+    lines: &[Line<'_>],
+    at: &mut usize,
+    indent: usize,
+    depth: usize,
+) -> Result<Vec<PlanBranch>, PlanFileError> {
+    let mut branches = Vec::new();
+    while let Some(line) = lines.get(*at).filter(|l| l.indent == indent) {
+        let fail = |message: String| PlanFileError {
+            line: line.number,
+            message,
+        };
+        let Some(observed) = line.text.strip_prefix("if ") else {
+            return Err(fail(
+                "after the branches of an action, only more branches (`if …`)".into(),
+            ));
+        };
+        if depth == MAX_DEPTH {
+            return Err(fail(format!("branches nest more than {MAX_DEPTH} deep")));
+        }
+        let observation = parse_observations(observed)
+            .map_err(|why| fail(format!("`{observed}` is not an observation: {why}")))?;
+        if observation.is_empty() {
+            return Err(fail("a branch without an observation".into()));
+        }
+        let probability = match line.comment.strip_prefix("probability") {
+            Some(p) => p
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|p| (0.0..=1.0).contains(p))
+                .ok_or_else(|| fail(format!("`{}` is not a probability", p.trim())))?,
+            None => 0.0,
+        };
+        *at += 1;
+        let inner = lines
+            .get(*at)
+            .filter(|l| l.indent > indent)
+            .ok_or_else(|| fail("a branch needs its plan, indented under it".into()))?
+            .indent;
+        let plan = block(lines, at, inner, depth + 1)?;
+        branches.push(PlanBranch {
+            observation,
+            probability,
+            plan,
+        });
+    }
+    Ok(branches)
+}
+
+/// An action line.
+fn action(line: &Line<'_>) -> Result<PlannedAction, PlanFileError> {
+    let fail = |message: String| PlanFileError {
+        line: line.number,
+        message,
+    };
+    let call = parse_goal(line.text).map_err(|d| {
+        fail(format!(
+            "`{}` is not an action: {}",
+            line.text,
+            d.0.first().map_or("malformed", |d| d.message.as_str())
+        ))
+    })?;
+    let goal = match line.comment.strip_prefix("configure") {
+        Some(goal) => Some(parse_goal(goal.trim()).map_err(|d| {
+            fail(format!(
+                "`{}` is not a configuration goal: {}",
+                goal.trim(),
+                d.0.first().map_or("malformed", |d| d.message.as_str())
+            ))
+        })?),
+        None => None,
+    };
+    Ok(PlannedAction::new(call.to_string(), goal))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TREE: &str = "\
+(move r a b)  ; configure (navigate r b)
+(look r x b)  ; configure (look-for r x)
+  if (at x b) ; probability 0.7
+    (get r x b)  ; configure (grasp r x)
+    done
+  if (not (at x b)) ; probability 0.3
+    (move r b c)
+    (look r x c)
+      if (at x c) ; probability 1
+        (get r x c)
+        done ; goal holds with probability 1
+";
+
+    #[test]
+    fn a_conditional_plan_reads_as_a_tree() {
+        let plan = parse_plan(TREE).expect("a plan");
+        let actions =
+            |p: &Plan| -> Vec<String> { p.steps.iter().map(|s| s.action.clone()).collect() };
+        assert_eq!(actions(&plan), ["(move r a b)", "(look r x b)"]);
+        assert_eq!(plan.steps[1].observe, ["(at x b)"]);
+        assert_eq!(
+            plan.steps[1]
+                .goal
+                .as_ref()
+                .map(ToString::to_string)
+                .as_deref(),
+            Some("(look-for r x)")
+        );
+        let [seen, unseen] = &plan.branches[..] else {
+            panic!("two branches: {plan:?}");
+        };
+        assert_eq!((seen.observation[0].holds, seen.probability), (true, 0.7));
+        assert_eq!(actions(&seen.plan), ["(get r x b)"]);
+        assert_eq!(
+            (unseen.observation[0].holds, unseen.probability),
+            (false, 0.3)
+        );
+        assert_eq!(actions(&unseen.plan), ["(move r b c)", "(look r x c)"]);
+        assert_eq!(unseen.plan.branches.len(), 1);
+        assert_eq!(actions(&unseen.plan.branches[0].plan), ["(get r x c)"]);
+        assert_eq!((plan.depth(), plan.actions()), (5, 6));
+    }
+
+    #[test]
+    fn a_sequence_is_a_plan_without_branches() {
+        let plan = parse_plan("; a comment\n(a x)\n\n(b y) ; configure (g y)\n").expect("a plan");
+        assert!(!plan.is_conditional());
+        assert_eq!(plan.steps.len(), 2);
+        assert_eq!(
+            plan.steps[1]
+                .goal
+                .as_ref()
+                .map(ToString::to_string)
+                .as_deref(),
+            Some("(g y)")
+        );
+    }
+
+    #[test]
+    fn malformed_plans_name_their_line() {
+        for (text, line, says) in [
+            ("", 1, "no action"),
+            ("(a)\n  (b)\n", 2, "indented more"),
+            ("if (p) ; probability 1\n  (a)\n", 1, "before any action"),
+            (
+                "(a)\n  if (p ; probability 1\n    (b)\n",
+                2,
+                "not an observation",
+            ),
+            (
+                "(a)\n  if (p) ; probability 2\n    (b)\n",
+                2,
+                "not a probability",
+            ),
+            ("(a)\n  if (p) ; probability 1\n", 2, "needs its plan"),
+            ("(a)\n  if (p)\n    (b)\n  (c)\n", 4, "only more branches"),
+            ("  (a)\n(b)\n", 2, "indented less"),
+            ("(a) ; configure nonsense\n", 1, "not a configuration goal"),
+        ] {
+            let e = parse_plan(text).expect_err(text);
+            assert_eq!(e.line, line, "{text:?}: {e}");
+            assert!(e.message.contains(says), "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn deep_nesting_is_an_error_not_a_stack_overflow() {
+        let mut text = String::new();
+        for depth in 0..1000 {
+            let pad = " ".repeat(depth * 4);
+            text.push_str(&format!("{pad}(a)\n{pad}  if (p) ; probability 1\n"));
+        }
+        let e = parse_plan(&text).expect_err("too deep");
+        assert!(e.message.contains("nest more than"), "{e}");
+    }
 }

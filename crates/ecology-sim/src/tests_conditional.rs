@@ -284,3 +284,46 @@ fn a_replan_starts_from_the_belief_that_the_observations_leave() {
     let why = replan(&[not_at("entrance"), not_at("kitchen")]).expect_err("no belief");
     assert!(why.contains("rules out every initial world"), "{why}");
 }
+
+/// Whether two plans have the same actions, goals, observations and
+/// (to the printed precision) probabilities.
+fn same(a: &Plan, b: &Plan) -> bool {
+    // Goals compare as text: where they were parsed from differs.
+    let steps = |p: &Plan| -> Vec<(String, Option<String>, Vec<String>)> {
+        p.steps
+            .iter()
+            .map(|s| {
+                let goal = s.goal.as_ref().map(ToString::to_string);
+                (s.action.clone(), goal, s.observe.clone())
+            })
+            .collect()
+    };
+    steps(a) == steps(b)
+        && a.branches.len() == b.branches.len()
+        && a.branches.iter().zip(&b.branches).all(|(x, y)| {
+            x.observation == y.observation
+                && (x.probability - y.probability).abs() < 1e-6
+                && same(&x.plan, &y.plan)
+        })
+}
+
+#[test]
+fn a_printed_conditional_plan_reads_back_as_the_same_plan() {
+    let scenario = load("newspaper.toml");
+    let (problem, _) = scenario.problem.clone().expect("a problem");
+    let task = ecology_actions::ground(&scenario.domain, &problem).expect("grounds");
+    let outcome = ecology_actions::plan_conditional(
+        &ecology_actions::ConditionalRequest::new(&task),
+        &ecology_actions::ConditionalOptions::default(),
+        &ecology_actions::NoClock,
+    );
+    let ecology_actions::ConditionalVerdict::Found(plan) = outcome.verdict else {
+        panic!("no plan: {:?}", outcome.verdict);
+    };
+    // What `ecology plan --conditional` prints, as `ecology task --plan` reads it.
+    let printed = plan.display(&task).to_string();
+    let read = ecology_exec::parse_plan(&printed).expect("reads");
+    let planned = crate::executive_plan(&task, &plan.root);
+    assert!(same(&read, &planned), "{printed}\n{read:#?}\n{planned:#?}");
+    assert!(same(&read, &scenario.plan), "{printed}");
+}
