@@ -61,14 +61,7 @@ fn body(fail: Arc<tokio::sync::Notify>) -> Arc<dyn Component<InProcessPeis>> {
     Arc::new(move |ctx: Context<InProcessPeis>| {
         let fail = fail.clone();
         async move {
-            let name = ctx
-                .params()
-                .trim_start_matches('(')
-                .split_whitespace()
-                .next()
-                .unwrap_or("")
-                .to_string();
-            let (ins, outs) = io(&name);
+            let (ins, outs) = io(ctx.functionality());
             let mut inputs = ctx.inputs(ins).await?;
             let mut running = false;
             loop {

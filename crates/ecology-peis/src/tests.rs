@@ -286,3 +286,24 @@ async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
         .await;
     f.stop().await;
 }
+
+#[tokio::test(start_paused = true)]
+async fn params_name_a_functionality_and_its_arguments() {
+    let f = start(Vec::new()).await;
+    let clock: Arc<dyn Clock> = Arc::new(f.clock.clone());
+    let context = |params: &str| {
+        Context::new(
+            f.other.clone(),
+            "s1".to_string(),
+            params.to_string(),
+            clock.clone(),
+        )
+    };
+    let full = context("(scan-matching robot s1)");
+    assert_eq!(full.functionality(), "scan-matching");
+    assert_eq!(full.args(), ["robot", "s1"]);
+    let bare = context("(laser)");
+    assert_eq!(bare.functionality(), "laser");
+    assert!(bare.args().is_empty());
+    f.stop().await;
+}
