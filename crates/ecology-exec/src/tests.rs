@@ -490,14 +490,7 @@ mod on_the_tuple_space {
             let broken = broken.clone();
             async move {
                 let me = (ctx.peis().to_string(), ctx.component().to_string());
-                let name = ctx
-                    .params()
-                    .trim_start_matches('(')
-                    .split_whitespace()
-                    .next()
-                    .unwrap_or("")
-                    .to_string();
-                let (ins, outs, finish) = behaviour(&name);
+                let (ins, outs, finish) = behaviour(ctx.functionality());
                 let mut inputs = ctx.inputs(ins).await?;
                 let mut shown = String::new();
                 let mut worked = Duration::ZERO;
@@ -688,6 +681,25 @@ mod on_the_tuple_space {
         }
     }
 
+    impl Run {
+        /// Runs; the executive, whose task must be done.
+        async fn done(self) -> Executive {
+            let exec = self.go().await.exec;
+            assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+            exec
+        }
+
+        /// Runs; the executive, whose task must have failed, with the
+        /// failed action's index and the reason.
+        async fn failed(self) -> (Executive, usize, String) {
+            let exec = self.go().await.exec;
+            let RunStatus::Failed { index, reason } = exec.status().clone() else {
+                panic!("the task should fail: {}", timeline(&exec));
+            };
+            (exec, index, reason)
+        }
+    }
+
     /// Moves virtual time on, a `STEP` at a time, whenever every task waits.
     /// The tests run on tokio's paused clock (`start_paused`), which moves on
     /// (ending this sleep) only when no task can run: so each step comes once
@@ -767,8 +779,7 @@ mod on_the_tuple_space {
     // The paper, Section VIII, steps 1-5 and 7 without the failure.
     #[tokio::test(start_paused = true)]
     async fn a_whole_plan_runs_to_completion() {
-        let exec = Run::of(executive(plan())).go().await.exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        let exec = Run::of(executive(plan())).done().await;
         assert_eq!(
             costs(&exec),
             [(80, false), (100, false), (80, false), (20, false)]
@@ -812,10 +823,8 @@ mod on_the_tuple_space {
             fault: Some((2, fault)),
             ..Run::of(executive(plan()))
         }
-        .go()
-        .await
-        .exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        .done()
+        .await;
         assert_eq!(
             costs(&exec),
             [
@@ -876,10 +885,8 @@ mod on_the_tuple_space {
             )),
             ..Run::of(executive(plan()))
         }
-        .go()
-        .await
-        .exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        .done()
+        .await;
         // Moving to the bedroom does not try the broken tracking system again.
         assert_eq!(
             costs(&exec),
@@ -911,17 +918,13 @@ mod on_the_tuple_space {
             .filter(|l| !l.contains("pippi") && !l.contains(" l1"))
             .collect::<Vec<_>>()
             .join("\n");
-        let exec = Run {
+        let (exec, index, reason) = Run {
             facts,
             fault: Some((0, Fault::Break("hsm", "tr1", "camera failure"))),
             ..Run::of(executive(plan()))
         }
-        .go()
-        .await
-        .exec;
-        let RunStatus::Failed { index, reason } = exec.status().clone() else {
-            panic!("the action should fail: {}", timeline(&exec));
-        };
+        .failed()
+        .await;
         assert_eq!(index, 0);
         assert!(reason.contains("input (position astrid)"), "{reason}");
         assert!(reason.contains("component hsm:tr1 is excluded"), "{reason}");
@@ -943,10 +946,8 @@ mod on_the_tuple_space {
             hung: &[("astrid", "tc1")],
             ..Run::of(executive(plan()[..1].to_vec()))
         }
-        .go()
-        .await
-        .exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        .done()
+        .await;
         assert_eq!(
             costs(&exec),
             [(80, false), (90, true)],
@@ -967,8 +968,7 @@ mod on_the_tuple_space {
             action: "(localize astrid)".to_string(),
             goal: Some(parse_goal("(get-position astrid)").expect("goal")),
         };
-        let exec = Run::of(executive(vec![localize])).go().await.exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        let exec = Run::of(executive(vec![localize])).done().await;
         // Long before the action's 600 s timeout: as soon as it runs.
         let done_at = exec
             .log()
@@ -993,10 +993,7 @@ mod on_the_tuple_space {
             ..ExecConfig::default()
         };
         let exec = Executive::new(domain, EcologyState::new(), plan(), config);
-        let exec = Run::of(exec).go().await.exec;
-        let RunStatus::Failed { reason, .. } = exec.status().clone() else {
-            panic!("the action should fail: {}", timeline(&exec));
-        };
+        let (_, _, reason) = Run::of(exec).failed().await;
         assert!(
             reason.starts_with("the configuration planner's budget ran out"),
             "{reason}"
@@ -1016,9 +1013,9 @@ mod on_the_tuple_space {
     // executive started: an hour into a task, a 2 s budget is not spent already.
     #[tokio::test(start_paused = true)]
     async fn the_planning_budget_counts_from_each_planning() {
-        let exec = executive(plan()).with_stopwatch(Box::new(AnHourIn));
-        let exec = Run::of(exec).go().await.exec;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+        Run::of(executive(plan()).with_stopwatch(Box::new(AnHourIn)))
+            .done()
+            .await;
     }
 
     // Remote sets to one PEIS do not wait for those to another: a PEIS that
