@@ -37,27 +37,7 @@ pub fn cheapest(
     // Every typed argument tuple of every action, named.
     let mut instances: Vec<(usize, Vec<Name>, String)> = Vec::new();
     for (i, action) in domain.actions.iter().enumerate() {
-        let mut tuples: Vec<Vec<Name>> = vec![Vec::new()];
-        for param in &action.params {
-            let ty = param.ty.as_deref().unwrap_or("object");
-            let fits: Vec<&Name> = semantics
-                .objects
-                .iter()
-                .map(|(n, _)| n)
-                .filter(|n| semantics.has_type(n, ty))
-                .collect();
-            tuples = tuples
-                .into_iter()
-                .flat_map(|t| {
-                    fits.iter().map(move |o| {
-                        let mut t = t.clone();
-                        t.push((*o).clone());
-                        t
-                    })
-                })
-                .collect();
-        }
-        for args in tuples {
+        for args in semantics.arguments(action) {
             let text = format!("({} {})", action.name, args.join(" "));
             let text = text.replace(" )", ")");
             if !excluded.contains(&text) {

@@ -15,7 +15,7 @@ use ecology_domain::{Action, Domain, Effect, Name, Problem, Term};
 
 use crate::conditional::{EPSILON, PlanTree};
 use crate::task::Task;
-use crate::validate::{Semantics, World};
+use crate::validate::{Semantics, World, binding};
 
 /// A conditional plan written with names, as the oracle reads it.
 #[derive(Debug, Clone, PartialEq)]
@@ -114,12 +114,7 @@ impl Oracle<'_> {
         world: &World,
     ) -> Option<(u64, Vec<(World, f64, Vec<(String, bool)>)>)> {
         let (_, cost) = self.semantics.apply(action, args, world).ok()?;
-        let bind: HashMap<&str, &Name> = action
-            .params
-            .iter()
-            .map(|p| &*p.name)
-            .zip(args.iter())
-            .collect();
+        let bind = binding(action, args);
         // Every combination of the `probabilistic` forms' outcomes.
         let mut combos: Vec<(f64, Vec<&Effect>)> = vec![(1.0, action.effects.iter().collect())];
         for form in &action.chances {
@@ -317,28 +312,8 @@ fn exhaustive(
     };
     let mut instances: Vec<(&Action, Vec<Name>)> = Vec::new();
     for action in &domain.actions {
-        let mut tuples: Vec<Vec<Name>> = vec![Vec::new()];
-        for param in &action.params {
-            let ty = param.ty.as_deref().unwrap_or("object");
-            let fits: Vec<Name> = oracle
-                .semantics
-                .objects
-                .iter()
-                .map(|(n, _)| n.clone())
-                .filter(|n| oracle.semantics.has_type(n, ty))
-                .collect();
-            tuples = tuples
-                .into_iter()
-                .flat_map(|t| {
-                    fits.iter().map(move |o| {
-                        let mut t = t.clone();
-                        t.push(o.clone());
-                        t
-                    })
-                })
-                .collect();
-        }
-        instances.extend(tuples.into_iter().map(|args| (action, args)));
+        let arguments = oracle.semantics.arguments(action);
+        instances.extend(arguments.into_iter().map(|args| (action, args)));
     }
     let mut nodes = 0usize;
     let start = oracle.initial(problem);

@@ -252,24 +252,14 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         };
         let mut pre = Vec::new();
         for _ in 0..1 + rng.index(2) {
-            let a = atom(&mut rng);
-            pre.push(if rng.chance(0.25) {
-                format!("(not {a})")
-            } else {
-                a
-            });
+            pre.push(sometimes_negated(atom(&mut rng), &mut rng, 0.25));
         }
         if rng.chance(0.3) {
             pre.push("(not (= ?y ?z))".to_string());
         }
         let mut eff = Vec::new();
         for _ in 0..2 + rng.index(2) {
-            let a = atom(&mut rng);
-            eff.push(if rng.chance(0.25) {
-                format!("(not {a})")
-            } else {
-                a
-            });
+            eff.push(sometimes_negated(atom(&mut rng), &mut rng, 0.25));
         }
         if action_costs {
             if rng.chance(0.5) {
@@ -311,30 +301,57 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     for j in 0..t1 {
         ground.push(format!("(p2 u{j})"));
     }
-    let mut initial = vec![false; ground.len()];
-    for (g, holds) in ground.iter().zip(&mut initial) {
-        if rng.chance(0.5) {
-            *holds = true;
-            let _ = write!(p, " {g}");
-        }
-    }
+    let initial = write_initial(&mut p, &mut rng, &ground, 0.5);
     if action_costs {
         for j in 0..t1 {
             let _ = write!(p, " (= (weight u{j}) {})", rng.index(5));
         }
     }
+    write_goal(&mut p, &mut rng, &ground, &initial);
+    instance(format!("random-{seed}"), d, p, None)
+}
+
+/// `atom`, negated with probability `chance`.
+fn sometimes_negated(atom: String, rng: &mut Rng, chance: f64) -> String {
+    if rng.chance(chance) {
+        format!("(not {atom})")
+    } else {
+        atom
+    }
+}
+
+/// Writes to the problem `p` each of the `ground` atoms that holds
+/// initially (each with probability `chance`); which ones hold.
+fn write_initial(
+    p: &mut String,
+    rng: &mut Rng,
+    ground: &[impl AsRef<str>],
+    chance: f64,
+) -> Vec<bool> {
+    let mut initial = vec![false; ground.len()];
+    for (g, holds) in ground.iter().zip(&mut initial) {
+        if rng.chance(chance) {
+            *holds = true;
+            let _ = write!(p, " {}", g.as_ref());
+        }
+    }
+    initial
+}
+
+/// Ends the problem `p` with its goal: one or two of the `ground` atoms,
+/// each as it does not hold `initial`ly, so that most problems need a plan.
+fn write_goal(p: &mut String, rng: &mut Rng, ground: &[impl AsRef<str>], initial: &[bool]) {
     p.push_str(")\n  (:goal (and");
-    // Goals that do not hold yet, so that most problems need a plan.
     for _ in 0..1 + rng.index(2) {
         let k = rng.index(ground.len());
+        let atom = ground[k].as_ref();
         if initial[k] {
-            let _ = write!(p, " (not {})", ground[k]);
+            let _ = write!(p, " (not {atom})");
         } else {
-            let _ = write!(p, " {}", ground[k]);
+            let _ = write!(p, " {atom}");
         }
     }
     p.push_str(")))\n");
-    instance(format!("random-{seed}"), d, p, None)
 }
 
 /// A random small problem with uncertainty, for property tests of the
@@ -360,14 +377,7 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
             _ => "(flag)".to_string(),
         }
     };
-    let literal = |rng: &mut Rng| -> String {
-        let a = atom(rng);
-        if rng.chance(0.2) {
-            format!("(not {a})")
-        } else {
-            a
-        }
-    };
+    let literal = |rng: &mut Rng| -> String { sometimes_negated(atom(rng), rng, 0.2) };
     const PROBABILITIES: [(&str, &str); 4] = [
         ("0.5", "0.5"),
         ("0.7", "0.3"),
@@ -409,26 +419,11 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
     let mut p = String::new();
     let _ = writeln!(p, "(define (problem runc-{seed}) (:domain runc-{seed})");
     p.push_str("  (:objects o0 - t0 u0 u1 - t1)\n  (:init");
-    let mut initial = [false; 6];
-    for (g, holds) in ground.iter().zip(&mut initial) {
-        if rng.chance(0.4) {
-            *holds = true;
-            let _ = write!(p, " {g}");
-        }
-    }
+    let initial = write_initial(&mut p, &mut rng, &ground, 0.4);
     let (a, b) = (rng.index(ground.len()), rng.index(ground.len()));
     let (pa, pb) = PROBABILITIES[rng.index(PROBABILITIES.len())];
     let _ = write!(p, " (probabilistic {pa} {} {pb} {})", ground[a], ground[b]);
-    p.push_str(")\n  (:goal (and");
-    for _ in 0..1 + rng.index(2) {
-        let k = rng.index(ground.len());
-        if initial[k] {
-            let _ = write!(p, " (not {})", ground[k]);
-        } else {
-            let _ = write!(p, " {}", ground[k]);
-        }
-    }
-    p.push_str(")))\n");
+    write_goal(&mut p, &mut rng, &ground, &initial);
     instance(format!("random-uncertain-{seed}"), d, p, None)
 }
 

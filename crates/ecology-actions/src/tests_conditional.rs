@@ -5,15 +5,41 @@
 use crate::conditional::{EPSILON, PlanTree};
 use crate::oracle_conditional::{self, Exhaustive};
 use crate::{
-    ConditionalOptions, ConditionalRequest, ConditionalVerdict, NoClock, Options, Request, Verdict,
-    ground, plan, plan_conditional, problems,
+    ConditionalOptions, ConditionalPlan, ConditionalRequest, ConditionalVerdict, NoClock, Options,
+    Request, Task, Verdict, ground, plan, plan_conditional, problems,
 };
+use ecology_domain::{Domain, Problem};
 
 const DOMAIN: &str = include_str!("../../../domains/peis-home-uncertain.eco");
 const PROBLEM: &str = include_str!("../../../domains/newspaper-uncertain.problem");
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-6 * (1.0 + a.abs().max(b.abs()))
+}
+
+/// The plan the conditional planner finds for `task` under `options`, and
+/// whether its search finished; any other verdict fails the test.
+#[track_caller]
+fn found_plan(task: &Task, options: &ConditionalOptions) -> (ConditionalPlan, bool) {
+    let outcome = plan_conditional(&ConditionalRequest::new(task), options, &NoClock);
+    let ConditionalVerdict::Found(plan) = outcome.verdict else {
+        panic!("{:?}", outcome.verdict);
+    };
+    (plan, outcome.complete)
+}
+
+/// Asserts that the oracle, following `plan` through every world, finds the
+/// probability of success and the expected cost the planner gives it.
+#[track_caller]
+fn the_oracle_agrees(domain: &Domain, problem: &Problem, task: &Task, plan: &ConditionalPlan) {
+    let named = oracle_conditional::named(task, &plan.root);
+    let (p, c) = oracle_conditional::evaluate(domain, problem, &named).expect("runs");
+    assert!(
+        close(p, plan.success) && close(c, plan.expected_cost),
+        "the oracle finds ({p}, {c}), the planner ({}, {})",
+        plan.success,
+        plan.expected_cost
+    );
 }
 
 #[test]
@@ -23,15 +49,8 @@ fn the_newspaper_task_looks_and_branches() {
     let task = ground(&domain, &problem).expect("ground");
     assert!(task.is_uncertain());
     assert_eq!(task.initial_belief().len(), 2);
-    let outcome = plan_conditional(
-        &ConditionalRequest::new(&task),
-        &ConditionalOptions::default(),
-        &NoClock,
-    );
-    let ConditionalVerdict::Found(found) = &outcome.verdict else {
-        panic!("{outcome:?}");
-    };
-    assert!(outcome.complete);
+    let (found, complete) = found_plan(&task, &ConditionalOptions::default());
+    assert!(complete);
     assert!(close(found.success, 1.0));
     // 0.7 * 5 actions (entrance branch) + 0.3 * 8 (kitchen branch).
     assert!(close(found.expected_cost, 5.9), "{}", found.expected_cost);
@@ -48,9 +67,7 @@ fn the_newspaper_task_looks_and_branches() {
         "{text}"
     );
     assert!(text.contains("  if (not (thing-at newspaper entrance)) ; probability 0.3\n"));
-    let named = oracle_conditional::named(&task, &found.root);
-    let (p, c) = oracle_conditional::evaluate(&domain, &problem, &named).expect("runs");
-    assert!(close(p, 1.0) && close(c, 5.9));
+    the_oracle_agrees(&domain, &problem, &task, &found);
     // Asking for less buys a cheaper plan: look at the entrance, and if the
     // newspaper is there take it and wake Johanna, else give up (0.7 at
     // 2 + 0.7 * 3 = 4.1, on the hull between stopping, 0 at 0, and the
@@ -59,16 +76,11 @@ fn the_newspaper_task_looks_and_branches() {
         min_probability: Some(0.6),
         ..ConditionalOptions::default()
     };
-    let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
-    let ConditionalVerdict::Found(cheaper) = &outcome.verdict else {
-        panic!("{outcome:?}");
-    };
+    let (cheaper, _) = found_plan(&task, &options);
     assert!(cheaper.success >= 0.6 - EPSILON);
     assert!(close(cheaper.success, 0.7), "{cheaper:?}");
     assert!(close(cheaper.expected_cost, 4.1), "{cheaper:?}");
-    let named = oracle_conditional::named(&task, &cheaper.root);
-    let (p, c) = oracle_conditional::evaluate(&domain, &problem, &named).expect("runs");
-    assert!(close(p, cheaper.success) && close(c, cheaper.expected_cost));
+    the_oracle_agrees(&domain, &problem, &task, &cheaper);
 }
 
 #[test]
@@ -81,14 +93,7 @@ fn the_deterministic_planner_refuses_nothing_but_the_task_says_it_is_uncertain()
     let task = ground(&det, &problem).expect("ground");
     assert!(!task.is_uncertain());
     // A deterministic task planned conditionally: the optimal sequence.
-    let outcome = plan_conditional(
-        &ConditionalRequest::new(&task),
-        &ConditionalOptions::default(),
-        &NoClock,
-    );
-    let ConditionalVerdict::Found(found) = &outcome.verdict else {
-        panic!("{outcome:?}");
-    };
+    let (found, _) = found_plan(&task, &ConditionalOptions::default());
     assert!(close(found.success, 1.0));
     assert!(close(found.expected_cost, 4.0));
     assert!(!domain.actions.is_empty());
@@ -295,9 +300,7 @@ fn a_budget_stops_the_search_with_a_plan_that_runs() {
     };
     assert!(!outcome.complete);
     assert_eq!(outcome.stats.expanded, 20);
-    let named = oracle_conditional::named(&task, &best.root);
-    let (p, c) = oracle_conditional::evaluate(&inst.domain, &inst.problem, &named).expect("runs");
-    assert!(close(p, best.success) && close(c, best.expected_cost));
+    the_oracle_agrees(&inst.domain, &inst.problem, &task, best);
 }
 
 #[test]
@@ -328,14 +331,9 @@ fn tireworld_matches_the_ippc_instance_and_is_solved_surely() {
         horizon: 12,
         ..ConditionalOptions::default()
     };
-    let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
-    let ConditionalVerdict::Found(found) = &outcome.verdict else {
-        panic!("{outcome:?}");
-    };
+    let (found, _) = found_plan(&task, &options);
     assert!(close(found.success, 1.0), "{}", found.success);
-    let named = oracle_conditional::named(&task, &found.root);
-    let (p, c) = oracle_conditional::evaluate(&inst.domain, &inst.problem, &named).expect("runs");
-    assert!(close(p, found.success) && close(c, found.expected_cost));
+    the_oracle_agrees(&inst.domain, &inst.problem, &task, &found);
     // The straight road reaches the goal with probability 1/2 at best
     // (one flat tire and the car is stuck), for 2 actions.
     assert!(matches!(found.root, PlanTree::Act { .. }));

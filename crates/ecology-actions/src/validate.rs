@@ -98,6 +98,11 @@ fn write_fact(name: &str, args: &[Name]) -> String {
     out
 }
 
+/// Each parameter of `action` by name, bound to its argument in `args`.
+pub(crate) fn binding<'b>(action: &'b Action, args: &'b [Name]) -> HashMap<&'b str, &'b Name> {
+    action.params.iter().map(|p| &*p.name).zip(args).collect()
+}
+
 impl<'a> Semantics<'a> {
     pub(crate) fn new(domain: &'a Domain, problem: &'a Problem) -> Semantics<'a> {
         let objects = domain
@@ -154,6 +159,33 @@ impl<'a> Semantics<'a> {
                 )
             })
             .collect()
+    }
+
+    /// Every argument tuple of `action`: each parameter bound to every
+    /// object of its type (`object` when untyped), the first parameter
+    /// varying slowest.
+    pub(crate) fn arguments(&self, action: &Action) -> Vec<Vec<Name>> {
+        let mut tuples: Vec<Vec<Name>> = vec![Vec::new()];
+        for param in &action.params {
+            let ty = param.ty.as_deref().unwrap_or("object");
+            let fits: Vec<&Name> = self
+                .objects
+                .iter()
+                .map(|(n, _)| n)
+                .filter(|n| self.has_type(n, ty))
+                .collect();
+            tuples = tuples
+                .into_iter()
+                .flat_map(|t| {
+                    fits.iter().map(move |o| {
+                        let mut t = t.clone();
+                        t.push((*o).clone());
+                        t
+                    })
+                })
+                .collect();
+        }
+        tuples
     }
 
     /// Whether object `name` has type `ty` (or a subtype of it).
@@ -219,12 +251,7 @@ impl<'a> Semantics<'a> {
         args: &[Name],
         world: &World,
     ) -> Result<(World, u64), StepFailure> {
-        let bind: HashMap<&str, &Name> = action
-            .params
-            .iter()
-            .map(|p| &*p.name)
-            .zip(args.iter())
-            .collect();
+        let bind = binding(action, args);
         for literal in &action.precondition {
             Self::literal_holds(literal, &bind, world).map_err(StepFailure::Precondition)?;
         }

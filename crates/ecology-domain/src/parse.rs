@@ -156,6 +156,19 @@ impl Parser {
             .map(|(_, _, v)| *v)
     }
 
+    /// Field `key` read by `read`, or the empty value when it is absent.
+    fn optional<'a, T: Default>(
+        &mut self,
+        fields: &Fields<'a>,
+        key: &str,
+        read: impl FnOnce(&mut Self, &'a Sexp) -> T,
+    ) -> T {
+        match Self::field(fields, key) {
+            Some(sexp) => read(self, sexp),
+            None => T::default(),
+        }
+    }
+
     fn require<'a>(
         &mut self,
         fields: &Fields<'a>,
@@ -533,9 +546,7 @@ impl Parser {
             ],
             &what,
         );
-        let params = Self::field(&fields, ":parameters")
-            .map(|p| self.params(p, true))
-            .unwrap_or_default();
+        let params = self.optional(&fields, ":parameters", |p, sexp| p.params(sexp, true));
         let component = match self.require(&fields, ":component", &what, name_sexp.span) {
             Some(sexp) => match sexp.list() {
                 Some([p, c]) => match (self.term(p), self.term(c)) {
@@ -559,18 +570,10 @@ impl Parser {
             },
             None => None,
         };
-        let precondition = Self::field(&fields, ":precondition")
-            .map(|c| self.condition(c))
-            .unwrap_or_default();
-        let inputs = Self::field(&fields, ":input")
-            .map(|i| self.infos(i))
-            .unwrap_or_default();
-        let outputs = Self::field(&fields, ":output")
-            .map(|o| self.infos(o))
-            .unwrap_or_default();
-        let postcondition = Self::field(&fields, ":postcondition")
-            .map(|c| self.condition(c))
-            .unwrap_or_default();
+        let precondition = self.optional(&fields, ":precondition", Self::condition);
+        let inputs = self.optional(&fields, ":input", Self::infos);
+        let outputs = self.optional(&fields, ":output", Self::infos);
+        let postcondition = self.optional(&fields, ":postcondition", Self::condition);
         let cost = match Self::field(&fields, ":cost") {
             // A malformed cost is reported; keep the functionality so that its
             // name still resolves and later checks do not cascade.
@@ -598,15 +601,9 @@ impl Parser {
         let name = self.symbol(name_sexp, "a task name")?;
         let what = format!("task `{name}`");
         let fields = self.fields(&items[2..], &[":parameters", ":input", ":output"], &what);
-        let params = Self::field(&fields, ":parameters")
-            .map(|p| self.params(p, true))
-            .unwrap_or_default();
-        let inputs = Self::field(&fields, ":input")
-            .map(|i| self.infos(i))
-            .unwrap_or_default();
-        let outputs = Self::field(&fields, ":output")
-            .map(|o| self.infos(o))
-            .unwrap_or_default();
+        let params = self.optional(&fields, ":parameters", |p, sexp| p.params(sexp, true));
+        let inputs = self.optional(&fields, ":input", Self::infos);
+        let outputs = self.optional(&fields, ":output", Self::infos);
         Some(Task {
             name,
             params,
@@ -635,15 +632,11 @@ impl Parser {
             ],
             &what,
         );
-        let params = Self::field(&fields, ":parameters")
-            .map(|p| self.params(p, true))
-            .unwrap_or_default();
+        let params = self.optional(&fields, ":parameters", |p, sexp| p.params(sexp, true));
         let task = self
             .require(&fields, ":task", &what, name_sexp.span)
             .and_then(|t| self.call(t, "the task this method decomposes"));
-        let precondition = Self::field(&fields, ":precondition")
-            .map(|c| self.condition(c))
-            .unwrap_or_default();
+        let precondition = self.optional(&fields, ":precondition", Self::condition);
         let mut subtasks = Vec::new();
         if let Some(sexp) = Self::field(&fields, ":subtasks") {
             for item in self.list_of(sexp, "subtasks like `((f1 (cameras ?p ?c)))`") {
@@ -684,12 +677,8 @@ impl Parser {
                 }
             }
         }
-        let inputs = Self::field(&fields, ":inputs")
-            .map(|sexp| self.redirects(sexp))
-            .unwrap_or_default();
-        let outputs = Self::field(&fields, ":outputs")
-            .map(|sexp| self.redirects(sexp))
-            .unwrap_or_default();
+        let inputs = self.optional(&fields, ":inputs", Self::redirects);
+        let outputs = self.optional(&fields, ":outputs", Self::redirects);
         Some(Method {
             name,
             params,
@@ -741,12 +730,8 @@ impl Parser {
             ],
             &what,
         );
-        let params = Self::field(&fields, ":parameters")
-            .map(|p| self.params(p, true))
-            .unwrap_or_default();
-        let precondition = Self::field(&fields, ":precondition")
-            .map(|c| self.condition(c))
-            .unwrap_or_default();
+        let params = self.optional(&fields, ":parameters", |p, sexp| p.params(sexp, true));
+        let precondition = self.optional(&fields, ":precondition", Self::condition);
         let mut effects = Vec::new();
         let mut chances = Vec::new();
         if let Some(sexp) = Self::field(&fields, ":effect") {
@@ -754,9 +739,7 @@ impl Parser {
         }
         let configure = Self::field(&fields, ":configure")
             .and_then(|c| self.call(c, "a configuration goal like `(navigate ?r ?to)`"));
-        let observe = Self::field(&fields, ":observe")
-            .map(|o| self.observe(o))
-            .unwrap_or_default();
+        let observe = self.optional(&fields, ":observe", Self::observe);
         Some(Action {
             name,
             params,

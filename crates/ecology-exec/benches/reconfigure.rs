@@ -15,12 +15,19 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use ecology_domain::{EcologyState, Power, parse_domain, parse_facts, parse_goal};
+use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 use ecology_exec::{DriverConfig, ExecConfig, Executive, LogEvent, PlannedAction, drive};
-use ecology_peis::{Component, ComponentError, ComponentSpec, Context, run_host};
+use ecology_peis::{Component, ComponentError, Context};
 use ecology_tuples::{
     Clock, InProcessPeis, InProcessSpace, PeisId, PeisOptions, SystemClock, Timestamp, Value,
 };
+
+// The hosts the executive's tests run against; the benchmark does not make PEIS vanish.
+#[allow(dead_code)]
+#[path = "../src/tests/peis_home.rs"]
+mod peis_home;
+
+use peis_home::Hosts;
 
 const PEIS_HOME: &[u8] = include_bytes!("../../../domains/peis-home.eco");
 const FACTS: &[u8] = include_bytes!("../../../domains/peis-home.facts");
@@ -54,14 +61,7 @@ fn body(fail: Arc<tokio::sync::Notify>) -> Arc<dyn Component<InProcessPeis>> {
     Arc::new(move |ctx: Context<InProcessPeis>| {
         let fail = fail.clone();
         async move {
-            let name = ctx
-                .params()
-                .trim_start_matches('(')
-                .split_whitespace()
-                .next()
-                .unwrap_or("")
-                .to_string();
-            let (ins, outs) = io(&name);
+            let (ins, outs) = io(ctx.functionality());
             let mut inputs = ctx.inputs(ins).await?;
             let mut running = false;
             loop {
@@ -92,41 +92,14 @@ async fn run_once() -> Option<[f64; 5]> {
     let facts = parse_facts(FACTS).ok()?;
     let fail = Arc::new(tokio::sync::Notify::new());
     let never = Arc::new(tokio::sync::Notify::new());
-    let mut hosts = Vec::new();
-    let mut stops = Vec::new();
-    for peis in ["astrid", "hsm", "pippi"] {
-        let handle = space
-            .join(PeisId::new(peis).ok()?, PeisOptions::default())
-            .ok()?;
-        let mut specs = Vec::new();
-        for f in facts.with_predicate("pc").filter(|f| &*f.args[0] == peis) {
-            let c = f.args[2].to_string();
-            let cost = facts.component_cost(peis, &c)?;
-            let trigger = if (peis, c.as_str()) == ("hsm", "tr1") {
-                fail.clone()
-            } else {
-                never.clone()
-            };
-            specs.push(ComponentSpec {
-                name: c,
-                kind: f.args[1].to_string(),
-                cost: cost.amount,
-                on: cost.power == Power::On,
-                startup: Duration::ZERO,
-                body: body(trigger),
-            });
-        }
-        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-        stops.push(stop);
-        hosts.push(tokio::spawn(run_host(
-            handle,
-            clock.clone(),
-            specs,
-            async {
-                let _ = stopped.await;
-            },
-        )));
-    }
+    let hosts = Hosts::start(&space, &clock, &facts, Duration::ZERO, |p, c| {
+        body(if (p, c) == ("hsm", "tr1") {
+            fail.clone()
+        } else {
+            never.clone()
+        })
+    })
+    .ok()?;
     let me = space
         .join(PeisId::new("executive").ok()?, PeisOptions::default())
         .ok()?;
@@ -157,12 +130,7 @@ async fn run_once() -> Option<[f64; 5]> {
     };
     drive(&me, clock.clone(), &mut exec, config).await.ok()?;
     let _ = trigger.await;
-    for stop in stops {
-        let _ = stop.send(());
-    }
-    for host in hosts {
-        let _ = host.await;
-    }
+    hosts.stop().await;
     space.shutdown().await;
 
     let triggered = trigger_at.lock().ok().and_then(|at| *at)?;

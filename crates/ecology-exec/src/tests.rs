@@ -1,15 +1,16 @@
-//! Tests of the executive, driven by events in virtual time against a small
-//! scripted ecology that plays the PEIS side of the component contract.
+//! Tests of the executive: [`Executive::handle`] fed events directly, and
+//! whole runs against the real PEIS host (`ecology_peis::run_host`) on the
+//! in-process tuple space, in virtual time.
 
-use std::cmp::Reverse;
-use std::collections::{BTreeMap, BinaryHeap};
+mod peis_home;
+
 use std::time::Duration;
 
 use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 
 use ecology_tuples::{Key, PeisId};
 
-use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, TimerId};
+use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
@@ -24,317 +25,6 @@ fn peis(name: &str) -> PeisId {
 
 fn key(text: &str) -> Key {
     Key::new(text).expect("a key")
-}
-
-/// Something scheduled in the scripted ecology.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
-enum Due {
-    /// Deliver an event to the executive.
-    Deliver(EventOrd),
-    /// A component finishes starting up: it is on.
-    SwitchedOn(String, String),
-    /// A component finishes its step: it reports `done`.
-    Finish(String, String, u64),
-}
-
-/// `Event` with an order, for the schedule.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
-enum EventOrd {
-    Tuple(String, String, String, u64),
-    Left(String),
-}
-
-#[derive(Debug, Default, Clone)]
-struct Component {
-    ty: String,
-    cost: u64,
-    on: bool,
-    params: Option<String>,
-    /// Never becomes running (a broken start-up).
-    stuck: bool,
-    /// Broken: reports error instead of running.
-    broken: Option<String>,
-    /// Bumped at each new params, to ignore finishes of older ones.
-    generation: u64,
-}
-
-/// A scripted ecology: components start after a delay, run when they have
-/// params, and those with a postcondition report `done` after `step_time`.
-struct Ecology {
-    components: BTreeMap<(String, String), Component>,
-    seq: BTreeMap<(String, String), u64>,
-    schedule: BinaryHeap<Reverse<(Duration, u64, Due)>>,
-    order: u64,
-    now: Duration,
-    startup: Duration,
-    step_time: Duration,
-    gone: Vec<String>,
-}
-
-impl Ecology {
-    fn from_facts(facts: &str) -> Ecology {
-        let state = parse_facts(facts.as_bytes()).expect("facts");
-        let mut components = BTreeMap::new();
-        for f in state.with_predicate("pc") {
-            let (p, ty, c) = (
-                f.args[0].to_string(),
-                f.args[1].to_string(),
-                f.args[2].to_string(),
-            );
-            let cost = state.component_cost(&p, &c);
-            components.insert(
-                (p, c),
-                Component {
-                    ty,
-                    cost: cost.map_or(10, |c| c.amount),
-                    on: cost.is_some_and(|c| c.power == ecology_domain::Power::On),
-                    ..Component::default()
-                },
-            );
-        }
-        Ecology {
-            components,
-            seq: BTreeMap::new(),
-            schedule: BinaryHeap::new(),
-            order: 0,
-            now: Duration::ZERO,
-            startup: secs(1.0),
-            step_time: secs(5.0),
-            gone: Vec::new(),
-        }
-    }
-
-    fn at(&mut self, t: Duration, due: Due) {
-        self.order += 1;
-        self.schedule.push(Reverse((t, self.order, due)));
-    }
-
-    fn publish(&mut self, owner: &str, key: &str, value: &str, delay: Duration) {
-        if self.gone.iter().any(|g| g == owner) {
-            return;
-        }
-        let seq = self
-            .seq
-            .entry((owner.to_string(), key.to_string()))
-            .or_insert(0);
-        *seq += 1;
-        let due = Due::Deliver(EventOrd::Tuple(
-            owner.to_string(),
-            key.to_string(),
-            value.to_string(),
-            *seq,
-        ));
-        self.at(self.now + delay, due);
-    }
-
-    /// Every init tuple, at time zero.
-    fn boot(&mut self) {
-        let all: Vec<((String, String), Component)> = self
-            .components
-            .iter()
-            .map(|(k, v)| (k.clone(), v.clone()))
-            .collect();
-        for ((p, c), comp) in all {
-            self.publish(
-                &p,
-                &format!("components.{c}.type"),
-                &comp.ty,
-                Duration::ZERO,
-            );
-            self.publish(
-                &p,
-                &format!("components.{c}.cost"),
-                &comp.cost.to_string(),
-                Duration::ZERO,
-            );
-            let state = if comp.on { "on" } else { "off" };
-            self.publish(
-                &p,
-                &format!("components.{c}.currState"),
-                state,
-                Duration::ZERO,
-            );
-            self.publish(&p, &format!("{c}.status"), "idle", Duration::ZERO);
-        }
-    }
-
-    /// The PEIS side of a command.
-    fn apply(&mut self, command: &Command, exec_timers: &mut Vec<(Duration, TimerId)>) {
-        match command {
-            Command::StartTimer { id, after } => exec_timers.push((self.now + *after, *id)),
-            Command::CancelTimer(id) => exec_timers.retain(|(_, t)| t != id),
-            Command::RemoteSet { owner, key, value } => {
-                let (owner, key) = (&owner.to_string(), key.as_str());
-                if self.gone.contains(owner) {
-                    return;
-                }
-                if let Some(rest) = key.strip_prefix("components.") {
-                    let c = rest.trim_end_matches(".reqState").to_string();
-                    if value == "on" {
-                        self.at(self.now + self.startup, Due::SwitchedOn(owner.clone(), c));
-                    } else if let Some(comp) = self.components.get_mut(&(owner.clone(), c.clone()))
-                    {
-                        comp.on = false;
-                        comp.params = None;
-                        self.publish(
-                            owner,
-                            &format!("components.{c}.currState"),
-                            "off",
-                            Duration::ZERO,
-                        );
-                        self.publish(owner, &format!("{c}.status"), "idle", Duration::ZERO);
-                    }
-                } else if let Some(c) = key.strip_suffix(".params") {
-                    let key = (owner.clone(), c.to_string());
-                    if let Some(comp) = self.components.get_mut(&key) {
-                        comp.params = Some(value.clone());
-                        comp.generation += 1;
-                    }
-                    self.report(owner, c);
-                }
-                // `mi-` meta-tuples are accepted silently: inputs always flow here.
-            }
-        }
-    }
-
-    /// A component reports what it is doing now.
-    fn report(&mut self, p: &str, c: &str) {
-        let Some(comp) = self
-            .components
-            .get(&(p.to_string(), c.to_string()))
-            .cloned()
-        else {
-            return;
-        };
-        if !comp.on || comp.stuck {
-            return;
-        }
-        let Some(params) = comp.params else { return };
-        if let Some(cause) = comp.broken {
-            self.publish(p, &format!("{c}.cause"), &cause, Duration::ZERO);
-            self.publish(p, &format!("{c}.status"), "error", Duration::ZERO);
-            return;
-        }
-        self.publish(p, &format!("{c}.status"), "running", Duration::ZERO);
-        let has_postcondition = ["(navigation ", "(gripper ", "(speaker "]
-            .iter()
-            .any(|n| params.starts_with(n));
-        if has_postcondition {
-            self.at(
-                self.now + self.step_time,
-                Due::Finish(p.to_string(), c.to_string(), comp.generation),
-            );
-        }
-    }
-
-    /// Runs the executive until it stops or `limit` passes; returns it.
-    fn run(
-        mut self,
-        mut exec: Executive,
-        limit: Duration,
-        mut inject: impl FnMut(&mut Ecology, Duration),
-    ) -> Executive {
-        let mut timers: Vec<(Duration, TimerId)> = Vec::new();
-        self.boot();
-        let mut started = false;
-        loop {
-            let next_due = self.schedule.peek().map(|Reverse((t, _, _))| *t);
-            let next_timer = timers.iter().map(|(t, _)| *t).min();
-            let next = match (next_due, next_timer) {
-                (Some(a), Some(b)) => a.min(b),
-                (Some(a), None) | (None, Some(a)) => a,
-                (None, None) => break,
-            };
-            if next > limit {
-                break;
-            }
-            let before = self.now;
-            self.now = next;
-            inject(&mut self, before);
-            let commands = if next_timer == Some(next) && next_due.is_none_or(|d| d > next) {
-                let at = timers
-                    .iter()
-                    .position(|(t, _)| *t == next)
-                    .expect("a timer");
-                let (_, id) = timers.remove(at);
-                exec.handle(next, Event::Timer(id))
-            } else {
-                let Some(Reverse((_, _, due))) = self.schedule.pop() else {
-                    break;
-                };
-                match due {
-                    Due::Deliver(EventOrd::Tuple(owner, key, value, seq)) => exec.handle(
-                        next,
-                        Event::Tuple {
-                            owner: peis(&owner),
-                            key: self::key(&key),
-                            value,
-                            epoch: 1,
-                            seq,
-                        },
-                    ),
-                    Due::Deliver(EventOrd::Left(p)) => exec.handle(next, Event::PeisLeft(peis(&p))),
-                    Due::SwitchedOn(p, c) => {
-                        if let Some(comp) = self.components.get_mut(&(p.clone(), c.clone())) {
-                            comp.on = true;
-                        }
-                        self.publish(
-                            &p,
-                            &format!("components.{c}.currState"),
-                            "on",
-                            Duration::ZERO,
-                        );
-                        self.report(&p, &c);
-                        Vec::new()
-                    }
-                    Due::Finish(p, c, generation) => {
-                        let current = self
-                            .components
-                            .get(&(p.clone(), c.clone()))
-                            .map(|x| x.generation);
-                        if current == Some(generation) && !self.gone.contains(&p) {
-                            self.publish(&p, &format!("{c}.status"), "done", Duration::ZERO);
-                        }
-                        Vec::new()
-                    }
-                }
-            };
-            for command in &commands {
-                self.apply(command, &mut timers);
-            }
-            // Start once the init tuples of time zero are in.
-            if !started
-                && self
-                    .schedule
-                    .peek()
-                    .is_none_or(|Reverse((t, _, _))| *t > Duration::ZERO)
-            {
-                started = true;
-                let commands = exec.handle(self.now, Event::Start);
-                for command in &commands {
-                    self.apply(command, &mut timers);
-                }
-            }
-            if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
-                break;
-            }
-        }
-        exec
-    }
-
-    /// A component starts failing: it reports `error` with `cause`.
-    fn break_component(&mut self, p: &str, c: &str, cause: &str) {
-        if let Some(comp) = self.components.get_mut(&(p.to_string(), c.to_string())) {
-            comp.broken = Some(cause.to_string());
-        }
-        self.report(p, c);
-    }
-
-    /// A PEIS vanishes: no more tuples from it, and presence says it left.
-    fn vanish(&mut self, p: &str) {
-        self.gone.push(p.to_string());
-        self.at(self.now, Due::Deliver(EventOrd::Left(p.to_string())));
-    }
 }
 
 fn plan() -> Vec<PlannedAction> {
@@ -386,170 +76,6 @@ fn timeline(exec: &Executive) -> String {
 }
 
 // The paper, Section VIII, steps 1-5 and 7 without the failure.
-#[test]
-fn a_whole_plan_runs_to_completion() {
-    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |_, _| {});
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    assert_eq!(
-        costs(&exec),
-        [(80, false), (100, false), (80, false), (20, false)]
-    );
-    assert_eq!(names(&exec).last(), Some(&"task_done"));
-    assert_eq!(
-        names(&exec).iter().filter(|n| **n == "action_done").count(),
-        4
-    );
-    // The gripper was started for action 2 and switched off once unneeded.
-    let text = timeline(&exec);
-    assert!(text.contains("switch on astrid:gr1"), "{text}");
-    assert!(text.contains("switched off astrid:gr1"), "{text}");
-    // At the end the task leaves the ecology as it found it: the speaker it
-    // switched on goes off, and the components it borrowed lose their params.
-    let released = exec.log().iter().find_map(|e| match &e.event {
-        LogEvent::Released {
-            switched_off,
-            stopped,
-        } => Some((switched_off.clone(), stopped.clone())),
-        _ => None,
-    });
-    assert_eq!(
-        released,
-        Some((
-            vec!["astrid:sp1".to_string()],
-            ["astrid:s1", "astrid:tc1", "hsm:ca1", "hsm:tr1"]
-                .map(String::from)
-                .to_vec()
-        )),
-        "{text}"
-    );
-    assert_eq!(names(&exec)[names(&exec).len() - 2], "released");
-}
-
-/// The paper's plan in the scripted ecology, the tracking system failing for
-/// good at `at` seconds.
-fn tracking_broken_at(at: f64) -> Executive {
-    let mut broken = false;
-    Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
-        if !broken && eco.now >= secs(at) {
-            broken = true;
-            eco.break_component("hsm", "tr1", "camera ca1 stopped producing images");
-        }
-    })
-}
-
-// The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.
-#[test]
-fn a_failing_component_is_reconfigured_around() {
-    // Fourteen seconds in, Astrid is on her way to the bedroom.
-    let exec = tracking_broken_at(14.0);
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    assert_eq!(
-        costs(&exec),
-        [
-            (80, false),
-            (100, false),
-            (80, false),
-            (170, true),
-            (20, false)
-        ]
-    );
-    let failures: Vec<String> = exec
-        .log()
-        .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } => Some(format!("{peis}:{component} {cause}")),
-            _ => None,
-        })
-        .collect();
-    assert_eq!(failures, ["hsm:tr1 camera ca1 stopped producing images"]);
-    assert!(
-        timeline(&exec).contains("switch on astrid:l1"),
-        "{}",
-        timeline(&exec)
-    );
-}
-
-#[test]
-fn a_vanishing_peis_is_reconfigured_around() {
-    let mut gone = false;
-    let exec =
-        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(plan()), secs(600.0), |eco, _| {
-            if !gone && eco.now >= secs(14.0) {
-                gone = true;
-                eco.vanish("hsm");
-            }
-        });
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    assert_eq!(
-        costs(&exec),
-        [
-            (80, false),
-            (100, false),
-            (80, false),
-            (170, true),
-            (20, false)
-        ]
-    );
-    let text = timeline(&exec);
-    assert!(
-        text.contains("FAILURE hsm:ca1: PEIS hsm left the ecology"),
-        "{text}"
-    );
-    assert!(
-        text.contains("FAILURE hsm:tr1: PEIS hsm left the ecology"),
-        "{text}"
-    );
-}
-
-#[test]
-fn no_configuration_fails_the_action_with_the_explanation() {
-    // Without a laser and without Pippi, losing the tracking system leaves nothing.
-    let facts: String = PEIS_HOME_FACTS
-        .lines()
-        .filter(|l| !l.contains("pippi") && !l.contains(" l1"))
-        .collect::<Vec<_>>()
-        .join("\n");
-    let mut broken = false;
-    let mut exec = Ecology::from_facts(&facts).run(executive(plan()), secs(600.0), |eco, _| {
-        if !broken && eco.now >= secs(2.0) {
-            broken = true;
-            eco.break_component("hsm", "tr1", "camera failure");
-        }
-    });
-    let RunStatus::Failed { index, reason } = exec.status().clone() else {
-        panic!("the action should fail: {}", timeline(&exec));
-    };
-    assert_eq!(index, 0);
-    assert!(reason.contains("input (position astrid)"), "{reason}");
-    assert!(reason.contains("component hsm:tr1 is excluded"), "{reason}");
-    assert_eq!(names(&exec).last(), Some(&"action_failed"));
-    let _ = exec.abandon(secs(3.0));
-    assert_eq!(names(&exec).last(), Some(&"task_failed"));
-}
-
-#[test]
-fn a_component_that_never_runs_times_out_and_is_replaced() {
-    let mut eco = Ecology::from_facts(PEIS_HOME_FACTS);
-    if let Some(tr1) = eco
-        .components
-        .get_mut(&("hsm".to_string(), "tr1".to_string()))
-    {
-        tr1.stuck = true;
-    }
-    let exec = eco.run(executive(plan()[..1].to_vec()), secs(600.0), |_, _| {});
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    assert_eq!(costs(&exec), [(80, false), (170, true)]);
-    let text = timeline(&exec);
-    assert!(
-        text.contains("FAILURE hsm:tr1: did not report running within 10s"),
-        "{text}"
-    );
-}
-
 fn tuple(owner: &str, key: &str, value: &str, seq: u64) -> Event {
     tuple_of_run(owner, key, value, 1, seq)
 }
@@ -647,32 +173,6 @@ fn waiting_too_long_is_a_failure() {
     );
 }
 
-#[test]
-fn a_component_in_error_stays_out_of_later_actions() {
-    // On the way to the entrance, the tracking system fails for good.
-    let exec = tracking_broken_at(2.0);
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    // Moving to the bedroom does not try the broken tracking system again.
-    assert_eq!(
-        costs(&exec),
-        [
-            (80, false),
-            (170, true),
-            (100, false),
-            (170, false),
-            (20, false)
-        ],
-        "{}",
-        timeline(&exec)
-    );
-    assert_eq!(names(&exec).iter().filter(|n| **n == "failure").count(), 1);
-    let text = timeline(&exec);
-    assert!(
-        text.contains("unavailable: hsm:tr1 reports error (camera ca1 stopped producing images)"),
-        "{text}"
-    );
-}
-
 /// The first `RemoteSet` of `key` on `owner` among `commands`.
 fn set_of<'a>(commands: &'a [Command], owner: &str, key: &str) -> Option<&'a str> {
     commands.iter().find_map(|c| match c {
@@ -734,28 +234,6 @@ fn a_component_waiting_across_a_redeploy_is_still_timed() {
     assert!(
         text.contains("FAILURE astrid:tc1: waiting for longer than 2s"),
         "{text}"
-    );
-}
-
-#[test]
-fn an_action_whose_configuration_has_no_postcondition_is_done_once_it_runs() {
-    let localize = PlannedAction::new(
-        "(localize astrid)".to_string(),
-        Some(parse_goal("(get-position astrid)").expect("goal")),
-    );
-    let exec =
-        Ecology::from_facts(PEIS_HOME_FACTS).run(executive(vec![localize]), secs(600.0), |_, _| {});
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-    // Long before the action's 600 s timeout: as soon as it runs.
-    let done_at = exec
-        .log()
-        .iter()
-        .find(|e| e.event.name() == "action_done")
-        .map(|e| e.t);
-    assert!(
-        done_at.is_some_and(|t| t < secs(5.0)),
-        "{}",
-        timeline(&exec)
     );
 }
 
@@ -948,23 +426,35 @@ fn stopping_a_task_releases_what_it_used_and_fails_it() {
     assert!(exec.stop(secs(3.0), "again").is_empty());
 }
 
-/// End to end on the in-process tuple space, in virtual time: PEIS hosts run
-/// test components that honour the component contract, and the driver runs
-/// the executive over the space.
+/// Whole runs: the paper's PEIS-Home as real PEIS hosts (`run_host`) running
+/// test components that honour the component contract, and the driver running
+/// the executive, on the in-process tuple space in virtual time.
 mod on_the_tuple_space {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::collections::BTreeMap;
+    use std::convert::Infallible;
+    use std::sync::{Arc, Mutex};
     use std::time::Duration;
 
-    use ecology_domain::{EcologyState, parse_domain, parse_facts};
-    use ecology_peis::{Component, ComponentError, ComponentSpec, Context, run_host};
+    use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
+    use ecology_peis::{Component, ComponentError, Context};
     use ecology_tuples::{
         Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceSubscription,
-        Subscription, Tuple, TupleError, TuplePattern, TupleSpace, Value, VirtualClock,
+        Subscription, Timestamp, Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+        VirtualClock,
     };
 
-    use super::{PEIS_HOME, PEIS_HOME_FACTS, costs, names, plan, timeline};
-    use crate::{DriverConfig, ExecConfig, Executive, RunStatus, drive};
+    use super::peis_home::Hosts;
+    use super::{PEIS_HOME, PEIS_HOME_FACTS, costs, executive, names, peis, plan, secs, timeline};
+    use crate::{
+        DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, PlannedAction, RunStatus,
+        drive_observed,
+    };
+
+    /// How long each component takes to switch on.
+    const STARTUP: Duration = Duration::from_millis(500);
+
+    /// How far virtual time moves in one step.
+    const STEP: Duration = Duration::from_millis(20);
 
     /// (inputs, outputs, seconds of fresh input until done) of each functionality.
     fn behaviour(
@@ -986,29 +476,27 @@ mod on_the_tuple_space {
         }
     }
 
+    /// The components that have failed for good, by (PEIS, component), with
+    /// their causes.
+    type Broken = Arc<Mutex<BTreeMap<(String, String), String>>>;
+
     /// A component that follows the contract: `waiting` while an input is
     /// missing or stale, `running` while it works, `done` when its step ends;
-    /// `broken` makes it fail with a cause.
-    fn body(broken: Arc<AtomicBool>) -> Arc<dyn Component<InProcessPeis>> {
+    /// once `broken` holds a cause for it, it fails with that cause (again
+    /// whenever it is started).
+    fn body(broken: Broken) -> Arc<dyn Component<InProcessPeis>> {
         Arc::new(move |ctx: Context<InProcessPeis>| {
             let broken = broken.clone();
             async move {
-                let name = ctx
-                    .params()
-                    .trim_start_matches('(')
-                    .split_whitespace()
-                    .next()
-                    .unwrap_or("")
-                    .to_string();
-                let (ins, outs, finish) = behaviour(&name);
+                let me = (ctx.peis().to_string(), ctx.component().to_string());
+                let (ins, outs, finish) = behaviour(ctx.functionality());
                 let mut inputs = ctx.inputs(ins).await?;
                 let mut shown = String::new();
                 let mut worked = Duration::ZERO;
                 loop {
-                    if broken.load(Ordering::Relaxed) {
-                        return Err(ComponentError::Fault(
-                            "camera ca1 stopped producing images".into(),
-                        ));
+                    let cause = broken.lock().expect("lock").get(&me).cloned();
+                    if let Some(cause) = cause {
+                        return Err(ComponentError::Fault(cause));
                     }
                     inputs.poll();
                     let missing = inputs.missing(Duration::from_millis(500));
@@ -1038,17 +526,189 @@ mod on_the_tuple_space {
         })
     }
 
-    #[derive(Clone, Copy, PartialEq)]
-    enum Fault {
-        None,
-        /// The tracking system reports an error at this time.
-        BreakTracking(Duration),
-        /// The home security monitor vanishes (crashes) at this time.
-        VanishMonitor(Duration),
+    /// A component whose start-up hangs: it never reports anything, so its
+    /// host shows it `initializing` for ever.
+    fn hung_body() -> Arc<dyn Component<InProcessPeis>> {
+        Arc::new(|_ctx: Context<InProcessPeis>| std::future::pending())
     }
 
-    async fn run(fault: Fault) -> Executive {
-        run_with(fault, None, plan()).await.0
+    /// What goes wrong in a run.
+    #[derive(Clone, Copy, Debug)]
+    enum Fault {
+        /// Component `.1` of PEIS `.0` fails for good, with cause `.2`.
+        Break(&'static str, &'static str, &'static str),
+        /// The PEIS crashes: it stops without a goodbye, and the others see it
+        /// leave once its lease (2 s) has run out.
+        Vanish(&'static str),
+    }
+
+    /// A run of an executive against real hosts, until its task ends (or
+    /// 300 s of virtual time pass).
+    struct Run {
+        /// The ecology: a host for each PEIS with a `pc` fact, a component for each `pc`.
+        facts: String,
+        exec: Executive,
+        /// Components whose start-up hangs.
+        hung: &'static [(&'static str, &'static str)],
+        /// `.1` strikes as soon as the configuration of action `.0` (from 0) runs.
+        fault: Option<(usize, Fault)>,
+        /// Every remote set to this PEIS takes this long: a PEIS that answers slowly.
+        slow: Option<(&'static str, Duration)>,
+    }
+
+    /// What a run leaves.
+    struct Ran {
+        exec: Executive,
+        /// hsm's `tr1.params` as it was first set.
+        wired: Option<Tuple>,
+        /// When the driver started (log times count from it).
+        started: Timestamp,
+    }
+
+    impl Run {
+        /// `exec` in the paper's PEIS-Home, nothing going wrong.
+        fn of(exec: Executive) -> Run {
+            Run {
+                facts: PEIS_HOME_FACTS.to_string(),
+                exec,
+                hung: &[],
+                fault: None,
+                slow: None,
+            }
+        }
+
+        async fn go(self) -> Ran {
+            let Run {
+                facts,
+                mut exec,
+                hung,
+                fault,
+                slow,
+            } = self;
+            let clock = VirtualClock::default();
+            let shared: Arc<dyn Clock> = Arc::new(clock.clone());
+            let space = InProcessSpace::new(shared.clone());
+            let facts = parse_facts(facts.as_bytes()).expect("facts");
+            let broken = Broken::default();
+            let mut hosts = Hosts::start(&space, &shared, &facts, STARTUP, |p, c| {
+                if hung.contains(&(p, c)) {
+                    hung_body()
+                } else {
+                    body(broken.clone())
+                }
+            })
+            .expect("the hosts start");
+            let me = space
+                .join(peis("executive"), PeisOptions::default())
+                .expect("joins");
+            let mut probe = me
+                .subscribe(TuplePattern::parse("hsm:tr1.params").expect("pattern"))
+                .await
+                .expect("subscribe");
+
+            // The fault strikes as the executive logs that the action's configuration runs.
+            let mut pending = fault;
+            let mut action = None;
+            let observe = |entry: &LogEntry| match entry.event {
+                LogEvent::ActionStarted { index, .. } => action = Some(index),
+                LogEvent::Running { .. } => match pending.take_if(|(at, _)| Some(*at) == action) {
+                    Some((_, Fault::Break(p, c, cause))) => {
+                        broken
+                            .lock()
+                            .expect("lock")
+                            .insert((p.to_string(), c.to_string()), cause.to_string());
+                    }
+                    Some((_, Fault::Vanish(p))) => hosts.vanish(p),
+                    None => {}
+                },
+                _ => {}
+            };
+            let config = DriverConfig {
+                limit: Some(secs(300.0)),
+                ..DriverConfig::default()
+            };
+            let started = shared.now();
+            let driving = async {
+                match slow {
+                    Some((p, delay)) => {
+                        let space = SlowTo {
+                            inner: me.clone(),
+                            slow: peis(p),
+                            delay,
+                            clock: shared.clone(),
+                        };
+                        drive_observed(&space, shared.clone(), &mut exec, config, observe).await
+                    }
+                    None => drive_observed(&me, shared.clone(), &mut exec, config, observe).await,
+                }
+            };
+            let driven = tokio::select! {
+                biased;
+                driven = driving => driven,
+                never = tick(&clock) => match never {},
+            };
+            driven.expect("drives");
+            assert!(
+                pending.is_none(),
+                "the fault never struck: {}",
+                timeline(&exec)
+            );
+
+            let mut wired = None;
+            while let Some(event) = probe.try_next() {
+                if let TupleEvent::Changed(t) = event {
+                    wired.get_or_insert(t);
+                }
+            }
+            let vanished = match fault {
+                Some((_, Fault::Vanish(p))) => Some(p),
+                _ => None,
+            };
+            for (p, outcome) in hosts.stop().await {
+                // A vanished PEIS's host finds the space closed to it; the others stop cleanly.
+                assert!(
+                    outcome.is_ok() || vanished == Some(p.as_str()),
+                    "host {p}: {outcome:?}"
+                );
+            }
+            space.shutdown().await;
+            Ran {
+                exec,
+                wired,
+                started,
+            }
+        }
+    }
+
+    impl Run {
+        /// Runs; the executive, whose task must be done.
+        async fn done(self) -> Executive {
+            let exec = self.go().await.exec;
+            assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
+            exec
+        }
+
+        /// Runs; the executive, whose task must have failed, with the
+        /// failed action's index and the reason.
+        async fn failed(self) -> (Executive, usize, String) {
+            let exec = self.go().await.exec;
+            let RunStatus::Failed { index, reason } = exec.status().clone() else {
+                panic!("the task should fail: {}", timeline(&exec));
+            };
+            (exec, index, reason)
+        }
+    }
+
+    /// Moves virtual time on, a `STEP` at a time, whenever every task waits.
+    /// The tests run on tokio's paused clock (`start_paused`), which moves on
+    /// (ending this sleep) only when no task can run: so each step comes once
+    /// everything the last one set off has been handled, however many turns
+    /// that took.
+    async fn tick(clock: &VirtualClock) -> Infallible {
+        loop {
+            tokio::time::sleep(STEP).await;
+            clock.advance(STEP);
+        }
     }
 
     /// The executive's own space, with every remote set to one PEIS delayed:
@@ -1100,150 +760,278 @@ mod on_the_tuple_space {
         }
     }
 
-    /// Runs `plan`; with `slow`, every remote set to that PEIS takes that long.
-    /// Also returns hsm's `tr1.params` as it was first set, and when
-    /// the driver started (log times count from it).
-    async fn run_with(
-        fault: Fault,
-        slow: Option<(&str, Duration)>,
-        plan: Vec<crate::PlannedAction>,
-    ) -> (Executive, Option<Tuple>, ecology_tuples::Timestamp) {
-        let clock = VirtualClock::default();
-        let shared: Arc<dyn Clock> = Arc::new(clock.clone());
-        let space = InProcessSpace::new(shared.clone());
-        let facts = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
-        let tracking_broken = Arc::new(AtomicBool::new(false));
-        let healthy = Arc::new(AtomicBool::new(false));
-        let mut hosts = Vec::new();
-        let mut stops = Vec::new();
-        let mut monitor = None;
-        for peis in ["astrid", "hsm", "pippi"] {
-            let handle = space
-                .join(PeisId::new(peis).expect("name"), PeisOptions::default())
-                .expect("joins");
-            if peis == "hsm" {
-                monitor = Some(handle.clone());
-            }
-            let mut specs = Vec::new();
-            for f in facts.with_predicate("pc").filter(|f| &*f.args[0] == peis) {
-                let c = f.args[2].to_string();
-                let cost = facts.component_cost(peis, &c).expect("a cost");
-                let broken = if (peis, c.as_str()) == ("hsm", "tr1") {
-                    tracking_broken.clone()
-                } else {
-                    healthy.clone()
-                };
-                specs.push(ComponentSpec {
-                    name: c,
-                    kind: f.args[1].to_string(),
-                    cost: cost.amount,
-                    on: cost.power == ecology_domain::Power::On,
-                    startup: Duration::from_millis(500),
-                    body: body(broken),
-                });
-            }
-            let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-            stops.push(stop);
-            hosts.push(tokio::spawn(run_host(
-                handle,
-                shared.clone(),
-                specs,
-                async {
-                    let _ = stopped.await;
-                },
-            )));
-        }
-        let me = space
-            .join(
-                PeisId::new("executive").expect("name"),
-                PeisOptions::default(),
-            )
-            .expect("joins");
-        // Virtual time moves only when every task has had its turn.
-        let ticking = Arc::new(AtomicBool::new(true));
-        let ticker = {
-            let ticking = ticking.clone();
-            let clock = clock.clone();
-            let broken = tracking_broken.clone();
-            let start = shared.now();
-            let mut monitor = monitor;
-            tokio::spawn(async move {
-                while ticking.load(Ordering::Relaxed) {
-                    for _ in 0..50 {
-                        tokio::task::yield_now().await;
-                    }
-                    clock.advance(Duration::from_millis(20));
-                    let now = clock_now(&clock).saturating_duration_since(start);
-                    match fault {
-                        Fault::BreakTracking(at) if now >= at => {
-                            broken.store(true, Ordering::Relaxed)
-                        }
-                        Fault::VanishMonitor(at) if now >= at => {
-                            if let Some(hsm) = monitor.take() {
-                                hsm.vanish();
-                            }
-                        }
-                        _ => {}
-                    }
-                }
+    /// The failures the executive logged, as `P:C cause`.
+    fn failures(exec: &Executive) -> Vec<String> {
+        exec.log()
+            .iter()
+            .filter_map(|e| match &e.event {
+                LogEvent::Failure {
+                    peis,
+                    component,
+                    cause,
+                } => Some(format!("{peis}:{component} {cause}")),
+                _ => None,
             })
-        };
-        let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
-        let mut exec = Executive::new(domain, EcologyState::new(), plan, ExecConfig::default());
-        let config = DriverConfig {
-            limit: Some(Duration::from_secs(300)),
-            ..DriverConfig::default()
-        };
-        let mut probe = me
-            .subscribe(TuplePattern::parse("hsm:tr1.params").expect("pattern"))
-            .await
-            .expect("subscribe");
-        let started = shared.now();
-        match slow {
-            Some((peis, delay)) => {
-                let space = SlowTo {
-                    inner: me.clone(),
-                    slow: PeisId::new(peis).expect("name"),
-                    delay,
-                    clock: shared.clone(),
-                };
-                drive(&space, shared.clone(), &mut exec, config).await
-            }
-            None => drive(&me, shared.clone(), &mut exec, config).await,
-        }
-        .expect("drives");
-        let mut wired = None;
-        while let Some(event) = probe.try_next() {
-            if let ecology_tuples::TupleEvent::Changed(t) = event {
-                wired.get_or_insert(t);
-            }
-        }
-        ticking.store(false, Ordering::Relaxed);
-        let _ = ticker.await;
-        for stop in stops {
-            let _ = stop.send(());
-        }
-        for (i, host) in hosts.into_iter().enumerate() {
-            let result = host.await.expect("host task");
-            // A vanished PEIS's host finds the space closed to it; the others stop cleanly.
-            let vanished = i == 1 && matches!(fault, Fault::VanishMonitor(_));
-            assert!(vanished || result.is_ok(), "host {i}: {result:?}");
-        }
-        space.shutdown().await;
-        (exec, wired, started)
+            .collect()
     }
 
-    fn clock_now(clock: &VirtualClock) -> ecology_tuples::Timestamp {
-        clock.now()
+    // The paper, Section VIII, steps 1-5 and 7 without the failure.
+    #[tokio::test(start_paused = true)]
+    async fn a_whole_plan_runs_to_completion() {
+        let exec = Run::of(executive(plan())).done().await;
+        assert_eq!(
+            costs(&exec),
+            [(80, false), (100, false), (80, false), (20, false)]
+        );
+        assert_eq!(names(&exec).last(), Some(&"task_done"));
+        assert_eq!(
+            names(&exec).iter().filter(|n| **n == "action_done").count(),
+            4
+        );
+        // The gripper was started for action 2 and switched off once unneeded.
+        let text = timeline(&exec);
+        assert!(text.contains("switch on astrid:gr1"), "{text}");
+        assert!(text.contains("switched off astrid:gr1"), "{text}");
+        // At the end the task leaves the ecology as it found it: the speaker it
+        // switched on goes off, and the components it borrowed lose their params.
+        let released = exec.log().iter().find_map(|e| match &e.event {
+            LogEvent::Released {
+                switched_off,
+                stopped,
+            } => Some((switched_off.clone(), stopped.clone())),
+            _ => None,
+        });
+        assert_eq!(
+            released,
+            Some((
+                vec!["astrid:sp1".to_string()],
+                ["astrid:s1", "astrid:tc1", "hsm:ca1", "hsm:tr1"]
+                    .map(String::from)
+                    .to_vec()
+            )),
+            "{text}"
+        );
+        assert_eq!(names(&exec)[names(&exec).len() - 2], "released");
+    }
+
+    /// The paper's plan with `fault` striking on the way to the bedroom
+    /// (action 3): the laser stands in for the home security monitor's
+    /// tracking for that action, then the last action runs as planned.
+    async fn reconfigured_on_the_way_to_the_bedroom(fault: Fault) -> Executive {
+        let exec = Run {
+            fault: Some((2, fault)),
+            ..Run::of(executive(plan()))
+        }
+        .done()
+        .await;
+        assert_eq!(
+            costs(&exec),
+            [
+                (80, false),
+                (100, false),
+                (80, false),
+                (170, true),
+                (20, false)
+            ],
+            "{}",
+            timeline(&exec)
+        );
+        let text = timeline(&exec);
+        assert!(text.contains("switch on astrid:l1"), "{text}");
+        exec
+    }
+
+    // The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.
+    #[tokio::test(start_paused = true)]
+    async fn a_failing_component_is_reconfigured_around() {
+        let exec = reconfigured_on_the_way_to_the_bedroom(Fault::Break(
+            "hsm",
+            "tr1",
+            "camera ca1 stopped producing images",
+        ))
+        .await;
+        assert_eq!(
+            failures(&exec),
+            ["hsm:tr1 camera ca1 stopped producing images"],
+            "{}",
+            timeline(&exec)
+        );
+    }
+
+    // A PEIS that crashes (no goodbye) is reported as left after its lease (2 s).
+    #[tokio::test(start_paused = true)]
+    async fn a_vanishing_peis_is_reconfigured_around() {
+        let exec = reconfigured_on_the_way_to_the_bedroom(Fault::Vanish("hsm")).await;
+        let text = timeline(&exec);
+        assert!(text.contains("PEIS hsm left the ecology"), "{text}");
+        assert_eq!(
+            failures(&exec),
+            [
+                "hsm:ca1 PEIS hsm left the ecology",
+                "hsm:tr1 PEIS hsm left the ecology"
+            ],
+            "{text}"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_component_in_error_stays_out_of_later_actions() {
+        // On the way to the entrance, the tracking system fails for good.
+        let exec = Run {
+            fault: Some((
+                0,
+                Fault::Break("hsm", "tr1", "camera ca1 stopped producing images"),
+            )),
+            ..Run::of(executive(plan()))
+        }
+        .done()
+        .await;
+        // Moving to the bedroom does not try the broken tracking system again.
+        assert_eq!(
+            costs(&exec),
+            [
+                (80, false),
+                (170, true),
+                (100, false),
+                (170, false),
+                (20, false)
+            ],
+            "{}",
+            timeline(&exec)
+        );
+        assert_eq!(names(&exec).iter().filter(|n| **n == "failure").count(), 1);
+        let text = timeline(&exec);
+        assert!(
+            text.contains(
+                "unavailable: hsm:tr1 reports error (camera ca1 stopped producing images)"
+            ),
+            "{text}"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn no_configuration_fails_the_action_with_the_explanation() {
+        // Without a laser and without Pippi, losing the tracking system leaves nothing.
+        let facts: String = PEIS_HOME_FACTS
+            .lines()
+            .filter(|l| !l.contains("pippi") && !l.contains(" l1"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let (exec, index, reason) = Run {
+            facts,
+            fault: Some((0, Fault::Break("hsm", "tr1", "camera failure"))),
+            ..Run::of(executive(plan()))
+        }
+        .failed()
+        .await;
+        assert_eq!(index, 0);
+        assert!(reason.contains("input (position astrid)"), "{reason}");
+        assert!(reason.contains("component hsm:tr1 is excluded"), "{reason}");
+        // Without a replanner the driver abandons the task.
+        let names = names(&exec);
+        assert!(names.contains(&"action_failed"), "{}", timeline(&exec));
+        assert_eq!(names.last(), Some(&"task_failed"), "{}", timeline(&exec));
+    }
+
+    // A component that never reports running is failed after the deploy
+    // timeout and replaced. The one that hangs is the navigation controller,
+    // with a second one to stand in for it: a hung producer would leave its
+    // consumers waiting for inputs that are wired only once it runs, and they
+    // would time out with it.
+    #[tokio::test(start_paused = true)]
+    async fn a_component_that_never_runs_times_out_and_is_replaced() {
+        let exec = Run {
+            facts: format!("{PEIS_HOME_FACTS}\n(pc astrid tc tc2) (cost astrid tc2 30 on)\n"),
+            hung: &[("astrid", "tc1")],
+            ..Run::of(executive(plan()[..1].to_vec()))
+        }
+        .done()
+        .await;
+        assert_eq!(
+            costs(&exec),
+            [(80, false), (90, true)],
+            "{}",
+            timeline(&exec)
+        );
+        assert_eq!(
+            failures(&exec),
+            ["astrid:tc1 did not report running within 10s"],
+            "{}",
+            timeline(&exec)
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_action_whose_configuration_has_no_postcondition_is_done_once_it_runs() {
+        let localize = PlannedAction::new(
+            "(localize astrid)",
+            Some(parse_goal("(get-position astrid)").expect("goal")),
+        );
+        let exec = Run::of(executive(vec![localize])).done().await;
+        // Long before the action's 600 s timeout: as soon as it runs.
+        let done_at = exec
+            .log()
+            .iter()
+            .find(|e| e.event.name() == "action_done")
+            .map(|e| e.t);
+        assert!(
+            done_at.is_some_and(|t| t < secs(5.0)),
+            "{}",
+            timeline(&exec)
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_planning_budget_that_runs_out_fails_the_action_with_that_reason() {
+        let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
+        let config = ExecConfig {
+            planning: ecology_config::Budget {
+                max_expansions: Some(0),
+                max_time: None,
+            },
+            ..ExecConfig::default()
+        };
+        let exec = Executive::new(domain, EcologyState::new(), plan(), config);
+        let (_, _, reason) = Run::of(exec).failed().await;
+        assert!(
+            reason.starts_with("the configuration planner's budget ran out"),
+            "{reason}"
+        );
+    }
+
+    /// A stopwatch that has been running for an hour and stands still.
+    struct AnHourIn;
+
+    impl ecology_config::Clock for AnHourIn {
+        fn elapsed(&self) -> Duration {
+            secs(3600.0)
+        }
+    }
+
+    // The planning budget counts from when planning starts, not from when the
+    // executive started: an hour into a task, a 2 s budget is not spent already.
+    #[tokio::test(start_paused = true)]
+    async fn the_planning_budget_counts_from_each_planning() {
+        Run::of(executive(plan()).with_stopwatch(Box::new(AnHourIn)))
+            .done()
+            .await;
     }
 
     // Remote sets to one PEIS do not wait for those to another: a PEIS that
     // takes 2 s to answer each remote set delays only its own components.
-    #[tokio::test]
+    #[tokio::test(start_paused = true)]
     async fn remote_sets_to_different_peis_run_concurrently() {
         let slow = Duration::from_secs(2);
-        let (exec, wired, started) =
-            run_with(Fault::None, Some(("astrid", slow)), plan()[..1].to_vec()).await;
+        let Ran {
+            exec,
+            wired,
+            started,
+        } = Run {
+            slow: Some(("astrid", slow)),
+            ..Run::of(executive(plan()[..1].to_vec()))
+        }
+        .go()
+        .await;
         assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
         let deployed_at = exec
             .log()
@@ -1268,84 +1056,4 @@ mod on_the_tuple_space {
             "hsm's params were set at {wired_at:?}, deployed at {deployed_at:?}"
         );
     }
-
-    // The paper's Section VIII on the real middleware (in-process), no failure.
-    #[tokio::test]
-    async fn a_plan_runs_on_the_tuple_space() {
-        let exec = run(Fault::None).await;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-        assert_eq!(
-            costs(&exec),
-            [(80, false), (100, false), (80, false), (20, false)]
-        );
-        assert_eq!(names(&exec).last(), Some(&"task_done"));
-    }
-
-    // The paper's Section VIII step 6: the tracking system fails on the way to the bedroom.
-    #[tokio::test]
-    async fn a_failure_on_the_tuple_space_is_reconfigured() {
-        let exec = run(Fault::BreakTracking(Duration::from_secs(6))).await;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-        let text = timeline(&exec);
-        assert!(
-            text.contains("FAILURE hsm:tr1: camera ca1 stopped producing images"),
-            "{text}"
-        );
-        assert!(costs(&exec).contains(&(170, true)), "{text}");
-    }
-
-    // A PEIS that crashes (no goodbye) is reported as left after its lease (2 s).
-    #[tokio::test]
-    async fn a_vanishing_peis_on_the_tuple_space_is_reconfigured() {
-        let exec = run(Fault::VanishMonitor(Duration::from_secs(6))).await;
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
-        let text = timeline(&exec);
-        assert!(text.contains("PEIS hsm left the ecology"), "{text}");
-        assert!(costs(&exec).contains(&(170, true)), "{text}");
-    }
-}
-
-#[test]
-fn a_planning_budget_that_runs_out_fails_the_action_with_that_reason() {
-    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain");
-    let config = ExecConfig {
-        planning: ecology_config::Budget {
-            max_expansions: Some(0),
-            max_time: None,
-        },
-        ..ExecConfig::default()
-    };
-    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(
-        Executive::new(domain, EcologyState::new(), plan(), config),
-        secs(600.0),
-        |_, _| {},
-    );
-    let RunStatus::Failed { reason, .. } = exec.status().clone() else {
-        panic!("the action should fail: {}", timeline(&exec));
-    };
-    assert!(
-        reason.starts_with("the configuration planner's budget ran out"),
-        "{reason}"
-    );
-}
-
-/// A stopwatch that has been running for an hour and stands still.
-struct AnHourIn;
-
-impl ecology_config::Clock for AnHourIn {
-    fn elapsed(&self) -> Duration {
-        secs(3600.0)
-    }
-}
-
-// The planning budget counts from when planning starts, not from when the
-// executive started: an hour into a task, a 2 s budget is not spent already.
-#[test]
-fn the_planning_budget_counts_from_each_planning() {
-    let exec = Ecology::from_facts(PEIS_HOME_FACTS).run(
-        executive(plan()).with_stopwatch(Box::new(AnHourIn)),
-        secs(600.0),
-        |_, _| {},
-    );
-    assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(&exec));
 }

@@ -107,6 +107,15 @@ impl<S: TupleSpace> Context<S> {
         &self.params
     }
 
+    /// The functionality's name: the params' first word, such as `navigation`.
+    pub fn functionality(&self) -> &str {
+        self.params
+            .trim_matches(|c| c == '(' || c == ')')
+            .split_whitespace()
+            .next()
+            .unwrap_or("")
+    }
+
     /// The params' arguments after the functionality name.
     pub fn args(&self) -> Vec<&str> {
         self.params

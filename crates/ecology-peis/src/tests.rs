@@ -46,28 +46,15 @@ async fn start(components: Vec<ComponentSpec<InProcessPeis>>) -> Fixture {
     }
 }
 
-impl Fixture {
-    /// Lets every task run, then moves virtual time on by `d`, in small steps.
-    async fn pass(&self, d: Duration) {
-        let step = Duration::from_millis(10);
-        let mut passed = Duration::ZERO;
-        loop {
-            for _ in 0..50 {
-                tokio::task::yield_now().await;
-            }
-            if passed >= d {
-                break;
-            }
-            self.clock.advance(step);
-            passed += step;
-        }
-    }
+/// How far virtual time moves in one step.
+const STEP: Duration = Duration::from_millis(10);
 
-    /// Lets virtual time pass in 10 ms steps until robot's `k` reads `want`, failing once
-    /// `within` of virtual time has passed: each step waits for the tuple's change itself (for a
-    /// moment of real time, in which the host's tasks run) rather than for a number of yields.
-    async fn wait_for(&self, k: &str, want: &str, within: Duration) {
-        let step = Duration::from_millis(10);
+impl Fixture {
+    /// Lets virtual time pass a `STEP` at a time until robot's `k` reads `want`, failing once
+    /// `within` of virtual time has passed; returns that tuple. The tests run on tokio's paused
+    /// clock (`start_paused`), which moves on (ending the step's sleep) only when no task can run:
+    /// so each step comes once the host has handled everything the last one set off.
+    async fn wait_for(&self, k: &str, want: &str, within: Duration) -> Tuple {
         let mut changes = self
             .other
             .subscribe(TuplePattern::exact(
@@ -78,22 +65,23 @@ impl Fixture {
             .expect("subscribe");
         let mut passed = Duration::ZERO;
         loop {
-            while let Ok(Some(event)) =
-                tokio::time::timeout(Duration::from_millis(5), changes.next()).await
-            {
-                if let TupleEvent::Changed(t) = event
-                    && t.text().ok() == Some(want)
-                {
-                    return;
+            tokio::select! {
+                biased;
+                event = changes.next() => match event {
+                    Some(TupleEvent::Changed(t)) if t.text().ok() == Some(want) => return t,
+                    Some(_) => {}
+                    None => panic!("the subscription to {k} ended"),
+                },
+                () = tokio::time::sleep(STEP) => {
+                    assert!(
+                        passed < within,
+                        "{k} did not read {want:?} within {within:?} of virtual time; it reads {:?}",
+                        self.get(k).await
+                    );
+                    self.clock.advance(STEP);
+                    passed += STEP;
                 }
             }
-            assert!(
-                passed < within,
-                "{k} did not read {want:?} within {within:?} of virtual time; it reads {:?}",
-                self.get(k).await
-            );
-            self.clock.advance(step);
-            passed += step;
         }
     }
 
@@ -106,11 +94,11 @@ impl Fixture {
         t.map(|t| t.text().expect("text").to_string())
     }
 
-    async fn set(&self, k: &str, v: &str) {
+    async fn set(&self, k: &str, v: &str) -> Tuple {
         self.other
             .set_remote(PeisId::new("robot").expect("name"), key(k), Value::text(v))
             .await
-            .expect("remote set");
+            .expect("remote set")
     }
 
     async fn stop(self) {
@@ -147,7 +135,7 @@ fn echo() -> Arc<dyn Component<InProcessPeis>> {
     })
 }
 
-#[tokio::test]
+#[tokio::test(start_paused = true)]
 async fn the_init_component_publishes_and_starts_components() {
     let f = start(vec![spec("l1", false, echo())]).await;
     f.wait_for("components.l1.type", "laser", Duration::from_millis(10))
@@ -160,15 +148,15 @@ async fn the_init_component_publishes_and_starts_components() {
         .await;
 
     f.set("l1.params", "(laser robot l1)").await;
-    f.set("components.l1.reqState", "on").await;
-    f.pass(Duration::from_millis(500)).await;
-    assert_eq!(
-        f.get("components.l1.currState").await.as_deref(),
-        Some("off"),
-        "still starting up"
-    );
-    f.wait_for("components.l1.currState", "on", Duration::from_millis(600))
+    let asked = f.set("components.l1.reqState", "on").await;
+    let on = f
+        .wait_for("components.l1.currState", "on", Duration::from_millis(1100))
         .await;
+    let took = on.ts_write.saturating_duration_since(asked.ts_write);
+    assert!(
+        took >= Duration::from_secs(1),
+        "on {took:?} after the request, before its start-up delay"
+    );
     f.wait_for("l1.status", "running", Duration::from_millis(100))
         .await;
     f.wait_for("l1.out.range-scan", "robot l1", Duration::from_millis(100))
@@ -187,7 +175,7 @@ async fn the_init_component_publishes_and_starts_components() {
     f.stop().await;
 }
 
-#[tokio::test]
+#[tokio::test(start_paused = true)]
 async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
     let failing: Arc<dyn Component<InProcessPeis>> =
         Arc::new(|ctx: Context<InProcessPeis>| async move {
@@ -231,7 +219,7 @@ async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
     f.stop().await;
 }
 
-#[tokio::test]
+#[tokio::test(start_paused = true)]
 async fn switching_on_again_restarts_a_body_that_failed() {
     let attempts = Arc::new(std::sync::atomic::AtomicU32::new(0));
     let counted = attempts.clone();
@@ -259,7 +247,7 @@ async fn switching_on_again_restarts_a_body_that_failed() {
     f.stop().await;
 }
 
-#[tokio::test]
+#[tokio::test(start_paused = true)]
 async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
     let consumer: Arc<dyn Component<InProcessPeis>> =
         Arc::new(|ctx: Context<InProcessPeis>| async move {
@@ -296,5 +284,26 @@ async fn inputs_follow_meta_tuples_and_report_what_is_missing() {
     f.set("components.l1.reqState", "off").await;
     f.wait_for("s1.status", "waiting", Duration::from_millis(600))
         .await;
+    f.stop().await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn params_name_a_functionality_and_its_arguments() {
+    let f = start(Vec::new()).await;
+    let clock: Arc<dyn Clock> = Arc::new(f.clock.clone());
+    let context = |params: &str| {
+        Context::new(
+            f.other.clone(),
+            "s1".to_string(),
+            params.to_string(),
+            clock.clone(),
+        )
+    };
+    let full = context("(scan-matching robot s1)");
+    assert_eq!(full.functionality(), "scan-matching");
+    assert_eq!(full.args(), ["robot", "s1"]);
+    let bare = context("(laser)");
+    assert_eq!(bare.functionality(), "laser");
+    assert!(bare.args().is_empty());
     f.stop().await;
 }

@@ -95,14 +95,7 @@ impl<S: TupleSpace> Component<S> for Simulated {
     fn run(&self, ctx: Context<S>) -> BoxFuture<Result<(), ComponentError>> {
         let sim = self.clone();
         Box::pin(async move {
-            let functionality = ctx
-                .params()
-                .trim_start_matches('(')
-                .split_whitespace()
-                .next()
-                .unwrap_or("")
-                .trim_end_matches(')')
-                .to_string();
+            let functionality = ctx.functionality().to_string();
             let name = format!(
                 "{}:{}:{}",
                 ctx.peis(),

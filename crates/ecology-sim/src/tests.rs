@@ -55,6 +55,16 @@ fn configurations(report: &Report) -> Vec<(u64, bool, Vec<String>)> {
         .collect()
 }
 
+/// The room robot `robot` is in at the end of the run.
+fn room_of<'a>(report: &'a Report, robot: &str) -> Option<&'a str> {
+    let pose = report.world.robots[robot].pose;
+    report
+        .world
+        .map
+        .room_at(pose.x, pose.y)
+        .map(|r| r.name.as_str())
+}
+
 fn house() -> Map {
     let scenario = load("peis-home.toml");
     scenario.world.map
@@ -252,13 +262,12 @@ async fn the_demo_reproduces_the_papers_experiment() {
     assert!(switched_on_laser, "{text}");
     assert_eq!(report.log.last().map(|e| e.event.name()), Some("task_done"));
     // And the world agrees: Astrid is in the bedroom holding the newspaper, Johanna awake.
-    let astrid = report.world.robots["astrid"].pose;
-    let room = report
-        .world
-        .map
-        .room_at(astrid.x, astrid.y)
-        .map(|r| r.name.clone());
-    assert_eq!(room.as_deref(), Some("bedroom"), "{astrid:?}");
+    assert_eq!(
+        room_of(&report, "astrid"),
+        Some("bedroom"),
+        "{:?}",
+        report.world.robots["astrid"].pose
+    );
     assert_eq!(
         report.world.things["newspaper"].holder.as_deref(),
         Some("astrid")
@@ -287,13 +296,7 @@ async fn the_kitchen_scenario_survives_a_crash_of_the_monitor() {
     assert!(text.contains("PEIS hsm left the ecology"), "{text}");
     let costs: Vec<(u64, bool)> = configurations(&report).iter().map(|c| (c.0, c.1)).collect();
     assert_eq!(costs, [(80, false), (170, true), (80, false)], "{text}");
-    let astrid = report.world.robots["astrid"].pose;
-    let room = report
-        .world
-        .map
-        .room_at(astrid.x, astrid.y)
-        .map(|r| r.name.clone());
-    assert_eq!(room.as_deref(), Some("bedroom"));
+    assert_eq!(room_of(&report, "astrid"), Some("bedroom"));
 }
 
 // Random fault schedules never leave the executive stuck: each run ends with
@@ -385,15 +388,7 @@ async fn a_failed_action_is_planned_around_and_another_robot_goes() {
         "{text}"
     );
     assert!(report.world.residents["johanna"].awake, "{text}");
-    let pippi = report.world.robots["pippi"].pose;
-    assert_eq!(
-        report
-            .world
-            .map
-            .room_at(pippi.x, pippi.y)
-            .map(|r| r.name.as_str()),
-        Some("bedroom")
-    );
+    assert_eq!(room_of(&report, "pippi"), Some("bedroom"));
 }
 
 // With both robots unable to localize, no plan remains: the task fails with

@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 
 use crate::{
     Key, KeyPattern, MetaPointer, PeisId, PeisOptions, PresenceEvent, PresenceSubscription,
-    RemoteSetPolicy, RemovalReason, Subscription, TupleError, TupleEvent, TuplePattern, TupleSpace,
-    Value,
+    RemoteSetPolicy, RemovalReason, Subscription, Tuple, TupleError, TupleEvent, TuplePattern,
+    TupleSpace, Value,
 };
 
 /// How the suite drives one implementation.
@@ -120,6 +120,16 @@ pub async fn wait_presence(
     }
 }
 
+/// Publishes `k` = `v` as `space`'s own tuple.
+async fn publish<S: TupleSpace>(space: &S, k: &str, v: &str) -> Tuple {
+    space.set(key(k), Value::text(v)).await.expect("set")
+}
+
+/// Subscribes `space` to pattern `p`.
+async fn watch<S: TupleSpace>(space: &S, p: &str) -> Subscription {
+    space.subscribe(pattern(p)).await.expect("subscribe")
+}
+
 fn changed_text(event: &TupleEvent) -> Option<(String, String, String)> {
     match event {
         TupleEvent::Changed(t) => Some((
@@ -155,9 +165,7 @@ pub async fn last_value_per_key<H: Harness>(h: &mut H) {
     let a = h.join("astrid", PeisOptions::default()).await;
     let b = h.join("pippi", PeisOptions::default()).await;
     for v in ["1", "2", "3"] {
-        a.set(key("tc1.out.position"), Value::text(v))
-            .await
-            .expect("set");
+        publish(&a, "tc1.out.position", v).await;
     }
     let got = b
         .get(peis("astrid"), key("tc1.out.position"))
@@ -186,10 +194,7 @@ pub async fn last_value_per_key<H: Harness>(h: &mut H) {
 pub async fn order_per_key<H: Harness>(h: &mut H) {
     let a = h.join("astrid", PeisOptions::default()).await;
     let b = h.join("pippi", PeisOptions::default()).await;
-    let mut sub = b
-        .subscribe(pattern("astrid:counter"))
-        .await
-        .expect("subscribe");
+    let mut sub = watch(&b, "astrid:counter").await;
     for i in 0..200 {
         a.set(key("counter"), Value::text(i.to_string()))
             .await
@@ -213,14 +218,8 @@ pub async fn wildcard_subscriptions<H: Harness>(h: &mut H) {
     let a = h.join("astrid", PeisOptions::default()).await;
     let b = h.join("pippi", PeisOptions::default()).await;
     let c = h.join("hsm", PeisOptions::default()).await;
-    let mut statuses = b
-        .subscribe(pattern("*:components.*.status"))
-        .await
-        .expect("subscribe");
-    let mut astrid_components = b
-        .subscribe(pattern("astrid:components.**"))
-        .await
-        .expect("subscribe");
+    let mut statuses = watch(&b, "*:components.*.status").await;
+    let mut astrid_components = watch(&b, "astrid:components.**").await;
     for (k, v) in [
         ("components.l1.status", "running"),
         ("components.l1.cost", "100"),
@@ -228,14 +227,10 @@ pub async fn wildcard_subscriptions<H: Harness>(h: &mut H) {
         ("other.status", "other"),
         ("components.marker.status", "marker"),
     ] {
-        a.set(key(k), Value::text(v)).await.expect("set");
+        publish(&a, k, v).await;
     }
-    c.set(key("components.ca1.status"), Value::text("running"))
-        .await
-        .expect("set");
-    c.set(key("components.marker.status"), Value::text("marker"))
-        .await
-        .expect("set");
+    publish(&c, "components.ca1.status", "running").await;
+    publish(&c, "components.marker.status", "marker").await;
 
     let seen = collect_until_markers(
         &mut statuses,
@@ -279,18 +274,14 @@ pub async fn wildcard_subscriptions<H: Harness>(h: &mut H) {
 pub async fn late_subscriber_gets_current_values<H: Harness>(h: &mut H) {
     let a = h.join("astrid", PeisOptions::default()).await;
     let b = h.join("pippi", PeisOptions::default()).await;
-    a.set(key("x.one"), Value::text("1")).await.expect("set");
-    a.set(key("x.two"), Value::text("2")).await.expect("set");
-    a.set(key("x.one"), Value::text("3")).await.expect("set");
-    a.set(key("x.three"), Value::text("gone"))
-        .await
-        .expect("set");
+    publish(&a, "x.one", "1").await;
+    publish(&a, "x.two", "2").await;
+    publish(&a, "x.one", "3").await;
+    publish(&a, "x.three", "gone").await;
     assert!(a.delete(key("x.three")).await.expect("delete"));
-    a.set(key("y.one"), Value::text("elsewhere"))
-        .await
-        .expect("set");
+    publish(&a, "y.one", "elsewhere").await;
 
-    let mut sub = b.subscribe(pattern("astrid:x.*")).await.expect("subscribe");
+    let mut sub = watch(&b, "astrid:x.*").await;
     let mut current = BTreeMap::new();
     for _ in 0..2 {
         let event = next_event(&mut sub, h.patience()).await;
@@ -302,7 +293,7 @@ pub async fn late_subscriber_gets_current_values<H: Harness>(h: &mut H) {
         .map(|(k, v)| (k.to_owned(), v.to_owned()))
         .collect();
     assert_eq!(current, expected);
-    a.set(key("x.two"), Value::text("5")).await.expect("set");
+    publish(&a, "x.two", "5").await;
     let event = next_event(&mut sub, h.patience()).await;
     assert_eq!(
         changed_text(&event),
@@ -315,14 +306,8 @@ pub async fn meta_tuple_refollows_pointer<H: Harness>(h: &mut H) {
     let astrid = h.join("astrid", PeisOptions::default()).await;
     let pippi = h.join("pippi", PeisOptions::default()).await;
     let hsm = h.join("hsm", PeisOptions::default()).await;
-    astrid
-        .set(key("s1.out.position"), Value::text("a1"))
-        .await
-        .expect("set");
-    pippi
-        .set(key("ol2.out.position"), Value::text("p1"))
-        .await
-        .expect("set");
+    publish(&astrid, "s1.out.position", "a1").await;
+    publish(&pippi, "ol2.out.position", "p1").await;
     let to_astrid = MetaPointer {
         owner: peis("astrid"),
         key: key("s1.out.position"),
@@ -360,10 +345,7 @@ pub async fn meta_tuple_refollows_pointer<H: Harness>(h: &mut H) {
         changed_text(&next_event(&mut sub, p).await),
         Some(("astrid".into(), "s1.out.position".into(), "a1".into()))
     );
-    astrid
-        .set(key("s1.out.position"), Value::text("a2"))
-        .await
-        .expect("set");
+    publish(&astrid, "s1.out.position", "a2").await;
     assert_eq!(
         changed_text(&next_event(&mut sub, p).await),
         Some(("astrid".into(), "s1.out.position".into(), "a2".into()))
@@ -378,23 +360,15 @@ pub async fn meta_tuple_refollows_pointer<H: Harness>(h: &mut H) {
         Some(("pippi".into(), "ol2.out.position".into(), "p1".into()))
     );
     // The old target is no longer followed.
-    astrid
-        .set(key("s1.out.position"), Value::text("a3"))
-        .await
-        .expect("set");
-    pippi
-        .set(key("ol2.out.position"), Value::text("p2"))
-        .await
-        .expect("set");
+    publish(&astrid, "s1.out.position", "a3").await;
+    publish(&pippi, "ol2.out.position", "p2").await;
     assert_eq!(
         changed_text(&next_event(&mut sub, p).await),
         Some(("pippi".into(), "ol2.out.position".into(), "p2".into()))
     );
 
     // A value that is not a pointer follows nothing.
-    hsm.set(key("tr1.mi-position"), Value::text("not a pointer"))
-        .await
-        .expect("set");
+    publish(&hsm, "tr1.mi-position", "not a pointer").await;
     assert_eq!(next_event(&mut sub, p).await, retargeted(None));
     hsm.set_meta(key("tr1.mi-position"), &to_astrid)
         .await
@@ -418,15 +392,9 @@ pub async fn remote_set_is_applied_by_owner<H: Harness>(h: &mut H) {
     let astrid = h.join("astrid", options).await;
     let deployer = h.join("deployer", PeisOptions::default()).await;
     let watcher = h.join("watcher", PeisOptions::default()).await;
-    let mut sub = watcher
-        .subscribe(pattern("astrid:**"))
-        .await
-        .expect("subscribe");
+    let mut sub = watch(&watcher, "astrid:**").await;
 
-    astrid
-        .set(key("components.l1.reqState"), Value::text("off"))
-        .await
-        .expect("set");
+    publish(&astrid, "components.l1.reqState", "off").await;
     let applied = deployer
         .set_remote(
             peis("astrid"),
@@ -511,19 +479,10 @@ pub async fn non_owner_cannot_publish<H: Harness>(h: &mut H) {
         .await;
     let intruder = h.join("intruder", PeisOptions::default()).await;
     let watcher = h.join("watcher", PeisOptions::default()).await;
-    let mut sub = watcher
-        .subscribe(pattern("astrid:**"))
-        .await
-        .expect("subscribe");
-    astrid
-        .set(key("components.l1.status"), Value::text("running"))
-        .await
-        .expect("set");
+    let mut sub = watch(&watcher, "astrid:**").await;
+    publish(&astrid, "components.l1.status", "running").await;
     // The intruder's `set` of the same key lands under its own name, never under astrid's.
-    let own = intruder
-        .set(key("components.l1.status"), Value::text("error"))
-        .await
-        .expect("set");
+    let own = publish(&intruder, "components.l1.status", "error").await;
     assert_eq!(own.owner, peis("intruder"));
     let refused = intruder
         .set_remote(
@@ -536,10 +495,7 @@ pub async fn non_owner_cannot_publish<H: Harness>(h: &mut H) {
         matches!(refused, Err(TupleError::RemoteSetRefused { .. })),
         "{refused:?}"
     );
-    astrid
-        .set(key("marker"), Value::text("m"))
-        .await
-        .expect("set");
+    publish(&astrid, "marker", "m").await;
     let seen = collect_until_markers(&mut sub, &[("astrid", "marker")], h.patience()).await;
     assert_eq!(
         seen.get(&("astrid".to_owned(), "components.l1.status".to_owned())),
@@ -558,12 +514,12 @@ pub async fn non_owner_cannot_publish<H: Harness>(h: &mut H) {
 pub async fn expiry_removes_tuples<H: Harness>(h: &mut H) {
     let a = h.join("astrid", PeisOptions::default()).await;
     let b = h.join("pippi", PeisOptions::default()).await;
-    let mut sub = b.subscribe(pattern("astrid:**")).await.expect("subscribe");
+    let mut sub = watch(&b, "astrid:**").await;
     let ttl = Duration::from_millis(500);
     a.set(key("volatile"), Value::text("v1").with_time_to_live(ttl))
         .await
         .expect("set");
-    a.set(key("stable"), Value::text("s")).await.expect("set");
+    publish(&a, "stable", "s").await;
     let p = h.patience();
     let first = next_event(&mut sub, p).await;
     let TupleEvent::Changed(volatile) = first else {
@@ -625,10 +581,7 @@ pub async fn presence_join_and_leave<H: Harness>(h: &mut H) {
         PresenceEvent::Joined(peis("watcher"))
     );
     let newcomer = h.join("newcomer", PeisOptions::default()).await;
-    newcomer
-        .set(key("hello"), Value::text("world"))
-        .await
-        .expect("set");
+    publish(&newcomer, "hello", "world").await;
     assert_eq!(
         next_presence(&mut presence, p).await,
         PresenceEvent::Joined(peis("newcomer"))
@@ -697,7 +650,7 @@ pub async fn a_rejoining_peis_starts_a_later_epoch<H: Harness>(h: &mut H) {
     let first = h.join("phoenix", PeisOptions::default()).await;
     let mut old = None;
     for v in ["a", "b"] {
-        old = Some(first.set(key("x"), Value::text(v)).await.expect("set"));
+        old = Some(publish(&first, "x", v).await);
     }
     let old = old.expect("set twice");
     assert_eq!(old.seq, 2);
@@ -709,7 +662,7 @@ pub async fn a_rejoining_peis_starts_a_later_epoch<H: Harness>(h: &mut H) {
         .expect("subscribe");
     h.advance(Duration::from_millis(1));
     let second = h.join("phoenix", PeisOptions::default()).await;
-    let new = second.set(key("x"), Value::text("c")).await.expect("set");
+    let new = publish(&second, "x", "c").await;
     assert_eq!(new.seq, 1, "a new run numbers its tuples from 1");
     assert!(new.epoch > old.epoch, "{} after {}", new.epoch, old.epoch);
     match next_event(&mut sub, p).await {

@@ -28,6 +28,16 @@ fn configure(extra: &[&str]) -> Output {
     configure_goal("(navigate astrid bedroom)", extra)
 }
 
+/// [`configure`] without `components` (`P:C`, each given to `--exclude`), with `extra`.
+fn configure_without<'a>(components: &[&'a str], extra: &[&'a str]) -> Output {
+    let mut args = Vec::new();
+    for component in components {
+        args.extend(["--exclude", component]);
+    }
+    args.extend_from_slice(extra);
+    configure(&args)
+}
+
 /// `ecology configure` on the paper's domain and state, for `goal`.
 fn configure_goal(goal: &str, extra: &[&str]) -> Output {
     let mut args = vec![
@@ -49,6 +59,19 @@ fn stdout(out: &Output) -> String {
 
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Asserts that `out` exited with `code` and said `why` on stderr.
+#[track_caller]
+fn exits(out: &Output, code: i32, why: &str) {
+    assert_eq!(
+        out.status.code(),
+        Some(code),
+        "{}{}",
+        stdout(out),
+        stderr(out)
+    );
+    assert!(stderr(out).contains(why), "{why:?} not in {}", stderr(out));
 }
 
 fn json(out: &Output) -> Value {
@@ -131,7 +154,7 @@ fn configure_json() {
 
 #[test]
 fn configure_with_exclusions() {
-    let v = json(&configure(&["--exclude", "hsm:tr1", "--json"]));
+    let v = json(&configure_without(&["hsm:tr1"], &["--json"]));
     assert_eq!(v["cost"], 170);
     let laser = v["functionalities"]
         .as_array()
@@ -143,23 +166,10 @@ fn configure_with_exclusions() {
     assert_eq!(laser["state"], "off");
     assert_eq!(laser["cost"], 120);
 
-    let v = json(&configure(&[
-        "--exclude",
-        "hsm:tr1",
-        "--exclude",
-        "astrid:l1",
-        "--json",
-    ]));
+    let v = json(&configure_without(&["hsm:tr1", "astrid:l1"], &["--json"]));
     assert_eq!(v["cost"], 190);
 
-    let out = configure(&[
-        "--exclude",
-        "hsm:tr1",
-        "--exclude",
-        "astrid:l1",
-        "--exclude",
-        "pippi:ol2",
-    ]);
+    let out = configure_without(&["hsm:tr1", "astrid:l1", "pippi:ol2"], &[]);
     assert_eq!(out.status.code(), Some(1));
     let text = stderr(&out);
     assert!(
@@ -171,15 +181,7 @@ fn configure_with_exclusions() {
         "{text}"
     );
 
-    let out = configure(&[
-        "--exclude",
-        "hsm:tr1",
-        "--exclude",
-        "astrid:l1",
-        "--exclude",
-        "pippi:ol2",
-        "--json",
-    ]);
+    let out = configure_without(&["hsm:tr1", "astrid:l1", "pippi:ol2"], &["--json"]);
     assert_eq!(out.status.code(), Some(1));
     let v = json(&out);
     assert_eq!(v["error"], "no configuration");
@@ -264,12 +266,7 @@ fn configure_stops_when_the_budget_is_spent_while_reading() {
     assert!(v["lower_bound"].is_null(), "{v}");
     assert_eq!(v["stats"]["expanded"], 0, "{v}");
     let out = run(&["--max-millis", "0"]);
-    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
-    assert!(
-        stderr(&out).contains("the budget was spent while reading the input"),
-        "{}",
-        stderr(&out)
-    );
+    exits(&out, 1, "the budget was spent while reading the input");
     // A budget of nodes is spent while planning: not proven, with the bound.
     let v = json(&run(&["--max-nodes", "0", "--json"]));
     assert_eq!(v["error"], "budget exceeded", "{v}");
@@ -316,19 +313,16 @@ fn check_reports_diagnostics_and_exits_2() {
     assert!(text.contains("1 error in"), "{text}");
 
     let out = ecology(&["check", "no/such/file.eco"]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("cannot open no/such/file.eco"));
+    exits(&out, 2, "cannot open no/such/file.eco");
     std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn bad_goals_and_arguments_exit_2() {
     let out = configure_goal("(fly astrid", &[]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("<goal>:1:1"), "{}", stderr(&out));
+    exits(&out, 2, "<goal>:1:1");
     let out = configure_goal("(fly astrid)", &[]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("unknown task or functionality `fly` in the goal"));
+    exits(&out, 2, "unknown task or functionality `fly` in the goal");
     // Where in the goal: the name, under a caret.
     assert!(stderr(&out).contains("<goal>:1:2"), "{}", stderr(&out));
     assert!(
@@ -339,8 +333,7 @@ fn bad_goals_and_arguments_exit_2() {
     let out = configure(&[]);
     assert_eq!(out.status.code(), Some(0));
     let out = configure_goal("  (navigate astrid)", &[]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("<goal>:1:3"), "{}", stderr(&out));
+    exits(&out, 2, "<goal>:1:3");
     assert!(
         stderr(&out).contains("takes 2 arguments, the goal gives 1"),
         "{}",
@@ -435,12 +428,7 @@ fn plan_classic_pddl_optimally() {
 #[test]
 fn plan_without_a_plan_exits_1_with_a_reason() {
     let out = plan(&["--exclude", "(move astrid living-room entrance)"]);
-    assert_eq!(out.status.code(), Some(1));
-    assert!(
-        stderr(&out).contains("no plan: the goal is unreachable"),
-        "{}",
-        stderr(&out)
-    );
+    exits(&out, 1, "no plan: the goal is unreachable");
     let out = plan(&["--exclude", "(move astrid entrance bedroom)", "--json"]);
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(json(&out)["error"], "unsolvable");
@@ -495,8 +483,7 @@ fn plan_bad_input_exits_2_with_positions() {
         assert_eq!(out.status.code(), Some(2), "{exclude}");
     }
     let out = plan(&["--optimal", "--heuristic", "ff"]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("admissible"));
+    exits(&out, 2, "admissible");
 }
 
 fn plan_with_problem(problem: &str, extra: &[&str]) -> Output {
@@ -562,8 +549,7 @@ fn run_takes_a_scenario_file_and_reports_bad_ones() {
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, "name = \"bad\"\n[task]\ndomain = 3\n").expect("writes");
     let out = ecology(&["run", bad.to_str().expect("utf-8 path")]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("bad.toml:3:10"), "{}", stderr(&out));
+    exits(&out, 2, "bad.toml:3:10");
     let _ = std::fs::remove_dir_all(&dir);
 
     let out = ecology(&["demo", "--speed", "0"]);
@@ -638,13 +624,10 @@ fn keys_make_an_ecology_and_processes_use_them() {
         assert_eq!(out.status.code(), Some(0), "{}{}", stdout(out), stderr(out));
         stdout(out)
     };
-    let fails = |out: &Output, why: &str| {
-        assert_eq!(out.status.code(), Some(2), "{}{}", stdout(out), stderr(out));
-        assert!(stderr(out).contains(why), "{why:?} not in {}", stderr(out));
-    };
     ok(&ecology(&["keys", "init", d]));
-    fails(
+    exits(
         &ecology(&["keys", "init", d]),
+        2,
         "already holds an ecology's keys",
     );
     ok(&ecology(&["keys", "add", d, "astrid", "hsm"]));
@@ -656,24 +639,28 @@ fn keys_make_an_ecology_and_processes_use_them() {
         "--role",
         "executive",
     ]));
-    fails(
+    exits(
         &ecology(&["keys", "add", d, "hsm"]),
+        2,
         "hsm is already a member",
     );
-    fails(
+    exits(
         &ecology(&["keys", "add", d, "x", "--role", "king"]),
+        2,
         "unknown role",
     );
-    fails(&ecology(&["keys", "add", d, "ast rid"]), "ast rid");
+    exits(&ecology(&["keys", "add", d, "ast rid"]), 2, "ast rid");
     ok(&ecology(&[
         "keys", "grant", d, "astrid", "*.fault", "--owner", "hsm",
     ]));
-    fails(
+    exits(
         &ecology(&["keys", "grant", d, "nobody", "*.fault"]),
+        2,
         "nobody is not a member",
     );
-    fails(
+    exits(
         &ecology(&["keys", "grant", d, "astrid", "a..b"]),
+        2,
         "invalid key pattern",
     );
     let list = ok(&ecology(&["keys", "list", d]));
@@ -754,10 +741,5 @@ fn configure_writes_an_svg_picture() {
     assert_eq!(svg.matches("class=\"functionality").count(), 4, "{svg}");
     assert_eq!(svg.matches("<g class=\"channel").count(), 3, "{svg}");
     let bad = configure(&["--svg", "/nonexistent-dir/x.svg"]);
-    assert_eq!(bad.status.code(), Some(2));
-    assert!(
-        stderr(&bad).contains("writing /nonexistent-dir/x.svg"),
-        "{}",
-        stderr(&bad)
-    );
+    exits(&bad, 2, "writing /nonexistent-dir/x.svg");
 }
