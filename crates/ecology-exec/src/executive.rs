@@ -871,7 +871,29 @@ impl Executive {
                     .cloned()
                     .collect();
                 let (late, cause) = if starting.is_empty() {
-                    let late = pending.iter().cloned().collect();
+                    // A component waiting for a producer that is itself not
+                    // running is not to blame: its input is wired only once
+                    // the producer runs. Blame the pending components whose
+                    // producers all run (all of them, in a cycle).
+                    let config = run.config.as_ref();
+                    let starved = |key: &ComponentKey| {
+                        config.is_some_and(|c| {
+                            c.channels.iter().any(|ch| {
+                                ch.to_peis == key.0.as_str()
+                                    && ch.to_component == key.1.as_str()
+                                    && component_key(&ch.from_peis, &ch.from_component).is_some_and(
+                                        |producer| producer != *key && pending.contains(&producer),
+                                    )
+                            })
+                        })
+                    };
+                    let sources: Vec<ComponentKey> =
+                        pending.iter().filter(|k| !starved(k)).cloned().collect();
+                    let late = if sources.is_empty() {
+                        pending.iter().cloned().collect()
+                    } else {
+                        sources
+                    };
                     let cause = format!(
                         "did not report running within {:?}",
                         self.config.deploy_timeout

@@ -961,6 +961,31 @@ mod on_the_tuple_space {
         );
     }
 
+    // A producer that never runs leaves its consumers waiting for inputs that
+    // are wired only once it runs: when the deploy timeout passes, the
+    // producer alone is blamed, and the consumers serve the next configuration.
+    #[tokio::test(start_paused = true)]
+    async fn a_hung_producer_is_blamed_not_the_consumers_waiting_for_it() {
+        let exec = Run {
+            hung: &[("hsm", "tr1")],
+            ..Run::of(executive(plan()[..1].to_vec()))
+        }
+        .done()
+        .await;
+        assert_eq!(
+            failures(&exec),
+            ["hsm:tr1 did not report running within 10s"],
+            "{}",
+            timeline(&exec)
+        );
+        assert_eq!(
+            costs(&exec),
+            [(80, false), (170, true)],
+            "{}",
+            timeline(&exec)
+        );
+    }
+
     #[tokio::test(start_paused = true)]
     async fn an_action_whose_configuration_has_no_postcondition_is_done_once_it_runs() {
         let localize = PlannedAction::new(
