@@ -105,16 +105,22 @@ pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
 pub enum JoinFailure {
     /// Its name is taken: exit 2 (bad usage).
     NameTaken(PeisId),
-    /// Anything else: the error.
+    /// Its options, keys or Zenoh configuration are unusable (an unreadable keys
+    /// directory, a name not in the roster, a `tcp/` endpoint with keys): exit 2.
+    BadConfig(anyhow::Error),
+    /// Anything else (an endpoint that cannot be opened): the error.
     Other(anyhow::Error),
 }
 
 /// Joins the ecology as `name`.
 pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure> {
-    let options = net.options(name).map_err(JoinFailure::Other)?;
+    let options = net.options(name).map_err(JoinFailure::BadConfig)?;
     match ZenohPeis::open(options).await {
         Ok(peis) => Ok(peis),
         Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => Err(JoinFailure::NameTaken(id)),
+        Err(e @ ZenohError::Config { .. }) => Err(JoinFailure::BadConfig(
+            anyhow::Error::new(e).context("joining the ecology"),
+        )),
         Err(e) => Err(JoinFailure::Other(
             anyhow::Error::new(e).context("joining the ecology"),
         )),

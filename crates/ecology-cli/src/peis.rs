@@ -211,6 +211,10 @@ pub fn join_failed(failure: JoinFailure) -> u8 {
             eprintln!("error: a PEIS named {id} is already present in the ecology");
             EXIT_BAD_INPUT
         }
+        JoinFailure::BadConfig(e) => {
+            eprintln!("error: {e:#}");
+            EXIT_BAD_INPUT
+        }
         JoinFailure::Other(e) => {
             eprintln!("error: {e:#}");
             EXIT_NO_SOLUTION

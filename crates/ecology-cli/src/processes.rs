@@ -286,7 +286,9 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
             Err(network::JoinFailure::NameTaken(id)) => {
                 anyhow::bail!("a PEIS named {id} is already present")
             }
-            Err(network::JoinFailure::Other(e)) => return Err(e),
+            Err(network::JoinFailure::Other(e) | network::JoinFailure::BadConfig(e)) => {
+                return Err(e);
+            }
         };
         let log_pattern = TuplePattern::parse(&format!("{EXECUTIVE}:log"))?;
         let mut log = launcher.subscribe(log_pattern).await?;

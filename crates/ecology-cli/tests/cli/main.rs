@@ -689,7 +689,7 @@ fn keys_make_an_ecology_and_processes_use_them() {
         "--listen",
         "tcp/127.0.0.1:0",
     ]);
-    assert_ne!(tcp.status.code(), Some(0));
+    assert_eq!(tcp.status.code(), Some(2), "bad input");
     assert!(
         stderr(&tcp).contains("write quic/127.0.0.1:0"),
         "{}",
@@ -705,7 +705,7 @@ fn keys_make_an_ecology_and_processes_use_them() {
         "--listen",
         "quic/127.0.0.1:0",
     ]);
-    assert_ne!(stranger.status.code(), Some(0));
+    assert_eq!(stranger.status.code(), Some(2), "bad input");
     assert!(
         stderr(&stranger).contains("pippi is not a member"),
         "{}",
