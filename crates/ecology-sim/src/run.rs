@@ -197,96 +197,12 @@ pub async fn run(
         PeisId::new("executive").map_err(TupleError::Invalid)?,
         PeisOptions::default(),
     )?;
-    // Read through the executive's own handle, so watching adds no PEIS to the ecology.
     let mut watching = JoinSet::new();
     if options.observe_tuples {
-        let mut tuples = me.subscribe(TuplePattern::everything()).await?;
-        let mut presence = me.subscribe_presence().await?;
-        let observer = observer.clone();
-        watching.spawn(async move {
-            loop {
-                let update = tokio::select! {
-                    Some(event) = tuples.next() => Update::Tuple(event),
-                    Some(event) = presence.next() => Update::Presence(event),
-                    else => return,
-                };
-                (lock(&observer))(update);
-            }
-        });
+        watch_tuples(&me, &observer, &mut watching).await?;
     }
-    let mut exec = Executive::new(
-        scenario.domain.clone(),
-        EcologyState::new(),
-        scenario.plan.clone(),
-        ExecConfig {
-            action_timeout: scenario.action_timeout,
-            ..ExecConfig::default()
-        },
-    );
-    let config = DriverConfig {
-        limit: Some(scenario.time_limit),
-        ..DriverConfig::default()
-    };
-    let mut triggers: Vec<(FaultSpec, bool)> = scenario
-        .faults
-        .iter()
-        .filter(|f| matches!(f.trigger, Trigger::After { .. }))
-        .map(|f| (f.clone(), false))
-        .collect();
-    let mut current_action: Option<usize> = None;
-    let mut spurious = Vec::new();
-    let driven = {
-        let truth = space.clone();
-        let observer = observer.clone();
-        let shared = shared.clone();
-        // Action-level recovery when the scenario has a problem to plan again.
-        let mut replanner = scenario
-            .problem
-            .as_ref()
-            .map(|(problem, _)| WorldReplanner::new(scenario.domain.clone(), problem.clone()));
-        let observe = |entry: &LogEntry| {
-            let index = match &entry.event {
-                LogEvent::ActionStarted { index, .. }
-                | LogEvent::ActionDone { index, .. }
-                | LogEvent::ActionFailed { index, .. } => Some(*index),
-                _ => current_action,
-            };
-            if let LogEvent::ActionStarted { index, .. } = entry.event {
-                current_action = Some(index);
-            }
-            for (fault, fired) in &mut triggers {
-                if let Some(delay) = fault.trigger.fired_by(entry.event.name(), index)
-                    && !*fired
-                {
-                    *fired = true;
-                    lock(&schedule).push((shared.now().saturating_add(delay), fault.clone()));
-                }
-            }
-            if let LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } = &entry.event
-                && let Some(why) = unfounded(&truth, peis, component, cause)
-            {
-                spurious.push(format!(
-                    "{:.3}s {peis}:{component} ({cause}): {why}",
-                    entry.t.as_secs_f64()
-                ));
-            }
-            (lock(&observer))(Update::Log(entry.clone()));
-        };
-        drive_until(
-            &me,
-            shared.clone(),
-            &mut exec,
-            config,
-            observe,
-            std::future::pending(),
-            replanner.as_mut().map(|r| r as &mut dyn Replan),
-        )
-        .await
-    };
+    let (exec, driven, spurious) =
+        drive_scenario(scenario, &me, &space, &shared, &schedule, &observer).await;
     let _ = stop.send(true);
     watching.abort_all();
     let mut outcome = Ok(scenario.world_for(options.seed));
@@ -313,6 +229,117 @@ pub async fn run(
         world,
         spurious,
     })
+}
+
+/// Reads every tuple change and presence event through the executive's own
+/// handle `me` (so watching adds no PEIS to the ecology) and hands them to
+/// `observer`, in a task `watching` owns.
+async fn watch_tuples(
+    me: &InProcessPeis,
+    observer: &Arc<Mutex<Observer>>,
+    watching: &mut JoinSet<()>,
+) -> Result<(), TupleError> {
+    let mut tuples = me.subscribe(TuplePattern::everything()).await?;
+    let mut presence = me.subscribe_presence().await?;
+    let observer = observer.clone();
+    watching.spawn(async move {
+        loop {
+            let update = tokio::select! {
+                Some(event) = tuples.next() => Update::Tuple(event),
+                Some(event) = presence.next() => Update::Presence(event),
+                else => return,
+            };
+            (lock(&observer))(update);
+        }
+    });
+    Ok(())
+}
+
+/// Drives the scenario's plan with the executive as `me` until the task
+/// ends or the time limit passes: faults triggered by executive events are
+/// scheduled as they are logged, and every failure the executive logs is
+/// checked against the ground truth. Returns the executive, how the drive
+/// ended, and the failures the ground truth does not bear out.
+async fn drive_scenario(
+    scenario: &Scenario,
+    me: &InProcessPeis,
+    space: &Arc<InProcessSpace>,
+    shared: &Arc<dyn Clock>,
+    schedule: &Schedule,
+    observer: &Arc<Mutex<Observer>>,
+) -> (Executive, Result<RunStatus, TupleError>, Vec<String>) {
+    let mut exec = Executive::new(
+        scenario.domain.clone(),
+        EcologyState::new(),
+        scenario.plan.clone(),
+        ExecConfig {
+            action_timeout: scenario.action_timeout,
+            ..ExecConfig::default()
+        },
+    );
+    let config = DriverConfig {
+        limit: Some(scenario.time_limit),
+        ..DriverConfig::default()
+    };
+    let mut triggers: Vec<(FaultSpec, bool)> = scenario
+        .faults
+        .iter()
+        .filter(|f| matches!(f.trigger, Trigger::After { .. }))
+        .map(|f| (f.clone(), false))
+        .collect();
+    let mut current_action: Option<usize> = None;
+    let mut spurious = Vec::new();
+    // Action-level recovery when the scenario has a problem to plan again.
+    let mut replanner = scenario
+        .problem
+        .as_ref()
+        .map(|(problem, _)| WorldReplanner::new(scenario.domain.clone(), problem.clone()));
+    let driven = {
+        let truth = space;
+        let observe = |entry: &LogEntry| {
+            let index = match &entry.event {
+                LogEvent::ActionStarted { index, .. }
+                | LogEvent::ActionDone { index, .. }
+                | LogEvent::ActionFailed { index, .. } => Some(*index),
+                _ => current_action,
+            };
+            if let LogEvent::ActionStarted { index, .. } = entry.event {
+                current_action = Some(index);
+            }
+            for (fault, fired) in &mut triggers {
+                if let Some(delay) = fault.trigger.fired_by(entry.event.name(), index)
+                    && !*fired
+                {
+                    *fired = true;
+                    lock(schedule).push((shared.now().saturating_add(delay), fault.clone()));
+                }
+            }
+            if let LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } = &entry.event
+                && let Some(why) = unfounded(truth, peis, component, cause)
+            {
+                spurious.push(format!(
+                    "{:.3}s {peis}:{component} ({cause}): {why}",
+                    entry.t.as_secs_f64()
+                ));
+            }
+            (lock(observer))(Update::Log(entry.clone()));
+        };
+        drive_until(
+            me,
+            shared.clone(),
+            &mut exec,
+            config,
+            observe,
+            std::future::pending(),
+            replanner.as_mut().map(|r| r as &mut dyn Replan),
+        )
+        .await
+    };
+    (exec, driven, spurious)
 }
 
 /// Why a failure the executive logged is not borne out by the ground truth
