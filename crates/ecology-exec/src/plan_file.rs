@@ -42,6 +42,16 @@ struct Line<'a> {
     comment: &'a str,
 }
 
+impl Line<'_> {
+    /// An error at this line.
+    fn error(&self, message: impl Into<String>) -> PlanFileError {
+        PlanFileError {
+            line: self.number,
+            message: message.into(),
+        }
+    }
+}
+
 /// The plan of plan file `text`.
 pub fn parse_plan(text: &str) -> Result<Plan, PlanFileError> {
     let lines: Vec<Line<'_>> = text
@@ -68,10 +78,7 @@ pub fn parse_plan(text: &str) -> Result<Plan, PlanFileError> {
     let mut at = 0;
     let plan = block(&lines, &mut at, first.indent, 0)?;
     if let Some(extra) = lines.get(at) {
-        return Err(PlanFileError {
-            line: extra.number,
-            message: "this line is indented less than the plan it ends".to_string(),
-        });
+        return Err(extra.error("this line is indented less than the plan it ends"));
     }
     Ok(plan)
 }
@@ -86,22 +93,16 @@ fn block(
 ) -> Result<Plan, PlanFileError> {
     let mut plan = Plan::default();
     while let Some(line) = lines.get(*at) {
-        let fail = |message: String| PlanFileError {
-            line: line.number,
-            message,
-        };
         if line.indent < indent {
             break;
         }
         if line.indent > indent && !line.text.starts_with("if ") {
-            return Err(fail(
-                "an action indented more than the one before it".into(),
-            ));
+            return Err(line.error("an action indented more than the one before it"));
         }
         if line.text.starts_with("if ") {
             plan.branches = branches(lines, at, line.indent, depth)?;
             let Some(sensing) = plan.steps.last_mut() else {
-                return Err(fail("a branch before any action".into()));
+                return Err(line.error("a branch before any action"));
             };
             let mut atoms: Vec<String> = plan
                 .branches
@@ -131,22 +132,16 @@ fn branches(
 ) -> Result<Vec<PlanBranch>, PlanFileError> {
     let mut branches = Vec::new();
     while let Some(line) = lines.get(*at).filter(|l| l.indent == indent) {
-        let fail = |message: String| PlanFileError {
-            line: line.number,
-            message,
-        };
         let Some(observed) = line.text.strip_prefix("if ") else {
-            return Err(fail(
-                "after the branches of an action, only more branches (`if …`)".into(),
-            ));
+            return Err(line.error("after the branches of an action, only more branches (`if …`)"));
         };
         if depth == MAX_DEPTH {
-            return Err(fail(format!("branches nest more than {MAX_DEPTH} deep")));
+            return Err(line.error(format!("branches nest more than {MAX_DEPTH} deep")));
         }
         let observation = parse_observations(observed)
-            .map_err(|why| fail(format!("`{observed}` is not an observation: {why}")))?;
+            .map_err(|why| line.error(format!("`{observed}` is not an observation: {why}")))?;
         if observation.is_empty() {
-            return Err(fail("a branch without an observation".into()));
+            return Err(line.error("a branch without an observation"));
         }
         let probability = match line.comment.strip_prefix("probability") {
             Some(p) => p
@@ -154,14 +149,14 @@ fn branches(
                 .parse::<f64>()
                 .ok()
                 .filter(|p| (0.0..=1.0).contains(p))
-                .ok_or_else(|| fail(format!("`{}` is not a probability", p.trim())))?,
+                .ok_or_else(|| line.error(format!("`{}` is not a probability", p.trim())))?,
             None => 0.0,
         };
         *at += 1;
         let inner = lines
             .get(*at)
             .filter(|l| l.indent > indent)
-            .ok_or_else(|| fail("a branch needs its plan, indented under it".into()))?
+            .ok_or_else(|| line.error("a branch needs its plan, indented under it"))?
             .indent;
         let plan = block(lines, at, inner, depth + 1)?;
         branches.push(PlanBranch {
@@ -175,12 +170,8 @@ fn branches(
 
 /// An action line.
 fn action(line: &Line<'_>) -> Result<PlannedAction, PlanFileError> {
-    let fail = |message: String| PlanFileError {
-        line: line.number,
-        message,
-    };
     let call = parse_goal(line.text).map_err(|d| {
-        fail(format!(
+        line.error(format!(
             "`{}` is not an action: {}",
             line.text,
             d.0.first().map_or("malformed", |d| d.message.as_str())
@@ -188,7 +179,7 @@ fn action(line: &Line<'_>) -> Result<PlannedAction, PlanFileError> {
     })?;
     let goal = match line.comment.strip_prefix("configure") {
         Some(goal) => Some(parse_goal(goal.trim()).map_err(|d| {
-            fail(format!(
+            line.error(format!(
                 "`{}` is not a configuration goal: {}",
                 goal.trim(),
                 d.0.first().map_or("malformed", |d| d.message.as_str())

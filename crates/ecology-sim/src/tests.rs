@@ -432,21 +432,10 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
 #[test]
 fn a_replan_starts_from_the_world_as_observed() {
     use ecology_exec::Replan;
-    use ecology_tuples::{Key, PeisId, Timestamp, Tuple};
     let scenario = load("replan.toml");
     let (problem, _) = scenario.problem.clone().expect("a problem");
     let mut replanner = crate::WorldReplanner::new(scenario.domain.clone(), problem);
-    let tuple = |key: &str, value: &str| Tuple {
-        owner: PeisId::new("world").expect("name"),
-        key: Key::new(key).expect("key"),
-        data: bytes_of(value),
-        mimetype: ecology_tuples::Mimetype::new("text/plain").expect("mimetype"),
-        ts_write: Timestamp(1),
-        ts_user: None,
-        expiry: None,
-        seq: 1,
-        epoch: 1,
-    };
+    let tuple = world_tuple;
     // Astrid has already reached the entrance; the problem says the living room.
     let world = vec![
         tuple("map", &scenario.world.map.to_text()),
@@ -471,6 +460,22 @@ fn a_replan_starts_from_the_world_as_observed() {
     );
 }
 
-pub(crate) fn bytes_of(text: &str) -> bytes::Bytes {
+/// A tuple of the `world` PEIS, as the replanner reads it.
+pub(crate) fn world_tuple(key: &str, value: &str) -> ecology_tuples::Tuple {
+    use ecology_tuples::{Key, PeisId, Timestamp, Tuple};
+    Tuple {
+        owner: PeisId::new("world").expect("name"),
+        key: Key::new(key).expect("key"),
+        data: bytes_of(value),
+        mimetype: ecology_tuples::Mimetype::new("text/plain").expect("mimetype"),
+        ts_write: Timestamp(1),
+        ts_user: None,
+        expiry: None,
+        seq: 1,
+        epoch: 1,
+    }
+}
+
+fn bytes_of(text: &str) -> bytes::Bytes {
     bytes::Bytes::copy_from_slice(text.as_bytes())
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use ecology_exec::{LogEvent, Observation, Plan, Replan, RunStatus};
 
-use crate::tests::{bytes_of, load, run_seeded, timeline};
+use crate::tests::{load, run_seeded, timeline, world_tuple};
 use crate::{FaultKind, FaultSpec, Report, Scenario, Trigger, WorldReplanner};
 
 /// Seeds that draw the newspaper at the entrance (probability 0.7) and in the kitchen (0.3).
@@ -22,44 +22,37 @@ fn drawn_room(scenario: &Scenario, seed: u64) -> String {
     world.map.room_at(x, y).expect("in a room").name.clone()
 }
 
+/// What `pick` takes from each entry of the log, in order.
+fn from_log<T>(report: &Report, pick: impl Fn(&LogEvent) -> Option<T>) -> Vec<T> {
+    report.log.iter().filter_map(|e| pick(&e.event)).collect()
+}
+
 /// (action, observation) of every `observed` event, in order.
 fn observations(report: &Report) -> Vec<(String, String)> {
-    report
-        .log
-        .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::Observed {
-                action,
-                observation,
-                ..
-            } => Some((action.clone(), observation.clone())),
-            _ => None,
-        })
-        .collect()
+    from_log(report, |e| match e {
+        LogEvent::Observed {
+            action,
+            observation,
+            ..
+        } => Some((action.clone(), observation.clone())),
+        _ => None,
+    })
 }
 
 /// The observation of every branch taken, in order.
 fn branches(report: &Report) -> Vec<String> {
-    report
-        .log
-        .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::Branch { observation, .. } => Some(observation.clone()),
-            _ => None,
-        })
-        .collect()
+    from_log(report, |e| match e {
+        LogEvent::Branch { observation, .. } => Some(observation.clone()),
+        _ => None,
+    })
 }
 
 /// The actions started, in order.
 fn started(report: &Report) -> Vec<String> {
-    report
-        .log
-        .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::ActionStarted { action, .. } => Some(action.clone()),
-            _ => None,
-        })
-        .collect()
+    from_log(report, |e| match e {
+        LogEvent::ActionStarted { action, .. } => Some(action.clone()),
+        _ => None,
+    })
 }
 
 /// The newspaper in Astrid's gripper and Johanna awake, by the ground truth.
@@ -193,14 +186,10 @@ async fn a_failed_look_is_planned_around_from_the_belief() {
         let report = run_seeded(&scenario, seed).await;
         let text = timeline(&report);
         assert_eq!(report.status, RunStatus::Done, "seed {seed}:\n{text}");
-        let replans: Vec<&String> = report
-            .log
-            .iter()
-            .filter_map(|e| match &e.event {
-                LogEvent::Replanned { failed, .. } => Some(failed),
-                _ => None,
-            })
-            .collect();
+        let replans = from_log(&report, |e| match e {
+            LogEvent::Replanned { failed, .. } => Some(failed.clone()),
+            _ => None,
+        });
         assert_eq!(
             replans,
             ["(look astrid newspaper entrance)"],
@@ -226,23 +215,11 @@ async fn a_failed_look_is_planned_around_from_the_belief() {
 
 /// The world's tuples with Astrid at the entrance and Johanna asleep.
 fn world_with_astrid_at_the_entrance(scenario: &Scenario) -> Vec<ecology_tuples::Tuple> {
-    use ecology_tuples::{Key, PeisId, Timestamp, Tuple};
-    let tuple = |key: &str, value: &str| Tuple {
-        owner: PeisId::new("world").expect("name"),
-        key: Key::new(key).expect("key"),
-        data: bytes_of(value),
-        mimetype: ecology_tuples::Mimetype::new("text/plain").expect("mimetype"),
-        ts_write: Timestamp(1),
-        ts_user: None,
-        expiry: None,
-        seq: 1,
-        epoch: 1,
-    };
     vec![
-        tuple("map", &scenario.world.map.to_text()),
-        tuple("robots.astrid.pose", "3.750 4.000 0.0000"),
-        tuple("residents.johanna.state", "asleep"),
-        tuple("things.newspaper.holder", ""),
+        world_tuple("map", &scenario.world.map.to_text()),
+        world_tuple("robots.astrid.pose", "3.750 4.000 0.0000"),
+        world_tuple("residents.johanna.state", "asleep"),
+        world_tuple("things.newspaper.holder", ""),
     ]
 }
 

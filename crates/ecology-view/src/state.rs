@@ -431,6 +431,16 @@ mod tests {
         serde_json::from_str(text).expect("json")
     }
 
+    /// The texts of a snapshot's timeline, in order.
+    fn timeline_texts(snapshot: &Json) -> Vec<&str> {
+        snapshot["timeline"]
+            .as_array()
+            .expect("timeline")
+            .iter()
+            .filter_map(|e| e["text"].as_str())
+            .collect()
+    }
+
     #[test]
     fn the_log_and_tuples_make_the_picture_of_a_reconfiguration() {
         let mut view = View::new();
@@ -480,12 +490,7 @@ mod tests {
         assert!(svg.contains(r#"class="functionality switched-on" data-component="astrid:l1""#));
         assert!(svg.contains(r#"class="failed" data-component="hsm:tr1""#));
         assert_eq!(svg.matches("class=\"channel\"").count(), 1);
-        let texts: Vec<&str> = snapshot["timeline"]
-            .as_array()
-            .expect("timeline")
-            .iter()
-            .filter_map(|e| e["text"].as_str())
-            .collect();
+        let texts = timeline_texts(&snapshot);
         assert_eq!(
             texts,
             [
@@ -528,12 +533,7 @@ mod tests {
                 "(get r x c)"
             ]
         );
-        let texts: Vec<&str> = snapshot["timeline"]
-            .as_array()
-            .expect("timeline")
-            .iter()
-            .filter_map(|e| e["text"].as_str())
-            .collect();
+        let texts = timeline_texts(&snapshot);
         assert!(
             texts.contains(&"(look r x b) observed (not (at x b))"),
             "{texts:?}"
