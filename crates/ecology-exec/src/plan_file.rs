@@ -208,6 +208,11 @@ mod tests {
         done ; goal holds with probability 1
 ";
 
+    /// The configuration goal of step `i`, as text.
+    fn goal(plan: &Plan, i: usize) -> Option<String> {
+        plan.steps[i].goal.as_ref().map(ToString::to_string)
+    }
+
     #[test]
     fn a_conditional_plan_reads_as_a_tree() {
         let plan = parse_plan(TREE).expect("a plan");
@@ -215,14 +220,7 @@ mod tests {
             |p: &Plan| -> Vec<String> { p.steps.iter().map(|s| s.action.clone()).collect() };
         assert_eq!(actions(&plan), ["(move r a b)", "(look r x b)"]);
         assert_eq!(plan.steps[1].observe, ["(at x b)"]);
-        assert_eq!(
-            plan.steps[1]
-                .goal
-                .as_ref()
-                .map(ToString::to_string)
-                .as_deref(),
-            Some("(look-for r x)")
-        );
+        assert_eq!(goal(&plan, 1).as_deref(), Some("(look-for r x)"));
         let [seen, unseen] = &plan.branches[..] else {
             panic!("two branches: {plan:?}");
         };
@@ -243,14 +241,7 @@ mod tests {
         let plan = parse_plan("; a comment\n(a x)\n\n(b y) ; configure (g y)\n").expect("a plan");
         assert!(!plan.is_conditional());
         assert_eq!(plan.steps.len(), 2);
-        assert_eq!(
-            plan.steps[1]
-                .goal
-                .as_ref()
-                .map(ToString::to_string)
-                .as_deref(),
-            Some("(g y)")
-        );
+        assert_eq!(goal(&plan, 1).as_deref(), Some("(g y)"));
     }
 
     #[test]
