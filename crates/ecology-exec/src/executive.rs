@@ -148,6 +148,9 @@ pub enum RunStatus {
     },
 }
 
+/// A probability this small is no chance at all (sums of products of floats).
+const NO_CHANCE: f64 = 1e-9;
+
 /// A component of the ecology: its PEIS and its name there.
 type ComponentKey = (PeisId, ComponentId);
 
@@ -301,6 +304,8 @@ pub struct Executive {
     plan: Vec<PlannedAction>,
     /// What follows the last action of `plan`, by what it observes.
     branches: Vec<PlanBranch>,
+    /// Without branches: how probable it is that the goal holds once `plan` is done.
+    success: f64,
     /// Everything the task's sensing actions observed, the latest value of each atom.
     knowledge: BTreeMap<String, bool>,
     config: ExecConfig,
@@ -339,6 +344,7 @@ impl Executive {
             world,
             plan: plan.steps,
             branches: plan.branches,
+            success: plan.success,
             knowledge: BTreeMap::new(),
             config,
             mirror: Mirror::new(),
@@ -473,6 +479,21 @@ impl Executive {
     }
 
     fn start_action(&mut self, index: usize, out: &mut Vec<Command>) {
+        if index >= self.plan.len() && self.success <= NO_CHANCE {
+            // A conditional plan that gives up here: nothing the robots can
+            // do reaches the goal from what was observed.
+            let reason =
+                "the plan gives up here: from what was observed, no action reaches the goal"
+                    .to_string();
+            self.status = RunStatus::Failed {
+                index: index.saturating_sub(1),
+                reason: reason.clone(),
+            };
+            self.run = None;
+            self.release(out);
+            self.record(LogEvent::TaskFailed { reason });
+            return;
+        }
         if index >= self.plan.len() {
             self.status = RunStatus::Done;
             self.run = None;
@@ -1051,6 +1072,7 @@ impl Executive {
             });
             self.plan.extend(branch.plan.steps);
             self.branches = branch.plan.branches;
+            self.success = branch.plan.success;
         }
         self.start_action(index + 1, out);
     }
@@ -1168,6 +1190,7 @@ impl Executive {
         let plan = plan.into();
         self.plan = plan.steps;
         self.branches = plan.branches;
+        self.success = plan.success;
         let actions = self.plan.iter().map(|a| a.action.clone()).collect();
         self.record(LogEvent::Replanned { failed, actions });
         self.start_action(0, &mut out);

@@ -42,12 +42,34 @@ impl PlannedAction {
 
 /// A plan: actions in order, then (after a sensing action) one branch per
 /// possible observation.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Plan {
     /// The actions before any branching.
     pub steps: Vec<PlannedAction>,
     /// What follows the last step, by what it observed; empty: the plan ends.
     pub branches: Vec<PlanBranch>,
+    /// When the plan ends after its steps (no branches): how probable the
+    /// planner thought it that the goal then holds, given the observations
+    /// that led here. 1 for a deterministic plan; a conditional plan may
+    /// give up where no action helps (0).
+    pub success: f64,
+}
+
+impl Default for Plan {
+    fn default() -> Plan {
+        Plan::from(Vec::new())
+    }
+}
+
+impl Plan {
+    /// A plan that branches after `steps`.
+    pub fn branching(steps: Vec<PlannedAction>, branches: Vec<PlanBranch>) -> Plan {
+        Plan {
+            steps,
+            branches,
+            success: 1.0,
+        }
+    }
 }
 
 /// A branch of a conditional plan.
@@ -66,6 +88,7 @@ impl From<Vec<PlannedAction>> for Plan {
         Plan {
             steps,
             branches: Vec::new(),
+            success: 1.0,
         }
     }
 }

@@ -116,6 +116,9 @@ fn block(
         }
         *at += 1;
         if line.text == "done" {
+            if let Some(p) = line.comment.strip_prefix("goal holds with probability") {
+                plan.success = probability(line, p)?;
+            }
             return Ok(plan);
         }
         plan.steps.push(action(line)?);
@@ -144,12 +147,7 @@ fn branches(
             return Err(line.error("a branch without an observation"));
         }
         let probability = match line.comment.strip_prefix("probability") {
-            Some(p) => p
-                .trim()
-                .parse::<f64>()
-                .ok()
-                .filter(|p| (0.0..=1.0).contains(p))
-                .ok_or_else(|| line.error(format!("`{}` is not a probability", p.trim())))?,
+            Some(p) => probability(line, p)?,
             None => 0.0,
         };
         *at += 1;
@@ -166,6 +164,15 @@ fn branches(
         });
     }
     Ok(branches)
+}
+
+/// `text` as a probability, or an error at `line`.
+fn probability(line: &Line<'_>, text: &str) -> Result<f64, PlanFileError> {
+    text.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|p| (0.0..=1.0).contains(p))
+        .ok_or_else(|| line.error(format!("`{}` is not a probability", text.trim())))
 }
 
 /// An action line.
@@ -203,9 +210,11 @@ mod tests {
   if (not (at x b)) ; probability 0.3
     (move r b c)
     (look r x c)
-      if (at x c) ; probability 1
+      if (at x c) ; probability 0.5
         (get r x c)
-        done ; goal holds with probability 1
+        done
+      if (not (at x c)) ; probability 0.5
+        done ; goal holds with probability 0
 ";
 
     /// The configuration goal of step `i`, as text.
@@ -231,8 +240,13 @@ mod tests {
             (false, 0.3)
         );
         assert_eq!(actions(&unseen.plan), ["(move r b c)", "(look r x c)"]);
-        assert_eq!(unseen.plan.branches.len(), 1);
-        assert_eq!(actions(&unseen.plan.branches[0].plan), ["(get r x c)"]);
+        let [found, gives_up] = &unseen.plan.branches[..] else {
+            panic!("two branches: {unseen:?}");
+        };
+        assert_eq!(actions(&found.plan), ["(get r x c)"]);
+        assert_eq!(found.plan.success, 1.0);
+        assert!(gives_up.plan.steps.is_empty());
+        assert_eq!(gives_up.plan.success, 0.0);
         assert_eq!((plan.depth(), plan.actions()), (5, 6));
     }
 

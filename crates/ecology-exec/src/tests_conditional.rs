@@ -61,13 +61,13 @@ fn branch(holds: bool, then: &str) -> PlanBranch {
 
 /// Look, then fetch the ball from the kitchen or from the garden.
 fn plan() -> Plan {
-    Plan {
-        steps: vec![look()],
-        branches: vec![
+    Plan::branching(
+        vec![look()],
+        vec![
             branch(true, "(fetch robot ball kitchen)"),
             branch(false, "(fetch robot ball garden)"),
         ],
-    }
+    )
 }
 
 /// An executive for `plan` whose look is deployed and running on `robot:e1`.
@@ -227,10 +227,10 @@ fn an_observation_that_cannot_be_read_fails_its_component() {
 
 #[test]
 fn an_observation_no_branch_expects_fails_the_sensing_action() {
-    let only_in_kitchen = Plan {
-        steps: vec![look()],
-        branches: vec![branch(true, "(fetch robot ball kitchen)")],
-    };
+    let only_in_kitchen = Plan::branching(
+        vec![look()],
+        vec![branch(true, "(fetch robot ball kitchen)")],
+    );
     let mut exec = looking(only_in_kitchen);
     exec.handle(
         Duration::from_secs(2),
@@ -247,6 +247,34 @@ fn an_observation_no_branch_expects_fails_the_sensing_action() {
     assert_eq!(exec.failed_actions(), ["(look robot ball kitchen)"]);
     // What was observed is kept for the replanner.
     assert_eq!(exec.observations().len(), 1);
+}
+
+#[test]
+fn a_branch_that_gives_up_fails_the_task_and_releases_what_it_used() {
+    let gives_up = Plan {
+        steps: Vec::new(),
+        branches: Vec::new(),
+        success: 0.0,
+    };
+    let mut plan = plan();
+    plan.branches[1].plan = gives_up;
+    let mut exec = looking(plan);
+    exec.handle(
+        Duration::from_secs(2),
+        tuple("robot", "e1.observed", "(not (at ball kitchen))", 1),
+    );
+    let RunStatus::Failed { reason, .. } = exec.status() else {
+        panic!("not failed:\n{}", timeline(&exec));
+    };
+    assert!(reason.contains("the plan gives up here"), "{reason}");
+    assert!(exec.finished(), "released, and not to be planned again");
+    let names: Vec<&str> = exec.log().iter().map(|e| e.event.name()).collect();
+    assert_eq!(
+        names[names.len() - 3..],
+        ["branch", "released", "task_failed"],
+        "{}",
+        timeline(&exec)
+    );
 }
 
 #[test]

@@ -99,8 +99,15 @@ pub fn executive_plan(task: &Task, tree: &PlanTree) -> Plan {
     let mut steps = Vec::new();
     let mut node = tree;
     loop {
-        let PlanTree::Act { step, branches } = node else {
-            return Plan::from(steps);
+        let (step, branches) = match node {
+            PlanTree::Stop { success } => {
+                return Plan {
+                    steps,
+                    branches: Vec::new(),
+                    success: *success,
+                };
+            }
+            PlanTree::Act { step, branches } => (step, branches),
         };
         let operator = task.operator(step.op);
         steps.push(PlannedAction {
@@ -133,6 +140,6 @@ pub fn executive_plan(task: &Task, tree: &PlanTree) -> Plan {
                 plan: executive_plan(task, &b.next),
             })
             .collect();
-        return Plan { steps, branches };
+        return Plan::branching(steps, branches);
     }
 }

@@ -276,6 +276,7 @@ fn same(a: &Plan, b: &Plan) -> bool {
             .collect()
     };
     steps(a) == steps(b)
+        && (a.success - b.success).abs() < 1e-6
         && a.branches.len() == b.branches.len()
         && a.branches.iter().zip(&b.branches).all(|(x, y)| {
             x.observation == y.observation
