@@ -9,9 +9,15 @@ use serde_json::json;
 /// The entry as one line of JSON: `{"t": 12.5, "event": "failure", ...fields}`.
 pub fn json_line(entry: &LogEntry) -> String {
     let mut object = match &entry.event {
-        LogEvent::Plan { actions } => json!({ "actions": actions }),
-        LogEvent::Replanned { failed, actions } => {
-            json!({ "failed": failed, "actions": actions })
+        LogEvent::Plan { actions, branches } => {
+            json!({ "actions": actions, "branches": branches })
+        }
+        LogEvent::Replanned {
+            failed,
+            actions,
+            branches,
+        } => {
+            json!({ "failed": failed, "actions": actions, "branches": branches })
         }
         LogEvent::ActionStarted { index, action } => {
             json!({ "index": index, "action": action })

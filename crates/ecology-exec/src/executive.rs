@@ -396,7 +396,8 @@ impl Executive {
             Event::Start => {
                 if self.status == RunStatus::Idle {
                     let actions = self.plan.iter().map(|a| a.action.clone()).collect();
-                    self.record(LogEvent::Plan { actions });
+                    let branches = self.branch_observations();
+                    self.record(LogEvent::Plan { actions, branches });
                     self.start_action(0, &mut out);
                 }
             }
@@ -1077,6 +1078,14 @@ impl Executive {
         self.start_action(index + 1, out);
     }
 
+    /// The observations the pending branches expect, for the log.
+    fn branch_observations(&self) -> Vec<String> {
+        self.branches
+            .iter()
+            .map(|b| observations_text(&b.observation))
+            .collect()
+    }
+
     /// A component of the configuration reported what it observed.
     fn on_observed(&mut self, key: ComponentKey, literals: &str, out: &mut Vec<Command>) {
         if !self.in_current_config(&key) {
@@ -1192,7 +1201,12 @@ impl Executive {
         self.branches = plan.branches;
         self.success = plan.success;
         let actions = self.plan.iter().map(|a| a.action.clone()).collect();
-        self.record(LogEvent::Replanned { failed, actions });
+        let branches = self.branch_observations();
+        self.record(LogEvent::Replanned {
+            failed,
+            actions,
+            branches,
+        });
         self.start_action(0, &mut out);
         out
     }

@@ -20,15 +20,19 @@ pub struct LogEntry {
 pub enum LogEvent {
     /// A plan of actions to execute.
     Plan {
-        /// The actions, in order.
+        /// The actions, in order (a conditional plan's, up to its first branching).
         actions: Vec<String>,
+        /// The observations a conditional plan branches on after them; empty for a sequence.
+        branches: Vec<String>,
     },
     /// An action failed and the task goes on with a new plan.
     Replanned {
         /// The action that failed.
         failed: String,
-        /// The new plan's actions, in order.
+        /// The new plan's actions, in order (up to its first branching).
         actions: Vec<String>,
+        /// The observations the new plan branches on after them; empty for a sequence.
+        branches: Vec<String>,
     },
     /// An action started.
     ActionStarted {
@@ -193,16 +197,35 @@ impl LogEvent {
     }
 }
 
+/// `, then by what it observes: A | B` after a conditional plan's first actions.
+fn write_branches(f: &mut fmt::Formatter<'_>, branches: &[String]) -> fmt::Result {
+    if branches.is_empty() {
+        Ok(())
+    } else {
+        write!(f, ", then by what it observes: {}", branches.join(" | "))
+    }
+}
+
 impl fmt::Display for LogEntry {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:>8.3}s  ", self.t.as_secs_f64())?;
         match &self.event {
-            LogEvent::Plan { actions } => write!(f, "plan: {}", actions.join(" → ")),
-            LogEvent::Replanned { failed, actions } if actions.is_empty() => {
+            LogEvent::Plan { actions, branches } => {
+                write!(f, "plan: {}", actions.join(" → "))?;
+                write_branches(f, branches)
+            }
+            LogEvent::Replanned {
+                failed, actions, ..
+            } if actions.is_empty() => {
                 write!(f, "replan without {failed}: nothing left to do")
             }
-            LogEvent::Replanned { failed, actions } => {
-                write!(f, "replan without {failed}: {}", actions.join(" → "))
+            LogEvent::Replanned {
+                failed,
+                actions,
+                branches,
+            } => {
+                write!(f, "replan without {failed}: {}", actions.join(" → "))?;
+                write_branches(f, branches)
             }
             LogEvent::ActionStarted { index, action } => {
                 write!(f, "action {}: {action}", index + 1)

@@ -112,6 +112,16 @@ fn the_plan_goes_on_with_the_branch_of_what_was_observed() {
     ] {
         let mut exec = looking(plan());
         assert_eq!(
+            exec.log().first().map(|e| &e.event),
+            Some(&LogEvent::Plan {
+                actions: vec!["(look robot ball kitchen)".to_string()],
+                branches: vec![
+                    "(at ball kitchen)".to_string(),
+                    "(not (at ball kitchen))".to_string()
+                ],
+            })
+        );
+        assert_eq!(
             exec.status(),
             &RunStatus::Running { index: 0 },
             "running is not enough for a sensing action:\n{}",

@@ -216,7 +216,7 @@ async fn the_demo_reproduces_the_papers_experiment() {
     let text = timeline(&report);
     assert_eq!(report.status, RunStatus::Done, "{text}");
     // Step 1: the plan.
-    let Some(LogEvent::Plan { actions }) = report.log.first().map(|e| &e.event) else {
+    let Some(LogEvent::Plan { actions, .. }) = report.log.first().map(|e| &e.event) else {
         panic!("no plan first:\n{text}");
     };
     assert_eq!(
@@ -368,7 +368,9 @@ async fn a_failed_action_is_planned_around_and_another_robot_goes() {
         .log
         .iter()
         .filter_map(|e| match &e.event {
-            LogEvent::Replanned { failed, actions } => Some((failed.clone(), actions.clone())),
+            LogEvent::Replanned {
+                failed, actions, ..
+            } => Some((failed.clone(), actions.clone())),
             _ => None,
         })
         .collect();
