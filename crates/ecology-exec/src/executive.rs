@@ -523,6 +523,15 @@ impl Executive {
             observed: BTreeMap::new(),
         });
         if self.plan[index].goal.is_none() {
+            if !self.plan[index].observe.is_empty() {
+                // Nothing would be deployed to report what it observes.
+                let reason = format!(
+                    "it observes {} but has no configuration goal to observe with",
+                    self.plan[index].observe.join(" ")
+                );
+                self.fail_action(reason, out);
+                return;
+            }
             self.finish_action(out);
             return;
         }

@@ -288,6 +288,26 @@ fn a_branch_that_gives_up_fails_the_task_and_releases_what_it_used() {
 }
 
 #[test]
+fn a_sensing_action_without_a_configuration_goal_fails_at_once() {
+    let blind = PlannedAction {
+        goal: None,
+        ..look()
+    };
+    let mut plan = plan();
+    plan.steps = vec![blind];
+    let domain = parse_domain(EYES.as_bytes()).expect("domain");
+    let mut exec = Executive::new(domain, EcologyState::new(), plan, ExecConfig::default());
+    exec.handle(Duration::ZERO, Event::Start);
+    let RunStatus::Failed { reason, .. } = exec.status() else {
+        panic!("not failed:\n{}", timeline(&exec));
+    };
+    assert_eq!(
+        reason,
+        "it observes (at ball kitchen) but has no configuration goal to observe with"
+    );
+}
+
+#[test]
 fn a_plan_without_branches_runs_as_a_sequence() {
     let plan: Plan = vec![plain("(a)"), plain("(b)")].into();
     assert!(!plan.is_conditional());
