@@ -335,12 +335,7 @@ impl<S: TupleSpace> Body<S> {
             if !inputs.missing(STALE).is_empty() {
                 self.report("waiting", "image").await?;
             } else {
-                let seen = image.and_then(|image| {
-                    image.split(';').find_map(|entry| {
-                        let (name, pose) = entry.trim().split_once(' ')?;
-                        (name == target).then(|| Pose::parse(pose)).flatten()
-                    })
-                });
+                let seen = image.and_then(|image| seen_in_image(image, &target));
                 match seen {
                     None => {
                         self.report("waiting", &format!("{target} not in view"))
@@ -399,12 +394,7 @@ impl<S: TupleSpace> Body<S> {
             let map = truth.map().unwrap_or_default();
             let image = inputs.latest("image").and_then(|t| t.text().ok());
             let seen_in = image
-                .and_then(|image| {
-                    image.split(';').find_map(|entry| {
-                        let (name, pose) = entry.trim().split_once(' ')?;
-                        (name == thing).then(|| Pose::parse(pose)).flatten()
-                    })
-                })
+                .and_then(|image| seen_in_image(image, thing))
                 .and_then(|pose| map.room_at(pose.x, pose.y))
                 .map(|room| room.name.clone());
             let here = truth
@@ -724,6 +714,14 @@ impl<S: TupleSpace> Body<S> {
             self.ctx.sleep(Duration::from_secs(1)).await;
         }
     }
+}
+
+/// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
+fn seen_in_image(image: &str, name: &str) -> Option<Pose> {
+    image.split(';').find_map(|entry| {
+        let (seen, pose) = entry.trim().split_once(' ')?;
+        (seen == name).then(|| Pose::parse(pose)).flatten()
+    })
 }
 
 /// The 8 ranges a laser at `pose` measures in `map`, every 45° from its heading.

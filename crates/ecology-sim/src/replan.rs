@@ -90,13 +90,7 @@ impl WorldReplanner {
             .init
             .iter()
             .map(|atom| {
-                let args = atom
-                    .args
-                    .iter()
-                    .map(|t| match t {
-                        Term::Const(c) | Term::Var(c) => c.to_string(),
-                    })
-                    .collect();
+                let args = names(&atom.args);
                 (atom.predicate.to_string(), args)
             })
             .collect()
@@ -236,14 +230,16 @@ fn uncertain_atoms(task: &Task) -> Vec<AtomId> {
 /// `(predicate arg …)` as (predicate, arguments).
 fn fact_of(atom: &str) -> Option<(String, Vec<String>)> {
     let call = parse_goal(atom).ok()?;
-    let args = call
-        .args
-        .iter()
+    Some((call.name.to_string(), names(&call.args)))
+}
+
+/// Ground arguments as names.
+fn names(args: &[Term]) -> Vec<String> {
+    args.iter()
         .map(|t| match t {
             Term::Const(c) | Term::Var(c) => c.to_string(),
         })
-        .collect();
-    Some((call.name.to_string(), args))
+        .collect()
 }
 
 /// The task's atom written `atom`, if it is one.
