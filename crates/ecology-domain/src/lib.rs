@@ -160,6 +160,41 @@ pub fn parse_facts_until(
     })
 }
 
+/// Parses ground literals separated by white space, such as `(thing-at
+/// newspaper kitchen) (not (thing-at newspaper entrance))` (what a sensing
+/// component reports): atoms and negated atoms, with no variables.
+pub fn parse_literals(source: &str) -> Result<Vec<Literal>, Diagnostics> {
+    let (forms, mut parser, _) = read(source.as_bytes())?;
+    let mut literals = Vec::new();
+    for form in &forms {
+        if form.list().is_some_and(<[_]>::is_empty) {
+            parser
+                .diags
+                .push(Diagnostic::error(form.span, "expected a literal, not `()`"));
+        }
+        for literal in parser.condition(form) {
+            match &literal {
+                Literal::Pos(atom) | Literal::Neg(atom) => {
+                    if let Some(var) = atom.args.iter().find_map(Term::var) {
+                        parser.diags.push(Diagnostic::error(
+                            atom.span,
+                            format!("a literal here is ground, but `?{var}` is a variable"),
+                        ));
+                    }
+                    literals.push(literal);
+                }
+                Literal::Eq(_, _, span) | Literal::Neq(_, _, span) => {
+                    parser.diags.push(Diagnostic::error(
+                        *span,
+                        "expected an atom or a negated atom",
+                    ));
+                }
+            }
+        }
+    }
+    finish(literals, parser.diags)
+}
+
 /// Parses a ground goal such as `(navigate astrid bedroom)`.
 pub fn parse_goal(source: &str) -> Result<Call, Diagnostics> {
     let (forms, mut parser, whole) = read(source.as_bytes())?;

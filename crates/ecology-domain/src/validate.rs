@@ -89,6 +89,13 @@ impl<'a> Unbound<'a> {
         }
     }
 
+    /// Reports each variable among `terms` (at `span`) that is not a
+    /// parameter of the method, and each parameter that nothing binds.
+    fn terms(&mut self, v: &mut Validator, terms: &[Term], span: Span, what: &str) {
+        v.vars_declared(terms, span, &self.params, what);
+        self.check(v, terms, span);
+    }
+
     /// Reports each parameter among `terms` (at `span`) that nothing binds.
     fn check(&mut self, v: &mut Validator, terms: &[Term], span: Span) {
         for term in terms {
@@ -423,8 +430,7 @@ impl Validator {
                 );
                 continue;
             }
-            self.vars_declared(&sub.call.args, sub.call.span, &unbound.params, what);
-            unbound.check(self, &sub.call.args, sub.call.span);
+            unbound.terms(self, &sub.call.args, sub.call.span, what);
             let callee = self.callee(domain, &sub.call);
             callees.insert(&sub.label, callee);
         }
@@ -441,8 +447,7 @@ impl Validator {
         callees: &HashMap<&str, Option<Callee<'a>>>,
     ) {
         for channel in &m.channels {
-            self.vars_declared(&channel.info.args, channel.info.span, &unbound.params, what);
-            unbound.check(self, &channel.info.args, channel.info.span);
+            unbound.terms(self, &channel.info.args, channel.info.span, what);
             let from = self.label(m, &channel.from, channel.span, callees);
             let to = self.label(m, &channel.to, channel.span, callees);
             if channel.from == channel.to {
@@ -472,13 +477,7 @@ impl Validator {
             (&m.outputs, Direction::Output),
         ] {
             for redirect in redirects {
-                self.vars_declared(
-                    &redirect.info.args,
-                    redirect.info.span,
-                    &unbound.params,
-                    what,
-                );
-                unbound.check(self, &redirect.info.args, redirect.info.span);
+                unbound.terms(self, &redirect.info.args, redirect.info.span, what);
                 if let Some((callee, call)) = self.label(m, &redirect.label, redirect.span, callees)
                 {
                     self.carries(domain, callee, call, &redirect.info, direction);

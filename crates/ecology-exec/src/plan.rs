@@ -12,7 +12,7 @@
 
 use std::fmt;
 
-use ecology_domain::{Call, parse_goal};
+use ecology_domain::{Call, Literal, parse_literals};
 
 /// One step of a plan: an action and the configuration goal that performs it.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,17 +61,6 @@ impl Default for Plan {
     }
 }
 
-impl Plan {
-    /// A plan that branches after `steps`.
-    pub fn branching(steps: Vec<PlannedAction>, branches: Vec<PlanBranch>) -> Plan {
-        Plan {
-            steps,
-            branches,
-            success: 1.0,
-        }
-    }
-}
-
 /// A branch of a conditional plan.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlanBranch {
@@ -85,15 +74,20 @@ pub struct PlanBranch {
 
 impl From<Vec<PlannedAction>> for Plan {
     fn from(steps: Vec<PlannedAction>) -> Plan {
-        Plan {
-            steps,
-            branches: Vec::new(),
-            success: 1.0,
-        }
+        Plan::branching(steps, Vec::new())
     }
 }
 
 impl Plan {
+    /// A plan that branches after `steps` (ends there when `branches` is empty).
+    pub fn branching(steps: Vec<PlannedAction>, branches: Vec<PlanBranch>) -> Plan {
+        Plan {
+            steps,
+            branches,
+            success: 1.0,
+        }
+    }
+
     /// Whether the plan branches anywhere.
     pub fn is_conditional(&self) -> bool {
         !self.branches.is_empty()
@@ -153,69 +147,31 @@ pub fn observations_text(observations: &[Observation]) -> String {
 const MAX_LITERALS: usize = 256;
 
 /// The literals of a `C.observed` value: `(atom …)` or `(not (atom …))`,
-/// separated by white space. `Err` says what is malformed.
+/// separated by white space, read by the language's own reader
+/// ([`parse_literals`]). `Err` says what is malformed.
 pub fn parse_observations(text: &str) -> Result<Vec<Observation>, String> {
-    let mut out = Vec::new();
-    for group in top_level_groups(text)? {
-        if out.len() == MAX_LITERALS {
-            return Err(format!("more than {MAX_LITERALS} literals"));
-        }
-        let inner = group[1..group.len() - 1].trim();
-        let negated = inner.strip_prefix("not").filter(|rest| {
-            rest.is_empty() || rest.starts_with(|c: char| c == '(' || c.is_whitespace())
-        });
-        let (holds, atom) = match negated {
-            Some(rest) => match &top_level_groups(rest)?[..] {
-                [atom] => (false, *atom),
-                _ => return Err(format!("`{group}`: `not` takes one atom")),
-            },
-            None => (true, group),
-        };
-        let call = parse_goal(atom).map_err(|d| {
-            format!(
-                "`{atom}` is not an atom: {}",
-                d.0.first().map_or("malformed", |d| d.message.as_str())
-            )
-        })?;
-        out.push(Observation {
-            atom: call.to_string(),
-            holds,
-        });
+    let literals = parse_literals(text).map_err(|d| {
+        d.0.first()
+            .map_or_else(|| "malformed".to_string(), |d| d.message.clone())
+    })?;
+    if literals.len() > MAX_LITERALS {
+        return Err(format!("more than {MAX_LITERALS} literals"));
     }
-    Ok(out)
-}
-
-/// The balanced `( … )` groups at the top level of `text`.
-fn top_level_groups(text: &str) -> Result<Vec<&str>, String> {
-    let mut groups = Vec::new();
-    let mut depth = 0usize;
-    let mut start = 0;
-    for (i, ch) in text.char_indices() {
-        match ch {
-            '(' => {
-                if depth == 0 {
-                    start = i;
-                }
-                depth += 1;
-            }
-            ')' => {
-                depth = depth
-                    .checked_sub(1)
-                    .ok_or_else(|| format!("unbalanced `)` at byte {i}"))?;
-                if depth == 0 {
-                    groups.push(&text[start..=i]);
-                }
-            }
-            c if depth == 0 && !c.is_whitespace() => {
-                return Err(format!("`{c}` outside parentheses at byte {i}"));
-            }
-            _ => {}
-        }
-    }
-    if depth > 0 {
-        return Err("unbalanced `(`".to_string());
-    }
-    Ok(groups)
+    Ok(literals
+        .into_iter()
+        .filter_map(|literal| match literal {
+            Literal::Pos(atom) => Some(Observation {
+                atom: atom.to_string(),
+                holds: true,
+            }),
+            Literal::Neg(atom) => Some(Observation {
+                atom: atom.to_string(),
+                holds: false,
+            }),
+            // `parse_literals` accepts atoms and negated atoms only.
+            Literal::Eq(..) | Literal::Neq(..) => None,
+        })
+        .collect())
 }
 
 #[cfg(test)]

@@ -223,7 +223,7 @@ fn an_observation_that_cannot_be_read_fails_its_component() {
     });
     assert_eq!(
         failure.as_deref(),
-        Some("robot:e1: it wrote an observation that cannot be read: unbalanced `(`"),
+        Some("robot:e1: it wrote an observation that cannot be read: unbalanced parentheses"),
         "{}",
         timeline(&exec)
     );

@@ -128,44 +128,7 @@ impl WorldReplanner {
         }
         facts
     }
-}
 
-impl Replan for WorldReplanner {
-    fn observe(&self) -> TuplePattern {
-        TuplePattern::parse(&format!("{WORLD}:**")).unwrap_or_else(|_| TuplePattern::everything())
-    }
-
-    fn replan(
-        &mut self,
-        failed: &[String],
-        observed: &[Observation],
-        world: &[Tuple],
-    ) -> Result<Plan, String> {
-        let task =
-            ecology_actions::ground(&self.domain, &self.problem).map_err(|e| e.to_string())?;
-        let mut excluded = Vec::new();
-        for action in failed {
-            let call = parse_goal(action).map_err(|_| format!("`{action}` is not an action"))?;
-            if let Some(op) = task.find_operator(&call).map_err(|e| e.to_string())? {
-                excluded.push(op);
-            }
-        }
-        let seen = observe(world);
-        if task.is_uncertain() {
-            let belief = self.belief(&task, observed, &seen)?;
-            return run_conditional_planner(&ConditionalRequest {
-                task: &task,
-                belief,
-                excluded,
-            });
-        }
-        let state = state_of(&task, &Self::facts(&self.init(), &seen))?;
-        run_action_planner(&ecology_actions::Request::replan(&task, state, excluded))
-            .map(Plan::from)
-    }
-}
-
-impl WorldReplanner {
     /// The possible worlds now: the problem's initial worlds that agree with
     /// every observation, each with what the world's tuples show in place,
     /// their probabilities scaled to sum to 1.
@@ -210,6 +173,41 @@ impl WorldReplanner {
     }
 }
 
+impl Replan for WorldReplanner {
+    fn observe(&self) -> TuplePattern {
+        TuplePattern::parse(&format!("{WORLD}:**")).unwrap_or_else(|_| TuplePattern::everything())
+    }
+
+    fn replan(
+        &mut self,
+        failed: &[String],
+        observed: &[Observation],
+        world: &[Tuple],
+    ) -> Result<Plan, String> {
+        let task =
+            ecology_actions::ground(&self.domain, &self.problem).map_err(|e| e.to_string())?;
+        let mut excluded = Vec::new();
+        for action in failed {
+            let call = parse_goal(action).map_err(|_| format!("`{action}` is not an action"))?;
+            if let Some(op) = task.find_operator(&call).map_err(|e| e.to_string())? {
+                excluded.push(op);
+            }
+        }
+        let seen = observe(world);
+        if task.is_uncertain() {
+            let belief = self.belief(&task, observed, &seen)?;
+            return run_conditional_planner(&ConditionalRequest {
+                task: &task,
+                belief,
+                excluded,
+            });
+        }
+        let state = state_of(&task, &Self::facts(&self.init(), &seen))?;
+        run_action_planner(&ecology_actions::Request::replan(&task, state, excluded))
+            .map(Plan::from)
+    }
+}
+
 /// The atoms whose value differs between the task's possible initial worlds.
 fn uncertain_atoms(task: &Task) -> Vec<AtomId> {
     let worlds = task.initial_belief();
@@ -219,7 +217,6 @@ fn uncertain_atoms(task: &Task) -> Vec<AtomId> {
     let mut atoms: Vec<_> = worlds
         .iter()
         .flat_map(|(_, w)| w.atoms())
-        .chain(first.atoms())
         .filter(|&a| worlds.iter().any(|(_, w)| w.holds(a) != first.holds(a)))
         .collect();
     atoms.sort_unstable();
