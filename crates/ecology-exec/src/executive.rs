@@ -1080,11 +1080,16 @@ impl Executive {
                 probability: branch.probability,
                 actions: branch.plan.steps.iter().map(|a| a.action.clone()).collect(),
             });
-            self.plan.extend(branch.plan.steps);
-            self.branches = branch.plan.branches;
-            self.success = branch.plan.success;
+            self.continue_with(branch.plan);
         }
         self.start_action(index + 1, out);
+    }
+
+    /// Goes on with `plan` after the actions of the path so far.
+    fn continue_with(&mut self, plan: Plan) {
+        self.plan.extend(plan.steps);
+        self.branches = plan.branches;
+        self.success = plan.success;
     }
 
     /// The observations the pending branches expect, for the log.
@@ -1205,10 +1210,8 @@ impl Executive {
             return out;
         }
         let failed = self.failed_actions.last().cloned().unwrap_or_default();
-        let plan = plan.into();
-        self.plan = plan.steps;
-        self.branches = plan.branches;
-        self.success = plan.success;
+        self.plan.clear();
+        self.continue_with(plan.into());
         let actions = self.plan.iter().map(|a| a.action.clone()).collect();
         let branches = self.branch_observations();
         self.record(LogEvent::Replanned {
