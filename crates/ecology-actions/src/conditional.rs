@@ -25,8 +25,7 @@ use crate::heuristic::{Heuristic, HeuristicKind};
 use crate::task::{AtomId, OpId, State, Task};
 use crate::{Budget, Clock, Step};
 
-/// Probabilities closer than this are equal (sums of products of floats).
-pub const EPSILON: f64 = 1e-9;
+pub use ecology_core::EPSILON;
 
 /// How to plan conditionally.
 #[derive(Debug, Clone, Copy, PartialEq)]

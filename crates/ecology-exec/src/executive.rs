@@ -148,9 +148,6 @@ pub enum RunStatus {
     },
 }
 
-/// A probability this small is no chance at all (sums of products of floats).
-const NO_CHANCE: f64 = 1e-9;
-
 /// A component of the ecology: its PEIS and its name there.
 type ComponentKey = (PeisId, ComponentId);
 
@@ -480,7 +477,7 @@ impl Executive {
     }
 
     fn start_action(&mut self, index: usize, out: &mut Vec<Command>) {
-        if index >= self.plan.len() && self.success <= NO_CHANCE {
+        if index >= self.plan.len() && self.success <= ecology_core::EPSILON {
             // A conditional plan that gives up here: nothing the robots can
             // do reaches the goal from what was observed.
             let reason =

@@ -84,7 +84,7 @@ pub(crate) fn run_conditional_planner(request: &ConditionalRequest<'_>) -> Resul
             ));
         }
     };
-    if plan.success <= ecology_actions::conditional::EPSILON {
+    if plan.success <= ecology_core::EPSILON {
         return Err(
             "no conditional plan reaches the goal with any probability within the horizon"
                 .to_string(),
