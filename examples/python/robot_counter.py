@@ -43,16 +43,22 @@ def log(text):
 
 # --- Wire format: the metadata attachment, version 1, little-endian -----------------------------
 
-F_TS_USER, F_EXPIRY, F_EXPIRED, F_EPOCH = 1, 2, 4, 8
+F_TS_USER, F_EXPIRY, F_EXPIRED, F_EPOCH, F_CREATOR = 1, 2, 4, 8, 16
 
 
-def encode_meta(seq, ts_write, epoch, mimetype):
-    """version, flags, seq, ts_write, [epoch if flag bit 3], mimetype length, mimetype."""
-    out = struct.pack("<BBQQ", 1, F_EPOCH if epoch else 0, seq, ts_write)
+def encode_meta(seq, ts_write, epoch, mimetype, creator=None):
+    """version, flags, seq, ts_write, [epoch if flag bit 3], mimetype length, mimetype,
+    [creator length, creator if flag bit 4]."""
+    flags = (F_EPOCH if epoch else 0) | (F_CREATOR if creator else 0)
+    out = struct.pack("<BBQQ", 1, flags, seq, ts_write)
     if epoch:
         out += struct.pack("<Q", epoch)
     mime = mimetype.encode("ascii")
-    return out + bytes([len(mime)]) + mime
+    out += bytes([len(mime)]) + mime
+    if creator:
+        name = creator.encode("ascii")
+        out += bytes([len(name)]) + name
+    return out
 
 
 def decode_meta(data):
@@ -68,13 +74,22 @@ def decode_meta(data):
                 raise ValueError("attachment too short")
             fields[name] = struct.unpack_from("<Q", data, at)[0]
             at += 8
-    if len(data) < at + 1 or len(data) != at + 1 + data[at]:
+    if len(data) < at + 1 or len(data) < at + 1 + data[at]:
         raise ValueError("bad mimetype length")
-    mime = data[at + 1:].decode("ascii")  # raises UnicodeDecodeError, a ValueError
+    end = at + 1 + data[at]
+    mime = data[at + 1:end].decode("ascii")  # raises UnicodeDecodeError, a ValueError
     if not mime or not all(" " <= ch <= "~" for ch in mime):
         raise ValueError("invalid mimetype")
+    creator = None
+    if flags & F_CREATOR:
+        if len(data) < end + 1 or len(data) < end + 1 + data[end]:
+            raise ValueError("bad creator length")
+        creator = data[end + 1:end + 1 + data[end]].decode("ascii")
+        end += 1 + data[end]
+    if len(data) != end:
+        raise ValueError("trailing bytes")
     return dict(seq=seq, ts_write=ts_write, mimetype=mime, epoch=fields.get("epoch", 0),
-                ts_user=fields.get("ts_user"), expiry=fields.get("expiry"))
+                ts_user=fields.get("ts_user"), expiry=fields.get("expiry"), creator=creator)
 
 
 def key_expr(owner, key):
@@ -149,11 +164,11 @@ class Peis:
         ]
         self.token = self.session.liveliness().declare_token(alive)
 
-    def set(self, key, data, mimetype="text/plain"):
+    def set(self, key, data, mimetype="text/plain", creator=None):
         """Publishes our tuple `key` with the next seq; returns (payload, attachment)."""
         data = data.encode() if isinstance(data, str) else data
         seq = self.seqs[key] = self.seqs.get(key, 0) + 1
-        meta = encode_meta(seq, time.time_ns(), self.epoch, mimetype)
+        meta = encode_meta(seq, time.time_ns(), self.epoch, mimetype, creator)
         ke = key_expr(self.name, key)
         self.tuples[key] = (zenoh.KeyExpr(ke), data, meta)
         self.session.put(ke, data, attachment=meta, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -170,7 +185,7 @@ class Peis:
         if key not in REMOTE_SETTABLE:
             return query.reply_err(f"remote set of {key} is not allowed by {self.name}")
         data = query.payload.to_bytes() if query.payload is not None else b""
-        mimetype = "application/octet-stream"  # a request without metadata
+        mimetype, creator = "application/octet-stream", None  # a request without metadata
         if query.attachment is not None:
             try:
                 request = decode_meta(query.attachment.to_bytes())
@@ -178,10 +193,10 @@ class Peis:
                 return query.reply_err(f"malformed attachment: {e}")
             if request["expiry"] is not None:
                 return query.reply_err(f"{self.name} does not support a time to live")
-            mimetype = request["mimetype"]
+            mimetype, creator = request["mimetype"], request["creator"]
         if len(data) > MAX_VALUE:
             return query.reply_err(f"value of {len(data)} bytes is over {MAX_VALUE}")
-        data, meta = self.set(key, data, mimetype)
+        data, meta = self.set(key, data, mimetype, creator)
         query.reply(query.key_expr, data, attachment=meta)
         log(f"remote set {key} = {data.decode('utf-8', 'replace')}")
         self.counter.on_set(key, data.decode("utf-8", "replace"))

@@ -103,6 +103,7 @@ fn entries() -> Vec<Entry> {
         expiry: None,
         seq: 3,
         epoch: 4,
+        creator: None,
     })
     .encode();
     vec![

@@ -475,6 +475,7 @@ pub(crate) fn world_tuple(key: &str, value: &str) -> ecology_tuples::Tuple {
         expiry: None,
         seq: 1,
         epoch: 1,
+        creator: None,
     }
 }
 

@@ -406,6 +406,11 @@ pub async fn remote_set_is_applied_by_owner<H: Harness>(h: &mut H) {
     assert_eq!(applied.owner, peis("astrid"));
     assert_eq!(applied.seq, 2, "the owner's sequence continues");
     assert_eq!(applied.text(), Ok("on"));
+    assert_eq!(
+        applied.creator,
+        Some(peis("deployer")),
+        "the owner keeps who asked"
+    );
     let own = astrid
         .get(peis("astrid"), key("components.l1.reqState"))
         .await
@@ -417,6 +422,8 @@ pub async fn remote_set_is_applied_by_owner<H: Harness>(h: &mut H) {
         match next_event(&mut sub, p).await {
             TupleEvent::Changed(t) => {
                 assert_eq!((t.owner.as_str(), t.text()), ("astrid", Ok(expected)));
+                let creator = (expected == "on").then(|| peis("deployer"));
+                assert_eq!(t.creator, creator, "subscribers see who asked");
             }
             other => panic!("unexpected {other:?}"),
         }

@@ -470,7 +470,8 @@ impl TupleSpace for InProcessPeis {
             }
             _ => return Err(TupleError::OwnerUnreachable { owner, key }),
         }
-        // The owner applies the request with its own sequence numbers and limits.
+        // The owner applies the request with its own sequence numbers and limits, and records who asked.
+        let value = value.with_creator(self.me.clone());
         let (tuple, expires) = state.set_owned(&owner, None, key, value, now)?;
         drop(state);
         if expires {

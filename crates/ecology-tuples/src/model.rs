@@ -51,6 +51,9 @@ pub struct Value {
     pub ts_user: Option<Timestamp>,
     /// How long the tuple lives after it is written; `None` lives until deleted or replaced.
     pub time_to_live: Option<Duration>,
+    /// Who asked for it: `None` when the owner writes it itself, the requester's name in a remote
+    /// set (stamped by [`TupleSpace::set_remote`](crate::TupleSpace::set_remote)).
+    pub creator: Option<PeisId>,
 }
 
 impl Value {
@@ -61,6 +64,7 @@ impl Value {
             mimetype: Mimetype::text(),
             ts_user: None,
             time_to_live: None,
+            creator: None,
         }
     }
 
@@ -71,6 +75,7 @@ impl Value {
             mimetype: Mimetype::octet_stream(),
             ts_user: None,
             time_to_live: None,
+            creator: None,
         }
     }
 
@@ -89,6 +94,12 @@ impl Value {
     /// The same value, expiring `ttl` after it is written.
     pub fn with_time_to_live(mut self, ttl: Duration) -> Self {
         self.time_to_live = Some(ttl);
+        self
+    }
+
+    /// The same value, asked for by `creator` (a remote set's requester).
+    pub fn with_creator(mut self, creator: PeisId) -> Self {
+        self.creator = Some(creator);
         self
     }
 }
@@ -115,6 +126,10 @@ pub struct Tuple {
     /// The run of the owner that wrote it: chosen when the PEIS joins, greater for a later run. A PEIS
     /// that restarts numbers its tuples from 1 again, so versions compare as `(epoch, seq)`. 0 means unknown.
     pub epoch: u64,
+    /// The PEIS whose remote set wrote this value (the PEIS middleware's *creator*); `None` when the
+    /// owner wrote it itself. As the requester states it: who may remote-set at all is the owner's
+    /// policy and, with keys, the ecology's access rules.
+    pub creator: Option<PeisId>,
 }
 
 impl Tuple {

@@ -60,6 +60,7 @@ impl OwnedTuples {
             expiry,
             seq,
             epoch: self.epoch,
+            creator: value.creator,
         };
         if let Some(at) = expiry {
             self.expiry.insert((at, key.clone()));

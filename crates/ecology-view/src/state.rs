@@ -424,6 +424,7 @@ mod tests {
             expiry: None,
             seq: 1,
             epoch: 1,
+            creator: None,
         })
     }
 

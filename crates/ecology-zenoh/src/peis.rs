@@ -503,6 +503,7 @@ fn decode_sample(
                 expired: false,
                 epoch: 0,
                 mimetype: default_mimetype(sample),
+                creator: None,
             });
             Ok(TupleEvent::Changed(meta.into_tuple(owner, key, data)))
         }
@@ -772,6 +773,9 @@ impl TupleSpace for ZenohPeis {
         if owner == core.me {
             return publish(core, key, value);
         }
+        // The owner records who asked (the tuple's creator): a PEIS watches the presence of whoever
+        // switched its components on, and puts them back when that PEIS is gone.
+        let value = value.with_creator(core.me.clone());
         let replies = core
             .session
             .get(wire::remote_set_key_expr(&owner, &key))

@@ -15,8 +15,10 @@
 //! | 8 | `epoch` (u64): the owner's run, only if flag bit 3; absent means 0 |
 //! | 1 | mimetype length `n` |
 //! | n | mimetype, printable ASCII |
+//! | 1 | creator length `m`, only if flag bit 4 |
+//! | m | creator: the PEIS whose remote set wrote the value (in a remote-set request: the requester), only if flag bit 4 |
 //!
-//! Nothing may follow the mimetype.
+//! Nothing may follow the creator (or the mimetype, without it).
 
 use std::time::Duration;
 
@@ -34,6 +36,7 @@ const FLAG_TS_USER: u8 = 1;
 const FLAG_EXPIRY: u8 = 1 << 1;
 const FLAG_EXPIRED: u8 = 1 << 2;
 const FLAG_EPOCH: u8 = 1 << 3;
+const FLAG_CREATOR: u8 = 1 << 4;
 
 /// Why bytes from the network could not be read as a tuple.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -164,6 +167,8 @@ pub struct Metadata {
     pub epoch: u64,
     /// Mimetype of the data.
     pub mimetype: Mimetype,
+    /// The PEIS whose remote set wrote the value; in a remote-set request, the requester.
+    pub creator: Option<PeisId>,
 }
 
 impl Metadata {
@@ -177,6 +182,7 @@ impl Metadata {
             expired: false,
             epoch: tuple.epoch,
             mimetype: tuple.mimetype.clone(),
+            creator: tuple.creator.clone(),
         }
     }
 
@@ -192,6 +198,7 @@ impl Metadata {
             expired: false,
             epoch: 0,
             mimetype: value.mimetype.clone(),
+            creator: value.creator.clone(),
         }
     }
 
@@ -205,6 +212,7 @@ impl Metadata {
             expired,
             epoch,
             mimetype: Mimetype::octet_stream(),
+            creator: None,
         }
     }
 
@@ -225,6 +233,9 @@ impl Metadata {
         if self.epoch != 0 {
             flags |= FLAG_EPOCH;
         }
+        if self.creator.is_some() {
+            flags |= FLAG_CREATOR;
+        }
         out.push(VERSION);
         out.push(flags);
         out.extend_from_slice(&self.seq.to_le_bytes());
@@ -241,6 +252,12 @@ impl Metadata {
         // Mimetypes are at most 255 bytes (checked by `Mimetype::new`).
         out.push(u8::try_from(mime.len()).unwrap_or(u8::MAX));
         out.extend_from_slice(mime);
+        if let Some(creator) = &self.creator {
+            // PEIS names are at most 255 bytes (checked by `PeisId::new`).
+            let name = creator.as_str().as_bytes();
+            out.push(u8::try_from(name.len()).unwrap_or(u8::MAX));
+            out.extend_from_slice(name);
+        }
         out
     }
 
@@ -272,6 +289,14 @@ impl Metadata {
         let epoch = if flags & FLAG_EPOCH != 0 { r.u64()? } else { 0 };
         let len = usize::from(r.u8()?);
         let mime = r.take(len)?;
+        let creator = if flags & FLAG_CREATOR != 0 {
+            let len = usize::from(r.u8()?);
+            let name = std::str::from_utf8(r.take(len)?)
+                .map_err(|_| WireError::Attachment("creator is not UTF-8"))?;
+            Some(PeisId::new(name).map_err(|_| WireError::Attachment("invalid creator"))?)
+        } else {
+            None
+        };
         if !r.0.is_empty() {
             return Err(WireError::Attachment("trailing bytes"));
         }
@@ -291,6 +316,7 @@ impl Metadata {
             expired: flags & FLAG_EXPIRED != 0,
             epoch,
             mimetype,
+            creator,
         })
     }
 
@@ -306,6 +332,7 @@ impl Metadata {
             expiry: self.expiry.map(Timestamp),
             seq: self.seq,
             epoch: self.epoch,
+            creator: self.creator,
         }
     }
 
@@ -316,6 +343,7 @@ impl Metadata {
             mimetype: self.mimetype,
             ts_user: self.ts_user,
             time_to_live: self.expiry.map(Duration::from_nanos),
+            creator: self.creator,
         }
     }
 }

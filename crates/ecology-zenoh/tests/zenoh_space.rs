@@ -496,10 +496,14 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
         expiry: Some(Timestamp(3)),
         seq: 42,
         epoch: 7,
+        creator: Some(peis("executive")),
     };
     let encoded = Metadata::of_tuple(&tuple).encode();
-    assert_eq!(encoded.len(), 2 + 8 * 5 + 1 + "application/json".len());
-    assert_eq!(&encoded[..2], &[wire::VERSION, 0b1011]);
+    assert_eq!(
+        encoded.len(),
+        2 + 8 * 5 + 1 + "application/json".len() + 1 + "executive".len()
+    );
+    assert_eq!(&encoded[..2], &[wire::VERSION, 0b1_1011]);
     assert_eq!(&encoded[34..42], &7u64.to_le_bytes());
     assert_eq!(&encoded[2..10], &42u64.to_le_bytes());
     let decoded = Metadata::decode(&encoded).expect("decodes");
@@ -519,8 +523,10 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
     let mut version = encoded.clone();
     version[0] = 2;
     let mut bad_mime = encoded.clone();
-    let last = bad_mime.len() - 1;
-    bad_mime[last] = 0xff;
+    bad_mime[2 + 8 * 5 + 1] = 0xff;
+    let mut bad_creator = encoded.clone();
+    let last = bad_creator.len() - 1;
+    bad_creator[last] = 0xff;
     for (bytes, expected) in [
         (
             &encoded[..encoded.len() - 1],
@@ -531,6 +537,10 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
         (
             &bad_mime[..],
             WireError::Attachment("mimetype is not UTF-8"),
+        ),
+        (
+            &bad_creator[..],
+            WireError::Attachment("creator is not UTF-8"),
         ),
         (&[][..], WireError::Attachment("too short")),
     ] {
@@ -634,6 +644,11 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         .await
         .expect("the executive's remote set is applied");
     assert_eq!(set.text(), Ok("on"));
+    assert_eq!(
+        set.creator,
+        Some(peis("executive")),
+        "the owner keeps who asked"
+    );
     let refused = pippi
         .set_remote(
             peis("hsm"),
@@ -658,6 +673,7 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         .expect("get")
         .expect("present");
     assert_eq!(now.text(), Ok("on"));
+    assert_eq!(now.creator, Some(peis("executive")));
     assert_eq!(
         hsm.get(peis("hsm"), key("components.ca1.cost"))
             .await
