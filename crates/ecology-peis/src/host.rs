@@ -11,15 +11,25 @@
 //! owns. On shutdown the host stops every body and reports every component
 //! that was on as switched off, so the ecology sees it go before the PEIS
 //! leaves.
+//!
+//! The host is also a dead man's switch. It remembers who asked for each
+//! component (the *creator* of the `reqState` `on` and of the `params`, that
+//! is the remote setter) and watches that PEIS's presence: once it has been
+//! gone for [`HostOptions::release_after`] (after its lease, if it vanished),
+//! the host puts back what it asked for, `reqState` `off` and empty `params`,
+//! as that PEIS would have on ending its task. So a partition, a lost router
+//! or a killed executive never leaves a component running for a task nobody
+//! runs any more.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
 use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, ComponentId, Key, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
+    Clock, ComponentId, Key, PeisId, PresenceEvent, Timestamp, TupleError, TupleEvent,
+    TuplePattern, TupleSpace, Value,
 };
 use tokio::task::{AbortHandle, JoinSet};
 
@@ -64,6 +74,37 @@ pub enum HostError {
     InvalidName(String),
 }
 
+/// How a host runs, beyond its components.
+#[derive(Clone)]
+pub struct HostOptions {
+    /// How long the PEIS that switched a component on or gave it params may be gone (after its
+    /// presence ended) before the host puts them back by itself: `reqState` `off`, empty `params`.
+    /// A PEIS that comes back within it keeps what it asked for.
+    pub release_after: Duration,
+    /// Told, in a sentence, what the host did by itself (`switched ca1 off: executive is gone`).
+    pub note: Arc<dyn Fn(String) + Send + Sync>,
+}
+
+impl Default for HostOptions {
+    /// One second: presence already ends a lease after a PEIS vanished, and one more second lets
+    /// a router that restarts at once, or a link that flaps, pass without undoing a task. Notes
+    /// go nowhere.
+    fn default() -> Self {
+        Self {
+            release_after: Duration::from_secs(1),
+            note: Arc::new(|_| {}),
+        }
+    }
+}
+
+impl std::fmt::Debug for HostOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HostOptions")
+            .field("release_after", &self.release_after)
+            .finish_non_exhaustive()
+    }
+}
+
 struct State<S: TupleSpace> {
     spec: ComponentSpec<S>,
     on: bool,
@@ -71,6 +112,25 @@ struct State<S: TupleSpace> {
     params: Option<String>,
     generation: u64,
     task: Option<AbortHandle>,
+    /// Who remote-set `reqState` `on`, while it stands.
+    on_for: Option<PeisId>,
+    /// Who remote-set the current (non-empty) `params`.
+    params_for: Option<PeisId>,
+}
+
+impl<S: TupleSpace> State<S> {
+    fn serves(&self, peis: &PeisId) -> bool {
+        self.on_for.as_ref() == Some(peis) || self.params_for.as_ref() == Some(peis)
+    }
+}
+
+/// Whom the components serve, by presence: who is gone, and since when it may be released.
+#[derive(Default)]
+struct Holders {
+    /// PEIS whose presence ended and did not come back.
+    gone: BTreeSet<PeisId>,
+    /// When to release what each gone PEIS asked for.
+    release_at: BTreeMap<PeisId, Timestamp>,
 }
 
 type Outcome = (String, u64, Result<(), ComponentError>);
@@ -82,11 +142,23 @@ fn field(c: &str, field: ComponentField) -> Result<Key, HostError> {
         .map_err(|_| HostError::InvalidName(c.to_string()))
 }
 
-/// Runs one PEIS with `components` on `space` until `shutdown` completes.
+/// Runs one PEIS with `components` on `space` until `shutdown` completes, with the default
+/// [`HostOptions`].
 pub async fn run_host<S: TupleSpace>(
     space: S,
     clock: Arc<dyn Clock>,
     components: Vec<ComponentSpec<S>>,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), HostError> {
+    run_host_with(space, clock, components, HostOptions::default(), shutdown).await
+}
+
+/// Runs one PEIS with `components` on `space` until `shutdown` completes.
+pub async fn run_host_with<S: TupleSpace>(
+    space: S,
+    clock: Arc<dyn Clock>,
+    components: Vec<ComponentSpec<S>>,
+    options: HostOptions,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), HostError> {
     let me = space.peis().clone();
@@ -118,6 +190,8 @@ pub async fn run_host<S: TupleSpace>(
                 params: None,
                 generation: 0,
                 task: None,
+                on_for: None,
+                params_for: None,
             },
         );
     }
@@ -127,10 +201,16 @@ pub async fn run_host<S: TupleSpace>(
         .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
     let mut requests = space.subscribe(requests_pattern).await?;
     let mut params = space.subscribe(params_pattern).await?;
+    let mut presence = space.subscribe_presence().await?;
+    let mut holders = Holders::default();
     let mut tasks: JoinSet<Outcome> = JoinSet::new();
     tokio::pin!(shutdown);
     loop {
-        let next_start = states.values().filter_map(|s| s.starting_until).min();
+        let next_start = states
+            .values()
+            .filter_map(|s| s.starting_until)
+            .chain(holders.release_at.values().copied())
+            .min();
         let wake = async {
             match next_start {
                 Some(at) => clock.sleep_until(at).await,
@@ -145,7 +225,10 @@ pub async fn run_host<S: TupleSpace>(
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::ReqState)) = ComponentField::parse(&t.key) else { continue };
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
-                match t.text().unwrap_or("") {
+                let asked = t.text().unwrap_or("");
+                state.on_for = t.creator.clone().filter(|_| asked == "on");
+                holders.watch(t.creator.as_ref(), &clock, &options);
+                match asked {
                     "on" if !state.on && state.starting_until.is_none() => {
                         state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
                     }
@@ -176,6 +259,8 @@ pub async fn run_host<S: TupleSpace>(
                 let Some((c, ComponentField::Params)) = ComponentField::parse(&t.key) else { continue };
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
+                state.params_for = t.creator.clone().filter(|_| state.params.is_some());
+                holders.watch(t.creator.as_ref(), &clock, &options);
                 let stopping = state.params.is_none() && state.task.is_some();
                 if state.on {
                     let c = c.to_string();
@@ -207,8 +292,21 @@ pub async fn run_host<S: TupleSpace>(
                     space.set(field(&c, ComponentField::Status)?, Value::text("error")).await?;
                 }
             }
+            Some(event) = presence.next() => match event {
+                PresenceEvent::Joined(p) => holders.back(&p),
+                PresenceEvent::Left(p) => {
+                    let serves = states.values().any(|s| s.serves(&p));
+                    holders.gone.insert(p.clone());
+                    if serves {
+                        holders.watch(Some(&p), &clock, &options);
+                    }
+                }
+            },
             () = wake => {
                 let now = clock.now();
+                for gone in holders.due(now) {
+                    release(&space, &states, &gone, &options).await?;
+                }
                 let ready: Vec<String> = states
                     .iter()
                     .filter(|(_, s)| s.starting_until.is_some_and(|at| at <= now))
@@ -233,6 +331,60 @@ pub async fn run_host<S: TupleSpace>(
                 .await?;
             space
                 .set(field(c, ComponentField::Status)?, Value::text("idle"))
+                .await?;
+        }
+    }
+    Ok(())
+}
+
+impl Holders {
+    /// Something stands for `peis`: if it is gone, what it asked for is released in time.
+    fn watch(&mut self, peis: Option<&PeisId>, clock: &Arc<dyn Clock>, options: &HostOptions) {
+        if let Some(p) = peis.filter(|p| self.gone.contains(*p)) {
+            let at = clock.now().saturating_add(options.release_after);
+            self.release_at.entry(p.clone()).or_insert(at);
+        }
+    }
+
+    fn back(&mut self, peis: &PeisId) {
+        self.gone.remove(peis);
+        self.release_at.remove(peis);
+    }
+
+    /// The gone PEIS whose time is up, no longer waited for.
+    fn due(&mut self, now: Timestamp) -> Vec<PeisId> {
+        let due: Vec<PeisId> = self
+            .release_at
+            .iter()
+            .filter(|(_, at)| **at <= now)
+            .map(|(p, _)| p.clone())
+            .collect();
+        for p in &due {
+            self.release_at.remove(p);
+        }
+        due
+    }
+}
+
+/// Puts back what `gone` asked for, as it would have on ending its task: the host writes its own
+/// `reqState` `off` and empty `params`, which its request handlers then apply like any other.
+async fn release<S: TupleSpace>(
+    space: &S,
+    states: &BTreeMap<String, State<S>>,
+    gone: &PeisId,
+    options: &HostOptions,
+) -> Result<(), HostError> {
+    for (c, state) in states {
+        if state.on_for.as_ref() == Some(gone) {
+            (options.note)(format!("{c} switched off: {gone}, which switched it on, is gone"));
+            space
+                .set(field(c, ComponentField::ReqState)?, Value::text("off"))
+                .await?;
+        }
+        if state.params_for.as_ref() == Some(gone) {
+            (options.note)(format!("{c} stopped: {gone}, which gave its params, is gone"));
+            space
+                .set(field(c, ComponentField::Params)?, Value::text(""))
                 .await?;
         }
     }

@@ -10,7 +10,7 @@
 use std::future::Future;
 use std::sync::Arc;
 
-use ecology_peis::{ComponentSpec, HostError, run_host};
+use ecology_peis::{ComponentSpec, HostError, HostOptions, run_host_with};
 use ecology_tuples::{Clock, TupleError, TupleEvent, TuplePattern, TupleSpace};
 
 use crate::components::{FaultState, Faults, Simulated};
@@ -61,24 +61,31 @@ pub fn parse_fault(text: &str) -> Option<FaultState> {
 
 /// Runs PEIS `def` on `space` (which acts as that PEIS) with simulated
 /// components until `shutdown` completes, applying `C.fault` tuples as they
-/// are set and telling `note` about each (`ca1 stalls`).
+/// are set and telling `note` about each (`ca1 stalls`), and about what the
+/// host puts back by itself when the PEIS that asked for it is gone.
 pub async fn host_peis<S: TupleSpace>(
     space: S,
     clock: Arc<dyn Clock>,
     def: &PeisDef,
     seed: u64,
-    mut note: impl FnMut(String) + Send,
+    note: impl Fn(String) + Send + Sync + 'static,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), HostError> {
+    let note: Arc<dyn Fn(String) + Send + Sync> = Arc::new(note);
     let faults = Faults::default();
     let me = space.peis().clone();
     let pattern = TuplePattern::parse(&format!("{me}:*.fault"))
         .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
     let mut fault_tuples = space.subscribe(pattern).await?;
-    let host = run_host(
+    let options = HostOptions {
+        note: note.clone(),
+        ..HostOptions::default()
+    };
+    let host = run_host_with(
         space,
         clock,
         simulated_components(def, &faults, seed),
+        options,
         shutdown,
     );
     tokio::pin!(host);
