@@ -69,7 +69,21 @@ pub fn json_line(entry: &LogEntry) -> String {
         LogEvent::Released {
             switched_off,
             stopped,
-        } => json!({ "switched_off": switched_off, "stopped": stopped }),
+            unreachable,
+        } => {
+            json!({ "switched_off": switched_off, "stopped": stopped, "unreachable": unreachable })
+        }
+        LogEvent::Reclaimed {
+            peis,
+            switched_off,
+            stopped,
+        } => json!({ "peis": peis, "switched_off": switched_off, "stopped": stopped }),
+        LogEvent::EcologyLost {
+            gone,
+            present,
+            waiting,
+        } => json!({ "gone": gone, "present": present, "waiting_s": waiting.as_secs_f64() }),
+        LogEvent::EcologyBack { back, missing } => json!({ "back": back, "missing": missing }),
         LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
         LogEvent::ActionFailed {
             index,

@@ -54,6 +54,14 @@ pub struct TaskArgs {
     /// How long one action may take, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 600.0)]
     pub action_timeout: f64,
+    /// How long to wait for the ecology when most of it left at once (the executive lost its
+    /// network or its router), in seconds; then the task fails.
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
+    pub reconnect_timeout: f64,
+    /// PEIS that leave within this many seconds of each other are judged together; a departure
+    /// is acted on this long after it is seen.
+    #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
+    pub loss_window: f64,
     /// How long to take in the ecology's tuples before the first action, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.5)]
     pub settle: f64,
@@ -104,6 +112,8 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
         deploy_timeout: seconds(args.deploy_timeout, "--deploy-timeout")?,
         waiting_grace: seconds(args.waiting_grace, "--waiting-grace")?,
         action_timeout: seconds(args.action_timeout, "--action-timeout")?,
+        reconnect_timeout: seconds(args.reconnect_timeout, "--reconnect-timeout")?,
+        loss_window: seconds(args.loss_window, "--loss-window")?,
         ..ExecConfig::default()
     };
     let settle = if args.settle == 0.0 {

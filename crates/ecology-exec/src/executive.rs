@@ -110,6 +110,13 @@ pub struct ExecConfig {
     /// out, the best configuration found is used; when none was found, the
     /// action fails with that reason.
     pub planning: ecology_config::Budget,
+    /// PEIS that leave within this long of the first are judged together: when at least two,
+    /// and more than half of those present, left, the executive has lost the ecology (its own
+    /// network, or the router) rather than they their components. A departure is acted on this
+    /// long after it is seen; a PEIS that returns within it keeps what it ran.
+    pub loss_window: Duration,
+    /// How long to wait for a lost ecology to come back before the task fails.
+    pub reconnect_timeout: Duration,
 }
 
 impl Default for ExecConfig {
@@ -123,6 +130,8 @@ impl Default for ExecConfig {
                 max_expansions: Some(1_000_000),
                 max_time: Some(Duration::from_secs(2)),
             },
+            loss_window: Duration::from_secs(1),
+            reconnect_timeout: Duration::from_secs(30),
         }
     }
 }
@@ -268,6 +277,38 @@ struct ActionRun {
     observed: BTreeMap<String, bool>,
 }
 
+/// What the executive had written to a component of a PEIS that left: what it
+/// takes back, or puts back, when that PEIS returns in the same run.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+struct Orphan {
+    /// The executive switched it on.
+    switched_on: bool,
+    /// The params it gave it.
+    params: Option<String>,
+}
+
+/// PEIS that left within one [`ExecConfig::loss_window`], judged together when it closes.
+#[derive(Debug)]
+struct Departures {
+    timer: TimerId,
+    gone: Vec<PeisId>,
+    /// How many PEIS were present before the first left.
+    present_before: usize,
+    /// Failures seen meanwhile, acted on only if the ecology was not lost.
+    deferred: Vec<(Vec<ComponentKey>, String)>,
+}
+
+/// The executive lost the ecology: it waits for it, acting on nothing.
+#[derive(Debug)]
+struct Lost {
+    gone: BTreeSet<PeisId>,
+    back: BTreeSet<PeisId>,
+    present_before: usize,
+    deadline: TimerId,
+    /// Runs a window after the latest return: then the task goes on, if most are back.
+    settle: Option<TimerId>,
+}
+
 /// Measures how long acquisition and planning take, for the log. The
 /// executive reads no clock of its own: without one, they log as 0 µs.
 struct Stopwatch(Box<dyn PlannerClock + Send>);
@@ -315,6 +356,12 @@ pub struct Executive {
     started: BTreeSet<ComponentKey>,
     /// The `params` last written to each component.
     params: BTreeMap<ComponentKey, String>,
+    /// What it wrote to components of PEIS that left and may come back in the same run.
+    orphans: BTreeMap<ComponentKey, Orphan>,
+    /// Departures being judged, if any.
+    departures: Option<Departures>,
+    /// Set while the ecology is lost.
+    lost: Option<Lost>,
     /// Whether the task has ended and what it used has been released.
     finished: bool,
     /// Every action instance that failed in this task, in order.
@@ -350,6 +397,9 @@ impl Executive {
             running: None,
             started: BTreeSet::new(),
             params: BTreeMap::new(),
+            orphans: BTreeMap::new(),
+            departures: None,
+            lost: None,
             finished: false,
             failed_actions: Vec::new(),
             next_timer: 0,
@@ -433,36 +483,295 @@ impl Executive {
             Event::RemoteSetFailed { owner, key, reason } => {
                 self.on_remote_set_failed(owner, key, reason, &mut out);
             }
-            Event::PeisJoined(peis) => {
-                let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
-                self.mirror.joined(&peis);
-                if !was_present && self.run.is_some() {
-                    self.record(LogEvent::PeisJoined {
-                        peis: peis.to_string(),
-                    });
-                }
-            }
-            Event::PeisLeft(peis) => {
-                let was_present = self.mirror.peis().get(&peis).is_some_and(|v| v.present);
-                self.mirror.left(&peis);
-                if was_present && self.run.is_some() {
-                    self.record(LogEvent::PeisLeft {
-                        peis: peis.to_string(),
-                    });
-                }
-                self.forget(&peis);
-                self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), &mut out);
-            }
+            Event::PeisJoined(peis) => self.on_joined(peis, &mut out),
+            Event::PeisLeft(peis) => self.on_left(peis, &mut out),
             Event::Timer(id) => self.on_timer(id, &mut out),
         }
         out
     }
 
-    /// A PEIS that comes back starts afresh: forget what was written to its
+    /// A PEIS that restarted starts afresh: forget what was written to its
     /// components, so a new deploy writes it again.
     fn forget(&mut self, peis: &PeisId) {
         self.params.retain(|(p, _), _| p != peis);
         self.started.retain(|(p, _)| p != peis);
+        self.orphans.retain(|(p, _), _| p != peis);
+    }
+
+    fn is_present(&self, peis: &PeisId) -> bool {
+        self.mirror.peis().get(peis).is_some_and(|v| v.present)
+    }
+
+    /// Whether `peis` is known to be away (not merely never heard of).
+    fn is_absent(&self, peis: &PeisId) -> bool {
+        self.mirror.peis().get(peis).is_some_and(|v| !v.present)
+    }
+
+    fn present_count(&self) -> usize {
+        self.mirror.peis().values().filter(|v| v.present).count()
+    }
+
+    /// A PEIS left: what was written to it is kept as orphans (it may come back in the same
+    /// run, still running it), and the departure is judged a window later, with any others.
+    fn on_left(&mut self, peis: PeisId, out: &mut Vec<Command>) {
+        let was_present = self.is_present(&peis);
+        let present_before = self.present_count();
+        self.mirror.left(&peis);
+        if !was_present {
+            return;
+        }
+        if self.run.is_some() {
+            self.record(LogEvent::PeisLeft {
+                peis: peis.to_string(),
+            });
+        }
+        let on_it = |key: &ComponentKey| key.0 == peis;
+        for key in self.started.extract_if(.., on_it).collect::<Vec<_>>() {
+            self.orphans.entry(key).or_default().switched_on = true;
+        }
+        for (key, value) in self.params.extract_if(.., |k, _| on_it(k)).collect::<Vec<_>>() {
+            self.orphans.entry(key).or_default().params = Some(value);
+        }
+        if self.lost.is_some() || self.run.is_none() {
+            return;
+        }
+        match &mut self.departures {
+            Some(departures) => departures.gone.push(peis),
+            None => {
+                let timer = self.timer(self.config.loss_window, out);
+                self.departures = Some(Departures {
+                    timer,
+                    gone: vec![peis],
+                    present_before,
+                    deferred: Vec::new(),
+                });
+            }
+        }
+    }
+
+    /// A PEIS joined. One that returns within the window of its departure keeps what it ran;
+    /// while the ecology is lost, returns are counted towards going on; otherwise what the
+    /// executive wrote to it before it left and no longer uses is put back.
+    fn on_joined(&mut self, peis: PeisId, out: &mut Vec<Command>) {
+        let was_present = self.is_present(&peis);
+        self.mirror.joined(&peis);
+        if was_present {
+            return;
+        }
+        if self.run.is_some() {
+            self.record(LogEvent::PeisJoined {
+                peis: peis.to_string(),
+            });
+        }
+        if let Some(departures) = &mut self.departures
+            && departures.gone.contains(&peis)
+        {
+            departures.gone.retain(|p| *p != peis);
+            self.reclaim(&peis);
+            return;
+        }
+        if let Some(lost) = &mut self.lost {
+            if lost.gone.contains(&peis) {
+                lost.back.insert(peis);
+                if let Some(old) = lost.settle.take() {
+                    out.push(Command::CancelTimer(old));
+                }
+                let settle = self.timer(self.config.loss_window, out);
+                if let Some(lost) = &mut self.lost {
+                    lost.settle = Some(settle);
+                }
+            }
+            return;
+        }
+        self.reclaim(&peis);
+        self.release_unused(&peis, out);
+    }
+
+    /// Takes back what was written to `peis` before it left, where the mirror shows it still
+    /// stands: switched on if it is on, params if they are the same (or not yet seen).
+    fn reclaim(&mut self, peis: &PeisId) {
+        let orphans: Vec<(ComponentKey, Orphan)> = self
+            .orphans
+            .extract_if(.., |(p, _), _| p == peis)
+            .collect();
+        for (key, orphan) in orphans {
+            let view = self.mirror.component(key.0.as_str(), key.1.as_str());
+            if orphan.switched_on && view.is_some_and(|v| v.on) {
+                self.started.insert(key.clone());
+            }
+            if let Some(params) = orphan.params {
+                let seen = view.and_then(|v| v.params.as_deref());
+                if seen.is_none_or(|seen| seen == params) {
+                    self.params.insert(key, params);
+                }
+            }
+        }
+    }
+
+    /// Puts back what this task wrote to `peis` that the current configuration does not use.
+    fn release_unused(&mut self, peis: &PeisId, out: &mut Vec<Command>) {
+        let unused = |exec: &Self, key: &ComponentKey| key.0 == *peis && !exec.in_current_config(key);
+        let switched: Vec<ComponentKey> = self.started.iter().filter(|k| unused(self, k)).cloned().collect();
+        let borrowed: Vec<ComponentKey> = self
+            .params
+            .keys()
+            .filter(|k| unused(self, k) && !switched.contains(k))
+            .cloned()
+            .collect();
+        let mut switched_off = Vec::new();
+        for key in switched {
+            out.push(req_state(&key, "off"));
+            self.started.remove(&key);
+            self.params.remove(&key);
+            switched_off.push(format!("{}:{}", key.0, key.1));
+        }
+        let mut stopped = Vec::new();
+        for key in borrowed {
+            out.push(params(&key, String::new()));
+            self.params.remove(&key);
+            stopped.push(format!("{}:{}", key.0, key.1));
+        }
+        if !switched_off.is_empty() || !stopped.is_empty() {
+            self.record(LogEvent::Reclaimed {
+                peis: peis.to_string(),
+                switched_off,
+                stopped,
+            });
+        }
+    }
+
+    /// The window of departures closed: the executive lost the ecology when at least two, and
+    /// more than half of the PEIS present, are still gone; otherwise each is a failure of its
+    /// components, acted on with what else failed meanwhile.
+    fn judge_departures(&mut self, out: &mut Vec<Command>) {
+        let Some(departures) = self.departures.take() else {
+            return;
+        };
+        if self.run.is_none() || self.finished {
+            return;
+        }
+        let gone: BTreeSet<PeisId> = departures
+            .gone
+            .into_iter()
+            .filter(|p| self.is_absent(p))
+            .collect();
+        if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
+            if let Some(run) = &mut self.run {
+                if let Some(id) = run.deploy_timer.take() {
+                    out.push(Command::CancelTimer(id));
+                }
+                for (_, id) in std::mem::take(&mut run.waiting) {
+                    out.push(Command::CancelTimer(id));
+                }
+            }
+            self.record(LogEvent::EcologyLost {
+                gone: gone.iter().map(ToString::to_string).collect(),
+                present: departures.present_before,
+                waiting: self.config.reconnect_timeout,
+            });
+            let deadline = self.timer(self.config.reconnect_timeout, out);
+            self.lost = Some(Lost {
+                gone: gone.into_iter().collect(),
+                back: BTreeSet::new(),
+                present_before: departures.present_before,
+                deadline,
+                settle: None,
+            });
+            return;
+        }
+        let mut failures = Vec::new();
+        if let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) {
+            for peis in &gone {
+                let lost = components_of(config, |f| f.peis == peis.as_str());
+                if !lost.is_empty() {
+                    failures.push((lost, format!("PEIS {peis} left the ecology")));
+                }
+            }
+        }
+        failures.extend(departures.deferred);
+        if !self.fail_all(failures, out) {
+            self.retime(out);
+        }
+    }
+
+    /// Times again what ran out while departures were judged: the components still waiting,
+    /// and a deployment still pending (with a fresh deploy timeout).
+    fn retime(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        if matches!(run.phase, Phase::Deploying { .. }) && run.deploy_timer.is_none() {
+            let id = self.timer(self.config.deploy_timeout, out);
+            if let Some(run) = &mut self.run {
+                run.deploy_timer = Some(id);
+            }
+        }
+        if self.run.as_ref().is_some_and(|r| r.phase == Phase::Running) {
+            self.arm_waiting_timers(out);
+        }
+    }
+
+    /// A window after the latest return of a lost PEIS: the task goes on when more than half
+    /// of those lost are back, reconfiguring from the ecology as it is now.
+    fn try_resume(&mut self, out: &mut Vec<Command>) {
+        let Some(lost) = &mut self.lost else { return };
+        lost.settle = None;
+        lost.back.retain(|p| self.mirror.peis().get(p).is_some_and(|v| v.present));
+        if lost.back.len() * 2 <= lost.gone.len() {
+            return;
+        }
+        let Some(lost) = self.lost.take() else { return };
+        out.push(Command::CancelTimer(lost.deadline));
+        let missing: Vec<String> = lost
+            .gone
+            .difference(&lost.back)
+            .map(ToString::to_string)
+            .collect();
+        self.record(LogEvent::EcologyBack {
+            back: lost.back.iter().map(ToString::to_string).collect(),
+            missing,
+        });
+        for peis in &lost.back {
+            self.reclaim(peis);
+        }
+        // Its action's time counts afresh: what it timed was the network.
+        let action_timer = self.timer(self.config.action_timeout, out);
+        if let Some(run) = &mut self.run {
+            out.push(Command::CancelTimer(run.action_timer));
+            run.action_timer = action_timer;
+        }
+        self.configure(true, out);
+    }
+
+    /// The lost ecology did not come back in time: the task fails, saying so.
+    fn give_up(&mut self, out: &mut Vec<Command>) {
+        let Some(lost) = self.lost.take() else { return };
+        if let Some(id) = lost.settle {
+            out.push(Command::CancelTimer(id));
+        }
+        let names = |set: &BTreeSet<PeisId>| {
+            set.iter().map(ToString::to_string).collect::<Vec<_>>().join(", ")
+        };
+        let back: BTreeSet<PeisId> = lost
+            .back
+            .iter()
+            .filter(|p| self.is_present(p))
+            .cloned()
+            .collect();
+        let came_back = if back.is_empty() {
+            "none came back".to_string()
+        } else {
+            format!("only {} came back", names(&back))
+        };
+        let reason = format!(
+            "the executive lost the ecology: {} of the {} PEIS present ({}) left at once, and {came_back} within {:?}; \
+             the PEIS put back what it had switched on once it was gone for a second",
+            lost.gone.len(),
+            lost.present_before,
+            names(&lost.gone),
+            self.config.reconnect_timeout,
+        );
+        self.fail_action(reason.clone(), out);
+        self.release(out);
+        self.record(LogEvent::TaskFailed { reason });
     }
 
     fn record(&mut self, event: LogEvent) {
@@ -874,6 +1183,19 @@ impl Executive {
     }
 
     fn on_timer(&mut self, id: TimerId, out: &mut Vec<Command>) {
+        if self.departures.as_ref().is_some_and(|d| d.timer == id) {
+            self.judge_departures(out);
+            return;
+        }
+        if let Some(lost) = &self.lost {
+            // While lost, only its own timers count: whatever else ran out timed the network.
+            if lost.deadline == id {
+                self.give_up(out);
+            } else if lost.settle == Some(id) {
+                self.try_resume(out);
+            }
+            return;
+        }
         let Some(run) = &mut self.run else { return };
         if id == run.action_timer {
             let reason = format!(
@@ -885,6 +1207,10 @@ impl Executive {
         }
         if run.deploy_timer == Some(id) {
             run.deploy_timer = None;
+            if self.departures.is_some() {
+                // What a departure held up is timed again once it is judged.
+                return;
+            }
             if let Phase::Deploying { pending } = &run.phase {
                 // Components still switching on are to blame; only when every
                 // pending one is on (and so waits for something) are all blamed.
@@ -945,6 +1271,9 @@ impl Executive {
             .map(|(k, _)| k.clone());
         if let Some(key) = waited {
             run.waiting.remove(&key);
+            if self.departures.is_some() {
+                return;
+            }
             let cause = self
                 .mirror
                 .component(key.0.as_str(), key.1.as_str())
@@ -962,27 +1291,61 @@ impl Executive {
         }
     }
 
-    /// Excludes the failed components and reconfigures the action.
+    /// Excludes the failed components and reconfigures the action; while
+    /// departures are judged, only once they are (what failed may be the
+    /// network); while the ecology is lost, not at all.
     fn failure(&mut self, failed: Vec<ComponentKey>, cause: String, out: &mut Vec<Command>) {
-        let Some(run) = &mut self.run else { return };
-        let fresh: Vec<ComponentKey> = failed
-            .into_iter()
-            .filter(|k| !run.failed.contains(k))
-            .collect();
-        if fresh.is_empty() {
+        if self.lost.is_some() {
             return;
         }
-        run.failed.extend(fresh.iter().cloned());
-        let names = fresh
-            .into_iter()
-            .map(|(p, c)| (p.to_string(), c.to_string()))
-            .collect();
-        self.exclude(names, cause, out);
+        if let Some(departures) = &mut self.departures {
+            departures.deferred.push((failed, cause));
+            return;
+        }
+        self.fail_all(vec![(failed, cause)], out);
+    }
+
+    /// Excludes every group of failed components, each with its cause, and
+    /// reconfigures once; whether it did.
+    fn fail_all(
+        &mut self,
+        failures: Vec<(Vec<ComponentKey>, String)>,
+        out: &mut Vec<Command>,
+    ) -> bool {
+        let mut any = false;
+        for (failed, cause) in failures {
+            let Some(run) = &mut self.run else {
+                return false;
+            };
+            let fresh: Vec<ComponentKey> = failed
+                .into_iter()
+                .filter(|k| run.failed.insert(k.clone()))
+                .collect();
+            if fresh.is_empty() {
+                continue;
+            }
+            let names = fresh
+                .into_iter()
+                .map(|(p, c)| (p.to_string(), c.to_string()))
+                .collect();
+            self.exclude_only(names, cause);
+            any = true;
+        }
+        if any {
+            self.reconfigure(out);
+        }
+        any
     }
 
     /// Excludes the components `failed` (PEIS and name) for the rest of the
     /// action, logs why, and reconfigures.
     fn exclude(&mut self, failed: Vec<(String, String)>, cause: String, out: &mut Vec<Command>) {
+        self.exclude_only(failed, cause);
+        self.reconfigure(out);
+    }
+
+    /// Excludes the components `failed` for the rest of the action and logs why.
+    fn exclude_only(&mut self, failed: Vec<(String, String)>, cause: String) {
         let Some(run) = &mut self.run else { return };
         for (peis, component) in &failed {
             run.excluded.push(Exclusion::Component {
@@ -990,7 +1353,6 @@ impl Executive {
                 component: component.clone(),
             });
         }
-        let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
         for (peis, component) in failed {
             self.record(LogEvent::Failure {
                 peis,
@@ -998,6 +1360,11 @@ impl Executive {
                 cause: cause.clone(),
             });
         }
+    }
+
+    fn reconfigure(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
         self.record(LogEvent::Reconfiguration { excluded });
         self.configure(true, out);
     }
@@ -1166,22 +1533,39 @@ impl Executive {
             return;
         }
         self.finished = true;
+        // What is on a PEIS out of reach is left to it: its host puts back what an executive
+        // gone for a second had asked for (and sets to it would only wait out their timeout).
+        let mut unreachable: BTreeSet<ComponentKey> =
+            std::mem::take(&mut self.orphans).into_keys().collect();
         let mut switched_off = Vec::new();
         for key in std::mem::take(&mut self.started) {
-            out.push(req_state(&key, "off"));
             self.params.remove(&key);
+            if self.is_absent(&key.0) {
+                unreachable.insert(key);
+                continue;
+            }
+            out.push(req_state(&key, "off"));
             switched_off.push(format!("{}:{}", key.0, key.1));
         }
         let mut stopped = Vec::new();
         for (key, _) in std::mem::take(&mut self.params) {
+            if self.is_absent(&key.0) {
+                unreachable.insert(key);
+                continue;
+            }
             out.push(params(&key, String::new()));
             stopped.push(format!("{}:{}", key.0, key.1));
         }
         self.running = None;
-        if !switched_off.is_empty() || !stopped.is_empty() {
+        let unreachable: Vec<String> = unreachable
+            .into_iter()
+            .map(|(p, c)| format!("{p}:{c}"))
+            .collect();
+        if !switched_off.is_empty() || !stopped.is_empty() || !unreachable.is_empty() {
             self.record(LogEvent::Released {
                 switched_off,
                 stopped,
+                unreachable,
             });
         }
     }

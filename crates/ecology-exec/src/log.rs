@@ -120,6 +120,36 @@ pub enum LogEvent {
         switched_off: Vec<String>,
         /// Components it only borrowed (on before), whose params were cleared.
         stopped: Vec<String>,
+        /// Components on PEIS out of reach, left to them: a PEIS host puts back by itself
+        /// what an executive that is gone had asked for.
+        unreachable: Vec<String>,
+    },
+    /// A PEIS that had left came back in the same run: what the task had written to it and
+    /// no longer uses was put back.
+    Reclaimed {
+        /// The PEIS.
+        peis: String,
+        /// Components switched off.
+        switched_off: Vec<String>,
+        /// Components whose params were cleared.
+        stopped: Vec<String>,
+    },
+    /// Most of the ecology left at once: the executive lost it (its own network, or the
+    /// router), rather than those PEIS their components. It acts on nothing while it waits.
+    EcologyLost {
+        /// The PEIS that left.
+        gone: Vec<String>,
+        /// How many PEIS were present before.
+        present: usize,
+        /// How long it waits for them.
+        waiting: Duration,
+    },
+    /// Most of the lost ecology is back: the action goes on, reconfigured.
+    EcologyBack {
+        /// The PEIS back.
+        back: Vec<String>,
+        /// Those still gone.
+        missing: Vec<String>,
     },
     /// The action is being reconfigured without what failed.
     Reconfiguration {
@@ -187,6 +217,9 @@ impl LogEvent {
             LogEvent::PeisRestarted { .. } => "peis_restarted",
             LogEvent::RemoteSetFailed { .. } => "remote_set_failed",
             LogEvent::Released { .. } => "released",
+            LogEvent::Reclaimed { .. } => "reclaimed",
+            LogEvent::EcologyLost { .. } => "ecology_lost",
+            LogEvent::EcologyBack { .. } => "ecology_back",
             LogEvent::ActionDone { .. } => "action_done",
             LogEvent::ActionFailed { .. } => "action_failed",
             LogEvent::Observed { .. } => "observed",
@@ -198,6 +231,18 @@ impl LogEvent {
 }
 
 /// `, then by what it observes: A | B` after a conditional plan's first actions.
+/// "switched off A, B", "stopped C": what a release did, for the timeline.
+fn released_parts(switched_off: &[String], stopped: &[String]) -> Vec<String> {
+    let mut parts = Vec::new();
+    if !switched_off.is_empty() {
+        parts.push(format!("switched off {}", switched_off.join(", ")));
+    }
+    if !stopped.is_empty() {
+        parts.push(format!("stopped {}", stopped.join(", ")));
+    }
+    parts
+}
+
 fn write_branches(f: &mut fmt::Formatter<'_>, branches: &[String]) -> fmt::Result {
     if branches.is_empty() {
         Ok(())
@@ -306,15 +351,41 @@ impl fmt::Display for LogEntry {
             LogEvent::Released {
                 switched_off,
                 stopped,
+                unreachable,
             } => {
-                let mut parts = Vec::new();
-                if !switched_off.is_empty() {
-                    parts.push(format!("switched off {}", switched_off.join(", ")));
-                }
-                if !stopped.is_empty() {
-                    parts.push(format!("stopped {}", stopped.join(", ")));
+                let mut parts = released_parts(switched_off, stopped);
+                if !unreachable.is_empty() {
+                    parts.push(format!(
+                        "left to their PEIS, out of reach: {}",
+                        unreachable.join(", ")
+                    ));
                 }
                 write!(f, "released: {}", parts.join("; "))
+            }
+            LogEvent::Reclaimed {
+                peis,
+                switched_off,
+                stopped,
+            } => {
+                let parts = released_parts(switched_off, stopped);
+                write!(f, "  PEIS {peis} is back; no longer used: {}", parts.join("; "))
+            }
+            LogEvent::EcologyLost {
+                gone,
+                present,
+                waiting,
+            } => write!(
+                f,
+                "  LOST THE ECOLOGY: {} of {present} PEIS left at once ({}); waiting up to {waiting:?} for them",
+                gone.len(),
+                gone.join(", ")
+            ),
+            LogEvent::EcologyBack { back, missing } => {
+                write!(f, "  the ecology is back: {}", back.join(", "))?;
+                if !missing.is_empty() {
+                    write!(f, " (still gone: {})", missing.join(", "))?;
+                }
+                Ok(())
             }
             LogEvent::ActionDone { index, action } => {
                 write!(f, "action {} done: {action}", index + 1)

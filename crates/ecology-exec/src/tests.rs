@@ -10,7 +10,7 @@ use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 
 use ecology_tuples::{Key, PeisId};
 
-use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus};
+use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, TimerId};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
@@ -69,6 +69,19 @@ fn costs(exec: &Executive) -> Vec<(u64, bool)> {
 
 fn names(exec: &Executive) -> Vec<&'static str> {
     exec.log().iter().map(|e| e.event.name()).collect()
+}
+
+/// The timer of the departure window that `commands` started.
+fn window(commands: &[Command]) -> TimerId {
+    commands
+        .iter()
+        .find_map(|c| match c {
+            Command::StartTimer { id, after } if *after == ExecConfig::default().loss_window => {
+                Some(*id)
+            }
+            _ => None,
+        })
+        .expect("a departure window")
 }
 
 fn timeline(exec: &Executive) -> String {
@@ -340,7 +353,9 @@ fn a_restarted_peis_fails_its_components_and_its_new_run_counts() {
 #[test]
 fn a_late_tuple_does_not_bring_back_a_peis_that_left() {
     let mut exec = running_first_action();
-    exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    assert_eq!(costs(&exec), [(80, false)], "judged a window later");
+    exec.handle(secs(3.0), Event::Timer(window(&left)));
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
     // Sent before it left, delivered after: hsm stays absent.
     exec.handle(secs(2.1), tuple("hsm", "ca1.status", "running", 7));
@@ -353,6 +368,164 @@ fn a_late_tuple_does_not_bring_back_a_peis_that_left() {
     assert_eq!(view.and_then(|v| v.status), Some("running".to_string()));
     // One reconfiguration, for the departure only.
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
+}
+
+/// The remote sets to `owner` among `commands`, as (key, value).
+fn sets_to(commands: &[Command], owner: &str) -> Vec<(String, String)> {
+    commands
+        .iter()
+        .filter_map(|c| match c {
+            Command::RemoteSet { owner: o, key, value } if o.as_str() == owner => {
+                Some((key.to_string(), value.clone()))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// The timer `commands` started to run for `after`.
+fn timer_of(commands: &[Command], after: Duration) -> TimerId {
+    commands
+        .iter()
+        .find_map(|c| match c {
+            Command::StartTimer { id, after: a } if *a == after => Some(*id),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no timer of {after:?} in {commands:?}"))
+}
+
+#[test]
+fn a_peis_back_from_a_partition_is_released_of_what_is_no_longer_used() {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    exec.handle(secs(3.0), Event::Timer(window(&left)));
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+    // It comes back in the same run, still running the old configuration's params.
+    let back = exec.handle(secs(5.0), Event::PeisJoined(peis("hsm")));
+    assert_eq!(
+        sets_to(&back, "hsm"),
+        [
+            ("ca1.params".to_string(), String::new()),
+            ("tr1.params".to_string(), String::new())
+        ]
+    );
+    let text = timeline(&exec);
+    assert!(
+        text.contains("PEIS hsm is back; no longer used: stopped hsm:ca1, hsm:tr1"),
+        "{text}"
+    );
+    // At the end of the task nothing of it is released twice.
+    let end = exec.stop(secs(6.0), "stopped by the operator");
+    assert!(sets_to(&end, "hsm").is_empty(), "{end:?}");
+}
+
+#[test]
+fn a_peis_back_within_the_window_keeps_its_part() {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    let back = exec.handle(secs(2.5), Event::PeisJoined(peis("hsm")));
+    assert!(sets_to(&back, "hsm").is_empty(), "{back:?}");
+    exec.handle(secs(3.0), Event::Timer(window(&left)));
+    assert_eq!(costs(&exec), [(80, false)], "{}", timeline(&exec));
+    assert!(!names(&exec).contains(&"failure"));
+    // What it runs for the task is the task's again: released at its end.
+    let end = exec.stop(secs(4.0), "stopped by the operator");
+    assert_eq!(
+        sets_to(&end, "hsm"),
+        [
+            ("ca1.params".to_string(), String::new()),
+            ("tr1.params".to_string(), String::new())
+        ]
+    );
+}
+
+/// Every PEIS leaves within the window, and a remote set fails meanwhile: the executive lost
+/// the ecology (its own network), and blames nobody.
+fn losing_the_ecology() -> (Executive, Vec<Command>) {
+    let mut exec = running_first_action();
+    let first = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    exec.handle(secs(2.3), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(2.6), Event::PeisLeft(peis("pippi")));
+    exec.handle(
+        secs(2.7),
+        Event::RemoteSetFailed {
+            owner: peis("astrid"),
+            key: key("tc1.params"),
+            reason: "no reply within 2s".to_string(),
+        },
+    );
+    let lost = exec.handle(secs(3.0), Event::Timer(window(&first)));
+    let text = timeline(&exec);
+    assert!(
+        text.contains(
+            "LOST THE ECOLOGY: 3 of 3 PEIS left at once (astrid, hsm, pippi); waiting up to 30s for them"
+        ),
+        "{text}"
+    );
+    assert!(!names(&exec).contains(&"failure"), "{text}");
+    assert_eq!(costs(&exec), [(80, false)], "{text}");
+    assert!(lost.iter().all(|c| !matches!(c, Command::RemoteSet { .. })));
+    (exec, lost)
+}
+
+#[test]
+fn an_executive_that_lost_the_ecology_goes_on_when_it_is_back() {
+    let (mut exec, _) = losing_the_ecology();
+    exec.handle(secs(10.0), Event::PeisJoined(peis("hsm")));
+    exec.handle(secs(10.2), Event::PeisJoined(peis("astrid")));
+    let last = exec.handle(secs(10.4), Event::PeisJoined(peis("pippi")));
+    assert_eq!(costs(&exec), [(80, false)], "a window after the last return");
+    let settle = timer_of(&last, ExecConfig::default().loss_window);
+    let resumed = exec.handle(secs(11.4), Event::Timer(settle));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("the ecology is back: astrid, hsm, pippi"),
+        "{text}"
+    );
+    assert_eq!(costs(&exec), [(80, false), (80, true)], "{text}");
+    assert_eq!(exec.status(), &RunStatus::Running { index: 0 });
+    // What still runs is kept as it is: nothing switched on again or given its params again.
+    for peis in ["astrid", "hsm"] {
+        let rewritten: Vec<_> = sets_to(&resumed, peis)
+            .into_iter()
+            .filter(|(k, _)| k.ends_with(".params") || k.ends_with(".reqState"))
+            .collect();
+        assert!(rewritten.is_empty(), "{rewritten:?}");
+    }
+}
+
+#[test]
+fn an_executive_whose_ecology_stays_lost_fails_saying_so() {
+    let (mut exec, lost) = losing_the_ecology();
+    // One comes back, which is not most of them.
+    let back = exec.handle(secs(10.0), Event::PeisJoined(peis("pippi")));
+    exec.handle(
+        secs(11.0),
+        Event::Timer(timer_of(&back, ExecConfig::default().loss_window)),
+    );
+    assert!(!names(&exec).contains(&"ecology_back"));
+    let deadline = timer_of(&lost, ExecConfig::default().reconnect_timeout);
+    let end = exec.handle(secs(33.0), Event::Timer(deadline));
+    let RunStatus::Failed { reason, .. } = exec.status().clone() else {
+        panic!("the task should fail: {}", timeline(&exec));
+    };
+    assert!(
+        reason.starts_with(
+            "the executive lost the ecology: 3 of the 3 PEIS present (astrid, hsm, pippi) left at once, and only pippi came back within 30s"
+        ),
+        "{reason}"
+    );
+    assert!(exec.finished());
+    // Nothing is sent to PEIS out of reach (their hosts put back what it asked for).
+    assert!(
+        end.iter().all(|c| !matches!(c, Command::RemoteSet { .. })),
+        "{end:?}"
+    );
+    let text = timeline(&exec);
+    assert!(
+        text.contains("left to their PEIS, out of reach: astrid:s1, astrid:tc1, hsm:ca1, hsm:tr1"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -798,6 +971,7 @@ mod on_the_tuple_space {
             LogEvent::Released {
                 switched_off,
                 stopped,
+                ..
             } => Some((switched_off.clone(), stopped.clone())),
             _ => None,
         });
