@@ -72,7 +72,10 @@ enum Command {
     View(view::ViewArgs),
 }
 
+#[allow(unsafe_code)]
 fn main() -> ExitCode {
+    // SAFETY: first thing in the process: no other thread runs yet.
+    unsafe { ecology_zenoh::set_runtime_threads() };
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(err) => {

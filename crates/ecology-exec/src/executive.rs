@@ -247,6 +247,14 @@ fn input_key(
     contract::input_key(consumer, &c.info_name, &args).ok()
 }
 
+/// Takes the entries of `map` for the components of `peis` out of it.
+fn take_on<V>(map: &mut BTreeMap<ComponentKey, V>, peis: &PeisId) -> Vec<(ComponentKey, V)> {
+    let keys: Vec<ComponentKey> = map.keys().filter(|(p, _)| p == peis).cloned().collect();
+    keys.into_iter()
+        .filter_map(|k| map.remove(&k).map(|v| (k, v)))
+        .collect()
+}
+
 fn micros(d: Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
 }
@@ -525,11 +533,17 @@ impl Executive {
                 peis: peis.to_string(),
             });
         }
-        let on_it = |key: &ComponentKey| key.0 == peis;
-        for key in self.started.extract_if(.., on_it).collect::<Vec<_>>() {
+        let started: Vec<ComponentKey> = self
+            .started
+            .iter()
+            .filter(|(p, _)| *p == peis)
+            .cloned()
+            .collect();
+        for key in started {
+            self.started.remove(&key);
             self.orphans.entry(key).or_default().switched_on = true;
         }
-        for (key, value) in self.params.extract_if(.., |k, _| on_it(k)).collect::<Vec<_>>() {
+        for (key, value) in take_on(&mut self.params, &peis) {
             self.orphans.entry(key).or_default().params = Some(value);
         }
         if self.lost.is_some() || self.run.is_none() {
@@ -590,11 +604,7 @@ impl Executive {
     /// Takes back what was written to `peis` before it left, where the mirror shows it still
     /// stands: switched on if it is on, params if they are the same (or not yet seen).
     fn reclaim(&mut self, peis: &PeisId) {
-        let orphans: Vec<(ComponentKey, Orphan)> = self
-            .orphans
-            .extract_if(.., |(p, _), _| p == peis)
-            .collect();
-        for (key, orphan) in orphans {
+        for (key, orphan) in take_on(&mut self.orphans, peis) {
             let view = self.mirror.component(key.0.as_str(), key.1.as_str());
             if orphan.switched_on && view.is_some_and(|v| v.on) {
                 self.started.insert(key.clone());
@@ -610,8 +620,14 @@ impl Executive {
 
     /// Puts back what this task wrote to `peis` that the current configuration does not use.
     fn release_unused(&mut self, peis: &PeisId, out: &mut Vec<Command>) {
-        let unused = |exec: &Self, key: &ComponentKey| key.0 == *peis && !exec.in_current_config(key);
-        let switched: Vec<ComponentKey> = self.started.iter().filter(|k| unused(self, k)).cloned().collect();
+        let unused =
+            |exec: &Self, key: &ComponentKey| key.0 == *peis && !exec.in_current_config(key);
+        let switched: Vec<ComponentKey> = self
+            .started
+            .iter()
+            .filter(|k| unused(self, k))
+            .cloned()
+            .collect();
         let borrowed: Vec<ComponentKey> = self
             .params
             .keys()
@@ -714,7 +730,8 @@ impl Executive {
     fn try_resume(&mut self, out: &mut Vec<Command>) {
         let Some(lost) = &mut self.lost else { return };
         lost.settle = None;
-        lost.back.retain(|p| self.mirror.peis().get(p).is_some_and(|v| v.present));
+        lost.back
+            .retain(|p| self.mirror.peis().get(p).is_some_and(|v| v.present));
         if lost.back.len() * 2 <= lost.gone.len() {
             return;
         }
@@ -748,7 +765,10 @@ impl Executive {
             out.push(Command::CancelTimer(id));
         }
         let names = |set: &BTreeSet<PeisId>| {
-            set.iter().map(ToString::to_string).collect::<Vec<_>>().join(", ")
+            set.iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
         };
         let back: BTreeSet<PeisId> = lost
             .back

@@ -368,7 +368,11 @@ impl fmt::Display for LogEntry {
                 stopped,
             } => {
                 let parts = released_parts(switched_off, stopped);
-                write!(f, "  PEIS {peis} is back; no longer used: {}", parts.join("; "))
+                write!(
+                    f,
+                    "  PEIS {peis} is back; no longer used: {}",
+                    parts.join("; ")
+                )
             }
             LogEvent::EcologyLost {
                 gone,

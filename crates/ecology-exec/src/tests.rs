@@ -375,9 +375,11 @@ fn sets_to(commands: &[Command], owner: &str) -> Vec<(String, String)> {
     commands
         .iter()
         .filter_map(|c| match c {
-            Command::RemoteSet { owner: o, key, value } if o.as_str() == owner => {
-                Some((key.to_string(), value.clone()))
-            }
+            Command::RemoteSet {
+                owner: o,
+                key,
+                value,
+            } if o.as_str() == owner => Some((key.to_string(), value.clone())),
             _ => None,
         })
         .collect()
@@ -474,7 +476,11 @@ fn an_executive_that_lost_the_ecology_goes_on_when_it_is_back() {
     exec.handle(secs(10.0), Event::PeisJoined(peis("hsm")));
     exec.handle(secs(10.2), Event::PeisJoined(peis("astrid")));
     let last = exec.handle(secs(10.4), Event::PeisJoined(peis("pippi")));
-    assert_eq!(costs(&exec), [(80, false)], "a window after the last return");
+    assert_eq!(
+        costs(&exec),
+        [(80, false)],
+        "a window after the last return"
+    );
     let settle = timer_of(&last, ExecConfig::default().loss_window);
     let resumed = exec.handle(secs(11.4), Event::Timer(settle));
     let text = timeline(&exec);

@@ -376,13 +376,17 @@ async fn release<S: TupleSpace>(
 ) -> Result<(), HostError> {
     for (c, state) in states {
         if state.on_for.as_ref() == Some(gone) {
-            (options.note)(format!("{c} switched off: {gone}, which switched it on, is gone"));
+            (options.note)(format!(
+                "{c} switched off: {gone}, which switched it on, is gone"
+            ));
             space
                 .set(field(c, ComponentField::ReqState)?, Value::text("off"))
                 .await?;
         }
         if state.params_for.as_ref() == Some(gone) {
-            (options.note)(format!("{c} stopped: {gone}, which gave its params, is gone"));
+            (options.note)(format!(
+                "{c} stopped: {gone}, which gave its params, is gone"
+            ));
             space
                 .set(field(c, ComponentField::Params)?, Value::text(""))
                 .await?;

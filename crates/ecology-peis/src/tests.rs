@@ -322,16 +322,30 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     let robot = PeisId::new("robot").expect("name");
     let executive = f
         .space
-        .join(PeisId::new("executive").expect("name"), PeisOptions::default())
+        .join(
+            PeisId::new("executive").expect("name"),
+            PeisOptions::default(),
+        )
         .expect("joins");
     for c in ["l1", "l2"] {
         let params = executive
-            .set_remote(robot.clone(), key(&format!("{c}.params")), Value::text("(laser robot l1)"))
+            .set_remote(
+                robot.clone(),
+                key(&format!("{c}.params")),
+                Value::text("(laser robot l1)"),
+            )
             .await
             .expect("params");
-        assert_eq!(params.creator, Some(PeisId::new("executive").expect("name")));
+        assert_eq!(
+            params.creator,
+            Some(PeisId::new("executive").expect("name"))
+        );
         executive
-            .set_remote(robot.clone(), key(&format!("components.{c}.reqState")), Value::text("on"))
+            .set_remote(
+                robot.clone(),
+                key(&format!("components.{c}.reqState")),
+                Value::text("on"),
+            )
             .await
             .expect("on");
     }
@@ -339,8 +353,12 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     f.set("l3.params", "(laser robot l3)").await;
     f.set("components.l3.reqState", "on").await;
     for c in ["l1", "l2", "l3"] {
-        f.wait_for(&format!("{c}.status"), "running", Duration::from_millis(1200))
-            .await;
+        f.wait_for(
+            &format!("{c}.status"),
+            "running",
+            Duration::from_millis(1200),
+        )
+        .await;
     }
 
     // Vanished: seen gone a lease (PeisOptions' default) after, released one second later.
@@ -348,14 +366,20 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     let gone_at = f.clock.now();
     executive.vanish();
     let off = f
-        .wait_for("components.l1.currState", "off", lease + Duration::from_millis(1200))
+        .wait_for(
+            "components.l1.currState",
+            "off",
+            lease + Duration::from_millis(1200),
+        )
         .await;
     let after = off.ts_write.saturating_duration_since(gone_at);
     assert!(
         after >= lease + HostOptions::default().release_after,
         "released {after:?} after the executive vanished, before its lease and grace ran out"
     );
-    let req = f.wait_for("components.l1.reqState", "off", Duration::ZERO).await;
+    let req = f
+        .wait_for("components.l1.reqState", "off", Duration::ZERO)
+        .await;
     assert_eq!(req.creator, None, "the host wrote it itself");
     f.wait_for("components.l2.currState", "off", Duration::from_millis(100))
         .await;
@@ -364,16 +388,26 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
         f.wait_for(&format!("{c}.status"), "idle", Duration::from_millis(100))
             .await;
     }
-    assert_eq!(f.get("components.l3.currState").await.as_deref(), Some("on"));
+    assert_eq!(
+        f.get("components.l3.currState").await.as_deref(),
+        Some("on")
+    );
     assert_eq!(f.get("l3.status").await.as_deref(), Some("running"));
 
     // A PEIS that leaves and comes back within the grace keeps what it asked for.
     let executive = f
         .space
-        .join(PeisId::new("executive").expect("name"), PeisOptions::default())
+        .join(
+            PeisId::new("executive").expect("name"),
+            PeisOptions::default(),
+        )
         .expect("joins again");
     executive
-        .set_remote(robot.clone(), key("components.l1.reqState"), Value::text("on"))
+        .set_remote(
+            robot.clone(),
+            key("components.l1.reqState"),
+            Value::text("on"),
+        )
         .await
         .expect("on");
     f.wait_for("components.l1.currState", "on", Duration::from_millis(1200))
@@ -382,7 +416,10 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     f.clock.advance(Duration::from_millis(500));
     let _back = f
         .space
-        .join(PeisId::new("executive").expect("name"), PeisOptions::default())
+        .join(
+            PeisId::new("executive").expect("name"),
+            PeisOptions::default(),
+        )
         .expect("back");
     let mut passed = Duration::ZERO;
     while passed < Duration::from_secs(3) {
@@ -390,6 +427,9 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
         f.clock.advance(STEP);
         passed += STEP;
     }
-    assert_eq!(f.get("components.l1.currState").await.as_deref(), Some("on"));
+    assert_eq!(
+        f.get("components.l1.currState").await.as_deref(),
+        Some("on")
+    );
     f.stop().await;
 }

@@ -24,6 +24,29 @@ pub fn log_from_env() {
     zenoh::try_init_log_from_env();
 }
 
+/// Zenoh's receive runtime as an Ecology process sets it: `ZENOH_RUNTIME`'s value when the
+/// environment does not give one.
+pub const RUNTIME: &str = "(rx: (worker_threads: 16))";
+
+/// Gives Zenoh's receive runtime 16 threads instead of 2, unless `ZENOH_RUNTIME` already says.
+///
+/// When a link is lost (a cable, a partition, a router), Zenoh 1.10 closes its TCP socket from a
+/// receive thread, and the socket lingers up to 10 s in `close()`: with two threads, losing three
+/// PEIS at once delays the third's departure by those 10 s. With 16, that many can close at once.
+/// Zenoh reads the variable once, when it first starts a runtime.
+///
+/// # Safety
+///
+/// It sets an environment variable: call it before any other thread runs (first thing in `main`,
+/// before a tokio runtime is built).
+#[allow(unsafe_code)]
+pub unsafe fn set_runtime_threads() {
+    if std::env::var_os("ZENOH_RUNTIME").is_none() {
+        // SAFETY: the caller guarantees no other thread runs, so none reads the environment now.
+        unsafe { std::env::set_var("ZENOH_RUNTIME", RUNTIME) };
+    }
+}
+
 /// Why a PEIS could not join an ecology over Zenoh.
 #[derive(Debug, thiserror::Error)]
 pub enum ZenohError {
