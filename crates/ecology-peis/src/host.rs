@@ -258,10 +258,12 @@ pub async fn run_host_with<S: TupleSpace>(
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::Params)) = ComponentField::parse(&t.key) else { continue };
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
+                let had_params = state.params.is_some();
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
                 state.params_for = t.creator.clone().filter(|_| state.params.is_some());
                 holders.watch(t.creator.as_ref(), &clock, &options);
-                let stopping = state.params.is_none() && state.task.is_some();
+                // Cleared params leave it idle, whether its body still ran or had finished (`done`).
+                let stopping = state.params.is_none() && (state.task.is_some() || had_params);
                 if state.on {
                     let c = c.to_string();
                     start(&space, &clock, &mut states, &c, &mut tasks).await?;

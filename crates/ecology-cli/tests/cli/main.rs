@@ -1,5 +1,6 @@
 //! The `ecology` binary, from the command line: outputs and exit codes.
 
+mod netns;
 mod plan_conditional;
 mod processes;
 mod readme;

@@ -21,21 +21,21 @@ use crate::support::{
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-fn one_at_a_time() -> MutexGuard<'static, ()> {
+pub(crate) fn one_at_a_time() -> MutexGuard<'static, ()> {
     ONE_AT_A_TIME
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-fn events(lines: &[Line]) -> Vec<Value> {
+pub(crate) fn events(lines: &[Line]) -> Vec<Value> {
     lines.iter().map(|l| event(&l.text)).collect()
 }
 
-fn named<'a>(events: &'a [Value], name: &str) -> Vec<&'a Value> {
+pub(crate) fn named<'a>(events: &'a [Value], name: &str) -> Vec<&'a Value> {
     events.iter().filter(|e| e["event"] == name).collect()
 }
 
-fn costs(events: &[Value]) -> Vec<(u64, bool)> {
+pub(crate) fn costs(events: &[Value]) -> Vec<(u64, bool)> {
     named(events, "configuration")
         .iter()
         .map(|e| {
@@ -47,7 +47,7 @@ fn costs(events: &[Value]) -> Vec<(u64, bool)> {
         .collect()
 }
 
-fn strings(value: &Value) -> Vec<String> {
+pub(crate) fn strings(value: &Value) -> Vec<String> {
     value
         .as_array()
         .map(|a| {

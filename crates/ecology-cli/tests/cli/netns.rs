@@ -1,0 +1,593 @@
+//! The ecology across hosts: every process in a Linux network namespace of its own, all on one
+//! bridge, with addresses of the project's test network (198.18.0.0/15, the range RFC 2544 sets
+//! aside for benchmarking, so never a real network's). A cut is `ip link set … down` on the
+//! host's cable (its veth on the bridge): its TCP connections are neither closed nor reset, they
+//! go silent, as when a robot drives out of Wi-Fi range. Everything is torn down when a test ends,
+//! also when it fails, and what a killed test run left behind is removed by the next one.
+//!
+//! Namespaces need root: without it (or without `ip netns`) each test says it is skipped.
+//! The small PEIS-Home of `support::Fixture` runs here: the world, Astrid and hsm, and the
+//! executive, each a host; after every task, every component's `currState`, `params` and `status`
+//! on every PEIS are read back over the network, to show that nothing the task used is left on.
+
+use std::collections::BTreeMap;
+use std::process::Command;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::Signal;
+use serde_json::Value;
+
+use crate::processes::{costs, events, named, one_at_a_time, strings};
+use crate::support::{Fixture, Line, Proc, TO_BEDROOM, Variant, event, is_event};
+
+/// Bridges and cables are named `ecb<pid>x<n>` and `ecv<pid>x<n>h<host>`, namespaces
+/// `ecot-<pid>-<n>-<host>`: the pid tells a live run's from a dead one's.
+const NS_PREFIX: &str = "ecot-";
+const PORT: u16 = 7447;
+
+static NEXT: AtomicU32 = AtomicU32::new(0);
+
+/// Runs `ip ARGS`; panics with its message when it fails.
+fn ip(args: &[&str]) {
+    let out = Command::new("ip")
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run ip: {e}"));
+    assert!(
+        out.status.success(),
+        "ip {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The output of `ip ARGS`, if it ran.
+fn ip_output(args: &[&str]) -> Option<String> {
+    let out = Command::new("ip").args(args).output().ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn alive(pid: i32) -> bool {
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), None).is_ok()
+}
+
+/// Removes namespaces and bridges that a test run which was killed left behind.
+fn remove_stale() {
+    let Some(list) = ip_output(&["netns", "list"]) else {
+        return;
+    };
+    for ns in list.lines().filter_map(|l| l.split_whitespace().next()) {
+        let Some(rest) = ns.strip_prefix(NS_PREFIX) else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse().ok());
+        if pid.is_some_and(|pid| !alive(pid)) {
+            let _ = ip_output(&["netns", "del", ns]);
+        }
+    }
+    let Some(links) = ip_output(&["-o", "link", "show", "type", "bridge"]) else {
+        return;
+    };
+    for name in links.lines().filter_map(|l| l.split(": ").nth(1)) {
+        let Some(rest) = name.strip_prefix("ecb") else {
+            continue;
+        };
+        let pid = rest.split('x').next().and_then(|p| p.parse().ok());
+        if pid.is_some_and(|pid| !alive(pid)) {
+            let _ = ip_output(&["link", "del", name]);
+        }
+    }
+}
+
+/// A network of hosts on one bridge; torn down when dropped.
+pub struct Network {
+    bridge: String,
+    subnet: u32,
+    tag: String,
+    /// Host name → (namespace, cable on the bridge, address).
+    hosts: BTreeMap<String, (String, String, String)>,
+}
+
+impl Network {
+    /// A fresh bridge, or `None` (having said why the test is skipped) without root or `ip netns`.
+    pub fn new(test: &str) -> Option<Network> {
+        // /proc/self belongs to the process's effective user.
+        let root = std::fs::metadata("/proc/self")
+            .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == 0);
+        if !root {
+            eprintln!("skipped {test}: network namespaces need root");
+            return None;
+        }
+        if ip_output(&["netns", "list"]).is_none() {
+            eprintln!("skipped {test}: `ip netns` is not available");
+            return None;
+        }
+        remove_stale();
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let pid = std::process::id();
+        let network = Network {
+            bridge: format!("ecb{pid}x{n}"),
+            subnet: n % 256,
+            tag: format!("{pid}x{n}"),
+            hosts: BTreeMap::new(),
+        };
+        ip(&["link", "add", &network.bridge, "type", "bridge"]);
+        ip(&["link", "set", &network.bridge, "up"]);
+        Some(network)
+    }
+
+    /// Adds host `name` (its own namespace, cable and address); returns its address.
+    pub fn host(&mut self, name: &str) -> String {
+        let h = self.hosts.len() + 1;
+        let ns = format!("{NS_PREFIX}{}-{name}", self.tag.replace('x', "-"));
+        let cable = format!("ecv{}h{h}", self.tag);
+        let address = format!("198.18.{}.{h}", self.subnet);
+        ip(&["netns", "add", &ns]);
+        // Registered at once, so that a failure below still tears it down.
+        self.hosts.insert(
+            name.to_string(),
+            (ns.clone(), cable.clone(), address.clone()),
+        );
+        ip(&[
+            "link", "add", &cable, "type", "veth", "peer", "name", "eth0", "netns", &ns,
+        ]);
+        ip(&["link", "set", &cable, "master", &self.bridge, "up"]);
+        ip(&[
+            "-n",
+            &ns,
+            "addr",
+            "add",
+            &format!("{address}/24"),
+            "dev",
+            "eth0",
+        ]);
+        ip(&["-n", &ns, "link", "set", "eth0", "up"]);
+        ip(&["-n", &ns, "link", "set", "lo", "up"]);
+        address
+    }
+
+    fn get(&self, name: &str) -> &(String, String, String) {
+        self.hosts
+            .get(name)
+            .unwrap_or_else(|| panic!("no host {name}"))
+    }
+
+    /// The endpoint a process on `host` listens on: `tcp/ADDRESS:7447` (`quic/` with keys).
+    pub fn endpoint(&self, host: &str, keys: bool) -> String {
+        let proto = if keys { "quic" } else { "tcp" };
+        format!("{proto}/{}:{PORT}", self.get(host).2)
+    }
+
+    /// Unplugs `host`'s cable: nothing gets in or out, and nothing is told.
+    pub fn cut(&self, host: &str) {
+        ip(&["link", "set", &self.get(host).1, "down"]);
+    }
+
+    /// Plugs it back in.
+    pub fn heal(&self, host: &str) {
+        ip(&["link", "set", &self.get(host).1, "up"]);
+    }
+
+    /// `ecology ARGS…` on `host`, named `name`.
+    pub fn ecology(&self, host: &str, name: &str, args: &[String]) -> Proc {
+        let mut command = Command::new("ip");
+        command
+            .args(["netns", "exec", &self.get(host).0])
+            .arg(env!("CARGO_BIN_EXE_ecology"))
+            .args(args);
+        Proc::spawn(name, command)
+    }
+}
+
+impl Drop for Network {
+    fn drop(&mut self) {
+        for (ns, _, _) in self.hosts.values() {
+            let _ = ip_output(&["netns", "del", ns]);
+        }
+        let _ = ip_output(&["link", "del", &self.bridge]);
+    }
+}
+
+fn strs(args: &[&str]) -> Vec<String> {
+    args.iter().map(ToString::to_string).collect()
+}
+
+/// How the processes find each other.
+#[derive(Clone, Copy, PartialEq)]
+enum Topology {
+    /// Peers: every process listens, and connects to the world.
+    Peers,
+    /// Every process a client of a router on a host of its own.
+    Router,
+}
+
+/// The small PEIS-Home across hosts: world, astrid, hsm and (for the task) executive, plus a
+/// router when asked for, each on a host of its own. Processes are stopped before the network
+/// is torn down.
+struct Home {
+    fixture: Fixture,
+    topology: Topology,
+    keys: Option<std::path::PathBuf>,
+    procs: BTreeMap<String, Proc>,
+    // Declared last: dropped after the processes.
+    net: Network,
+}
+
+impl Home {
+    /// Starts the hosts and the world and PEIS processes; `None` when the test is skipped.
+    fn start(test: &str, topology: Topology, keyed: bool, hsm_extra: &[&str]) -> Option<Home> {
+        let mut net = Network::new(test)?;
+        for host in ["world", "astrid", "hsm", "executive", "probe", "router"] {
+            net.host(host);
+        }
+        let fixture = Fixture::new(&format!("netns-{test}"), &[TO_BEDROOM], Variant::Paper);
+        let keys = keyed.then(|| {
+            let dir = fixture.folder.join("keys");
+            let dir_text = dir.display().to_string();
+            let run = |args: &[&str]| {
+                let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+                    .args(args)
+                    .output()
+                    .expect("run ecology keys");
+                assert!(
+                    out.status.success(),
+                    "{}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            };
+            run(&["keys", "init", &dir_text]);
+            run(&["keys", "add", &dir_text, "world", "astrid", "hsm", "probe"]);
+            run(&["keys", "add", &dir_text, "executive", "--role", "executive"]);
+            run(&["keys", "add", &dir_text, "router", "--role", "router"]);
+            dir
+        });
+        let mut home = Home {
+            fixture,
+            topology,
+            keys,
+            procs: BTreeMap::new(),
+            net,
+        };
+        if topology == Topology::Router {
+            home.start_router();
+        }
+        let scenario = home.fixture.scenario();
+        let world = home.args("world", &["world", &scenario]);
+        home.spawn("world", world, true);
+        for peis in ["astrid", "hsm"] {
+            let mut args = home.args(peis, &["peis", &scenario, "--name", peis]);
+            if peis == "hsm" {
+                args.extend(strs(hsm_extra));
+            }
+            home.spawn(peis, args, true);
+        }
+        Some(home)
+    }
+
+    /// `ecology ROLE…` arguments for `host`: listen there, join the others (world or router).
+    fn args(&self, host: &str, base: &[&str]) -> Vec<String> {
+        let keyed = self.keys.is_some();
+        let mut args = strs(base);
+        if let Some(keys) = &self.keys {
+            args.extend(["--keys".to_string(), keys.display().to_string()]);
+        }
+        match self.topology {
+            Topology::Peers => {
+                args.extend(["--listen".to_string(), self.net.endpoint(host, keyed)]);
+                if host != "world" {
+                    args.extend(["--connect".to_string(), self.net.endpoint("world", keyed)]);
+                }
+            }
+            Topology::Router => {
+                args.extend([
+                    "--client".to_string(),
+                    "--connect".to_string(),
+                    self.net.endpoint("router", keyed),
+                ]);
+            }
+        }
+        args
+    }
+
+    fn spawn(&mut self, name: &str, args: Vec<String>, ready: bool) {
+        let mut proc = self.net.ecology(name, name, &args);
+        if ready {
+            proc = proc.ready();
+        }
+        self.procs.insert(name.to_string(), proc);
+    }
+
+    fn start_router(&mut self) {
+        let mut args = strs(&[
+            "router",
+            "--listen",
+            &self.net.endpoint("router", self.keys.is_some()),
+        ]);
+        if let Some(keys) = &self.keys {
+            args.extend(["--keys".to_string(), keys.display().to_string()]);
+        }
+        let router = self.net.ecology("router", "router", &args);
+        self.procs.insert("router".to_string(), router);
+        // It is up once it listens: a client that connects before retries, but slower.
+        std::thread::sleep(Duration::from_millis(500));
+    }
+
+    /// The executive on the fixture's plan, printing JSON lines, with `extra` arguments.
+    fn task(&mut self, extra: &[&str]) {
+        let plan = self.fixture.plan();
+        let mut base = vec![
+            "task",
+            "--domain",
+            "domains/peis-home.eco",
+            "--plan",
+            &plan,
+            "--json",
+            "--wait-for",
+            "world,astrid,hsm",
+        ];
+        base.extend_from_slice(extra);
+        let args = self.args("executive", &base);
+        self.spawn("executive", args, false);
+    }
+
+    fn proc(&mut self, name: &str) -> &mut Proc {
+        self.procs
+            .get_mut(name)
+            .unwrap_or_else(|| panic!("no process {name}"))
+    }
+
+    /// Waits for the executive's event `name`; returns it, and when it was read.
+    fn wait_event(&mut self, name: &str) -> (Value, Instant) {
+        let line = self
+            .proc("executive")
+            .wait_for(&format!("the event {name}"), |l| is_event(l, name));
+        (event(&line.text), line.at)
+    }
+
+    /// Waits for the task to end; its exit code and every event.
+    fn finish(&mut self) -> (Option<i32>, Vec<Value>) {
+        let executive = self.procs.remove("executive").expect("a task runs");
+        let (code, lines): (Option<i32>, Vec<Line>) = executive.finish();
+        (code, events(&lines))
+    }
+
+    /// Every tuple of astrid and hsm, read from the probe host after the ecology settled.
+    fn tuples(&self) -> BTreeMap<(String, String), String> {
+        let mut base = vec!["tuples", "--name", "probe"];
+        let pattern_args = ["watch", "--json"];
+        base.extend(pattern_args);
+        let mut args = self.args("probe", &base);
+        // The pattern comes last: every tuple.
+        args.push("**".to_string());
+        let watch = self.net.ecology("probe", "probe", &args);
+        let mut seen = BTreeMap::new();
+        let deadline = Instant::now() + Duration::from_secs(15);
+        let mut quiet_since = Instant::now();
+        while Instant::now() < deadline {
+            match watch.lines.recv_timeout(Duration::from_millis(200)) {
+                Ok(line) => {
+                    quiet_since = Instant::now();
+                    let Ok(v) = serde_json::from_str::<Value>(&line.text) else {
+                        continue;
+                    };
+                    if v["event"] == "changed"
+                        && let (Some(owner), Some(key)) = (v["owner"].as_str(), v["key"].as_str())
+                    {
+                        let value = v["value"].as_str().unwrap_or_default().to_string();
+                        seen.insert((owner.to_string(), key.to_string()), value);
+                    }
+                }
+                Err(_) if !seen.is_empty() && quiet_since.elapsed() > Duration::from_secs(1) => {
+                    break;
+                }
+                Err(_) => {}
+            }
+        }
+        seen
+    }
+
+    /// Reads every component's state back and checks that the task left nothing on: the laser
+    /// it switched on is off again, and every component is idle with no params.
+    fn assert_nothing_left_on(&self) {
+        let tuples = self.tuples();
+        let get = |owner: &str, key: &str| {
+            tuples
+                .get(&(owner.to_string(), key.to_string()))
+                .cloned()
+                .unwrap_or_default()
+        };
+        let mut left = Vec::new();
+        for (peis, components) in [
+            ("astrid", &["l1", "od1", "tc1", "s1"][..]),
+            ("hsm", &["ca1", "tr1"][..]),
+        ] {
+            for c in components {
+                let power = get(peis, &format!("components.{c}.currState"));
+                let params = get(peis, &format!("{c}.params"));
+                let status = get(peis, &format!("{c}.status"));
+                let was_on = *c != "l1";
+                let power_ok = power == if was_on { "on" } else { "off" };
+                if !power_ok || !params.is_empty() || status != "idle" {
+                    left.push(format!(
+                        "{peis}:{c} currState {power:?} params {params:?} status {status:?}"
+                    ));
+                }
+            }
+        }
+        assert!(
+            left.is_empty(),
+            "left on after the task:\n{}\n(every tuple read: {tuples:#?})",
+            left.join("\n")
+        );
+    }
+}
+
+impl Drop for Home {
+    fn drop(&mut self) {
+        // Processes first (each is killed when dropped), then the network.
+        self.procs.clear();
+    }
+}
+
+/// The time of an event on the executive's clock.
+fn t(event: &Value) -> f64 {
+    event["t"].as_f64().expect("t")
+}
+
+/// The time on the executive's clock at which `at` happened, knowing `seen` was read at `read`.
+fn clock_at(seen: &Value, read: Instant, at: Instant) -> f64 {
+    t(seen) + at.duration_since(read).as_secs_f64()
+}
+
+#[test]
+fn across_hosts_a_move_is_done_and_nothing_is_left_on() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("baseline", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn a_peis_cut_off_mid_move_is_reconfigured_around_and_puts_back_what_it_ran() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("partition", Topology::Peers, false, &["--lease", "1"]) else {
+        return;
+    };
+    home.task(&[]);
+    let (running, read) = home.wait_event("running");
+    home.net.cut("hsm");
+    let cut_at = Instant::now();
+    let (left, _) = home.wait_event("peis_left");
+    let detected = t(&left) - clock_at(&running, read, cut_at);
+    assert!(
+        detected < 2.5,
+        "hsm's departure seen {detected:.3} s after its cable was cut"
+    );
+    let (failure, _) = home.wait_event("failure");
+    assert_eq!(failure["cause"], "PEIS hsm left the ecology", "{failure}");
+    // Cut off, hsm sees the executive gone too: a second later it puts back what it was asked
+    // for (its dead man's switch), whatever the executive does.
+    for c in ["ca1", "tr1"] {
+        home.proc("hsm").wait_for(&format!("{c} put back"), |l| {
+            l.contains(&format!(
+                "{c} stopped: executive, which gave its params, is gone"
+            ))
+        });
+    }
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false), (170, true)], "{all:#?}");
+    let released = named(&all, "released");
+    assert_eq!(strings(&released[0]["switched_off"]), ["astrid:l1"]);
+    assert_eq!(
+        strings(&released[0]["unreachable"]),
+        ["hsm:ca1", "hsm:tr1"],
+        "{all:#?}"
+    );
+    // After the task, the cable back in: hsm returns in the same run, and runs nothing.
+    home.net.heal("hsm");
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn an_executive_cut_off_mid_move_waits_for_the_ecology_and_goes_on() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("executive-cut", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    let (running, read) = home.wait_event("running");
+    home.net.cut("executive");
+    let cut_at = Instant::now();
+    let (lost, _) = home.wait_event("ecology_lost");
+    let mut gone = strings(&lost["gone"]);
+    gone.sort();
+    assert_eq!(gone, ["astrid", "hsm", "world"], "{lost}");
+    std::thread::sleep(Duration::from_secs(3));
+    home.net.heal("executive");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    // Every PEIS was seen gone within the 2 s lease and a margin, all at once.
+    let cut = clock_at(&running, read, cut_at);
+    for left in named(&all, "peis_left") {
+        let after = t(left) - cut;
+        assert!(
+            (1.0..3.5).contains(&after),
+            "{} seen gone {after:.3} s after the cut",
+            left["peis"]
+        );
+    }
+    assert!(
+        named(&all, "failure").is_empty(),
+        "nobody is blamed: {all:#?}"
+    );
+    assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
+    assert_eq!(
+        costs(&all),
+        [(80, false), (80, true)],
+        "the same configuration, redeployed: {all:#?}"
+    );
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn an_executive_cut_off_for_longer_than_it_waits_fails_saying_so() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("executive-lost", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&["--reconnect-timeout", "3"]);
+    home.wait_event("running");
+    home.net.cut("executive");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(1), "{all:#?}");
+    let failed = named(&all, "task_failed");
+    let reason = failed[0]["reason"].as_str().expect("reason");
+    assert!(
+        reason.starts_with("the executive lost the ecology: 3 of the "),
+        "{reason}"
+    );
+    // Out of reach, the PEIS put back what it ran: read once the cable is back.
+    home.net.heal("executive");
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn a_router_killed_and_restarted_mid_move_loses_nothing() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("router", Topology::Router, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("running");
+    home.proc("router").signal(Signal::SIGKILL);
+    home.wait_event("ecology_lost");
+    home.procs.remove("router");
+    home.start_router();
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn with_keys_peers_across_hosts_do_the_move() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("keys-peers", Topology::Peers, true, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    home.assert_nothing_left_on();
+}
