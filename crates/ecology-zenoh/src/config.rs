@@ -76,10 +76,18 @@ impl ZenohOptions {
             Mode::Peer => {}
         }
         if !self.listen.is_empty() {
-            insert(config_ref, "listen/endpoints", json!(self.listen))?;
+            insert(
+                config_ref,
+                "listen/endpoints",
+                json!(in_order(&self.listen)),
+            )?;
         }
         if !self.connect.is_empty() {
-            insert(config_ref, "connect/endpoints", json!(self.connect))?;
+            insert(
+                config_ref,
+                "connect/endpoints",
+                json!(in_order(&self.connect)),
+            )?;
             insert(
                 config_ref,
                 "connect/timeout_ms",
@@ -114,6 +122,30 @@ impl ZenohOptions {
         )?;
         Ok(config)
     }
+}
+
+/// The endpoints as Zenoh is given them: a QUIC one on a single stream (`multistream=0`) unless
+/// it says otherwise.
+///
+/// On several streams (Zenoh's default for QUIC, one per priority) a declaration and the data that
+/// follows it travel apart: the first put on a new key can reach a router before the declaration
+/// of that key, and the router drops it. A tuple published once (a component's one-shot output,
+/// such as a gripper's `grasp`) was then lost. One stream keeps them in order.
+pub(crate) fn in_order(endpoints: &[String]) -> Vec<String> {
+    endpoints
+        .iter()
+        .map(|endpoint| {
+            if !endpoint.starts_with("quic/") || endpoint.contains("multistream=") {
+                return endpoint.clone();
+            }
+            let (locator, config) = match endpoint.split_once('#') {
+                Some((locator, config)) => (locator, format!("#{config}")),
+                None => (endpoint.as_str(), String::new()),
+            };
+            let separator = if locator.contains('?') { ';' } else { '?' };
+            format!("{locator}{separator}multistream=0{config}")
+        })
+        .collect()
 }
 
 /// How a process proves who it is on the network.
@@ -209,4 +241,31 @@ pub(crate) fn insert(
 
 pub(crate) fn millis(d: Duration) -> serde_json::Value {
     json!(u64::try_from(d.as_millis()).unwrap_or(u64::MAX).max(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::in_order;
+
+    #[test]
+    fn quic_endpoints_keep_one_stream_unless_they_say_otherwise() {
+        let given = [
+            "quic/198.18.0.1:7447",
+            "quic/198.18.0.1:7447?iface=eth0",
+            "quic/198.18.0.1:7447#tls_close_link_on_expiration=true",
+            "quic/198.18.0.1:7447?multistream=1",
+            "tcp/198.18.0.1:7447",
+        ]
+        .map(String::from);
+        assert_eq!(
+            in_order(&given),
+            [
+                "quic/198.18.0.1:7447?multistream=0",
+                "quic/198.18.0.1:7447?iface=eth0;multistream=0",
+                "quic/198.18.0.1:7447?multistream=0#tls_close_link_on_expiration=true",
+                "quic/198.18.0.1:7447?multistream=1",
+                "tcp/198.18.0.1:7447",
+            ]
+        );
+    }
 }

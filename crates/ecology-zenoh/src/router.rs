@@ -11,7 +11,7 @@ use std::time::Duration;
 use serde_json::json;
 
 use crate::ZenohError;
-use crate::config::{Security, base_config, insert, millis, secure};
+use crate::config::{Security, base_config, in_order, insert, millis, secure};
 
 /// Options of [`run_router`].
 #[derive(Clone, Debug)]
@@ -54,10 +54,10 @@ pub async fn run_router(
     let c = &mut config;
     insert(c, "mode", json!("router"))?;
     if !options.listen.is_empty() {
-        insert(c, "listen/endpoints", json!(options.listen))?;
+        insert(c, "listen/endpoints", json!(in_order(&options.listen)))?;
     }
     if !options.connect.is_empty() {
-        insert(c, "connect/endpoints", json!(options.connect))?;
+        insert(c, "connect/endpoints", json!(in_order(&options.connect)))?;
     }
     insert(
         c,

@@ -210,7 +210,11 @@ enum Topology {
 struct Home {
     fixture: Fixture,
     topology: Topology,
+    /// The paper's whole task on `scenarios/peis-home.toml` (with Pippi), not the fixture's move.
+    whole: bool,
     keys: Option<std::path::PathBuf>,
+    /// Every component's tuples before the task.
+    before: BTreeMap<(String, String), String>,
     procs: BTreeMap<String, Proc>,
     // Declared last: dropped after the processes.
     net: Network,
@@ -219,8 +223,27 @@ struct Home {
 impl Home {
     /// Starts the hosts and the world and PEIS processes; `None` when the test is skipped.
     fn start(test: &str, topology: Topology, keyed: bool, hsm_extra: &[&str]) -> Option<Home> {
+        Home::start_with(test, topology, keyed, hsm_extra, false)
+    }
+
+    /// As [`Home::start`]; with `whole`, the paper's scenario and task (Pippi a host too).
+    fn start_with(
+        test: &str,
+        topology: Topology,
+        keyed: bool,
+        hsm_extra: &[&str],
+        whole: bool,
+    ) -> Option<Home> {
         let mut net = Network::new(test)?;
-        for host in ["world", "astrid", "hsm", "executive", "probe", "router"] {
+        for host in [
+            "world",
+            "astrid",
+            "hsm",
+            "pippi",
+            "executive",
+            "probe",
+            "router",
+        ] {
             net.host(host);
         }
         let fixture = Fixture::new(&format!("netns-{test}"), &[TO_BEDROOM], Variant::Paper);
@@ -239,7 +262,9 @@ impl Home {
                 );
             };
             run(&["keys", "init", &dir_text]);
-            run(&["keys", "add", &dir_text, "world", "astrid", "hsm", "probe"]);
+            run(&[
+                "keys", "add", &dir_text, "world", "astrid", "hsm", "pippi", "probe",
+            ]);
             run(&["keys", "add", &dir_text, "executive", "--role", "executive"]);
             run(&["keys", "add", &dir_text, "router", "--role", "router"]);
             dir
@@ -247,24 +272,42 @@ impl Home {
         let mut home = Home {
             fixture,
             topology,
+            whole,
             keys,
+            before: BTreeMap::new(),
             procs: BTreeMap::new(),
             net,
         };
         if topology == Topology::Router {
             home.start_router();
         }
-        let scenario = home.fixture.scenario();
+        let scenario = if whole {
+            crate::support::root()
+                .join("scenarios/peis-home.toml")
+                .display()
+                .to_string()
+        } else {
+            home.fixture.scenario()
+        };
         let world = home.args("world", &["world", &scenario]);
         home.spawn("world", world, true);
-        for peis in ["astrid", "hsm"] {
+        for peis in home.peis() {
             let mut args = home.args(peis, &["peis", &scenario, "--name", peis]);
-            if peis == "hsm" {
+            if *peis == "hsm" {
                 args.extend(strs(hsm_extra));
             }
             home.spawn(peis, args, true);
         }
+        home.before = home.tuples();
         Some(home)
+    }
+
+    fn peis(&self) -> &'static [&'static str] {
+        if self.whole {
+            &["astrid", "hsm", "pippi"]
+        } else {
+            &["astrid", "hsm"]
+        }
     }
 
     /// `ecology ROLE…` arguments for `host`: listen there, join the others (world or router).
@@ -318,16 +361,17 @@ impl Home {
     /// The executive on the fixture's plan, printing JSON lines, with `extra` arguments.
     fn task(&mut self, extra: &[&str]) {
         let plan = self.fixture.plan();
-        let mut base = vec![
-            "task",
-            "--domain",
-            "domains/peis-home.eco",
-            "--plan",
-            &plan,
-            "--json",
-            "--wait-for",
-            "world,astrid,hsm",
-        ];
+        let mut base = vec!["task", "--domain", "domains/peis-home.eco", "--json"];
+        if self.whole {
+            base.extend([
+                "--problem",
+                "domains/peis-home-task.problem",
+                "--wait-for",
+                "world,astrid,hsm,pippi",
+            ]);
+        } else {
+            base.extend(["--plan", &plan, "--wait-for", "world,astrid,hsm"]);
+        }
         base.extend_from_slice(extra);
         let args = self.args("executive", &base);
         self.spawn("executive", args, false);
@@ -354,7 +398,7 @@ impl Home {
         (code, events(&lines))
     }
 
-    /// Every tuple of astrid and hsm, read from the probe host after the ecology settled.
+    /// Every tuple of the PEIS (not the world's), read from the probe host once they settled.
     fn tuples(&self) -> BTreeMap<(String, String), String> {
         let mut base = vec!["tuples", "--name", "probe"];
         let pattern_args = ["watch", "--json"];
@@ -369,13 +413,15 @@ impl Home {
         while Instant::now() < deadline {
             match watch.lines.recv_timeout(Duration::from_millis(200)) {
                 Ok(line) => {
-                    quiet_since = Instant::now();
                     let Ok(v) = serde_json::from_str::<Value>(&line.text) else {
                         continue;
                     };
+                    // The world's robots move all the time; the PEIS settle.
                     if v["event"] == "changed"
                         && let (Some(owner), Some(key)) = (v["owner"].as_str(), v["key"].as_str())
+                        && self.peis().contains(&owner)
                     {
+                        quiet_since = Instant::now();
                         let value = v["value"].as_str().unwrap_or_default().to_string();
                         seen.insert((owner.to_string(), key.to_string()), value);
                     }
@@ -386,11 +432,16 @@ impl Home {
                 Err(_) => {}
             }
         }
+        // A clean exit: a client killed outright stays a member of a secured router's routes
+        // until its lease runs out (QUIC is not closed by the kernel), and a subscriber that
+        // declares the same key expression meanwhile is not served (Zenoh 1.10).
+        watch.signal(Signal::SIGINT);
+        let _ = watch.finish();
         seen
     }
 
-    /// Reads every component's state back and checks that the task left nothing on: the laser
-    /// it switched on is off again, and every component is idle with no params.
+    /// Reads every component's state back and checks that the task left nothing on: each is
+    /// switched on or off as before the task, idle, with no params.
     fn assert_nothing_left_on(&self) {
         let tuples = self.tuples();
         let get = |owner: &str, key: &str| {
@@ -400,23 +451,29 @@ impl Home {
                 .unwrap_or_default()
         };
         let mut left = Vec::new();
-        for (peis, components) in [
-            ("astrid", &["l1", "od1", "tc1", "s1"][..]),
-            ("hsm", &["ca1", "tr1"][..]),
-        ] {
-            for c in components {
-                let power = get(peis, &format!("components.{c}.currState"));
-                let params = get(peis, &format!("{c}.params"));
-                let status = get(peis, &format!("{c}.status"));
-                let was_on = *c != "l1";
-                let power_ok = power == if was_on { "on" } else { "off" };
-                if !power_ok || !params.is_empty() || status != "idle" {
-                    left.push(format!(
-                        "{peis}:{c} currState {power:?} params {params:?} status {status:?}"
-                    ));
-                }
+        let mut components = 0;
+        for ((peis, key), was) in &self.before {
+            let Some(c) = key
+                .strip_prefix("components.")
+                .and_then(|k| k.strip_suffix(".currState"))
+            else {
+                continue;
+            };
+            components += 1;
+            let power = get(peis, key);
+            let params = get(peis, &format!("{c}.params"));
+            let status = get(peis, &format!("{c}.status"));
+            if power != *was || !params.is_empty() || status != "idle" {
+                left.push(format!(
+                    "{peis}:{c} currState {power:?} (was {was:?}) params {params:?} status {status:?}"
+                ));
             }
         }
+        assert!(
+            components >= 6,
+            "only {components} components read before the task: {:#?}",
+            self.before
+        );
         assert!(
             left.is_empty(),
             "left on after the task:\n{}\n(every tuple read: {tuples:#?})",
@@ -589,5 +646,22 @@ fn with_keys_peers_across_hosts_do_the_move() {
     let (code, all) = home.finish();
     assert_eq!(code, Some(0), "{all:#?}");
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+#[test]
+fn with_keys_a_router_forwards_the_papers_whole_task() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start_with("keys-router", Topology::Router, true, &[], true) else {
+        return;
+    };
+    home.task(&[]);
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(
+        named(&all, "task_done").len(),
+        1,
+        "the whole task, every one-shot tuple through the router: {all:#?}"
+    );
     home.assert_nothing_left_on();
 }
