@@ -103,7 +103,11 @@ async fn run_async(args: TuplesArgs) -> anyhow::Result<i32> {
             );
             return Ok(EXIT_BAD_INPUT);
         }
-        Err(e) => return Err(e).context("joining the ecology"),
+        Err(e) => {
+            // Unreachable endpoints are "not found", as an unreachable owner is.
+            eprintln!("ecology tuples: cannot join the ecology: {e}");
+            return Ok(EXIT_NOT_FOUND);
+        }
     };
     let code = command.execute(&peis).await;
     peis.close().await;

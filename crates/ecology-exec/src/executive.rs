@@ -112,8 +112,8 @@ pub struct ExecConfig {
     pub planning: ecology_config::Budget,
     /// PEIS that leave within this long of the first are judged together: when at least two,
     /// and more than half of those present, left, the executive has lost the ecology (its own
-    /// network, or the router) rather than they their components. A departure is acted on this
-    /// long after it is seen; a PEIS that returns within it keeps what it ran.
+    /// network, or the router) rather than they their components. Each departure is acted on at
+    /// once; only an action that finds no configuration meanwhile waits for the judgement.
     pub loss_window: Duration,
     /// How long to wait for a lost ecology to come back before the task fails.
     pub reconnect_timeout: Duration,
@@ -302,8 +302,12 @@ struct Departures {
     gone: Vec<PeisId>,
     /// How many PEIS were present before the first left.
     present_before: usize,
-    /// Failures seen meanwhile, acted on only if the ecology was not lost.
-    deferred: Vec<(Vec<ComponentKey>, String)>,
+    /// The action's exclusions and failed components before the first left: what they are again
+    /// if the ecology turns out lost (its components did not fail; the network did).
+    before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+    /// Why the action found no configuration meanwhile: it fails with that once the departures
+    /// are judged, unless the ecology was lost.
+    no_configuration: Option<String>,
 }
 
 /// The executive lost the ecology: it waits for it, acting on nothing.
@@ -546,21 +550,25 @@ impl Executive {
         for (key, value) in take_on(&mut self.params, &peis) {
             self.orphans.entry(key).or_default().params = Some(value);
         }
-        if self.lost.is_some() || self.run.is_none() {
+        if self.lost.is_some() {
             return;
         }
+        let Some(run) = &self.run else { return };
         match &mut self.departures {
-            Some(departures) => departures.gone.push(peis),
+            Some(departures) => departures.gone.push(peis.clone()),
             None => {
+                let before = (run.excluded.clone(), run.failed.clone());
                 let timer = self.timer(self.config.loss_window, out);
                 self.departures = Some(Departures {
                     timer,
-                    gone: vec![peis],
+                    gone: vec![peis.clone()],
                     present_before,
-                    deferred: Vec::new(),
+                    before,
+                    no_configuration: None,
                 });
             }
         }
+        self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), out);
     }
 
     /// A PEIS joined. One that returns within the window of its departure keeps what it ran;
@@ -577,12 +585,8 @@ impl Executive {
                 peis: peis.to_string(),
             });
         }
-        if let Some(departures) = &mut self.departures
-            && departures.gone.contains(&peis)
-        {
+        if let Some(departures) = &mut self.departures {
             departures.gone.retain(|p| *p != peis);
-            self.reclaim(&peis);
-            return;
         }
         if let Some(lost) = &mut self.lost {
             if lost.gone.contains(&peis) {
@@ -673,6 +677,7 @@ impl Executive {
             .collect();
         if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
             if let Some(run) = &mut self.run {
+                (run.excluded, run.failed) = departures.before;
                 if let Some(id) = run.deploy_timer.take() {
                     out.push(Command::CancelTimer(id));
                 }
@@ -695,34 +700,27 @@ impl Executive {
             });
             return;
         }
-        let mut failures = Vec::new();
-        if let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) {
-            for peis in &gone {
-                let lost = components_of(config, |f| f.peis == peis.as_str());
-                if !lost.is_empty() {
-                    failures.push((lost, format!("PEIS {peis} left the ecology")));
-                }
-            }
-        }
-        failures.extend(departures.deferred);
-        if !self.fail_all(failures, out) {
-            self.retime(out);
+        if let Some(reason) = departures.no_configuration {
+            self.fail_action(reason, out);
         }
     }
 
-    /// Times again what ran out while departures were judged: the components still waiting,
-    /// and a deployment still pending (with a fresh deploy timeout).
-    fn retime(&mut self, out: &mut Vec<Command>) {
-        let Some(run) = &self.run else { return };
-        if matches!(run.phase, Phase::Deploying { .. }) && run.deploy_timer.is_none() {
-            let id = self.timer(self.config.deploy_timeout, out);
+    /// The action has no configuration: it fails, or, while departures are judged, waits for
+    /// the judgement (it may be the executive that lost the network).
+    fn no_configuration(&mut self, reason: String, out: &mut Vec<Command>) {
+        if let Some(departures) = &mut self.departures {
+            departures.no_configuration = Some(reason);
             if let Some(run) = &mut self.run {
-                run.deploy_timer = Some(id);
+                if let Some(id) = run.deploy_timer.take() {
+                    out.push(Command::CancelTimer(id));
+                }
+                for (_, id) in std::mem::take(&mut run.waiting) {
+                    out.push(Command::CancelTimer(id));
+                }
             }
+            return;
         }
-        if self.run.as_ref().is_some_and(|r| r.phase == Phase::Running) {
-            self.arm_waiting_timers(out);
-        }
+        self.fail_action(reason, out);
     }
 
     /// A window after the latest return of a lost PEIS: the task goes on when more than half
@@ -914,7 +912,7 @@ impl Executive {
         let outcome = match ecology_config::plan(&request, &options, &since) {
             Ok(outcome) => outcome,
             Err(err) => {
-                self.fail_action(err.to_string(), out);
+                self.no_configuration(err.to_string(), out);
                 return;
             }
         };
@@ -929,7 +927,7 @@ impl Executive {
                     .explanation
                     .map_or_else(|| format!("no configuration for {goal}"), |e| e.to_string())
             };
-            self.fail_action(reason, out);
+            self.no_configuration(reason, out);
             return;
         };
         let planned = self.stopwatch.0.elapsed();
@@ -1227,10 +1225,6 @@ impl Executive {
         }
         if run.deploy_timer == Some(id) {
             run.deploy_timer = None;
-            if self.departures.is_some() {
-                // What a departure held up is timed again once it is judged.
-                return;
-            }
             if let Phase::Deploying { pending } = &run.phase {
                 // Components still switching on are to blame; only when every
                 // pending one is on (and so waits for something) are all blamed.
@@ -1291,9 +1285,6 @@ impl Executive {
             .map(|(k, _)| k.clone());
         if let Some(key) = waited {
             run.waiting.remove(&key);
-            if self.departures.is_some() {
-                return;
-            }
             let cause = self
                 .mirror
                 .component(key.0.as_str(), key.1.as_str())
@@ -1311,61 +1302,31 @@ impl Executive {
         }
     }
 
-    /// Excludes the failed components and reconfigures the action; while
-    /// departures are judged, only once they are (what failed may be the
-    /// network); while the ecology is lost, not at all.
+    /// Excludes the failed components and reconfigures the action; while the
+    /// ecology is lost, nothing is judged a failure.
     fn failure(&mut self, failed: Vec<ComponentKey>, cause: String, out: &mut Vec<Command>) {
         if self.lost.is_some() {
             return;
         }
-        if let Some(departures) = &mut self.departures {
-            departures.deferred.push((failed, cause));
+        let Some(run) = &mut self.run else { return };
+        let fresh: Vec<ComponentKey> = failed
+            .into_iter()
+            .filter(|k| !run.failed.contains(k))
+            .collect();
+        if fresh.is_empty() {
             return;
         }
-        self.fail_all(vec![(failed, cause)], out);
-    }
-
-    /// Excludes every group of failed components, each with its cause, and
-    /// reconfigures once; whether it did.
-    fn fail_all(
-        &mut self,
-        failures: Vec<(Vec<ComponentKey>, String)>,
-        out: &mut Vec<Command>,
-    ) -> bool {
-        let mut any = false;
-        for (failed, cause) in failures {
-            let Some(run) = &mut self.run else {
-                return false;
-            };
-            let fresh: Vec<ComponentKey> = failed
-                .into_iter()
-                .filter(|k| run.failed.insert(k.clone()))
-                .collect();
-            if fresh.is_empty() {
-                continue;
-            }
-            let names = fresh
-                .into_iter()
-                .map(|(p, c)| (p.to_string(), c.to_string()))
-                .collect();
-            self.exclude_only(names, cause);
-            any = true;
-        }
-        if any {
-            self.reconfigure(out);
-        }
-        any
+        run.failed.extend(fresh.iter().cloned());
+        let names = fresh
+            .into_iter()
+            .map(|(p, c)| (p.to_string(), c.to_string()))
+            .collect();
+        self.exclude(names, cause, out);
     }
 
     /// Excludes the components `failed` (PEIS and name) for the rest of the
     /// action, logs why, and reconfigures.
     fn exclude(&mut self, failed: Vec<(String, String)>, cause: String, out: &mut Vec<Command>) {
-        self.exclude_only(failed, cause);
-        self.reconfigure(out);
-    }
-
-    /// Excludes the components `failed` for the rest of the action and logs why.
-    fn exclude_only(&mut self, failed: Vec<(String, String)>, cause: String) {
         let Some(run) = &mut self.run else { return };
         for (peis, component) in &failed {
             run.excluded.push(Exclusion::Component {
@@ -1373,6 +1334,7 @@ impl Executive {
                 component: component.clone(),
             });
         }
+        let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
         for (peis, component) in failed {
             self.record(LogEvent::Failure {
                 peis,
@@ -1380,11 +1342,6 @@ impl Executive {
                 cause: cause.clone(),
             });
         }
-    }
-
-    fn reconfigure(&mut self, out: &mut Vec<Command>) {
-        let Some(run) = &self.run else { return };
-        let excluded: Vec<String> = run.excluded.iter().map(ToString::to_string).collect();
         self.record(LogEvent::Reconfiguration { excluded });
         self.configure(true, out);
     }

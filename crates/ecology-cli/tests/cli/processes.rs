@@ -89,15 +89,8 @@ fn sigkill_of_the_camera_peis_reconfigures_astrid_to_her_laser() {
         "{failures:#?}"
     );
     // A killed process's TCP connections close at once: far quicker than the 2 s lease.
-    let left = named(&all, "peis_left");
-    let delay = detection_delay(&running, killed_at, left[0]);
+    let delay = detection_delay(&running, killed_at, failures[0]);
     assert!(delay < 1.0, "detected {delay:.3} s after the kill");
-    // The departure is acted on a loss window (1 s) later, when no other PEIS left with it.
-    let judged = failures[0]["t"].as_f64().expect("t") - left[0]["t"].as_f64().expect("t");
-    assert!(
-        (1.0..1.5).contains(&judged),
-        "failed {judged:.3} s after it left"
-    );
     let deployed = named(&all, "deployed");
     assert_eq!(strings(&deployed[1]["switched_on"]), ["astrid:l1"]);
     // Nothing left switched on: the laser this task switched on goes off at the end.
@@ -128,7 +121,7 @@ fn sigstop_is_detected_by_the_lease_and_sigcont_changes_nothing() {
         (lease * 0.5..lease + 0.5).contains(&delay),
         "detected {delay:.3} s after SIGSTOP with a {lease} s lease"
     );
-    // Once the executive has reconfigured around it (a loss window later), hsm wakes up.
+    // Once the executive has reconfigured around it, hsm wakes up.
     task.wait_for("the failure", |l| is_event(l, "failure"));
     ecology.hsm.signal(Signal::SIGCONT);
     let (code, lines) = task.finish();

@@ -257,3 +257,18 @@ fn peers_through_a_third_peis_lists_everyone() {
         );
     }
 }
+
+/// Nobody listens on the endpoint: joining fails, which is "not found" (1), as for an owner that
+/// cannot be reached, with the reason on stderr.
+#[test]
+fn a_peis_that_cannot_be_reached_exits_1() {
+    let nobody = free_endpoint();
+    let out = ecology(&["--connect", &nobody, "get", "astrid", "x"])
+        .output()
+        .expect("run ecology tuples");
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("cannot join the ecology"),
+        "{out:?}"
+    );
+}
