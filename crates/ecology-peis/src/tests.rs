@@ -433,3 +433,22 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     );
     f.stop().await;
 }
+
+/// A body that finished (`done`) leaves its component `done` until its params are cleared, which
+/// leaves it `idle` as when a running body is stopped.
+#[tokio::test(start_paused = true)]
+async fn clearing_the_params_of_a_finished_component_leaves_it_idle() {
+    let finishes: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|ctx: Context<InProcessPeis>| async move {
+            ctx.status("done", None).await?;
+            Ok(())
+        });
+    let f = start(vec![spec("g1", true, finishes)]).await;
+    f.set("g1.params", "(gripper robot g1 newspaper)").await;
+    f.wait_for("g1.status", "done", Duration::from_millis(200))
+        .await;
+    f.set("g1.params", "").await;
+    f.wait_for("g1.status", "idle", Duration::from_millis(200))
+        .await;
+    f.stop().await;
+}
