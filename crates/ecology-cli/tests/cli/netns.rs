@@ -560,6 +560,37 @@ fn a_peis_cut_off_mid_move_is_reconfigured_around_and_puts_back_what_it_ran() {
     home.assert_nothing_left_on();
 }
 
+/// Healed during the task instead: hsm returns in the same run while Astrid still moves on her
+/// laser; whichever acts first (hsm's own switch, or the executive taking back what it no longer
+/// uses), nothing of the old configuration runs after the task.
+#[test]
+fn a_peis_cut_off_and_healed_mid_move_runs_nothing_after_the_task() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start(
+        "partition-healed",
+        Topology::Peers,
+        false,
+        &["--lease", "1"],
+    ) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("running");
+    home.net.cut("hsm");
+    let (failure, _) = home.wait_event("failure");
+    assert_eq!(failure["cause"], "PEIS hsm left the ecology", "{failure}");
+    home.net.heal("hsm");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false), (170, true)], "{all:#?}");
+    let joined = named(&all, "peis_joined");
+    assert!(
+        joined.iter().any(|e| e["peis"] == "hsm"),
+        "hsm came back during the task: {all:#?}"
+    );
+    home.assert_nothing_left_on();
+}
+
 #[test]
 fn an_executive_cut_off_mid_move_waits_for_the_ecology_and_goes_on() {
     let _one = one_at_a_time();
