@@ -571,9 +571,9 @@ impl Executive {
         self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), out);
     }
 
-    /// A PEIS joined. One that returns within the window of its departure keeps what it ran;
-    /// while the ecology is lost, returns are counted towards going on; otherwise what the
-    /// executive wrote to it before it left and no longer uses is put back.
+    /// A PEIS joined. While the ecology is lost, returns are counted towards going on;
+    /// otherwise what the executive wrote to it before it left and no longer uses is put back
+    /// (its components were failed when it left, so the configuration has moved on).
     fn on_joined(&mut self, peis: PeisId, out: &mut Vec<Command>) {
         let was_present = self.is_present(&peis);
         self.mirror.joined(&peis);
