@@ -624,18 +624,36 @@ impl Executive {
 
     /// Puts back what this task wrote to `peis` that the current configuration does not use.
     fn release_unused(&mut self, peis: &PeisId, out: &mut Vec<Command>) {
-        let unused =
-            |exec: &Self, key: &ComponentKey| key.0 == *peis && !exec.in_current_config(key);
+        let (switched_off, stopped) = self.put_back(
+            |exec, key| key.0 == *peis && !exec.in_current_config(key),
+            out,
+        );
+        if !switched_off.is_empty() || !stopped.is_empty() {
+            self.record(LogEvent::Reclaimed {
+                peis: peis.to_string(),
+                switched_off,
+                stopped,
+            });
+        }
+    }
+
+    /// Puts back what the task wrote to the components `which` picks: those it switched on go
+    /// off, those it borrowed lose their params. Returns both, named `P:C`.
+    fn put_back(
+        &mut self,
+        which: impl Fn(&Self, &ComponentKey) -> bool,
+        out: &mut Vec<Command>,
+    ) -> (Vec<String>, Vec<String>) {
         let switched: Vec<ComponentKey> = self
             .started
             .iter()
-            .filter(|k| unused(self, k))
+            .filter(|k| which(self, k))
             .cloned()
             .collect();
         let borrowed: Vec<ComponentKey> = self
             .params
             .keys()
-            .filter(|k| unused(self, k) && !switched.contains(k))
+            .filter(|k| which(self, k) && !self.started.contains(*k))
             .cloned()
             .collect();
         let mut switched_off = Vec::new();
@@ -651,12 +669,17 @@ impl Executive {
             self.params.remove(&key);
             stopped.push(format!("{}:{}", key.0, key.1));
         }
-        if !switched_off.is_empty() || !stopped.is_empty() {
-            self.record(LogEvent::Reclaimed {
-                peis: peis.to_string(),
-                switched_off,
-                stopped,
-            });
+        (switched_off, stopped)
+    }
+
+    /// Stops timing the components of the action: its deploy timeout and waiting grace periods.
+    fn stop_component_timers(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        if let Some(id) = run.deploy_timer.take() {
+            out.push(Command::CancelTimer(id));
+        }
+        for (_, id) in std::mem::take(&mut run.waiting) {
+            out.push(Command::CancelTimer(id));
         }
     }
 
@@ -678,13 +701,8 @@ impl Executive {
         if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
             if let Some(run) = &mut self.run {
                 (run.excluded, run.failed) = departures.before;
-                if let Some(id) = run.deploy_timer.take() {
-                    out.push(Command::CancelTimer(id));
-                }
-                for (_, id) in std::mem::take(&mut run.waiting) {
-                    out.push(Command::CancelTimer(id));
-                }
             }
+            self.stop_component_timers(out);
             self.record(LogEvent::EcologyLost {
                 gone: gone.iter().map(ToString::to_string).collect(),
                 present: departures.present_before,
@@ -710,14 +728,7 @@ impl Executive {
     fn no_configuration(&mut self, reason: String, out: &mut Vec<Command>) {
         if let Some(departures) = &mut self.departures {
             departures.no_configuration = Some(reason);
-            if let Some(run) = &mut self.run {
-                if let Some(id) = run.deploy_timer.take() {
-                    out.push(Command::CancelTimer(id));
-                }
-                for (_, id) in std::mem::take(&mut run.waiting) {
-                    out.push(Command::CancelTimer(id));
-                }
-            }
+            self.stop_component_timers(out);
             return;
         }
         self.fail_action(reason, out);
@@ -1512,27 +1523,11 @@ impl Executive {
         self.finished = true;
         // What is on a PEIS out of reach is left to it: its host puts back what an executive
         // gone for a second had asked for (and sets to it would only wait out their timeout).
+        let (switched_off, stopped) = self.put_back(|exec, key| !exec.is_absent(&key.0), out);
         let mut unreachable: BTreeSet<ComponentKey> =
             std::mem::take(&mut self.orphans).into_keys().collect();
-        let mut switched_off = Vec::new();
-        for key in std::mem::take(&mut self.started) {
-            self.params.remove(&key);
-            if self.is_absent(&key.0) {
-                unreachable.insert(key);
-                continue;
-            }
-            out.push(req_state(&key, "off"));
-            switched_off.push(format!("{}:{}", key.0, key.1));
-        }
-        let mut stopped = Vec::new();
-        for (key, _) in std::mem::take(&mut self.params) {
-            if self.is_absent(&key.0) {
-                unreachable.insert(key);
-                continue;
-            }
-            out.push(params(&key, String::new()));
-            stopped.push(format!("{}:{}", key.0, key.1));
-        }
+        unreachable.extend(std::mem::take(&mut self.started));
+        unreachable.extend(std::mem::take(&mut self.params).into_keys());
         self.running = None;
         let unreachable: Vec<String> = unreachable
             .into_iter()

@@ -71,19 +71,6 @@ fn names(exec: &Executive) -> Vec<&'static str> {
     exec.log().iter().map(|e| e.event.name()).collect()
 }
 
-/// The timer of the departure window that `commands` started.
-fn window(commands: &[Command]) -> TimerId {
-    commands
-        .iter()
-        .find_map(|c| match c {
-            Command::StartTimer { id, after } if *after == ExecConfig::default().loss_window => {
-                Some(*id)
-            }
-            _ => None,
-        })
-        .expect("a departure window")
-}
-
 fn timeline(exec: &Executive) -> String {
     exec.log().iter().map(|e| format!("{e}\n")).collect()
 }
@@ -438,7 +425,10 @@ fn losing_the_ecology() -> (Executive, Vec<Command>) {
             reason: "no reply within 2s".to_string(),
         },
     );
-    let lost = exec.handle(secs(3.0), Event::Timer(window(&first)));
+    let lost = exec.handle(
+        secs(3.0),
+        Event::Timer(timer_of(&first, ExecConfig::default().loss_window)),
+    );
     let text = timeline(&exec);
     assert!(
         text.contains(

@@ -21,7 +21,7 @@
 //! or a killed executive never leaves a component running for a task nobody
 //! runs any more.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
@@ -118,21 +118,6 @@ struct State<S: TupleSpace> {
     params_for: Option<PeisId>,
 }
 
-impl<S: TupleSpace> State<S> {
-    fn serves(&self, peis: &PeisId) -> bool {
-        self.on_for.as_ref() == Some(peis) || self.params_for.as_ref() == Some(peis)
-    }
-}
-
-/// Whom the components serve, by presence: who is gone, and since when it may be released.
-#[derive(Default)]
-struct Holders {
-    /// PEIS whose presence ended and did not come back.
-    gone: BTreeSet<PeisId>,
-    /// When to release what each gone PEIS asked for.
-    release_at: BTreeMap<PeisId, Timestamp>,
-}
-
 type Outcome = (String, u64, Result<(), ComponentError>);
 
 /// The contract's key for `field` of component `c`.
@@ -202,14 +187,15 @@ pub async fn run_host_with<S: TupleSpace>(
     let mut requests = space.subscribe(requests_pattern).await?;
     let mut params = space.subscribe(params_pattern).await?;
     let mut presence = space.subscribe_presence().await?;
-    let mut holders = Holders::default();
+    // Each PEIS whose presence ended, and when what it asked for is put back unless it returns.
+    let mut gone: BTreeMap<PeisId, Timestamp> = BTreeMap::new();
     let mut tasks: JoinSet<Outcome> = JoinSet::new();
     tokio::pin!(shutdown);
     loop {
         let next_start = states
             .values()
             .filter_map(|s| s.starting_until)
-            .chain(holders.release_at.values().copied())
+            .chain(gone.values().copied())
             .min();
         let wake = async {
             match next_start {
@@ -227,7 +213,6 @@ pub async fn run_host_with<S: TupleSpace>(
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
                 let asked = t.text().unwrap_or("");
                 state.on_for = t.creator.clone().filter(|_| asked == "on");
-                holders.watch(t.creator.as_ref(), &clock, &options);
                 match asked {
                     "on" if !state.on && state.starting_until.is_none() => {
                         state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
@@ -261,7 +246,6 @@ pub async fn run_host_with<S: TupleSpace>(
                 let had_params = state.params.is_some();
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
                 state.params_for = t.creator.clone().filter(|_| state.params.is_some());
-                holders.watch(t.creator.as_ref(), &clock, &options);
                 // Cleared params leave it idle, whether its body still ran or had finished (`done`).
                 let stopping = state.params.is_none() && (state.task.is_some() || had_params);
                 if state.on {
@@ -295,19 +279,19 @@ pub async fn run_host_with<S: TupleSpace>(
                 }
             }
             Some(event) = presence.next() => match event {
-                PresenceEvent::Joined(p) => holders.back(&p),
+                PresenceEvent::Joined(p) => {
+                    gone.remove(&p);
+                }
                 PresenceEvent::Left(p) => {
-                    let serves = states.values().any(|s| s.serves(&p));
-                    holders.gone.insert(p.clone());
-                    if serves {
-                        holders.watch(Some(&p), &clock, &options);
-                    }
+                    gone.entry(p).or_insert(clock.now().saturating_add(options.release_after));
                 }
             },
             () = wake => {
                 let now = clock.now();
-                for gone in holders.due(now) {
-                    release(&space, &states, &gone, &options).await?;
+                let due: Vec<PeisId> = gone.iter().filter(|(_, at)| **at <= now).map(|(p, _)| p.clone()).collect();
+                for peis in due {
+                    gone.remove(&peis);
+                    release(&space, &states, &peis, &options).await?;
                 }
                 let ready: Vec<String> = states
                     .iter()
@@ -337,35 +321,6 @@ pub async fn run_host_with<S: TupleSpace>(
         }
     }
     Ok(())
-}
-
-impl Holders {
-    /// Something stands for `peis`: if it is gone, what it asked for is released in time.
-    fn watch(&mut self, peis: Option<&PeisId>, clock: &Arc<dyn Clock>, options: &HostOptions) {
-        if let Some(p) = peis.filter(|p| self.gone.contains(*p)) {
-            let at = clock.now().saturating_add(options.release_after);
-            self.release_at.entry(p.clone()).or_insert(at);
-        }
-    }
-
-    fn back(&mut self, peis: &PeisId) {
-        self.gone.remove(peis);
-        self.release_at.remove(peis);
-    }
-
-    /// The gone PEIS whose time is up, no longer waited for.
-    fn due(&mut self, now: Timestamp) -> Vec<PeisId> {
-        let due: Vec<PeisId> = self
-            .release_at
-            .iter()
-            .filter(|(_, at)| **at <= now)
-            .map(|(p, _)| p.clone())
-            .collect();
-        for p in &due {
-            self.release_at.remove(p);
-        }
-        due
-    }
 }
 
 /// Puts back what `gone` asked for, as it would have on ending its task: the host writes its own

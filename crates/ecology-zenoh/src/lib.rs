@@ -26,7 +26,7 @@ pub fn log_from_env() {
 
 /// Zenoh's receive runtime as an Ecology process sets it: `ZENOH_RUNTIME`'s value when the
 /// environment does not give one.
-pub const RUNTIME: &str = "(rx: (worker_threads: 16))";
+const RUNTIME: &str = "(rx: (worker_threads: 16))";
 
 /// Gives Zenoh's receive runtime 16 threads instead of 2, unless `ZENOH_RUNTIME` already says.
 ///
