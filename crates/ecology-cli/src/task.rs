@@ -58,8 +58,9 @@ pub struct TaskArgs {
     /// network or its router), in seconds; then the task fails.
     #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
     pub reconnect_timeout: f64,
-    /// PEIS that leave within this many seconds of each other are judged together; a departure
-    /// is acted on this long after it is seen.
+    /// PEIS that leave within this many seconds of each other are judged together: when at least
+    /// two, and more than half of those present, left, the executive lost the ecology and waits
+    /// for it instead of blaming them.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
     pub loss_window: f64,
     /// How long to take in the ecology's tuples before the first action, in seconds.
