@@ -1127,10 +1127,17 @@ impl Executive {
         if !self.in_current_config(&key) {
             return;
         }
-        let Some(run) = &mut self.run else { return };
-        if run.failed.contains(&key) {
+        if self
+            .run
+            .as_ref()
+            .is_none_or(|run| run.failed.contains(&key))
+        {
             return;
         }
+        if status == "waiting" && self.blame_unreadable(&key, out) {
+            return;
+        }
+        let Some(run) = &mut self.run else { return };
         if status != "waiting"
             && let Some(id) = run.waiting.remove(&key)
         {
@@ -1169,6 +1176,58 @@ impl Executive {
             }
             _ => {}
         }
+    }
+
+    /// A consumer that reports `waiting` because it cannot read an input
+    /// (its cause is `unreadable INPUT: …`) blames the producer wired to that
+    /// input: the producer failed, at once, and the consumer keeps its place.
+    /// `false` when the cause is another, or names no input of `consumer`.
+    fn blame_unreadable(&mut self, consumer: &ComponentKey, out: &mut Vec<Command>) -> bool {
+        let Some(cause) = self
+            .mirror
+            .component(consumer.0.as_str(), consumer.1.as_str())
+            .and_then(|c| c.cause.clone())
+        else {
+            return false;
+        };
+        let Some((input, detail)) = contract::parse_unreadable(&cause) else {
+            return false;
+        };
+        let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
+            return false;
+        };
+        let into: Vec<&ecology_config::ChannelInstance> = config
+            .channels
+            .iter()
+            .filter(|c| c.to_peis == consumer.0.as_str() && c.to_component == consumer.1.as_str())
+            .collect();
+        let prefix = format!("{}.mi-", consumer.1);
+        let named = |c: &ecology_config::ChannelInstance| {
+            input_key(&consumer.1, c, &config.channels)
+                .is_some_and(|k| k.as_str().strip_prefix(&prefix) == Some(input))
+        };
+        let channel = into.iter().find(|c| named(c)).or_else(|| {
+            // `image` for one of two images: only when it names one channel.
+            let same: Vec<_> = into.iter().filter(|c| c.info_name == input).collect();
+            (same.len() == 1).then(|| same[0])
+        });
+        let Some(producer) = channel.and_then(|c| component_key(&c.from_peis, &c.from_component))
+        else {
+            return false;
+        };
+        if producer == *consumer {
+            return false;
+        }
+        let why = if detail.is_empty() {
+            format!("{}:{} cannot read its {input}", consumer.0, consumer.1)
+        } else {
+            format!(
+                "{}:{} cannot read its {input}: {detail}",
+                consumer.0, consumer.1
+            )
+        };
+        self.failure(vec![producer], why, out);
+        true
     }
 
     /// A PEIS left or restarted: every component of the configuration on it failed.

@@ -94,6 +94,21 @@ fn tuple_of_run(owner: &str, key: &str, value: &str, epoch: u64, seq: u64) -> Ev
 /// (all on, so nothing is switched on), started, with the ceiling-camera
 /// configuration running at one second.
 fn running_first_action() -> Executive {
+    let mut exec = started_first_action();
+    for (p, c) in [
+        ("astrid", "tc1"),
+        ("astrid", "s1"),
+        ("hsm", "ca1"),
+        ("hsm", "tr1"),
+    ] {
+        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
+    }
+    exec
+}
+
+/// An executive for the first action, fed the init tuples of every
+/// component (all on) and started: deploying the ceiling-camera configuration.
+fn started_first_action() -> Executive {
     let mut exec = executive(plan()[..1].to_vec());
     let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("facts");
     for f in state.with_predicate("pc") {
@@ -113,14 +128,6 @@ fn running_first_action() -> Executive {
         );
     }
     exec.handle(Duration::ZERO, Event::Start);
-    for (p, c) in [
-        ("astrid", "tc1"),
-        ("astrid", "s1"),
-        ("hsm", "ca1"),
-        ("hsm", "tr1"),
-    ] {
-        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
-    }
     exec
 }
 
@@ -170,6 +177,99 @@ fn waiting_too_long_is_a_failure() {
     assert!(
         text.contains("FAILURE astrid:s1: waiting for longer than 2s: (global-pos astrid)"),
         "{text}"
+    );
+}
+
+/// The components a log's failures name, with their causes.
+fn failures(exec: &Executive) -> Vec<(String, String, String)> {
+    exec.log()
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => Some((peis.clone(), component.clone(), cause.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_consumer_that_cannot_read_its_input_blames_its_producer_at_once() {
+    let mut exec = running_first_action();
+    exec.handle(
+        secs(2.0),
+        tuple(
+            "astrid",
+            "s1.cause",
+            "unreadable global-pos: expected X Y THETA, found \"1,2;3\"",
+            1,
+        ),
+    );
+    let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+    assert_eq!(
+        failures(&exec),
+        [(
+            "hsm".to_string(),
+            "tr1".to_string(),
+            "astrid:s1 cannot read its global-pos: expected X Y THETA, found \"1,2;3\"".to_string()
+        )]
+    );
+    // The consumer keeps its place: scan matching on s1 replaces the cameras.
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+    assert_eq!(
+        set_of(&commands, "astrid", "s1.params"),
+        Some("(scan-matching astrid s1)")
+    );
+    // No grace period is timed for the consumer's waiting.
+    assert!(
+        !commands
+            .iter()
+            .any(|c| matches!(c, Command::StartTimer { after, .. } if *after == ExecConfig::default().waiting_grace)),
+        "{commands:?}"
+    );
+}
+
+#[test]
+fn an_unreadable_input_is_blamed_on_its_producer_while_deploying() {
+    let mut exec = started_first_action();
+    exec.handle(secs(0.5), tuple("hsm", "tr1.status", "running", 2));
+    exec.handle(
+        secs(0.6),
+        tuple("astrid", "s1.cause", "unreadable global-pos", 1),
+    );
+    exec.handle(secs(0.6), tuple("astrid", "s1.status", "waiting", 2));
+    assert_eq!(
+        failures(&exec),
+        [(
+            "hsm".to_string(),
+            "tr1".to_string(),
+            "astrid:s1 cannot read its global-pos".to_string()
+        )]
+    );
+}
+
+#[test]
+fn an_unreadable_cause_naming_no_input_of_the_component_is_plain_waiting() {
+    let mut exec = running_first_action();
+    exec.handle(
+        secs(2.0),
+        tuple("astrid", "s1.cause", "unreadable range-scan: ?", 1),
+    );
+    let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+    assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
+    let Some(Command::StartTimer { id, .. }) = commands.first().cloned() else {
+        panic!("a grace timer: {commands:?}");
+    };
+    exec.handle(secs(4.0), Event::Timer(id));
+    assert_eq!(
+        failures(&exec),
+        [(
+            "astrid".to_string(),
+            "s1".to_string(),
+            "waiting for longer than 2s: unreadable range-scan: ?".to_string()
+        )]
     );
 }
 

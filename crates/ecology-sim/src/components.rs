@@ -16,7 +16,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use ecology_peis::{BoxFuture, Component, ComponentError, Context, Inputs};
-use ecology_tuples::{Subscription, TupleEvent, TuplePattern, TupleSpace, Value};
+use ecology_tuples::contract::{quoted, unreadable_cause};
+use ecology_tuples::{Clock, Subscription, Timestamp, TupleEvent, TuplePattern, TupleSpace, Value};
 
 use crate::world::{MAX_SPEED, MAX_TURN, Map, Pose, wrap_angle};
 use ecology_core::Rng;
@@ -37,6 +38,10 @@ const PERIOD: Duration = Duration::from_millis(50);
 const STALE: Duration = Duration::from_millis(500);
 /// A tracking system whose images stopped for this long reports `error`.
 const IMAGES_LOST: Duration = Duration::from_secs(1);
+/// A component that reads the world's ground truth reports `error` when
+/// nothing new came from the world for this long (the world publishes every
+/// robot's pose at every step, 20 times a second): the world left or froze.
+pub const WORLD_SILENT: Duration = Duration::from_secs(1);
 
 /// An injected fault of one component.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -45,6 +50,9 @@ pub struct FaultState {
     pub failed: Option<String>,
     /// The component falls silent: it keeps its status but publishes nothing.
     pub stalled: bool,
+    /// The component writes its outputs in a form nobody can read (commas
+    /// and semicolons for spaces): a producer with a bug.
+    pub garbled: bool,
 }
 
 /// The injected faults of every component, shared by the fault schedule and
@@ -134,20 +142,29 @@ impl<S: TupleSpace> Component<S> for Simulated {
 struct Truth {
     subscription: Subscription,
     latest: BTreeMap<String, String>,
+    clock: Arc<dyn Clock>,
+    /// When the last tuple of the world arrived.
+    heard: Option<Timestamp>,
 }
 
 impl Truth {
-    async fn follow<S: TupleSpace>(space: &S) -> Result<Truth, ComponentError> {
+    async fn follow<S: TupleSpace>(ctx: &Context<S>) -> Result<Truth, ComponentError> {
         let pattern = TuplePattern::parse(&format!("{WORLD}:**"))
             .map_err(|e| ComponentError::Space(e.to_string()))?;
         Ok(Truth {
-            subscription: space.subscribe(pattern).await?,
+            subscription: ctx.space().subscribe(pattern).await?,
             latest: BTreeMap::new(),
+            clock: ctx.clock().clone(),
+            heard: None,
         })
     }
 
-    fn poll(&mut self) {
+    /// Takes in what the world published; an error once the world, heard
+    /// before, has said nothing for [`WORLD_SILENT`].
+    fn poll(&mut self) -> Result<(), ComponentError> {
+        let now = self.clock.now();
         while let Some(event) = self.subscription.try_next() {
+            self.heard = Some(now);
             match event {
                 TupleEvent::Changed(t) => {
                     if let Ok(text) = t.text() {
@@ -159,6 +176,15 @@ impl Truth {
                 }
                 TupleEvent::Retargeted { .. } => {}
             }
+        }
+        match self.heard {
+            Some(heard) if now.saturating_duration_since(heard) > WORLD_SILENT => {
+                Err(fault(format!(
+                    "no ground truth from the {WORLD} PEIS for {} s: the world left or froze",
+                    WORLD_SILENT.as_secs_f64()
+                )))
+            }
+            _ => Ok(()),
         }
     }
 
@@ -241,8 +267,39 @@ impl<S: TupleSpace> Body<S> {
     }
 
     async fn output(&self, info: &str, text: String) -> Result<(), ComponentError> {
+        let garbled = self
+            .faults
+            .get(self.ctx.peis().as_str(), self.ctx.component())
+            .garbled;
+        let text = if garbled { garble(&text) } else { text };
         self.ctx.output(info, Value::text(text)).await?;
         Ok(())
+    }
+
+    /// The latest value of input `info` read by `parse`: `Ok(None)` when it
+    /// is missing or older than [`STALE`], and `Err` with the contract's
+    /// `unreadable INFO: …` cause when it is there but cannot be read, so the
+    /// executive blames its producer, not this component.
+    fn read<T>(
+        &self,
+        inputs: &Inputs,
+        info: &str,
+        expected: &str,
+        parse: impl Fn(&str) -> Option<T>,
+    ) -> Result<Option<T>, String> {
+        if inputs.missing(STALE).iter().any(|m| m == info) {
+            return Ok(None);
+        }
+        let Some(tuple) = inputs.latest(info) else {
+            return Ok(None);
+        };
+        let text = tuple.text().unwrap_or("");
+        parse(text).map(Some).ok_or_else(|| {
+            unreadable_cause(
+                info,
+                &format!("expected {expected}, found {}", quoted(text, 40)),
+            )
+        })
     }
 
     /// Waits for the next input update, or one period.
@@ -273,11 +330,11 @@ impl<S: TupleSpace> Body<S> {
     /// room): `image` holds what it sees, as `NAME X Y THETA; …` (a thing's
     /// heading is 0).
     async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
         loop {
             let stalled = self.injected()?;
-            truth.poll();
+            truth.poll()?;
             let mut robots = truth.robots();
             robots.extend(
                 truth
@@ -324,19 +381,17 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            let image = inputs.latest("image").and_then(|t| t.text().ok());
-            ever |= image.is_some();
+            ever |= inputs.latest("image").is_some();
             if strict && ever && !inputs.missing(IMAGES_LOST).is_empty() {
                 return Err(fault(format!(
                     "no images from the cameras for {} s: a camera stopped producing images",
                     IMAGES_LOST.as_secs_f64()
                 )));
             }
-            if !inputs.missing(STALE).is_empty() {
-                self.report("waiting", "image").await?;
-            } else {
-                let seen = image.and_then(|image| seen_in_image(image, &target));
-                match seen {
+            match self.read(&inputs, "image", IMAGE_FORMAT, parse_image) {
+                Err(cause) => self.report("waiting", &cause).await?,
+                Ok(None) => self.report("waiting", "image").await?,
+                Ok(Some(image)) => match seen_in_image(&image, &target) {
                     None => {
                         self.report("waiting", &format!("{target} not in view"))
                             .await?
@@ -347,7 +402,7 @@ impl<S: TupleSpace> Body<S> {
                             self.output("global-pos", pose.to_text()).await?;
                         }
                     }
-                }
+                },
             }
             self.next(&mut inputs).await;
         }
@@ -357,10 +412,10 @@ impl<S: TupleSpace> Body<S> {
     /// or, when its params name a thing, looks for the thing.
     async fn localizer(&mut self) -> Result<(), ComponentError> {
         let target = self.arg(2)?;
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         loop {
             self.injected()?;
-            truth.poll();
+            truth.poll()?;
             if truth.map().is_some() {
                 break;
             }
@@ -384,17 +439,23 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            truth.poll();
-            if !inputs.missing(STALE).is_empty() {
-                self.report("waiting", "image").await?;
-                self.next(&mut inputs).await;
-                continue;
-            }
+            truth.poll()?;
+            let image = match self.read(&inputs, "image", IMAGE_FORMAT, parse_image) {
+                Ok(Some(image)) => image,
+                Ok(None) => {
+                    self.report("waiting", "image").await?;
+                    self.next(&mut inputs).await;
+                    continue;
+                }
+                Err(cause) => {
+                    self.report("waiting", &cause).await?;
+                    self.next(&mut inputs).await;
+                    continue;
+                }
+            };
             self.report("running", "").await?;
             let map = truth.map().unwrap_or_default();
-            let image = inputs.latest("image").and_then(|t| t.text().ok());
-            let seen_in = image
-                .and_then(|image| seen_in_image(image, thing))
+            let seen_in = seen_in_image(&image, thing)
                 .and_then(|pose| map.room_at(pose.x, pose.y))
                 .map(|room| room.name.clone());
             let here = truth
@@ -417,11 +478,11 @@ impl<S: TupleSpace> Body<S> {
 
     /// The laser: 8 ranges, every 45°, from the robot's true pose, with noise.
     async fn laser(&mut self) -> Result<(), ComponentError> {
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
         loop {
             let stalled = self.injected()?;
-            truth.poll();
+            truth.poll()?;
             match (truth.robot(&me), truth.map()) {
                 (Some(pose), Some(map)) => {
                     self.report("running", "").await?;
@@ -442,7 +503,7 @@ impl<S: TupleSpace> Body<S> {
     /// Odometry: integrates the wheels' motion with a seeded scale error and
     /// heading drift, so that it wanders off the truth as the robot moves.
     async fn odometry(&mut self) -> Result<(), ComponentError> {
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
         let scale = 1.0 + 0.03 + self.rng.gaussian(0.01);
         let drift = 0.02 + self.rng.gaussian(0.005);
@@ -450,7 +511,7 @@ impl<S: TupleSpace> Body<S> {
         let mut estimate: Option<Pose> = None;
         loop {
             let stalled = self.injected()?;
-            truth.poll();
+            truth.poll()?;
             let Some(now) = truth.robot(&me) else {
                 self.report("waiting", "ground truth").await?;
                 self.ctx.sleep(PERIOD).await;
@@ -484,7 +545,7 @@ impl<S: TupleSpace> Body<S> {
     /// the laser's ranges against the map around the odometry's guess.
     async fn scan_matching(&mut self) -> Result<(), ComponentError> {
         let mut inputs = self.ctx.inputs(&["range-scan", "odometry"]).await?;
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         let mut correction = (0.0, 0.0, 0.0);
         // Match once per new pair of readings, whichever arrives first, so
         // that the result does not depend on the order of their arrival.
@@ -492,7 +553,7 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            truth.poll();
+            truth.poll()?;
             let missing = inputs.missing(STALE);
             let Some(map) = truth.map() else {
                 self.report("waiting", "map").await?;
@@ -513,20 +574,19 @@ impl<S: TupleSpace> Body<S> {
                 continue;
             }
             used = seqs;
-            let odometry = inputs
-                .latest("odometry")
-                .and_then(|t| t.text().ok())
-                .and_then(Pose::parse);
-            let ranges: Option<Vec<f64>> = inputs
-                .latest("range-scan")
-                .and_then(|t| t.text().ok())
-                .map(|s| {
-                    s.split_whitespace()
-                        .filter_map(|r| r.parse().ok())
-                        .collect()
-                });
-            let (Some(odometry), Some(ranges)) = (odometry, ranges) else {
-                return Err(fault("malformed odometry or range scan"));
+            let odometry = self.read(&inputs, "odometry", POSE_FORMAT, Pose::parse);
+            let ranges = self.read(&inputs, "range-scan", SCAN_FORMAT, parse_ranges);
+            let (odometry, ranges) = match (odometry, ranges) {
+                (Ok(Some(odometry)), Ok(Some(ranges))) => (odometry, ranges),
+                (Err(cause), _) | (_, Err(cause)) => {
+                    self.report("waiting", &cause).await?;
+                    self.next(&mut inputs).await;
+                    continue;
+                }
+                _ => {
+                    self.next(&mut inputs).await;
+                    continue;
+                }
             };
             let guess = Pose::new(
                 odometry.x + correction.0,
@@ -554,18 +614,15 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            let pose = inputs
-                .latest("global-pos")
-                .and_then(|t| t.text().ok())
-                .and_then(Pose::parse);
-            match pose {
-                Some(pose) if inputs.missing(STALE).is_empty() => {
+            match self.read(&inputs, "global-pos", POSE_FORMAT, Pose::parse) {
+                Ok(Some(pose)) => {
                     self.report("running", "").await?;
                     if !stalled {
                         self.output("position", pose.to_text()).await?;
                     }
                 }
-                _ => self.report("waiting", "global-pos").await?,
+                Ok(None) => self.report("waiting", "global-pos").await?,
+                Err(cause) => self.report("waiting", &cause).await?,
             }
             self.next(&mut inputs).await;
         }
@@ -578,21 +635,19 @@ impl<S: TupleSpace> Body<S> {
     async fn navigation(&mut self) -> Result<(), ComponentError> {
         let destination = self.arg(2)?;
         let mut inputs = self.ctx.inputs(&["position"]).await?;
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         let mut route: Option<Vec<(f64, f64)>> = None;
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            truth.poll();
-            let position = inputs
-                .latest("position")
-                .and_then(|t| t.text().ok())
-                .and_then(Pose::parse);
-            let Some(pose) = position.filter(|_| inputs.missing(STALE).is_empty()) else {
+            truth.poll()?;
+            let position = self.read(&inputs, "position", POSE_FORMAT, Pose::parse);
+            let Ok(Some(pose)) = position else {
                 if !stalled {
                     self.output("velocity", "0 0".into()).await?;
                 }
-                self.report("waiting", "position").await?;
+                let cause = position.err().unwrap_or_else(|| "position".to_string());
+                self.report("waiting", &cause).await?;
                 self.next(&mut inputs).await;
                 continue;
             };
@@ -649,7 +704,7 @@ impl<S: TupleSpace> Body<S> {
         let mut waited = Duration::ZERO;
         while waited <= limit {
             self.injected()?;
-            truth.poll();
+            truth.poll()?;
             if truth.text(key) == Some(want) {
                 return Ok(true);
             }
@@ -664,7 +719,7 @@ impl<S: TupleSpace> Body<S> {
     async fn gripper(&mut self) -> Result<(), ComponentError> {
         let thing = self.arg(2)?;
         let me = self.ctx.peis().to_string();
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         self.report("running", "").await?;
         let holder = format!("things.{thing}.holder");
         if !self
@@ -689,7 +744,7 @@ impl<S: TupleSpace> Body<S> {
     /// person in its params is awake.
     async fn speaker(&mut self) -> Result<(), ComponentError> {
         let person = self.arg(2)?;
-        let mut truth = Truth::follow(self.ctx.space()).await?;
+        let mut truth = Truth::follow(&self.ctx).await?;
         self.report("running", "").await?;
         self.ctx.sleep(Duration::from_millis(500)).await;
         if !self.injected()? {
@@ -717,12 +772,52 @@ impl<S: TupleSpace> Body<S> {
 }
 
 /// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
-fn seen_in_image(image: &str, name: &str) -> Option<Pose> {
-    image.split(';').find_map(|entry| {
-        let (seen, pose) = entry.trim().split_once(' ')?;
-        (seen == name).then(|| Pose::parse(pose)).flatten()
-    })
+fn seen_in_image(image: &[(String, Pose)], name: &str) -> Option<Pose> {
+    image
+        .iter()
+        .find(|(seen, _)| seen == name)
+        .map(|(_, pose)| *pose)
 }
+
+/// What an `image` shows: `NAME X Y THETA` entries separated by `;` (none
+/// for an empty image); `None` when any entry is not of that form.
+fn parse_image(image: &str) -> Option<Vec<(String, Pose)>> {
+    image
+        .split(';')
+        .map(str::trim)
+        .filter(|entry| !entry.is_empty())
+        .map(|entry| {
+            let (name, pose) = entry.split_once(char::is_whitespace)?;
+            Some((name.to_string(), Pose::parse(pose)?))
+        })
+        .collect()
+}
+
+/// A `range-scan`: one or more ranges separated by white space.
+fn parse_ranges(text: &str) -> Option<Vec<f64>> {
+    let ranges: Option<Vec<f64>> = text
+        .split_whitespace()
+        .map(|r| r.parse::<f64>().ok().filter(|r| r.is_finite()))
+        .collect();
+    ranges.filter(|r| !r.is_empty())
+}
+
+/// The same text in a form nobody reads: white space becomes commas, and
+/// the last comma a semicolon (`1.0 2.0 0.5` → `1.0,2.0;0.5`).
+fn garble(text: &str) -> String {
+    let mut out = text.split_whitespace().collect::<Vec<_>>().join(",");
+    if let Some(i) = out.rfind(',') {
+        out.replace_range(i..=i, ";");
+    }
+    if out.is_empty() { "?".to_string() } else { out }
+}
+
+/// What an `image` looks like, for causes.
+const IMAGE_FORMAT: &str = "NAME X Y THETA entries separated by ;";
+/// What a pose (`global-pos`, `position`, `odometry`) looks like, for causes.
+const POSE_FORMAT: &str = "X Y THETA (three numbers)";
+/// What a `range-scan` looks like, for causes.
+const SCAN_FORMAT: &str = "ranges in metres separated by spaces";
 
 /// The 8 ranges a laser at `pose` measures in `map`, every 45° from its heading.
 pub fn scan(map: &Map, pose: Pose) -> Vec<f64> {

@@ -3,9 +3,9 @@
 //!
 //! A fault reaches a PEIS that runs as a process of its own as its tuple
 //! `C.fault`, set by remote set from anywhere (`ecology tuples set hsm
-//! ca1.fault stall`): `stall` (the component falls silent), `fail CAUSE` (it
-//! reports `error` with CAUSE), `recover` or an empty value (the fault is
-//! cleared).
+//! ca1.fault stall`): `stall` (the component falls silent), `garble` (it
+//! writes its outputs in a form nobody reads), `fail CAUSE` (it reports
+//! `error` with CAUSE), `recover` or an empty value (the fault is cleared).
 
 use std::future::Future;
 use std::sync::Arc;
@@ -45,15 +45,19 @@ pub fn parse_fault(text: &str) -> Option<FaultState> {
     match word {
         "" | "recover" => Some(FaultState::default()),
         "stall" => Some(FaultState {
-            failed: None,
             stalled: true,
+            ..FaultState::default()
+        }),
+        "garble" => Some(FaultState {
+            garbled: true,
+            ..FaultState::default()
         }),
         "fail" => Some(FaultState {
             failed: Some(match rest.trim() {
                 "" => "injected failure".to_string(),
                 cause => cause.to_string(),
             }),
-            stalled: false,
+            ..FaultState::default()
         }),
         _ => None,
     }
@@ -103,16 +107,19 @@ pub async fn host_peis<S: TupleSpace>(
                 let text = tuple.text().unwrap_or("");
                 match parse_fault(text) {
                     Some(state) => {
-                        let what = match (&state.failed, state.stalled) {
-                            (Some(cause), _) => format!("{component} fails: {cause}"),
-                            (None, true) => format!("{component} stalls (stops publishing)"),
-                            (None, false) => format!("{component} recovers"),
+                        let what = match (&state.failed, state.stalled, state.garbled) {
+                            (Some(cause), _, _) => format!("{component} fails: {cause}"),
+                            (None, true, _) => format!("{component} stalls (stops publishing)"),
+                            (None, false, true) => {
+                                format!("{component} garbles its outputs")
+                            }
+                            (None, false, false) => format!("{component} recovers"),
                         };
                         faults.update(me.as_str(), component, |s| *s = state);
                         note(what);
                     }
                     None => note(format!(
-                        "fault `{text}` for {component} ignored (known: stall, fail CAUSE, recover)"
+                        "fault `{text}` for {component} ignored (known: stall, garble, fail CAUSE, recover)"
                     )),
                 }
             }

@@ -18,6 +18,7 @@ use ecology_exec::{
     DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, Replan, RunStatus, drive_until,
 };
 use ecology_peis::{HostError, run_host};
+use ecology_tuples::contract;
 use ecology_tuples::{
     Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceEvent, Timestamp,
     Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, VirtualClock,
@@ -349,6 +350,20 @@ fn unfounded(truth: &InProcessSpace, peis: &str, component: &str, cause: &str) -
     if cause.starts_with("PEIS ") && cause.ends_with(" left the ecology") {
         return truth.is_present(&id).then(|| format!("{peis} is present"));
     }
+    if let Some((consumer, _)) = cause.split_once(" cannot read its ") {
+        // Blamed by its consumer: the consumer really says it cannot read.
+        let (peis, component) = consumer.split_once(':')?;
+        let id = PeisId::new(peis).ok()?;
+        let read = |field: &str| {
+            let key = Key::new(&format!("{component}.{field}")).ok()?;
+            truth
+                .peek(&id, &key)
+                .and_then(|t| t.text().ok().map(str::to_string))
+        };
+        let says = read("status").as_deref() == Some("waiting")
+            && read("cause").is_some_and(|c| contract::parse_unreadable(&c).is_some());
+        return (!says).then(|| format!("{consumer} does not say it cannot read"));
+    }
     let expected = if cause.starts_with("waiting for longer than") {
         "waiting"
     } else if cause.starts_with("PEIS ")
@@ -510,6 +525,11 @@ impl Simulation {
                 self.faults
                     .update(&fault.peis, &component, |s| s.stalled = true);
                 self.note(t, format!("{target} stalls (stops publishing)"));
+            }
+            FaultKind::Garble => {
+                self.faults
+                    .update(&fault.peis, &component, |s| s.garbled = true);
+                self.note(t, format!("{target} garbles its outputs"));
             }
             FaultKind::Recover => {
                 self.faults

@@ -57,6 +57,8 @@ pub enum FaultKind {
     Fail,
     /// The component falls silent (keeps running, publishes nothing): a dead camera.
     Stall,
+    /// The component writes its outputs in a form nobody can read: a producer with a bug.
+    Garble,
     /// The component's fault is cleared.
     Recover,
     /// The PEIS crashes: it stops without leaving, with all its components.
@@ -710,6 +712,7 @@ fn parse_faults(
         let kind = match f.what.as_str() {
             "fail" => FaultKind::Fail,
             "stall" => FaultKind::Stall,
+            "garble" => FaultKind::Garble,
             "recover" => FaultKind::Recover,
             "duplicate" => FaultKind::Duplicate,
             "late" => FaultKind::Late,
@@ -717,7 +720,7 @@ fn parse_faults(
             "revive" => FaultKind::Revive,
             other => {
                 return Err(here(format!(
-                    "unknown fault `{other}` (known: fail, stall, recover, kill, revive, duplicate, late)"
+                    "unknown fault `{other}` (known: fail, stall, garble, recover, kill, revive, duplicate, late)"
                 )));
             }
         };
@@ -728,6 +731,7 @@ fn parse_faults(
             kind,
             FaultKind::Fail
                 | FaultKind::Stall
+                | FaultKind::Garble
                 | FaultKind::Recover
                 | FaultKind::Duplicate
                 | FaultKind::Late

@@ -8,7 +8,8 @@ use std::time::Duration;
 use ecology_exec::{LogEvent, RunStatus};
 
 use crate::{
-    Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError, match_scan, run, scan,
+    FaultKind, FaultSpec, Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError,
+    Trigger, match_scan, run, scan,
 };
 
 pub(crate) fn scenario_path(name: &str) -> PathBuf {
@@ -285,6 +286,58 @@ async fn without_the_fault_the_cameras_serve_both_moves() {
     let costs: Vec<u64> = configurations(&report).iter().map(|c| c.0).collect();
     assert_eq!(costs, [80, 100, 80, 20], "{}", timeline(&report));
     assert_eq!(report.status, RunStatus::Done);
+}
+
+// A tracking system that writes global positions nobody can read is blamed
+// by pose tracking, which keeps its place and runs scan matching instead.
+#[tokio::test]
+async fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
+    let mut scenario = load("peis-home.toml");
+    scenario.faults = vec![FaultSpec {
+        kind: FaultKind::Garble,
+        peis: "hsm".into(),
+        component: Some("tr1".into()),
+        trigger: Trigger::At(Duration::ZERO),
+        cause: String::new(),
+    }];
+    let report = run_seeded(&scenario, 7).await;
+    let text = timeline(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    let failures: Vec<(&str, &str, &str)> = report
+        .log
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => Some((peis.as_str(), component.as_str(), cause.as_str())),
+            _ => None,
+        })
+        .collect();
+    // Once in each move: exclusions last one action.
+    assert_eq!(failures.len(), 2, "{text}");
+    for (peis, component, cause) in failures {
+        assert_eq!((peis, component), ("hsm", "tr1"), "{text}");
+        assert!(
+            cause.starts_with("astrid:s1 cannot read its global-pos: expected X Y THETA"),
+            "{cause}"
+        );
+    }
+    let costs: Vec<(u64, bool)> = configurations(&report).iter().map(|c| (c.0, c.1)).collect();
+    assert_eq!(
+        costs,
+        [
+            (80, false),
+            (170, true),
+            (100, false),
+            (80, false),
+            (170, true),
+            (20, false)
+        ],
+        "{text}"
+    );
+    assert!(report.spurious.is_empty(), "{:?}", report.spurious);
 }
 
 // A second scenario: a PEIS crashes and comes back.

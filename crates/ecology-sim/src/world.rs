@@ -38,10 +38,12 @@ impl Pose {
         format!("{:.3} {:.3} {:.4}", self.x, self.y, self.theta)
     }
 
-    /// Parses `x y theta`.
+    /// Parses `x y theta`: exactly three finite numbers.
     pub fn parse(text: &str) -> Option<Pose> {
         let mut it = text.split_whitespace().map(str::parse::<f64>);
-        let (Some(Ok(x)), Some(Ok(y)), Some(Ok(theta))) = (it.next(), it.next(), it.next()) else {
+        let (Some(Ok(x)), Some(Ok(y)), Some(Ok(theta)), None) =
+            (it.next(), it.next(), it.next(), it.next())
+        else {
             return None;
         };
         [x, y, theta]

@@ -113,3 +113,73 @@ pub fn input_key(
         Key::new(&format!("{component}.mi-{info}.{}", args.join(".")))
     }
 }
+
+/// The word that starts the cause of a consumer that cannot read an input.
+const UNREADABLE: &str = "unreadable";
+
+/// The `C.cause` of a consumer that reports `waiting` because the value of
+/// its input `input` (the meta-tuple key's suffix after `mi-`: `global-pos`,
+/// or `image.left` for one of two images) cannot be read:
+/// `unreadable global-pos: expected X Y THETA, found "1,2;3"`. The executive
+/// blames the input's producer, not the consumer.
+pub fn unreadable_cause(input: &str, detail: &str) -> String {
+    format!("{UNREADABLE} {input}: {detail}")
+}
+
+/// The input and the detail of an [`unreadable_cause`]; `None` for any other cause.
+pub fn parse_unreadable(cause: &str) -> Option<(&str, &str)> {
+    let rest = cause.trim().strip_prefix(UNREADABLE)?;
+    let rest = rest.strip_prefix(char::is_whitespace)?.trim_start();
+    let (input, detail) = rest.split_once(':').unwrap_or((rest, ""));
+    let input = input.trim();
+    (!input.is_empty() && !input.contains(char::is_whitespace)).then_some((input, detail.trim()))
+}
+
+/// How a value shows in a cause: quoted, with control characters escaped,
+/// cut to `max` characters (`…` marks the cut), so a cause stays one short line
+/// whatever a producer wrote.
+pub fn quoted(value: &str, max: usize) -> String {
+    let mut out = String::from("\"");
+    for (i, ch) in value.chars().enumerate() {
+        if i == max {
+            out.push('…');
+            break;
+        }
+        out.extend(ch.escape_debug());
+    }
+    out.push('"');
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unreadable_cause_names_its_input() {
+        let cause = unreadable_cause("global-pos", "expected X Y THETA, found \"1,2;3\"");
+        assert_eq!(
+            cause,
+            "unreadable global-pos: expected X Y THETA, found \"1,2;3\""
+        );
+        assert_eq!(
+            parse_unreadable(&cause),
+            Some(("global-pos", "expected X Y THETA, found \"1,2;3\""))
+        );
+        assert_eq!(
+            parse_unreadable("  unreadable image.left  "),
+            Some(("image.left", ""))
+        );
+        assert_eq!(parse_unreadable("global-pos"), None);
+        assert_eq!(parse_unreadable("unreadable"), None);
+        assert_eq!(parse_unreadable("unreadables x: y"), None);
+        assert_eq!(parse_unreadable("unreadable a b: c"), None);
+    }
+
+    #[test]
+    fn a_quoted_value_is_short_and_on_one_line() {
+        assert_eq!(quoted("1,2;3", 10), "\"1,2;3\"");
+        assert_eq!(quoted("a\nb", 10), "\"a\\nb\"");
+        assert_eq!(quoted("abcdef", 3), "\"abc…\"");
+    }
+}
