@@ -534,6 +534,10 @@ async fn inject(
             "stall".to_string(),
             format!("{target} stalls (fault tuple set)"),
         )),
+        FaultKind::Garble => Some((
+            "garble".to_string(),
+            format!("{target} garbles its outputs (fault tuple set)"),
+        )),
         FaultKind::Fail => Some((
             format!("fail {}", fault.cause),
             format!("{target} fails: {} (fault tuple set)", fault.cause),

@@ -204,6 +204,92 @@ fn a_component_slower_to_start_than_the_deploy_timeout_is_excluded() {
     drop(ecology);
 }
 
+/// A tracking system that writes `global-pos` as `x,y;theta` (its `garble` fault): Astrid's pose
+/// tracking reports it cannot read that input, the executive excludes the tracking system, not the
+/// pose tracking, and the move is done on the laser with the same s1 running scan matching.
+#[test]
+fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("garble", &[TO_BEDROOM], Variant::Paper);
+    let mut ecology = Ecology::start(&fixture, &[]);
+    let (code, _) = Proc::start(
+        "fault",
+        &[
+            "tuples",
+            "--connect",
+            &ecology.world_endpoint,
+            "set",
+            "hsm",
+            "tr1.fault",
+            "garble",
+        ],
+    )
+    .finish();
+    assert_eq!(code, Some(0));
+    ecology.hsm.wait_for("the garble fault", |l| {
+        l.contains("tr1 garbles its outputs")
+    });
+    let (code, lines) = ecology.task(&fixture, &[]).finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false), (170, true)], "{all:#?}");
+    let failures = named(&all, "failure");
+    assert_eq!(failures.len(), 1, "{all:#?}");
+    assert_eq!(
+        (&failures[0]["peis"], &failures[0]["component"]),
+        (&"hsm".into(), &"tr1".into())
+    );
+    let cause = failures[0]["cause"].as_str().expect("cause");
+    assert!(
+        cause.starts_with("astrid:s1 cannot read its global-pos: expected X Y THETA"),
+        "{cause}"
+    );
+    let last = named(&all, "configuration").last().copied().cloned();
+    assert!(
+        last.as_ref().is_some_and(|c| strings(&c["functionalities"])
+            .contains(&"(scan-matching astrid s1) on astrid:s1".to_string())),
+        "{last:#?}"
+    );
+    assert_eq!(
+        all.last().map(|e| e["event"].clone()),
+        Some("task_done".into())
+    );
+}
+
+/// The world process killed mid-move: the components that read its ground truth report `error`
+/// within a second of its silence, and the task ends with the reason instead of waiting for the
+/// action's timeout.
+#[test]
+fn the_world_gone_mid_move_fails_its_readers_within_seconds() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("world-gone", &[TO_BEDROOM], Variant::Paper);
+    let ecology = Ecology::start(&fixture, &[]);
+    let mut task = ecology.task(&fixture, &[]);
+    task.wait_for("running", |l| is_event(l, "running"));
+    ecology.world.signal(Signal::SIGKILL);
+    let killed_at = Instant::now();
+    let (code, lines) = task.finish();
+    let ended = killed_at.elapsed();
+    let all = events(&lines);
+    assert_eq!(code, Some(1), "{all:#?}");
+    let failures = named(&all, "failure");
+    assert!(
+        failures.iter().any(|f| f["cause"]
+            .as_str()
+            .is_some_and(|c| c.starts_with("no ground truth from the world PEIS for 1 s"))),
+        "{all:#?}"
+    );
+    assert!(
+        ended < Duration::from_secs(15),
+        "the task ended {ended:?} after the world was killed"
+    );
+    assert_eq!(
+        all.last().map(|e| e["event"].clone()),
+        Some("task_failed".into()),
+        "{all:#?}"
+    );
+}
+
 #[test]
 fn peis_that_reach_each_other_only_through_a_router_configure_an_action() {
     through_a_router(false);

@@ -282,7 +282,7 @@ pub struct Ecology {
     pub world_endpoint: String,
     /// The keys directory every process joins with, if any (then endpoints are TLS).
     pub keys: Option<String>,
-    _world: Proc,
+    pub world: Proc,
     _astrid: Proc,
     pub hsm: Proc,
     pub hsm_args: Vec<String>,
@@ -329,7 +329,7 @@ impl Ecology {
         Ecology {
             world_endpoint,
             keys: keys.map(ToString::to_string),
-            _world: world,
+            world,
             _astrid: astrid,
             hsm,
             hsm_args,
