@@ -288,6 +288,9 @@ async fn watch(
             return Ok(EXIT_OK);
         }
         let line = tokio::select! {
+            // Tuples first: a PEIS that leaves reports its components off before its presence
+            // ends, and a watcher shows them in that order.
+            biased;
             event = tuples.next() => match event {
                 Some(event) => {
                     seen += 1;

@@ -3,6 +3,7 @@
 use std::collections::{BTreeSet, HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
 
 use bytes::Bytes;
 use ecology_tuples::{
@@ -19,7 +20,7 @@ use zenoh::query::{ConsolidationMode, Query};
 use zenoh::sample::{Sample, SampleKind};
 
 use crate::wire::{self, Metadata, WireError};
-use crate::{ZenohError, ZenohOptions};
+use crate::{Mode, ZenohError, ZenohOptions};
 
 /// One PEIS in an ecology over Zenoh: a Zenoh session plus what the PEIS owns.
 ///
@@ -51,7 +52,7 @@ struct Core {
     publishers: Mutex<Publishers>,
     expiry_changed: Notify,
     malformed: Arc<AtomicU64>,
-    query_timeout: std::time::Duration,
+    query_timeout: Duration,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
     route_hints: Arc<RouteHints>,
 }
@@ -112,6 +113,57 @@ fn transport(operation: &'static str) -> impl FnOnce(zenoh::Error) -> TupleError
     }
 }
 
+/// Waits until what this PEIS published has reached the PEIS it is linked to, so that they see
+/// its last tuples (components off, `idle`) before its presence ends. Zenoh sends declarations,
+/// such as withdrawing a liveliness token, ahead of data still queued: a query, queued behind the
+/// data at the data's priority, comes back only after the peers took in everything before it.
+/// Bounded by the query timeout; a peer that does not answer is not waited for longer.
+async fn flush(core: &Core) {
+    let Ok(replies) = core
+        .session
+        .get(format!("{}/*/{FLUSH}", wire::ROOT))
+        .consolidation(ConsolidationMode::None)
+        .timeout(core.query_timeout.min(Duration::from_millis(500)))
+        .await
+    else {
+        return;
+    };
+    while replies.recv_async().await.is_ok() {}
+}
+
+/// The key a leaving PEIS queries to flush what it published; the replies are not read.
+const FLUSH: &str = "leaving";
+
+/// How long the set of linked peers must stay the same for the mesh to count as formed.
+const LINKS_QUIET: Duration = Duration::from_millis(250);
+/// How long a PEIS waits at most for the mesh to form when it joins.
+const LINKS_SETTLE_MAX: Duration = Duration::from_secs(3);
+
+/// Waits until the mesh around a session that just opened has formed. A peer is linked at first
+/// only to the PEIS it connected to; gossip then tells it the others' endpoints and it links to
+/// them too, and peers do not relay for each other. So until those links form, a query (is my name
+/// taken? what is astrid's tuple?) reaches only the first PEIS. Waits until the set of linked
+/// peers has not changed for [`LINKS_QUIET`], at most [`LINKS_SETTLE_MAX`]; at once when no peer
+/// is linked at all (the first PEIS of an ecology).
+async fn settle_links(session: &zenoh::Session) {
+    let linked =
+        || -> BTreeSet<zenoh::session::ZenohId> { session.info().peers_zid().wait().collect() };
+    let start = tokio::time::Instant::now();
+    let mut seen = linked();
+    if seen.is_empty() {
+        return;
+    }
+    let mut since = start;
+    while since.elapsed() < LINKS_QUIET && start.elapsed() < LINKS_SETTLE_MAX {
+        tokio::time::sleep(Duration::from_millis(25)).await;
+        let now = linked();
+        if now != seen {
+            seen = now;
+            since = tokio::time::Instant::now();
+        }
+    }
+}
+
 impl ZenohPeis {
     /// Opens a Zenoh session and joins the ecology as `options.name`.
     ///
@@ -123,6 +175,9 @@ impl ZenohPeis {
             message: e.to_string(),
         })?;
         let me = options.name.clone();
+        if options.mode == Mode::Peer {
+            settle_links(&session).await;
+        }
         let already = session
             .liveliness()
             .get(wire::alive_key_expr(&me))
@@ -202,6 +257,7 @@ impl ZenohPeis {
         }
         let token = lock(&self.inner.core.token).take();
         if let Some(token) = token {
+            flush(&self.inner.core).await;
             let _ = token.undeclare().await;
         }
         let _ = self.inner.core.session.close().await;

@@ -256,6 +256,44 @@ fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
     );
 }
 
+/// A second `ecology peis --name hsm` that joins through astrid, one hop from hsm, is refused with
+/// the reason, every time: it waits for the links gossip opens before it checks its name.
+#[test]
+fn a_name_present_one_hop_away_is_refused() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("twin", &[TO_BEDROOM], Variant::Paper);
+    let ecology = Ecology::start(&fixture, &[]);
+    let scenario = fixture.scenario();
+    for round in 0..3 {
+        let listen = free_endpoint();
+        let (code, lines) = Proc::start(
+            "twin",
+            &[
+                "peis",
+                &scenario,
+                "--name",
+                "hsm",
+                "--listen",
+                &listen,
+                "--connect",
+                &ecology.astrid_endpoint,
+            ],
+        )
+        .finish();
+        assert_eq!(code, Some(2), "round {round}: {lines:?}");
+    }
+    // The first hsm is untouched.
+    assert!(ecology.hsm.pid().as_raw() > 0);
+    let (code, lines) = Proc::start(
+        "peers",
+        &["tuples", "--connect", &ecology.astrid_endpoint, "peers"],
+    )
+    .finish();
+    assert_eq!(code, Some(0));
+    let names: Vec<&str> = lines.iter().map(|l| l.text.as_str()).collect();
+    assert!(names.contains(&"hsm"), "{names:?}");
+}
+
 /// The world process killed mid-move: the components that read its ground truth report `error`
 /// within a second of its silence, and the task ends with the reason instead of waiting for the
 /// action's timeout.
@@ -366,12 +404,13 @@ fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
             &ecology.world_endpoint,
             "watch",
             "hsm:components.*.currState",
-            "--json",
         ],
     );
     // The snapshot: both components on.
     for _ in 0..2 {
-        watch.wait_for("currState on", |l| l.contains("\"value\":\"on\""));
+        watch.wait_for("currState on", |l| {
+            l.contains("currState") && l.contains("\"on\"")
+        });
     }
     ecology.hsm.signal(Signal::SIGTERM);
     let asked = Instant::now();
@@ -386,9 +425,15 @@ fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
             .contains("components switched off, presence withdrawn")),
         "{lines:?}"
     );
-    for _ in 0..2 {
-        watch.wait_for("currState off", |l| l.contains("\"value\":\"off\""));
-    }
+    // Watchers see the components off before the PEIS leaves, as it did them.
+    watch.wait_for("hsm left", |l| l == "- hsm left");
+    let transcript = watch.transcript();
+    let before_leaving = transcript.split("- hsm left").next().unwrap_or("");
+    let off = before_leaving
+        .lines()
+        .filter(|l| l.contains("currState") && l.contains("\"off\""))
+        .count();
+    assert_eq!(off, 2, "{transcript}");
 }
 
 #[test]

@@ -283,6 +283,8 @@ pub struct Ecology {
     /// The keys directory every process joins with, if any (then endpoints are TLS).
     pub keys: Option<String>,
     pub world: Proc,
+    /// Where astrid listens.
+    pub astrid_endpoint: String,
     _astrid: Proc,
     pub hsm: Proc,
     pub hsm_args: Vec<String>,
@@ -325,11 +327,13 @@ impl Ecology {
         let astrid_args = peis("astrid", &[]);
         let hsm_args = peis("hsm", hsm_extra);
         let astrid = Proc::start("astrid", &as_strs(&astrid_args)).ready();
+        let astrid_endpoint = astrid_args[5].clone();
         let hsm = Proc::start("hsm", &as_strs(&hsm_args)).ready();
         Ecology {
             world_endpoint,
             keys: keys.map(ToString::to_string),
             world,
+            astrid_endpoint,
             _astrid: astrid,
             hsm,
             hsm_args,

@@ -258,6 +258,57 @@ fn peers_through_a_third_peis_lists_everyone() {
     }
 }
 
+/// A name taken one hop away is refused, and `get` and `set` through another PEIS reach a PEIS
+/// one hop away: each waits for the links gossip opens before it asks.
+#[test]
+fn one_hop_away_a_name_is_taken_and_get_and_set_reach_the_owner() {
+    use crate::support::Proc;
+    let first = free_endpoint();
+    let second = free_endpoint();
+    let mut a = Proc::start(
+        "alpha",
+        &[
+            "tuples", "--name", "alpha", "--listen", &first, "set", "alpha", "x", "1", "--hold",
+        ],
+    );
+    a.wait_for("ready", |l| l == "ready");
+    let mut b = Proc::start(
+        "beta",
+        &[
+            "tuples",
+            "--name",
+            "beta",
+            "--listen",
+            &second,
+            "--connect",
+            &first,
+            "set",
+            "beta",
+            "x",
+            "1",
+            "--hold",
+        ],
+    );
+    b.wait_for("ready", |l| l == "ready");
+    for round in 0..4 {
+        let taken = run_joined(&second, &["--name", "alpha", "peers"]);
+        assert_eq!(taken.status.code(), Some(2), "round {round}: {taken:?}");
+        assert!(
+            String::from_utf8_lossy(&taken.stderr).contains("alpha is already present"),
+            "{taken:?}"
+        );
+        let got = run_joined(&second, &["get", "alpha", "x"]);
+        assert_eq!(
+            (got.status.code(), stdout(&got).as_str()),
+            (Some(0), "1\n"),
+            "round {round}: {got:?}"
+        );
+        let value = format!("{round}");
+        let set = run_joined(&second, &["set", "alpha", "y", &value]);
+        assert_eq!(set.status.code(), Some(0), "round {round}: {set:?}");
+    }
+}
+
 /// Nobody listens on the endpoint: joining fails, which is "not found" (1), as for an owner that
 /// cannot be reached, with the reason on stderr.
 #[test]
