@@ -452,3 +452,59 @@ async fn clearing_the_params_of_a_finished_component_leaves_it_idle() {
         .await;
     f.stop().await;
 }
+
+/// The contract's answers, in one run: an input's wiring (`C.mi-INFO`) is the PEIS's own tuple,
+/// which neither new params nor switching off and on touch, so a restarted body follows it again;
+/// and writing the same params again restarts the body (`initializing` once more).
+#[tokio::test(start_paused = true)]
+async fn wiring_survives_new_params_and_switching_and_the_same_params_restart() {
+    let starts = Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let counted = starts.clone();
+    let consumer: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(move |ctx: Context<InProcessPeis>| {
+            let run = counted.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            async move {
+                let mut inputs = ctx.inputs(&["range-scan"]).await?;
+                loop {
+                    inputs.poll();
+                    match inputs.latest("range-scan") {
+                        Some(t) if inputs.missing(Duration::from_millis(300)).is_empty() => {
+                            let seen = format!("run {run}: {}", t.text().unwrap_or(""));
+                            ctx.status("running", Some(&seen)).await?;
+                        }
+                        _ => ctx.status("waiting", Some("range-scan")).await?,
+                    }
+                    ctx.sleep(Duration::from_millis(100)).await;
+                }
+            }
+        });
+    let f = start(vec![spec("l1", true, echo()), spec("s1", true, consumer)]).await;
+    f.set("l1.params", "(laser robot l1)").await;
+    f.set("s1.mi-range-scan", "(meta robot l1.out.range-scan)")
+        .await;
+    f.set("s1.params", "(scan-matching robot s1)").await;
+    f.wait_for("s1.cause", "run 1: robot l1", Duration::from_millis(500))
+        .await;
+    // New params: a new run, still wired.
+    f.set("s1.params", "(scan-matching robot s1 again)").await;
+    f.wait_for("s1.cause", "run 2: robot l1", Duration::from_millis(500))
+        .await;
+    // The same params again: restarted all the same.
+    f.set("s1.params", "(scan-matching robot s1 again)").await;
+    f.wait_for("s1.status", "initializing", Duration::from_millis(100))
+        .await;
+    f.wait_for("s1.cause", "run 3: robot l1", Duration::from_millis(500))
+        .await;
+    // Off and on again (a new task would do this): the params and the wiring are still there.
+    f.set("components.s1.reqState", "off").await;
+    f.wait_for("s1.status", "idle", Duration::from_millis(100))
+        .await;
+    f.set("components.s1.reqState", "on").await;
+    f.wait_for("s1.cause", "run 4: robot l1", Duration::from_secs(2))
+        .await;
+    assert_eq!(
+        f.get("s1.mi-range-scan").await.as_deref(),
+        Some("(meta robot l1.out.range-scan)")
+    );
+    f.stop().await;
+}

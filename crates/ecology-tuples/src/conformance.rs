@@ -454,6 +454,29 @@ pub async fn remote_set_is_applied_by_owner<H: Harness>(h: &mut H) {
             .expect("get"),
         None
     );
+    // The contract: `reqState` is `on` or `off`; anything else is refused, saying so.
+    let restart = deployer
+        .set_remote(
+            peis("astrid"),
+            key("components.l1.reqState"),
+            Value::text("restart"),
+        )
+        .await;
+    match restart {
+        Err(TupleError::RemoteSetRefused { reason, .. }) => {
+            assert!(reason.contains("must be on or off"), "{reason}");
+        }
+        other => panic!("a reqState of restart was not refused: {other:?}"),
+    }
+    assert_eq!(
+        astrid
+            .get(peis("astrid"), key("components.l1.reqState"))
+            .await
+            .expect("get")
+            .and_then(|t| t.text().ok().map(str::to_string)),
+        Some("on".to_string()),
+        "a refused request changes nothing"
+    );
     let absent = deployer
         .set_remote(
             peis("ghost"),

@@ -114,6 +114,24 @@ pub fn input_key(
     }
 }
 
+/// Whether the contract lets a remote set write `data` to `key`: `components.C.reqState` takes
+/// only `on` or `off` (white space around them aside); every other key any value. A PEIS refuses
+/// the request with the reason, so the asker learns at once, instead of a value that changes
+/// nothing.
+pub fn check_request(key: &Key, data: &[u8]) -> Result<(), String> {
+    if let Some((_, ComponentField::ReqState)) = ComponentField::parse(key) {
+        let text = std::str::from_utf8(data).unwrap_or("").trim();
+        if text != "on" && text != "off" {
+            let shown = String::from_utf8_lossy(data);
+            return Err(format!(
+                "{key} must be on or off, not {}",
+                quoted(&shown, 40)
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// The word that starts the cause of a consumer that cannot read an input.
 const UNREADABLE: &str = "unreadable";
 
@@ -174,6 +192,20 @@ mod tests {
         assert_eq!(parse_unreadable("unreadable"), None);
         assert_eq!(parse_unreadable("unreadables x: y"), None);
         assert_eq!(parse_unreadable("unreadable a b: c"), None);
+    }
+
+    #[test]
+    fn req_state_takes_on_or_off_only() {
+        let req = Key::new("components.l1.reqState").expect("key");
+        assert_eq!(check_request(&req, b"on"), Ok(()));
+        assert_eq!(check_request(&req, b" off\n"), Ok(()));
+        assert_eq!(
+            check_request(&req, b"restart"),
+            Err("components.l1.reqState must be on or off, not \"restart\"".to_string())
+        );
+        assert!(check_request(&req, b"").is_err());
+        let other = Key::new("l1.params").expect("key");
+        assert_eq!(check_request(&other, b"anything"), Ok(()));
     }
 
     #[test]

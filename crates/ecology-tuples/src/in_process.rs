@@ -467,6 +467,9 @@ impl TupleSpace for InProcessPeis {
                         reason: "its remote-set policy does not allow this key".to_owned(),
                     });
                 }
+                if let Err(reason) = crate::contract::check_request(&key, &value.data) {
+                    return Err(TupleError::RemoteSetRefused { owner, key, reason });
+                }
             }
             _ => return Err(TupleError::OwnerUnreachable { owner, key }),
         }

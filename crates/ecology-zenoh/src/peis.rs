@@ -491,6 +491,7 @@ fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> 
     if !core.options.remote_set.permits(&key) {
         return Err(format!("remote set of {key} is not allowed by {}", core.me));
     }
+    ecology_tuples::contract::check_request(&key, &value.data)?;
     Ok((key, value))
 }
 
