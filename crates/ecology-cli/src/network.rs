@@ -12,8 +12,9 @@ use ecology_zenoh::{Security, ZenohError, ZenohOptions, ZenohPeis};
 /// How to reach the ecology.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct NetArgs {
-    /// Endpoint to listen on, such as tcp/127.0.0.1:7447, or quic/… with --keys (repeatable).
-    #[arg(long, global = true, value_name = "ENDPOINT")]
+    /// Endpoint to listen on, such as tcp/127.0.0.1:7447, or quic/… with --keys (repeatable);
+    /// port 0 takes a free port, which the readiness line shows.
+    #[arg(long, global = true, value_name = "ENDPOINT", value_parser = listen_endpoint)]
     pub listen: Vec<String>,
     /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable).
     #[arg(long, global = true, value_name = "ENDPOINT")]
@@ -91,6 +92,37 @@ impl NetArgs {
     }
 }
 
+/// A `--listen` endpoint as given, except that port 0 (`tcp/127.0.0.1:0`) becomes a port free
+/// now, so that the readiness line names the port others can connect to. The port is found by
+/// binding it for a moment (TCP for `tcp/`, UDP for `quic/` and `udp/`); when that fails, the
+/// endpoint is kept as it is and Zenoh reports the problem when it listens.
+fn listen_endpoint(text: &str) -> Result<String, String> {
+    Ok(with_free_port(text).unwrap_or_else(|| text.to_string()))
+}
+
+fn with_free_port(endpoint: &str) -> Option<String> {
+    let (protocol, rest) = endpoint.split_once('/')?;
+    let end = rest.find(['?', '#']).unwrap_or(rest.len());
+    let (address, suffix) = rest.split_at(end);
+    let (host, port) = address.rsplit_once(':')?;
+    if port != "0" {
+        return None;
+    }
+    let bare = host.trim_start_matches('[').trim_end_matches(']');
+    let port = match protocol {
+        "tcp" => std::net::TcpListener::bind((bare, 0))
+            .and_then(|l| l.local_addr())
+            .ok()?
+            .port(),
+        "quic" | "udp" => std::net::UdpSocket::bind((bare, 0))
+            .and_then(|s| s.local_addr())
+            .ok()?
+            .port(),
+        _ => return None,
+    };
+    Some(format!("{protocol}/{host}:{port}{suffix}"))
+}
+
 /// A positive, finite number of seconds.
 pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
     if value.is_finite() && value > 0.0 && value < 1e9 {
@@ -156,6 +188,27 @@ pub fn stop_signal() -> impl std::future::Future<Output = &'static str> {
         tokio::select! {
             _ = interrupt.recv() => "SIGINT",
             _ = terminate.recv() => "SIGTERM",
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn port_zero_becomes_a_free_port() {
+        let chosen = listen_endpoint("tcp/127.0.0.1:0").expect("endpoint");
+        let port: u16 = chosen
+            .strip_prefix("tcp/127.0.0.1:")
+            .and_then(|p| p.parse().ok())
+            .expect("a port");
+        assert_ne!(port, 0);
+        let quic = listen_endpoint("quic/127.0.0.1:0#multistream=0").expect("endpoint");
+        assert!(quic.starts_with("quic/127.0.0.1:") && quic.ends_with("#multistream=0"));
+        assert!(!quic.contains(":0#"), "{quic}");
+        for kept in ["tcp/127.0.0.1:7447", "tcp/nowhere", "serial/ttyUSB0", "tcp/[::1]:7447"] {
+            assert_eq!(listen_endpoint(kept).as_deref(), Ok(kept));
         }
     }
 }
