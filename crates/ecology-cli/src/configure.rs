@@ -84,15 +84,21 @@ pub fn check(args: &CheckArgs) -> anyhow::Result<u8> {
             continue;
         }
         match input::domain(path)? {
-            Ok(domain) => println!(
-                "{}: domain `{}` is valid: {} functionalities, {} tasks, {} methods, {} actions",
-                path.display(),
-                domain.name,
-                domain.functionalities.len(),
-                domain.tasks.len(),
-                domain.methods.len(),
-                domain.actions.len()
-            ),
+            Ok(domain) => {
+                let formats = match domain.information.len() {
+                    0 => String::new(),
+                    n => format!(", {n} information formats"),
+                };
+                println!(
+                    "{}: domain `{}` is valid: {} functionalities, {} tasks, {} methods, {} actions{formats}",
+                    path.display(),
+                    domain.name,
+                    domain.functionalities.len(),
+                    domain.tasks.len(),
+                    domain.methods.len(),
+                    domain.actions.len()
+                );
+            }
             Err(Reported) => code = EXIT_BAD_INPUT,
         }
     }

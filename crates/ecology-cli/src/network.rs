@@ -207,7 +207,12 @@ mod tests {
         let quic = listen_endpoint("quic/127.0.0.1:0#multistream=0").expect("endpoint");
         assert!(quic.starts_with("quic/127.0.0.1:") && quic.ends_with("#multistream=0"));
         assert!(!quic.contains(":0#"), "{quic}");
-        for kept in ["tcp/127.0.0.1:7447", "tcp/nowhere", "serial/ttyUSB0", "tcp/[::1]:7447"] {
+        for kept in [
+            "tcp/127.0.0.1:7447",
+            "tcp/nowhere",
+            "serial/ttyUSB0",
+            "tcp/[::1]:7447",
+        ] {
             assert_eq!(listen_endpoint(kept).as_deref(), Ok(kept));
         }
     }

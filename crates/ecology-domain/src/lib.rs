@@ -15,6 +15,7 @@
 //! ```
 
 mod diagnostic;
+mod format;
 mod model;
 mod parse;
 mod problem;
@@ -28,6 +29,7 @@ mod tests;
 mod tests_uncertain;
 
 pub use diagnostic::{Diagnostic, Diagnostics, Span, line_col, render};
+pub use format::{Field, FieldType, Format, Information};
 pub use model::{
     Action, Atom, Call, ChannelSpec, Domain, Effect, Functionality, Info, Literal, Method, Metric,
     Name, NumExpr, Param, PredicateDecl, Probabilistic, Problem, Redirect, Subtask, Task, Term,

@@ -8,6 +8,7 @@ use std::collections::HashMap;
 use std::fmt;
 
 use crate::diagnostic::Span;
+use crate::format::Information;
 
 /// A name: a symbol of the language, lowercased.
 pub type Name = Box<str>;
@@ -399,6 +400,8 @@ pub struct Domain {
     pub methods: Vec<Method>,
     /// `(:action ...)` forms.
     pub actions: Vec<Action>,
+    /// `(:information ...)` forms: the declared value formats.
+    pub information: Vec<Information>,
     pub(crate) index: Index,
 }
 

@@ -5,6 +5,7 @@
 //! Semantic checks (names, arities, bindings, recursion) live in `validate`.
 
 use crate::diagnostic::{Diagnostic, Span};
+use crate::format::Information;
 use crate::model::*;
 use crate::syntax::Sexp;
 
@@ -614,6 +615,27 @@ impl Parser {
         })
     }
 
+    /// `(:information NAME :format FORMAT)`
+    fn information(&mut self, form: &Sexp, items: &[Sexp]) -> Option<Information> {
+        let name_sexp = items.get(1)?;
+        let name = self.symbol(name_sexp, "an information name like `global-pos`")?;
+        let what = format!("information `{name}`");
+        let fields = self.fields(&items[2..], &[":format"], &what);
+        let sexp = self.require(&fields, ":format", &what, name_sexp.span)?;
+        match crate::format::parse_format(sexp) {
+            Ok(format) => Some(Information {
+                name,
+                format,
+                span: form.span,
+                name_span: name_sexp.span,
+            }),
+            Err((span, message)) => {
+                self.error(span, message);
+                None
+            }
+        }
+    }
+
     /// `(:method NAME :parameters ... :task ... :subtasks ...)`
     pub(crate) fn method(&mut self, form: &Sexp, items: &[Sexp]) -> Option<Method> {
         let name_sexp = items.get(1)?;
@@ -1055,6 +1077,11 @@ impl Parser {
                         domain.actions.push(a);
                     }
                 }
+                Some(":information") => {
+                    if let Some(i) = self.information(form, list) {
+                        domain.information.push(i);
+                    }
+                }
                 _ => self.push(
                     Diagnostic::error(
                         list.first().map_or(form.span, |h| h.span),
@@ -1062,7 +1089,7 @@ impl Parser {
                     )
                     .with_note(
                         "sections: :requirements :types :constants :predicates :functions \
-                         :functionality :task :method :action",
+                         :functionality :task :method :action :information",
                     ),
                 ),
             }

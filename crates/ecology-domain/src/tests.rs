@@ -715,3 +715,104 @@ fn reading_facts_stops_when_asked_and_otherwise_reads_them_all() {
         assert_eq!(asked, allowed + 1, "went on after being told to stop");
     }
 }
+
+#[test]
+fn information_formats_are_read_and_check_values() {
+    let src = with(
+        "(:information pos :format ((x number) (y number) (theta number)))
+         (:information image :format (records (name name) (x number) (y number)))",
+    );
+    let domain = parse_domain(src.as_bytes()).expect("valid");
+    let formats: Vec<(String, String)> = domain
+        .information
+        .iter()
+        .map(|i| (i.name.to_string(), i.format.to_string()))
+        .collect();
+    assert_eq!(
+        formats,
+        [
+            ("pos".to_string(), "X Y THETA".to_string()),
+            ("image".to_string(), "NAME X Y; …".to_string())
+        ]
+    );
+    let pos = &domain.information[0].format;
+    assert_eq!(pos.check(" 1.5 -2 0.25 "), Ok(()));
+    assert_eq!(
+        pos.check("1,2;3"),
+        Err("expected X Y THETA, found \"1,2;3\"".to_string())
+    );
+    assert!(pos.check("1 2").is_err());
+    assert!(pos.check("1 2 3 4").is_err());
+    assert!(pos.check("1 2 inf").is_err());
+    let image = &domain.information[1].format;
+    assert_eq!(image.check("astrid 1 2; pippi 3 4"), Ok(()));
+    assert_eq!(image.check(""), Ok(()), "no records: nothing in view");
+    assert!(image.check("astrid 1 2; pippi 3").is_err());
+}
+
+#[test]
+fn many_text_and_one_of_fields() {
+    let src = with(
+        "(:information image :format ((ranges number :many)))
+         (:information pos :format ((state (one-of awake asleep)) (note text)))",
+    );
+    let domain = parse_domain(src.as_bytes()).expect("valid");
+    let ranges = &domain.information[0].format;
+    assert_eq!(ranges.to_string(), "RANGES…");
+    assert_eq!(ranges.check("1.0 2.5 3"), Ok(()));
+    assert!(ranges.check("").is_err(), "`:many` is one or more");
+    assert!(ranges.check("1.0 x").is_err());
+    let state = &domain.information[1].format;
+    assert_eq!(state.to_string(), "STATE (awake|asleep) NOTE…");
+    assert_eq!(state.check("awake since seven"), Ok(()));
+    assert_eq!(state.check("asleep"), Ok(()));
+    assert!(state.check("dozing").is_err());
+}
+
+#[test]
+fn bad_information_declarations_are_reported() {
+    assert_error(
+        &with("(:information pos :format (x number))"),
+        "expected a field like `(x number)`",
+    );
+    assert_error(
+        &with("(:information pos :format ((x float)))"),
+        "unknown field type `float`",
+    );
+    assert_error(
+        &with("(:information pos :format ((x number :many) (y number)))"),
+        "only the last field may have `:many`",
+    );
+    assert_error(
+        &with("(:information pos :format ((x text) (y number)))"),
+        "only the last field may have type `text`",
+    );
+    assert_error(
+        &with("(:information pos :format ((x number) (x number)))"),
+        "field `x` is named twice",
+    );
+    assert_error(
+        &with("(:information pos :format ((x number) (x number :twice)))"),
+        "after a field's type only `:many` may follow",
+    );
+    assert_error(
+        &with("(:information pos :format ())"),
+        "a format needs a field",
+    );
+    assert_error(
+        &with("(:information pos)"),
+        "information `pos` has no `:format`",
+    );
+    assert_error(
+        &with("(:information depth :format ((d number)))"),
+        "information `depth` is neither an input nor an output of any functionality",
+    );
+    assert_error(
+        &with("(:information pos :format ((x number))) (:information pos :format ((y number)))"),
+        "duplicate information `pos`",
+    );
+    assert_error(
+        &with("(:information pos :format ((x number)) :hz 3)"),
+        "`:hz`",
+    );
+}

@@ -54,6 +54,7 @@ pub(crate) fn validate(domain: &mut Domain) -> Vec<Diagnostic> {
         v.uncertain_action(domain, action);
     }
     v.recursion(domain);
+    v.information(domain);
     v.diags
 }
 
@@ -136,6 +137,32 @@ impl Validator {
             Diagnostic::error(span, format!("duplicate {what} `{name}`"))
                 .with_secondary(first, "first defined here"),
         );
+    }
+
+    /// Each information type is declared once, and is one that a functionality reads or writes.
+    fn information(&mut self, domain: &Domain) {
+        let mut seen: HashMap<&str, Span> = HashMap::new();
+        for info in &domain.information {
+            if let Some(&first) = seen.get(&*info.name) {
+                self.duplicate("information", &info.name, info.name_span, first);
+                continue;
+            }
+            seen.insert(&info.name, info.name_span);
+            let used = domain
+                .functionalities
+                .iter()
+                .flat_map(|f| f.inputs.iter().chain(&f.outputs))
+                .any(|i| i.name == info.name);
+            if !used {
+                self.error(
+                    info.name_span,
+                    format!(
+                        "information `{}` is neither an input nor an output of any functionality",
+                        info.name
+                    ),
+                );
+            }
+        }
     }
 
     fn index(&mut self, domain: &Domain) -> Index {

@@ -340,6 +340,57 @@ async fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
     assert!(report.spurious.is_empty(), "{:?}", report.spurious);
 }
 
+// Every output the simulated components write in the paper's run is in the
+// format the domain declares for its information type.
+#[tokio::test]
+async fn simulated_outputs_are_written_as_the_domain_declares() {
+    use std::collections::BTreeMap;
+    use std::sync::{Arc, Mutex};
+    let scenario = load("peis-home.toml");
+    let formats: BTreeMap<String, ecology_domain::Format> = scenario
+        .domain
+        .information
+        .iter()
+        .map(|i| (i.name.to_string(), i.format.clone()))
+        .collect();
+    assert_eq!(formats.len(), 5, "{formats:?}");
+    let seen: Arc<Mutex<Vec<(String, String)>>> = Arc::default();
+    let sink = seen.clone();
+    let options = RunOptions {
+        observe_tuples: true,
+        ..RunOptions::seeded(2007)
+    };
+    let report = run(
+        &scenario,
+        &options,
+        Box::new(move |update| {
+            if let crate::Update::Tuple(ecology_tuples::TupleEvent::Changed(t)) = update
+                && let Some((_, info)) = t.key.as_str().split_once(".out.")
+            {
+                let text = t.text().unwrap_or("").to_string();
+                sink.lock().expect("lock").push((info.to_string(), text));
+            }
+        }),
+    )
+    .await
+    .expect("the run completes");
+    assert_eq!(report.status, RunStatus::Done, "{}", timeline(&report));
+    let seen = seen.lock().expect("lock");
+    let mut checked: BTreeMap<&str, usize> = BTreeMap::new();
+    for (info, text) in seen.iter() {
+        if let Some(format) = formats.get(info) {
+            assert_eq!(format.check(text), Ok(()), "{info}");
+            *checked.entry(info).or_default() += 1;
+        }
+    }
+    let kinds: Vec<&str> = checked.keys().copied().collect();
+    assert_eq!(
+        kinds,
+        ["global-pos", "image", "odometry", "position", "range-scan"],
+        "{checked:?}"
+    );
+}
+
 // A second scenario: a PEIS crashes and comes back.
 #[tokio::test]
 async fn the_kitchen_scenario_survives_a_crash_of_the_monitor() {
