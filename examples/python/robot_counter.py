@@ -151,6 +151,7 @@ class Peis:
             conf.insert_json5("connect/timeout_ms", "5000")
             conf.insert_json5("connect/exit_on_failure", "true")
         self.session = zenoh.open(conf)
+        self.settle_links()
         alive = f"peis/{self.name}/@alive"
         if any(r.ok is not None for r in self.session.liveliness().get(alive, timeout=2.0)):
             self.session.close()
@@ -163,6 +164,21 @@ class Peis:
                                            lambda q: self.events.put(("set", q))),
         ]
         self.token = self.session.liveliness().declare_token(alive)
+
+    def settle_links(self, quiet=0.25, most=3.0):
+        """Waits for the mesh to form before asking anything: linked at first only to the PEIS we
+        connected to, we learn the others from gossip and link to them a moment later, and peers do
+        not relay. So the name check waits until the set of linked peers stays the same for
+        `quiet` seconds (at most `most`), and not at all when no peer is linked."""
+        linked = lambda: {str(z) for z in self.session.info.peers_zid()}
+        start = time.monotonic()
+        seen = linked()
+        since = start
+        while seen and time.monotonic() - since < quiet and time.monotonic() - start < most:
+            time.sleep(0.025)
+            now = linked()
+            if now != seen:
+                seen, since = now, time.monotonic()
 
     def set(self, key, data, mimetype="text/plain", creator=None):
         """Publishes our tuple `key` with the next seq; returns (payload, attachment)."""
@@ -196,6 +212,8 @@ class Peis:
             mimetype, creator = request["mimetype"], request["creator"]
         if len(data) > MAX_VALUE:
             return query.reply_err(f"value of {len(data)} bytes is over {MAX_VALUE}")
+        if key.endswith(".reqState") and data.decode("utf-8", "replace").strip() not in ("on", "off"):
+            return query.reply_err(f"{key} must be on or off, not {data[:40]!r}")
         data, meta = self.set(key, data, mimetype, creator)
         query.reply(query.key_expr, data, attachment=meta)
         log(f"remote set {key} = {data.decode('utf-8', 'replace')}")
@@ -227,6 +245,10 @@ class Peis:
             self.set(f"components.{C}.currState", "off")
             if self.counter.on:
                 self.set(f"{C}.status", "idle")
+            # Zenoh sends the token's withdrawal ahead of data still queued: a query, queued
+            # behind our last tuples, comes back once the peers have taken them in.
+            for _ in self.session.get("peis/*/leaving", timeout=0.5):
+                pass
             self.token.undeclare()
         finally:
             self.session.close()
@@ -348,7 +370,8 @@ class Counter:
             robots = parse_image(sample.payload.to_bytes().decode("utf-8"))
         except ValueError as e:  # a bad image is a missing one: report waiting, saying why
             why = "not UTF-8 text" if isinstance(e, UnicodeDecodeError) else str(e)
-            self.last_image, self.problem = None, f"image: {why}"
+            # The contract's cause for an input we cannot read: the executive blames its producer.
+            self.last_image, self.problem = None, f"unreadable image: {why}"
             return self.report("waiting", self.problem)
         self.last_image, self.problem = time.monotonic(), "image"
         self.counted += 1

@@ -534,6 +534,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         .to_string();
     let world_endpoint = free_endpoint();
     let _world = Proc::start("world", &["world", &scenario, "--listen", &world_endpoint]).ready();
+    let hsm_endpoint = free_endpoint();
     let _hsm = Proc::start(
         "hsm",
         &[
@@ -542,7 +543,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
             "--name",
             "hsm",
             "--listen",
-            &free_endpoint(),
+            &hsm_endpoint,
             "--connect",
             &world_endpoint,
         ],
@@ -588,6 +589,13 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     // The counter this task switched on is switched off again.
     let released = named(&all, "released");
     assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
+    // A second Python `counter` joining through hsm, one hop from the first, is refused.
+    let mut twin = Command::new(&python);
+    twin.arg(root().join("examples/python/robot_counter.py"))
+        .args(["--listen", &free_endpoint(), "--connect", &hsm_endpoint]);
+    let (code, lines) = Proc::spawn("twin", twin).finish();
+    assert_eq!(code, Some(1), "{lines:?}");
+    assert!(lines.iter().all(|l| l.text != "ready"), "{lines:?}");
     // Stopped by SIGTERM, the Python PEIS exits cleanly.
     counter.signal(Signal::SIGTERM);
     let (code, _) = counter.finish();
