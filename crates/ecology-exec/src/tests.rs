@@ -180,8 +180,8 @@ fn waiting_too_long_is_a_failure() {
     );
 }
 
-/// The components a log's failures name, with their causes.
-fn failures(exec: &Executive) -> Vec<(String, String, String)> {
+/// The failures the executive logged, as `P:C cause`.
+fn failures(exec: &Executive) -> Vec<String> {
     exec.log()
         .iter()
         .filter_map(|e| match &e.event {
@@ -189,7 +189,7 @@ fn failures(exec: &Executive) -> Vec<(String, String, String)> {
                 peis,
                 component,
                 cause,
-            } => Some((peis.clone(), component.clone(), cause.clone())),
+            } => Some(format!("{peis}:{component} {cause}")),
             _ => None,
         })
         .collect()
@@ -210,11 +210,7 @@ fn a_consumer_that_cannot_read_its_input_blames_its_producer_at_once() {
     let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
     assert_eq!(
         failures(&exec),
-        [(
-            "hsm".to_string(),
-            "tr1".to_string(),
-            "astrid:s1 cannot read its global-pos: expected X Y THETA, found \"1,2;3\"".to_string()
-        )]
+        ["hsm:tr1 astrid:s1 cannot read its global-pos: expected X Y THETA, found \"1,2;3\""]
     );
     // The consumer keeps its place: scan matching on s1 replaces the cameras.
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
@@ -242,11 +238,7 @@ fn an_unreadable_input_is_blamed_on_its_producer_while_deploying() {
     exec.handle(secs(0.6), tuple("astrid", "s1.status", "waiting", 2));
     assert_eq!(
         failures(&exec),
-        [(
-            "hsm".to_string(),
-            "tr1".to_string(),
-            "astrid:s1 cannot read its global-pos".to_string()
-        )]
+        ["hsm:tr1 astrid:s1 cannot read its global-pos"]
     );
 }
 
@@ -265,11 +257,7 @@ fn an_unreadable_cause_naming_no_input_of_the_component_is_plain_waiting() {
     exec.handle(secs(4.0), Event::Timer(id));
     assert_eq!(
         failures(&exec),
-        [(
-            "astrid".to_string(),
-            "s1".to_string(),
-            "waiting for longer than 2s: unreadable range-scan: ?".to_string()
-        )]
+        ["astrid:s1 waiting for longer than 2s: unreadable range-scan: ?"]
     );
 }
 
@@ -691,7 +679,9 @@ mod on_the_tuple_space {
     };
 
     use super::peis_home::Hosts;
-    use super::{PEIS_HOME, PEIS_HOME_FACTS, costs, executive, names, peis, plan, secs, timeline};
+    use super::{
+        PEIS_HOME, PEIS_HOME_FACTS, costs, executive, failures, names, peis, plan, secs, timeline,
+    };
     use crate::{
         DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, PlannedAction, RunStatus,
         drive_observed,
@@ -1005,21 +995,6 @@ mod on_the_tuple_space {
         async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
             self.inner.subscribe_presence().await
         }
-    }
-
-    /// The failures the executive logged, as `P:C cause`.
-    fn failures(exec: &Executive) -> Vec<String> {
-        exec.log()
-            .iter()
-            .filter_map(|e| match &e.event {
-                LogEvent::Failure {
-                    peis,
-                    component,
-                    cause,
-                } => Some(format!("{peis}:{component} {cause}")),
-                _ => None,
-            })
-            .collect()
     }
 
     // The paper, Section VIII, steps 1-5 and 7 without the failure.

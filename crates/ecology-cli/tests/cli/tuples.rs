@@ -217,8 +217,9 @@ fn watch_stops_on_sigint_every_time() {
 
 /// `ecology tuples peers` joined through one PEIS lists the PEIS that one
 /// knows too, once gossip has linked them.
-#[test]
-fn peers_through_a_third_peis_lists_everyone() {
+/// `alpha` holding its tuple `x` = 1, and `beta`, which connected to it, holding its own; with
+/// the endpoint beta listens on.
+fn alpha_and_beta() -> (crate::support::Proc, crate::support::Proc, String) {
     use crate::support::Proc;
     let first = free_endpoint();
     let second = free_endpoint();
@@ -247,6 +248,12 @@ fn peers_through_a_third_peis_lists_everyone() {
         ],
     );
     b.wait_for("ready", |l| l == "ready");
+    (a, b, second)
+}
+
+#[test]
+fn peers_through_a_third_peis_lists_everyone() {
+    let (_alpha, _beta, second) = alpha_and_beta();
     for round in 0..5 {
         let listed = run_joined(&second, &["--name", "gamma", "peers"]);
         assert_eq!(
@@ -262,34 +269,7 @@ fn peers_through_a_third_peis_lists_everyone() {
 /// one hop away: each waits for the links gossip opens before it asks.
 #[test]
 fn one_hop_away_a_name_is_taken_and_get_and_set_reach_the_owner() {
-    use crate::support::Proc;
-    let first = free_endpoint();
-    let second = free_endpoint();
-    let mut a = Proc::start(
-        "alpha",
-        &[
-            "tuples", "--name", "alpha", "--listen", &first, "set", "alpha", "x", "1", "--hold",
-        ],
-    );
-    a.wait_for("ready", |l| l == "ready");
-    let mut b = Proc::start(
-        "beta",
-        &[
-            "tuples",
-            "--name",
-            "beta",
-            "--listen",
-            &second,
-            "--connect",
-            &first,
-            "set",
-            "beta",
-            "x",
-            "1",
-            "--hold",
-        ],
-    );
-    b.wait_for("ready", |l| l == "ready");
+    let (_alpha, _beta, second) = alpha_and_beta();
     for round in 0..4 {
         let taken = run_joined(&second, &["--name", "alpha", "peers"]);
         assert_eq!(taken.status.code(), Some(2), "round {round}: {taken:?}");
