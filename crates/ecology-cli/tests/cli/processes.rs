@@ -308,6 +308,7 @@ fn the_world_gone_mid_move_fails_its_readers_within_seconds() {
     let killed_at = Instant::now();
     let (code, lines) = task.finish();
     let ended = killed_at.elapsed();
+    println!("the task ended {ended:?} after the world was killed");
     let all = events(&lines);
     assert_eq!(code, Some(1), "{all:#?}");
     let failures = named(&all, "failure");

@@ -303,3 +303,41 @@ fn a_peis_that_cannot_be_reached_exits_1() {
         "{out:?}"
     );
 }
+
+/// `--listen tcp/127.0.0.1:0` takes a free port, and the readiness line names the port it
+/// listens on: another process reaches the PEIS there.
+#[test]
+fn port_zero_is_shown_as_the_port_taken() {
+    use crate::support::Proc;
+    let mut hsm = Proc::start(
+        "hsm",
+        &[
+            "peis",
+            "scenarios/peis-home.toml",
+            "--name",
+            "hsm",
+            "--listen",
+            "tcp/127.0.0.1:0",
+        ],
+    );
+    let ready = hsm.wait_for("ready", |l| l.starts_with("hsm ready"));
+    let endpoint = ready
+        .text
+        .split("listening on ")
+        .nth(1)
+        .map(|rest| {
+            rest.split([',', ';'])
+                .next()
+                .unwrap_or(rest)
+                .trim()
+                .to_string()
+        })
+        .expect("an endpoint");
+    assert!(!endpoint.ends_with(":0"), "{}", ready.text);
+    let got = run_joined(&endpoint, &["get", "hsm", "components.ca1.type"]);
+    assert_eq!(
+        (got.status.code(), stdout(&got).as_str()),
+        (Some(0), "cams\n"),
+        "{got:?}"
+    );
+}
