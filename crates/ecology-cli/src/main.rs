@@ -7,6 +7,7 @@
 
 mod configure;
 mod demo;
+mod generate;
 mod input;
 mod keys;
 mod log_json;
@@ -68,6 +69,8 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// Create an ecology's keys: its certificate authority, members' certificates, the roster.
     Keys(keys::KeysArgs),
+    /// Generate large ecologies to run: `generate home --peis N` writes a scenario file.
+    Generate(generate::GenerateArgs),
     /// Serve a live web view of an ecology over Zenoh: PEIS, components, plan, configuration, tuples.
     View(view::ViewArgs),
 }
@@ -108,6 +111,7 @@ fn main() -> ExitCode {
         Command::Sweep(args) => sweep::sweep(&args),
         Command::Keys(args) => keys::keys(&args),
         Command::View(args) => view::view(&args),
+        Command::Generate(args) => generate::generate(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

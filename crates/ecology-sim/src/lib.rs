@@ -11,6 +11,7 @@
 //! outputs, so every sensor and actuator goes through the real middleware.
 
 mod components;
+pub mod generate;
 mod host;
 mod planning;
 mod replan;

@@ -586,3 +586,32 @@ pub(crate) fn world_tuple(key: &str, value: &str) -> ecology_tuples::Tuple {
 fn bytes_of(text: &str) -> bytes::Bytes {
     bytes::Bytes::copy_from_slice(text.as_bytes())
 }
+
+// A generated building: the same seed gives the same file, it loads, and the paper's
+// task is done in it; some of its new monitors are cheaper routes than hsm's.
+#[tokio::test]
+async fn a_generated_home_runs_the_papers_task() {
+    let domain = scenario_path("../domains/peis-home.eco");
+    let problem = scenario_path("../domains/peis-home-task.problem");
+    let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
+    let text = crate::generate::home(60, 3, &domain, &problem).expect("generated");
+    assert_eq!(
+        text,
+        crate::generate::home(60, 3, &domain, &problem).expect("generated")
+    );
+    assert_ne!(
+        text,
+        crate::generate::home(60, 4, &domain, &problem).expect("generated")
+    );
+    assert!(crate::generate::home(3, 3, &domain, &problem).is_err());
+    let scenario = Scenario::parse(&text, "home-60.toml", &|p: &Path| {
+        std::fs::read(p).map_err(|e| e.to_string())
+    })
+    .expect("the generated scenario loads");
+    assert_eq!(scenario.peis.len(), 59, "every PEIS but the world");
+    let report = run_seeded(&scenario, 3).await;
+    let text = timeline(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    let first = configurations(&report)[0].0;
+    assert!(first < 80, "a cheaper monitor than hsm's 80: {text}");
+}
