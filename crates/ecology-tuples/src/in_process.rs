@@ -1,6 +1,6 @@
 //! The in-process tuple space: every PEIS of an ecology in one process, on an injected clock.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, Weak};
 
@@ -12,7 +12,7 @@ use crate::error::TupleError;
 use crate::model::{PresenceEvent, Timestamp, Tuple, TupleEvent, Value};
 use crate::name::{Key, PeisId};
 use crate::owned::OwnedTuples;
-use crate::pattern::TuplePattern;
+use crate::pattern::{OwnerPattern, TuplePattern};
 use crate::space::{PeisOptions, TupleSpace};
 use crate::subscription::{PresenceSubscription, Subscription};
 
@@ -42,7 +42,7 @@ struct Shared {
 #[derive(Debug, Default)]
 struct State {
     peers: BTreeMap<PeisId, Peer>,
-    subscribers: Vec<Subscriber>,
+    subscribers: Subscribers,
     presence: Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>,
     next_subscriber: u64,
 }
@@ -61,6 +61,72 @@ struct Subscriber {
     id: u64,
     pattern: TuplePattern,
     events: mpsc::UnboundedSender<TupleEvent>,
+}
+
+/// The tuple subscriptions, those of one owner apart from those of any owner, so that a change
+/// is matched only against the subscriptions that can want it (a PEIS host subscribes to its own
+/// requests: with a thousand PEIS, nearly all subscriptions name one owner). Each list is in the
+/// order of subscribing, and a change reaches its subscribers in that order across both.
+#[derive(Debug, Default)]
+struct Subscribers {
+    by_owner: HashMap<PeisId, Vec<Subscriber>>,
+    any_owner: Vec<Subscriber>,
+    /// The owner each subscription names, if one.
+    owner_of: HashMap<u64, Option<PeisId>>,
+}
+
+impl Subscribers {
+    fn push(&mut self, subscriber: Subscriber) {
+        let owner = match &subscriber.pattern.owner {
+            OwnerPattern::Exact(id) => Some(id.clone()),
+            OwnerPattern::Any => None,
+        };
+        self.owner_of.insert(subscriber.id, owner.clone());
+        match owner {
+            Some(id) => self.by_owner.entry(id).or_default().push(subscriber),
+            None => self.any_owner.push(subscriber),
+        }
+    }
+
+    fn remove(&mut self, id: u64) {
+        match self.owner_of.remove(&id) {
+            Some(Some(owner)) => {
+                if let Some(list) = self.by_owner.get_mut(&owner) {
+                    list.retain(|s| s.id != id);
+                    if list.is_empty() {
+                        self.by_owner.remove(&owner);
+                    }
+                }
+            }
+            Some(None) => self.any_owner.retain(|s| s.id != id),
+            None => {}
+        }
+    }
+
+    /// Sends `event` to every subscription it matches, in the order they were made; drops those
+    /// whose receiver is gone.
+    fn broadcast(&mut self, event: &TupleEvent) {
+        let (owner, key) = event.subject();
+        let exact: &[Subscriber] = self.by_owner.get(owner).map_or(&[], Vec::as_slice);
+        let any = self.any_owner.as_slice();
+        let (mut i, mut j) = (0, 0);
+        let mut closed = Vec::new();
+        while i < exact.len() || j < any.len() {
+            let s = if j == any.len() || (i < exact.len() && exact[i].id < any[j].id) {
+                i += 1;
+                &exact[i - 1]
+            } else {
+                j += 1;
+                &any[j - 1]
+            };
+            if s.pattern.matches(owner, key) && s.events.send(event.clone()).is_err() {
+                closed.push(s.id);
+            }
+        }
+        for id in closed {
+            self.remove(id);
+        }
+    }
 }
 
 impl InProcessSpace {
@@ -220,9 +286,7 @@ impl State {
     }
 
     fn broadcast(&mut self, event: &TupleEvent) {
-        let (owner, key) = event.subject();
-        self.subscribers
-            .retain(|s| !s.pattern.matches(owner, key) || s.events.send(event.clone()).is_ok());
+        self.subscribers.broadcast(event);
     }
 
     fn broadcast_presence(&mut self, event: &PresenceEvent) {
@@ -300,7 +364,7 @@ impl Drop for SubscriberGuard {
             if self.presence {
                 state.presence.retain(|(id, _)| *id != self.id);
             } else {
-                state.subscribers.retain(|s| s.id != self.id);
+                state.subscribers.remove(self.id);
             }
         }
     }
@@ -413,11 +477,13 @@ impl TupleSpace for InProcessPeis {
         self.check_live(&mut state)?;
         let (tx, rx) = mpsc::unbounded_channel();
         // Under the lock, the snapshot and the registration are one step: nothing falls in between.
-        for peer in state.peers.values() {
-            if pattern.owner.matches(peer.tuples.owner()) {
-                for tuple in peer.tuples.matching(&pattern.key, now) {
-                    let _ = tx.send(TupleEvent::Changed(tuple.clone()));
-                }
+        let owners: Box<dyn Iterator<Item = &Peer>> = match &pattern.owner {
+            OwnerPattern::Exact(id) => Box::new(state.peers.get(id).into_iter()),
+            OwnerPattern::Any => Box::new(state.peers.values()),
+        };
+        for peer in owners {
+            for tuple in peer.tuples.matching(&pattern.key, now) {
+                let _ = tx.send(TupleEvent::Changed(tuple.clone()));
             }
         }
         let id = state.next_subscriber;
