@@ -354,3 +354,31 @@ async fn subscriptions_are_streams_an_event_loop_can_select_over() {
     );
     space.shutdown().await;
 }
+
+/// `try_next` hands over every event that has arrived, however many, in one turn of the task:
+/// tokio's cooperative budget (128 operations a turn) must not make a subscriber that receives
+/// more than that per turn fall behind.
+#[tokio::test]
+async fn try_next_takes_every_event_that_arrived_in_one_turn() {
+    let space = InProcessSpace::new(Arc::new(VirtualClock::default()));
+    let writer = space
+        .join(PeisId::new("world").expect("name"), PeisOptions::default())
+        .expect("join");
+    let reader = space
+        .join(PeisId::new("camera").expect("name"), PeisOptions::default())
+        .expect("join");
+    let mut poses = reader
+        .subscribe(TuplePattern::parse("world:**").expect("pattern"))
+        .await
+        .expect("subscribe");
+    for robot in 0..500 {
+        let key = Key::new(&format!("robots.bot-{robot}.pose")).expect("key");
+        writer.set(key, Value::text("1 2 0")).await.expect("set");
+    }
+    let mut taken = 0;
+    while poses.try_next().is_some() {
+        taken += 1;
+    }
+    assert_eq!(taken, 500);
+    space.shutdown().await;
+}
