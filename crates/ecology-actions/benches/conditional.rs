@@ -12,19 +12,11 @@ use std::time::{Duration, Instant};
 use ecology_actions::oracle_conditional::{self, Exhaustive};
 use ecology_actions::problems::{self, Instance};
 use ecology_actions::{
-    Budget, Clock, ConditionalOptions, ConditionalRequest, ConditionalVerdict, plan_conditional,
+    Budget, ConditionalOptions, ConditionalRequest, ConditionalVerdict, WallClock, plan_conditional,
 };
 
 /// Caps each planner run.
 const CAP: Duration = Duration::from_secs(60);
-
-struct Wall(Instant);
-
-impl Clock for Wall {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
 
 fn newspaper() -> Instance {
     let domain = include_str!("../../../domains/peis-home-uncertain.eco");
@@ -55,7 +47,7 @@ fn row(inst: &Instance, horizon: u32, threshold: Option<f64>) -> (String, Durati
         },
         ..ConditionalOptions::default()
     };
-    let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &Wall(start));
+    let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &WallClock(start));
     let elapsed = start.elapsed();
     let (plan, status) = match &outcome.verdict {
         ConditionalVerdict::Found(p) => (p, "found"),
@@ -169,7 +161,8 @@ fn main() {
             horizon: *horizon,
             ..ConditionalOptions::default()
         };
-        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &Wall(start));
+        let outcome =
+            plan_conditional(&ConditionalRequest::new(&task), &options, &WallClock(start));
         let planner = start.elapsed();
         let plan = match &outcome.verdict {
             ConditionalVerdict::Found(p) | ConditionalVerdict::BelowThreshold(p) => p.clone(),

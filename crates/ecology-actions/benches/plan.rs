@@ -9,21 +9,14 @@
 
 use std::time::{Duration, Instant};
 
+use ecology_actions::WallClock;
 use ecology_actions::problems::{self, GeneratorError, Instance};
-use ecology_actions::{Budget, Clock, Options, Outcome, Request, Strategy, Verdict};
+use ecology_actions::{Budget, Options, Outcome, Request, Strategy, Verdict};
 
 /// Caps each optimal run.
 const OPTIMAL_CAP: Duration = Duration::from_secs(10);
 /// Caps each satisficing run.
 const SATISFICING_CAP: Duration = Duration::from_secs(30);
-
-struct Wall(Instant);
-
-impl Clock for Wall {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
 
 fn run(inst: &Instance, strategy: Strategy, cap: Duration) -> (String, Duration) {
     let start = Instant::now();
@@ -38,7 +31,7 @@ fn run(inst: &Instance, strategy: Strategy, cap: Duration) -> (String, Duration)
             max_time: Some(cap),
         },
     };
-    let outcome: Outcome = ecology_actions::plan(&Request::new(&task), &options, &Wall(start));
+    let outcome: Outcome = ecology_actions::plan(&Request::new(&task), &options, &WallClock(start));
     let elapsed = start.elapsed();
     let cell = match &outcome.verdict {
         Verdict::Found(plan) => {

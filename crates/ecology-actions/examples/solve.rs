@@ -19,15 +19,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use ecology_actions::problems::{self, Instance};
-use ecology_actions::{Budget, Clock, Options, Request, Strategy, Verdict};
-
-struct Wall(Instant);
-
-impl Clock for Wall {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
+use ecology_actions::{Budget, Options, Request, Strategy, Verdict, WallClock};
 
 fn generate(name: &str) -> Result<Instance, String> {
     let parts: Vec<&str> = name.split('-').collect();
@@ -98,7 +90,7 @@ fn run(args: &[String]) -> Result<(), String> {
             max_time: timeout,
         },
     };
-    let outcome = ecology_actions::plan(&Request::new(&task), &options, &Wall(start));
+    let outcome = ecology_actions::plan(&Request::new(&task), &options, &WallClock(start));
     let ms = start.elapsed().as_secs_f64() * 1000.0;
     let s = &outcome.stats;
     let counts = format!(

@@ -67,7 +67,7 @@ pub use validate::{PlanError, validate};
 
 use search::{Algorithm, Engine, StepResult};
 
-pub use ecology_core::{Budget, Clock, NoClock};
+pub use ecology_core::{Budget, Clock, NoClock, WallClock};
 
 /// Which search runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

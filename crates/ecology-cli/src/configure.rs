@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use ecology_config::{
     Budget, Clock, Configuration, Exclusion, Explanation, Options, Outcome, Request, Status,
+    WallClock,
 };
 use ecology_domain::Power;
 use ecology_view::{Drawing, Edge, Mark, Node};
@@ -59,16 +60,6 @@ pub struct ConfigureArgs {
     /// excluded components marked.
     #[arg(long, value_name = "FILE")]
     pub svg: Option<PathBuf>,
-}
-
-/// Wall-clock time since the command started.
-#[derive(Debug)]
-pub struct WallClock(pub Instant);
-
-impl Clock for WallClock {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
 }
 
 /// `ecology check FILE...`

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
-use ecology_exec::RunStatus;
+use ecology_exec::{Acquisition, Intake, LogEntry, LogEvent, RunStatus};
 use ecology_sim::{Pace, RunOptions, Scenario, Update};
 
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
@@ -54,6 +54,34 @@ pub struct RunArgs {
     /// Where --view serves the page (port 0 picks a free one).
     #[arg(long, value_name = "ADDR", default_value = crate::view::DEFAULT_BIND, requires = "view")]
     pub bind: std::net::SocketAddr,
+    /// What of the ecology the executive reads: what the plan's goals can use, or every tuple.
+    #[arg(long, value_enum, default_value_t = Acquire::OnDemand, conflicts_with = "processes")]
+    pub acquire: Acquire,
+    /// Time the executive by the wall clock and report it on stderr: state
+    /// acquisition, planning per configuration, tuples and bytes taken in,
+    /// peak memory. (Without it the log's times read 0, and a run is the
+    /// same from the same seed.)
+    #[arg(long, conflicts_with = "processes")]
+    pub timings: bool,
+}
+
+/// What of the ecology the executive reads (`--acquire`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Acquire {
+    /// The PEIS with a component of a type the plan's goals can use (their
+    /// contract tuples), after a directory of every PEIS's component types.
+    OnDemand,
+    /// Every tuple of every PEIS.
+    Everything,
+}
+
+impl From<Acquire> for Acquisition {
+    fn from(acquire: Acquire) -> Acquisition {
+        match acquire {
+            Acquire::OnDemand => Acquisition::OnDemand,
+            Acquire::Everything => Acquisition::Everything,
+        }
+    }
 }
 
 /// Arguments of `ecology run`.
@@ -161,6 +189,8 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
     let options = RunOptions {
         pace,
         observe_tuples: hub.is_some(),
+        acquisition: args.acquire.into(),
+        wall_stopwatch: args.timings,
         ..RunOptions::seeded(seed)
     };
     // One thread: the run is reproducible from its seed.
@@ -228,6 +258,9 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         wall.as_secs_f64(),
         sim.as_secs_f64() / wall.as_secs_f64().max(1e-9)
     );
+    if args.timings {
+        eprint!("{}", timings(&report.log, &report.intake));
+    }
     for what in &report.spurious {
         eprintln!("warning: a failure the ground truth does not bear out: {what}");
     }
@@ -246,4 +279,53 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
             EXIT_NO_SOLUTION
         }
     })
+}
+
+/// What `--timings` reports: the executive's intake, its state acquisition
+/// and planning by the wall clock, and the process's peak memory.
+pub(crate) fn timings(log: &[LogEntry], intake: &Intake) -> String {
+    let followed = if intake.followed == 0 {
+        "every PEIS followed".to_string()
+    } else {
+        format!("{} PEIS followed", intake.followed)
+    };
+    let mut out = format!(
+        "executive: state acquired in {:.1} ms ({followed}); took in {} tuples, {} bytes\n",
+        intake.acquisition.as_secs_f64() * 1e3,
+        intake.tuples,
+        intake.bytes,
+    );
+    let mut state = (0, 0, 0);
+    for entry in log {
+        match &entry.event {
+            LogEvent::StateAcquired {
+                peis,
+                components,
+                micros,
+                ..
+            } => state = (*peis, *components, *micros),
+            LogEvent::Configuration { goal, micros, .. } => {
+                let (peis, components, built) = state;
+                out += &format!(
+                    "  {:>8.3}s  {goal}: state of {peis} PEIS and {components} components built in {:.2} ms, planned in {:.2} ms\n",
+                    entry.t.as_secs_f64(),
+                    built as f64 / 1e3,
+                    *micros as f64 / 1e3
+                );
+            }
+            _ => {}
+        }
+    }
+    if let Some(peak) = peak_memory() {
+        out += &format!("peak memory: {:.0} MB\n", peak as f64 / 1e6);
+    }
+    out
+}
+
+/// This process's peak resident memory in bytes (`VmHWM`), where the system tells.
+fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }

@@ -10,9 +10,9 @@ use ecology_actions::{
 };
 use serde_json::{Value, json};
 
-use crate::configure::WallClock;
 use crate::input;
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+use ecology_config::WallClock;
 
 /// Arguments of `ecology plan`.
 #[derive(Debug, Args)]

@@ -11,9 +11,9 @@ use ecology_actions::{
 };
 use serde_json::{Value, json};
 
-use crate::configure::WallClock;
 use crate::plan::PlanArgs;
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+use ecology_config::WallClock;
 
 /// Plans `task` conditionally as `args` say; returns the exit code.
 pub fn run(

@@ -15,11 +15,12 @@ use ecology_exec::{DriverConfig, ExecConfig, Executive, Plan, Replan, RunStatus,
 use ecology_sim::WorldReplanner;
 use ecology_tuples::{Key, PeisId, SystemClock, TupleSpace, Value};
 
-use crate::configure::WallClock;
+use crate::demo::Acquire;
 use crate::input;
 use crate::network::{self, NetArgs, seconds};
 use crate::peis::{join_failed, missing_peis};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
+use ecology_config::WallClock;
 
 /// Arguments of `ecology task`.
 #[derive(Debug, Args)]
@@ -66,6 +67,13 @@ pub struct TaskArgs {
     /// How long to take in the ecology's tuples before the first action, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.5)]
     pub settle: f64,
+    /// What of the ecology the executive reads: what the plan's goals can use, or every tuple.
+    #[arg(long, value_enum, default_value_t = Acquire::OnDemand)]
+    pub acquire: Acquire,
+    /// Report on stderr at the end: state acquisition, planning per
+    /// configuration, tuples and bytes taken in, peak memory.
+    #[arg(long)]
+    pub timings: bool,
     #[command(flatten)]
     pub net: NetArgs,
 }
@@ -139,6 +147,8 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
             config,
             settle,
             replanner,
+            acquisition: args.acquire.into(),
+            timings: args.timings,
         };
         let code = execute(&space, task, &expected, wait_timeout, args.json).await;
         space.close().await;
@@ -153,6 +163,9 @@ struct Task<'a> {
     config: ExecConfig,
     settle: Duration,
     replanner: Option<WorldReplanner>,
+    acquisition: ecology_exec::Acquisition,
+    /// Report the executive's timings on stderr at the end.
+    timings: bool,
 }
 
 async fn execute(
@@ -168,6 +181,8 @@ async fn execute(
         config,
         settle,
         mut replanner,
+        acquisition,
+        timings,
     } = task;
     // One listener for the whole run: no SIGINT is lost between two waits.
     let stop = network::stop_signal();
@@ -219,6 +234,7 @@ async fn execute(
     let driver = DriverConfig {
         settle,
         limit: None,
+        acquisition,
     };
     let status = drive_until(
         space,
@@ -245,6 +261,9 @@ async fn execute(
     .await;
     drop(log_tx);
     let _ = publisher.await;
+    if timings {
+        eprint!("{}", crate::demo::timings(exec.log(), exec.intake()));
+    }
     match status? {
         RunStatus::Done => Ok(EXIT_OK),
         RunStatus::Failed { reason, .. } => {

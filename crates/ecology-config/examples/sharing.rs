@@ -13,15 +13,7 @@
 use std::time::{Duration, Instant};
 
 use ecology_config::synthetic::{self, Sharing};
-use ecology_config::{Budget, Clock, Options, plan};
-
-struct Wall(Instant);
-
-impl Clock for Wall {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
+use ecology_config::{Budget, Clock, Options, WallClock, plan};
 
 fn shape(args: &[String]) -> Sharing {
     let n = |i: usize| args[i].parse::<usize>().expect("a number");
@@ -99,7 +91,7 @@ fn main() {
             while runs.len() < 5
                 && (runs.is_empty() || began.elapsed() < Duration::from_millis(500))
             {
-                let clock = Wall(Instant::now());
+                let clock = WallClock::start();
                 let outcome = plan(&request, &options, &clock).expect("valid goal");
                 runs.push((clock.elapsed(), outcome));
             }

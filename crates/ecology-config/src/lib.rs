@@ -31,6 +31,7 @@ mod cost;
 mod explain;
 mod ground;
 pub mod oracle;
+mod relevant;
 mod search;
 mod share;
 pub mod synthetic;
@@ -46,8 +47,9 @@ use ecology_domain::{Call, Domain, EcologyState, Power};
 
 pub use cost::{CostModel, PaperCost};
 /// The budget and the caller's clock live in `ecology-core`, shared with the action planner.
-pub use ecology_core::{Budget, Clock, NoClock};
+pub use ecology_core::{Budget, Clock, NoClock, WallClock};
 pub use explain::Explanation;
+pub use relevant::component_types;
 
 use compile::{Callee, Compiled};
 use ground::{Ctx, Excluded};

@@ -17,3 +17,22 @@ impl Clock for NoClock {
         Duration::ZERO
     }
 }
+
+/// Wall-clock time since the given instant: the one clock that reads the
+/// wall, for the callers at the edge (commands, benchmarks, a driver timing
+/// its planner). Nothing in the core constructs it.
+#[derive(Debug, Clone, Copy)]
+pub struct WallClock(pub std::time::Instant);
+
+impl WallClock {
+    /// A clock started now.
+    pub fn start() -> WallClock {
+        WallClock(std::time::Instant::now())
+    }
+}
+
+impl Clock for WallClock {
+    fn elapsed(&self) -> Duration {
+        self.0.elapsed()
+    }
+}

@@ -1,5 +1,5 @@
 //! What the sans-IO core of Ecology shares, written once: time from the
-//! caller ([`Clock`], [`NoClock`]), limits on a search ([`Budget`]) and
+//! caller ([`Clock`], [`NoClock`], and [`WallClock`] for the edge), limits on a search ([`Budget`]) and
 //! seeded randomness ([`Rng`]), and when two probabilities are the same
 //! ([`EPSILON`]).
 //!
@@ -11,7 +11,7 @@ mod clock;
 mod rng;
 
 pub use budget::Budget;
-pub use clock::{Clock, NoClock};
+pub use clock::{Clock, NoClock, WallClock};
 pub use rng::Rng;
 
 /// Probabilities closer than this are equal (sums of products of floats):

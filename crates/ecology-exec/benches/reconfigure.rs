@@ -13,7 +13,7 @@
 //! Run with `cargo bench -p ecology-exec --bench reconfigure` (`-- --quick` for fewer runs).
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 use ecology_exec::{DriverConfig, ExecConfig, Executive, LogEvent, PlannedAction, drive};
@@ -27,20 +27,13 @@ use ecology_tuples::{
 #[path = "../src/tests/peis_home.rs"]
 mod peis_home;
 
+use ecology_config::WallClock;
 use peis_home::Hosts;
 
 const PEIS_HOME: &[u8] = include_bytes!("../../../domains/peis-home.eco");
 const FACTS: &[u8] = include_bytes!("../../../domains/peis-home.facts");
 
 /// The executive's stopwatch: real time.
-struct Wall(Instant);
-
-impl ecology_config::Clock for Wall {
-    fn elapsed(&self) -> Duration {
-        self.0.elapsed()
-    }
-}
-
 fn io(functionality: &str) -> (&'static [&'static str], &'static [&'static str]) {
     match functionality {
         "laser" => (&[], &["range-scan"]),
@@ -109,7 +102,7 @@ async fn run_once() -> Option<[f64; 5]> {
         Some(parse_goal("(navigate astrid bedroom)").ok()?),
     )];
     let mut exec = Executive::new(domain, EcologyState::new(), plan, ExecConfig::default())
-        .with_stopwatch(Box::new(Wall(Instant::now())));
+        .with_stopwatch(Box::new(WallClock::start()));
     let driver_start: Timestamp = clock.now();
     let trigger_at = Arc::new(std::sync::Mutex::new(None::<Timestamp>));
     let trigger = {
@@ -127,6 +120,7 @@ async fn run_once() -> Option<[f64; 5]> {
     let config = DriverConfig {
         settle: Duration::from_millis(20),
         limit: Some(Duration::from_millis(350)),
+        ..DriverConfig::default()
     };
     drive(&me, clock.clone(), &mut exec, config).await.ok()?;
     let _ = trigger.await;

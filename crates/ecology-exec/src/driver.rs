@@ -10,14 +10,18 @@ use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
+use futures_util::StreamExt;
+use futures_util::stream::SelectAll;
 use tokio::task::JoinSet;
 
+use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, Key, PeisId, PresenceEvent, Timestamp, Tuple, TupleError, TupleEvent, TuplePattern,
-    TupleSpace, Value,
+    Clock, Key, KeyPattern, OwnerPattern, PeisId, PresenceEvent, Timestamp, Tuple, TupleError,
+    TupleEvent, TuplePattern, TupleSpace, Value,
 };
 
 use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
+use crate::interest::Interest;
 use crate::log::LogEntry;
 use crate::plan::{Observation, Plan};
 
@@ -28,6 +32,8 @@ pub struct DriverConfig {
     pub settle: Duration,
     /// Give up after this long (the run is then still `Running`).
     pub limit: Option<Duration>,
+    /// What of the ecology to acquire.
+    pub acquisition: Acquisition,
 }
 
 impl Default for DriverConfig {
@@ -35,8 +41,22 @@ impl Default for DriverConfig {
         DriverConfig {
             settle: Duration::from_millis(200),
             limit: None,
+            acquisition: Acquisition::OnDemand,
         }
     }
+}
+
+/// What of the ecology the driver acquires for the executive.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Acquisition {
+    /// What the plan's configuration goals can use ([`Executive::interest`]):
+    /// every PEIS's directory of component types, and the contract tuples of
+    /// the PEIS with a component of a type of interest. When a replan needs
+    /// more, more is followed before the new plan starts.
+    #[default]
+    OnDemand,
+    /// Every tuple of every PEIS.
+    Everything,
 }
 
 /// Runs `exec` on `space` until the task is done or failed (or the limit passes).
@@ -113,7 +133,14 @@ pub async fn drive_until<S: TupleSpace>(
     let mut observed = exec.log().len();
     let start = clock.now();
     let elapsed = |clock: &Arc<dyn Clock>| clock.now().saturating_duration_since(start);
-    let mut tuples = space.subscribe(TuplePattern::everything()).await?;
+    let acquiring = std::time::Instant::now();
+    let mut tuples = Follow::new(space.clone());
+    let interest = match config.acquisition {
+        Acquisition::OnDemand => exec.interest(),
+        Acquisition::Everything => Interest::Everything,
+    };
+    let mut pending = tuples.widen(exec, elapsed(&clock), &interest).await?;
+    exec.note_acquisition(acquiring.elapsed());
     let mut presence = space.subscribe_presence().await?;
     let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
     let mut sets = RemoteSets::new(space.clone());
@@ -122,8 +149,10 @@ pub async fn drive_until<S: TupleSpace>(
     tokio::pin!(stop);
     let mut stopped = false;
     loop {
-        let mut commands = Vec::new();
-        if matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
+        let mut commands = std::mem::take(&mut pending);
+        if !commands.is_empty() {
+            // What acquiring more handed the executive comes first.
+        } else if matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
             commands = match replan.as_deref_mut() {
                 Some(replanner) if !stopped => {
                     // A failed read leaves the replanner the plan's own assumptions.
@@ -132,7 +161,13 @@ pub async fn drive_until<S: TupleSpace>(
                         .await
                         .unwrap_or_default();
                     match replanner.replan(exec.failed_actions(), &exec.observations(), &world) {
-                        Ok(plan) => exec.replan(elapsed(&clock), plan),
+                        Ok(plan) => {
+                            // What the new plan can use is acquired before it starts.
+                            let more = exec.interest_of(&plan);
+                            let mut commands = tuples.widen(exec, elapsed(&clock), &more).await?;
+                            commands.extend(exec.replan(elapsed(&clock), plan));
+                            commands
+                        }
                         Err(why) => exec.abandon_because(elapsed(&clock), Some(&why)),
                     }
                 }
@@ -197,7 +232,11 @@ pub async fn drive_until<S: TupleSpace>(
                     None => Vec::new(),
                 },
                 event = tuples.next() => match event {
-                    Some(TupleEvent::Changed(t)) => exec.handle(elapsed(&clock), tuple_event(&t)),
+                    Some(TupleEvent::Changed(t)) => {
+                        let mut commands = exec.handle(elapsed(&clock), tuple_event(&t));
+                        commands.extend(tuples.follow_if_new(exec, elapsed(&clock), &t).await?);
+                        commands
+                    }
                     Some(_) => Vec::new(),
                     None => return Ok(exec.status().clone()),
                 },
@@ -219,6 +258,172 @@ pub async fn drive_until<S: TupleSpace>(
             }
         }
     }
+}
+
+/// The subscriptions that bring the executive its tuples: everything, or a
+/// directory of component types and the PEIS followed on demand.
+struct Follow<S: TupleSpace> {
+    space: S,
+    /// Every tuple is followed (one subscription).
+    everything: bool,
+    /// The types of interest so far (on demand).
+    types: BTreeSet<String>,
+    /// Whether the directory (`*:components.*.type`) is subscribed.
+    directory: bool,
+    /// The PEIS whose contract tuples are followed.
+    followed: BTreeSet<PeisId>,
+    subs: SelectAll<ecology_tuples::Subscription>,
+}
+
+impl<S: TupleSpace> Follow<S> {
+    fn new(space: S) -> Self {
+        Follow {
+            space,
+            everything: false,
+            types: BTreeSet::new(),
+            directory: false,
+            followed: BTreeSet::new(),
+            subs: SelectAll::new(),
+        }
+    }
+
+    /// Follows what `interest` adds to what is followed, handing the
+    /// executive what is there now; returns the executive's commands.
+    async fn widen(
+        &mut self,
+        exec: &mut Executive,
+        now: Duration,
+        interest: &Interest,
+    ) -> Result<Vec<Command>, TupleError> {
+        let mut out = Vec::new();
+        match interest {
+            Interest::Everything if !self.everything => {
+                let mut all = self.space.subscribe(TuplePattern::everything()).await?;
+                // The new subscription brings all of it again; the mirror drops what it has.
+                out.extend(take_in(exec, now, &mut all));
+                self.subs = SelectAll::new();
+                self.subs.push(all);
+                self.everything = true;
+                exec.note_followed(0);
+                self.directory = false;
+            }
+            Interest::Types(types) if !self.everything => {
+                if types.is_subset(&self.types) {
+                    return Ok(out);
+                }
+                self.types.extend(types.iter().cloned());
+                let mut listed = Vec::new();
+                if !self.directory {
+                    let mut directory = self.space.subscribe(directory()).await?;
+                    while let Some(event) = directory.try_next() {
+                        if let TupleEvent::Changed(t) = event {
+                            out.extend(exec.handle(now, tuple_event(&t)));
+                        }
+                    }
+                    self.subs.push(directory);
+                    self.directory = true;
+                }
+                for (peis, view) in exec.mirror().peis() {
+                    let wanted = view
+                        .components
+                        .values()
+                        .any(|c| c.ty.as_deref().is_some_and(|ty| self.types.contains(ty)));
+                    if wanted && !self.followed.contains(peis) {
+                        listed.push(peis.clone());
+                    }
+                }
+                out.extend(self.follow(exec, now, listed).await?);
+            }
+            _ => {}
+        }
+        Ok(out)
+    }
+
+    /// After the executive took in `t`: when it names a component of a type
+    /// of interest on a PEIS not followed yet, follows that PEIS.
+    async fn follow_if_new(
+        &mut self,
+        exec: &mut Executive,
+        now: Duration,
+        t: &Tuple,
+    ) -> Result<Vec<Command>, TupleError> {
+        if self.everything || self.followed.contains(&t.owner) {
+            return Ok(Vec::new());
+        }
+        let typed = matches!(
+            ComponentField::parse(&t.key),
+            Some((_, ComponentField::Type))
+        );
+        if !typed || !t.text().is_ok_and(|ty| self.types.contains(ty.trim())) {
+            return Ok(Vec::new());
+        }
+        self.follow(exec, now, vec![t.owner.clone()]).await
+    }
+
+    /// Subscribes to the contract tuples of `peis` (all at once), and hands
+    /// the executive what they hold now.
+    async fn follow(
+        &mut self,
+        exec: &mut Executive,
+        now: Duration,
+        peis: Vec<PeisId>,
+    ) -> Result<Vec<Command>, TupleError> {
+        let patterns: Vec<TuplePattern> = peis.iter().flat_map(contract_patterns).collect();
+        let subscribed = futures_util::future::join_all(
+            patterns
+                .into_iter()
+                .map(|pattern| self.space.subscribe(pattern)),
+        )
+        .await;
+        self.followed.extend(peis);
+        exec.note_followed(self.followed.len());
+        let mut out = Vec::new();
+        for sub in subscribed {
+            let mut sub = sub?;
+            out.extend(take_in(exec, now, &mut sub));
+            self.subs.push(sub);
+        }
+        Ok(out)
+    }
+
+    /// The next tuple event of any subscription (only those woken are looked at).
+    async fn next(&mut self) -> Option<TupleEvent> {
+        if self.subs.is_empty() {
+            return std::future::pending().await;
+        }
+        self.subs.next().await
+    }
+}
+
+/// Every PEIS's directory: the types of its components.
+fn directory() -> TuplePattern {
+    TuplePattern::parse("*:components.*.type").expect("a valid pattern")
+}
+
+/// The tuples of the component contract of `peis`: its init component's
+/// `components.C.*`, and each component's `C.status`, `.cause`, `.params` and
+/// `.observed` (with its input pointers, `C.mi-INFO`, but not its outputs).
+fn contract_patterns(peis: &PeisId) -> [TuplePattern; 2] {
+    let of = |key: &str| TuplePattern {
+        owner: OwnerPattern::Exact(peis.clone()),
+        key: KeyPattern::new(key).expect("a valid pattern"),
+    };
+    [of("components.**"), of("*.*")]
+}
+
+/// Hands the executive every event `sub` holds now; returns its commands.
+fn take_in(
+    exec: &mut Executive,
+    now: Duration,
+    sub: &mut ecology_tuples::Subscription,
+) -> Vec<Command> {
+    let mut out = Vec::new();
+    while let Some(event) = sub.try_next() {
+        if let TupleEvent::Changed(t) = event {
+            out.extend(exec.handle(now, tuple_event(&t)));
+        }
+    }
+    out
 }
 
 /// The executive's event for tuple `t` (a value that is not text reads as empty).

@@ -26,6 +26,7 @@ use ecology_domain::{Domain, EcologyState};
 use ecology_tuples::contract::{self, ComponentField};
 use ecology_tuples::{ComponentId, Key, PeisId};
 
+use crate::interest::{Intake, Interest};
 use crate::log::{LogEntry, LogEvent};
 use crate::mirror::{Change, Mirror};
 use crate::plan::{
@@ -381,6 +382,7 @@ pub struct Executive {
     next_timer: u64,
     now: Duration,
     log: Vec<LogEntry>,
+    intake: Intake,
 }
 
 impl Executive {
@@ -417,6 +419,7 @@ impl Executive {
             next_timer: 0,
             now: Duration::ZERO,
             log: Vec::new(),
+            intake: Intake::default(),
         }
     }
 
@@ -440,6 +443,32 @@ impl Executive {
     /// The mirror of the ecology's tuples.
     pub fn mirror(&self) -> &Mirror {
         &self.mirror
+    }
+
+    /// What of the ecology the rest of the plan (every branch included) needs.
+    pub fn interest(&self) -> Interest {
+        Interest::of_plan(&self.domain, &self.plan, &self.branches)
+    }
+
+    /// What of the ecology [`Interest::of`] `plan` needs, in this executive's domain.
+    pub fn interest_of(&self, plan: &Plan) -> Interest {
+        Interest::of(&self.domain, plan)
+    }
+
+    /// What the executive took in from the ecology so far.
+    pub fn intake(&self) -> &Intake {
+        &self.intake
+    }
+
+    /// The driver's part of the intake: how long acquiring the state took
+    /// before the task started.
+    pub fn note_acquisition(&mut self, took: Duration) {
+        self.intake.acquisition = took;
+    }
+
+    /// The driver's part of the intake: how many PEIS it follows on demand.
+    pub fn note_followed(&mut self, followed: usize) {
+        self.intake.followed = followed;
     }
 
     /// The configuration running now, if any.
@@ -467,6 +496,9 @@ impl Executive {
                 epoch,
                 seq,
             } => {
+                self.intake.tuples += 1;
+                self.intake.bytes +=
+                    (owner.as_str().len() + key.as_str().len() + value.len()) as u64;
                 for change in self.mirror.apply(&owner, &key, &value, epoch, seq) {
                     match change {
                         Change::Status {

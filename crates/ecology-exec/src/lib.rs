@@ -9,6 +9,7 @@
 
 mod driver;
 mod executive;
+mod interest;
 mod log;
 mod mirror;
 mod plan;
@@ -19,8 +20,9 @@ mod tests;
 #[cfg(test)]
 mod tests_conditional;
 
-pub use driver::{DriverConfig, Replan, drive, drive_observed, drive_until};
+pub use driver::{Acquisition, DriverConfig, Replan, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, TimerId};
+pub use interest::{Intake, Interest};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};
 pub use plan::{

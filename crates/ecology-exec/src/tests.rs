@@ -791,6 +791,8 @@ mod on_the_tuple_space {
         fault: Option<(usize, Fault)>,
         /// Every remote set to this PEIS takes this long: a PEIS that answers slowly.
         slow: Option<(&'static str, Duration)>,
+        /// The PEIS of these facts join as the configuration of action `.0` runs.
+        arrives: Option<(usize, &'static str)>,
     }
 
     /// What a run leaves.
@@ -811,6 +813,7 @@ mod on_the_tuple_space {
                 hung: &[],
                 fault: None,
                 slow: None,
+                arrives: None,
             }
         }
 
@@ -821,6 +824,7 @@ mod on_the_tuple_space {
                 hung,
                 fault,
                 slow,
+                arrives,
             } = self;
             let clock = VirtualClock::default();
             let shared: Arc<dyn Clock> = Arc::new(clock.clone());
@@ -845,19 +849,30 @@ mod on_the_tuple_space {
 
             // The fault strikes as the executive logs that the action's configuration runs.
             let mut pending = fault;
+            let mut arriving = arrives;
+            let mut arrived = None;
             let mut action = None;
             let observe = |entry: &LogEntry| match entry.event {
                 LogEvent::ActionStarted { index, .. } => action = Some(index),
-                LogEvent::Running { .. } => match pending.take_if(|(at, _)| Some(*at) == action) {
-                    Some((_, Fault::Break(p, c, cause))) => {
-                        broken
-                            .lock()
-                            .expect("lock")
-                            .insert((p.to_string(), c.to_string()), cause.to_string());
+                LogEvent::Running { .. } => {
+                    if let Some((_, facts)) = arriving.take_if(|(at, _)| Some(*at) == action) {
+                        let facts = parse_facts(facts.as_bytes()).expect("facts");
+                        let body = |_: &str, _: &str| body(broken.clone());
+                        arrived = Some(
+                            Hosts::start(&space, &shared, &facts, STARTUP, body).expect("starts"),
+                        );
                     }
-                    Some((_, Fault::Vanish(p))) => hosts.vanish(p),
-                    None => {}
-                },
+                    match pending.take_if(|(at, _)| Some(*at) == action) {
+                        Some((_, Fault::Break(p, c, cause))) => {
+                            broken
+                                .lock()
+                                .expect("lock")
+                                .insert((p.to_string(), c.to_string()), cause.to_string());
+                        }
+                        Some((_, Fault::Vanish(p))) => hosts.vanish(p),
+                        None => {}
+                    }
+                }
                 _ => {}
             };
             let config = DriverConfig {
@@ -901,7 +916,11 @@ mod on_the_tuple_space {
                 Some((_, Fault::Vanish(p))) => Some(p),
                 _ => None,
             };
-            for (p, outcome) in hosts.stop().await {
+            let late = match arrived {
+                Some(arrived) => arrived.stop().await,
+                None => Vec::new(),
+            };
+            for (p, outcome) in hosts.stop().await.into_iter().chain(late) {
                 // A vanished PEIS's host finds the space closed to it; the others stop cleanly.
                 assert!(
                     outcome.is_ok() || vanished == Some(p.as_str()),
@@ -1062,6 +1081,36 @@ mod on_the_tuple_space {
         let text = timeline(&exec);
         assert!(text.contains("switch on astrid:l1"), "{text}");
         exec
+    }
+
+    // Acquired on demand, the state still takes in a PEIS that joins during the task with a
+    // component the goal can use: the next configuration may use it.
+    #[tokio::test(start_paused = true)]
+    async fn a_peis_that_joins_with_a_usable_component_is_used_at_the_next_configuration() {
+        const MONITOR: &str = "(pc mon cams ca9) (cost mon ca9 5 on) \
+                               (pc mon tr-sys tr9) (cost mon tr9 5 on) \
+                               (pc mon player pl9) (cost mon pl9 5 on)";
+        let exec = Run {
+            fault: Some((2, Fault::Break("hsm", "tr1", "camera failure"))),
+            arrives: Some((2, MONITOR)),
+            ..Run::of(executive(plan()))
+        }
+        .done()
+        .await;
+        let text = timeline(&exec);
+        assert_eq!(
+            costs(&exec),
+            [
+                (80, false),
+                (100, false),
+                (80, false),
+                (50, true),
+                (20, false)
+            ],
+            "mon's own costs (5 each), not its functionalities' defaults: {text}"
+        );
+        assert!(text.contains("on mon:tr9"), "{text}");
+        assert_eq!(exec.intake().followed, 4, "astrid, hsm, pippi and mon");
     }
 
     // The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.

@@ -15,7 +15,8 @@ use std::time::{Duration, Instant};
 
 use ecology_domain::EcologyState;
 use ecology_exec::{
-    DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, Replan, RunStatus, drive_until,
+    Acquisition, DriverConfig, ExecConfig, Executive, Intake, LogEntry, LogEvent, Replan,
+    RunStatus, drive_until,
 };
 use ecology_peis::{HostError, run_host};
 use ecology_tuples::contract;
@@ -54,6 +55,12 @@ pub struct RunOptions {
     /// Whether the observer also gets every tuple change and presence event ([`Update::Tuple`],
     /// [`Update::Presence`]), for a live view of the run.
     pub observe_tuples: bool,
+    /// What of the ecology the executive acquires.
+    pub acquisition: Acquisition,
+    /// Time the executive's state acquisition and planning by the wall clock
+    /// (the log's `micros`, and the planner's time budget); without it they
+    /// read 0 and the run is reproducible from its seed alone.
+    pub wall_stopwatch: bool,
 }
 
 impl RunOptions {
@@ -64,6 +71,8 @@ impl RunOptions {
             pace: Pace::Unpaced,
             step: Duration::from_millis(50),
             observe_tuples: false,
+            acquisition: Acquisition::OnDemand,
+            wall_stopwatch: false,
         }
     }
 }
@@ -114,6 +123,8 @@ pub struct Report {
     pub spurious: Vec<String>,
     /// The world at the end (ground truth).
     pub world: World,
+    /// What the executive took in from the ecology.
+    pub intake: Intake,
 }
 
 /// Why a run could not take place.
@@ -202,8 +213,10 @@ pub async fn run(
     if options.observe_tuples {
         watch_tuples(&me, &observer, &mut watching).await?;
     }
-    let (exec, driven, spurious) =
-        drive_scenario(scenario, &me, &space, &shared, &schedule, &observer).await;
+    let (exec, driven, spurious) = drive_scenario(
+        scenario, options, &me, &space, &shared, &schedule, &observer,
+    )
+    .await;
     let _ = stop.send(true);
     watching.abort_all();
     let mut outcome = Ok(scenario.world_for(options.seed));
@@ -229,6 +242,7 @@ pub async fn run(
         sim_time,
         world,
         spurious,
+        intake: *exec.intake(),
     })
 }
 
@@ -263,6 +277,7 @@ async fn watch_tuples(
 /// ended, and the failures the ground truth does not bear out.
 async fn drive_scenario(
     scenario: &Scenario,
+    options: &RunOptions,
     me: &InProcessPeis,
     space: &Arc<InProcessSpace>,
     shared: &Arc<dyn Clock>,
@@ -278,8 +293,12 @@ async fn drive_scenario(
             ..ExecConfig::default()
         },
     );
+    if options.wall_stopwatch {
+        exec = exec.with_stopwatch(Box::new(ecology_core::WallClock::start()));
+    }
     let config = DriverConfig {
         limit: Some(scenario.time_limit),
+        acquisition: options.acquisition,
         ..DriverConfig::default()
     };
     let mut triggers: Vec<(FaultSpec, bool)> = scenario

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use ecology_exec::{LogEvent, RunStatus};
+use ecology_exec::{Acquisition, LogEvent, RunStatus};
 
 use crate::{
     FaultKind, FaultSpec, Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError,
@@ -589,6 +589,72 @@ fn bytes_of(text: &str) -> bytes::Bytes {
 
 // A generated building: the same seed gives the same file, it loads, and the paper's
 // task is done in it; some of its new monitors are cheaper routes than hsm's.
+/// The on-demand executive (the default) reads only the PEIS with a component its goals can
+/// use, and chooses exactly the configurations the executive reading everything chooses.
+#[tokio::test]
+async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
+    let domain = scenario_path("../domains/peis-home.eco");
+    let problem = scenario_path("../domains/peis-home-task.problem");
+    let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
+    let mut reconfigured = 0;
+    for (peis, seed) in [(40, 11), (150, 12)] {
+        let text = crate::generate::home(peis, seed, &domain, &problem).expect("generated");
+        let load = |text: &str| {
+            Scenario::parse(text, "home.toml", &|p: &Path| {
+                std::fs::read(p).map_err(|e| e.to_string())
+            })
+            .expect("the generated scenario loads")
+        };
+        // The first move's tracking system, wherever it is, fails a second into the move.
+        let first = run_seeded(&load(&text), seed).await;
+        let tracker = configurations(&first)[0]
+            .2
+            .iter()
+            .find_map(|f| {
+                let on = f.split(" on ").nth(1)?;
+                f.starts_with("(tracking-system").then(|| on.to_string())
+            })
+            .expect("the first move is tracked by a monitor");
+        let (monitor, component) = tracker.split_once(':').expect("PEIS:COMPONENT");
+        let faulted = format!(
+            "{text}\n[[fault]]\nwhat = \"fail\"\npeis = \"{monitor}\"\ncomponent = \"{component}\"\n\
+             after = {{ event = \"action_started\", action = 1 }}\ndelay = 1.0\n"
+        );
+        let scenario = load(&faulted);
+        let with = |acquisition| RunOptions {
+            acquisition,
+            ..RunOptions::seeded(seed)
+        };
+        let quiet = || -> crate::Observer { Box::new(|_| {}) };
+        let on_demand = run(&scenario, &with(Acquisition::OnDemand), quiet())
+            .await
+            .expect("runs");
+        let everything = run(&scenario, &with(Acquisition::Everything), quiet())
+            .await
+            .expect("runs");
+        let text = timeline(&on_demand);
+        assert_eq!(on_demand.status, RunStatus::Done, "{text}");
+        assert_eq!(
+            configurations(&on_demand),
+            configurations(&everything),
+            "{peis} PEIS: on demand\n{text}\neverything\n{}",
+            timeline(&everything)
+        );
+        reconfigured += configurations(&on_demand).iter().filter(|c| c.1).count();
+        let (mine, all) = (on_demand.intake, everything.intake);
+        assert!(
+            mine.followed > 3 && mine.followed < peis / 2,
+            "{peis} PEIS, {} followed",
+            mine.followed
+        );
+        assert!(
+            mine.tuples * 3 < all.tuples && mine.bytes * 3 < all.bytes,
+            "{mine:?} against {all:?}"
+        );
+    }
+    assert!(reconfigured > 0, "no fault changed a configuration");
+}
+
 #[tokio::test]
 async fn a_generated_home_runs_the_papers_task() {
     let domain = scenario_path("../domains/peis-home.eco");

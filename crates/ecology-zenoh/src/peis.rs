@@ -753,7 +753,7 @@ impl TupleSpace for ZenohPeis {
         let watcher = core
             .session
             .liveliness()
-            .declare_subscriber(alive)
+            .declare_subscriber(alive.clone())
             .callback(move |sample| {
                 if sample.kind() == SampleKind::Put
                     && let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str())
@@ -812,7 +812,8 @@ impl TupleSpace for ZenohPeis {
         let snapshot = self.query_tuples(&pattern).await?;
         // Every present PEIS the snapshot heard nothing from is asked on its own.
         let heard: BTreeSet<PeisId> = snapshot.iter().map(|t| t.owner.clone()).collect();
-        if let Ok(alive) = alive_peis(core).await {
+        // A subscription to one PEIS asks after that one only, not the whole ecology.
+        if let Ok(alive) = alive_matching(core, &alive).await {
             for id in alive {
                 if id != core.me && !heard.contains(&id) && pattern.owner.matches(&id) {
                     let _ = retry.send((id, 0));
@@ -936,10 +937,15 @@ async fn reconcile_presence(core: &Core, presence: &Mutex<Presence>) -> Result<(
 
 /// Every PEIS whose liveliness token answers a query now.
 async fn alive_peis(core: &Core) -> Result<BTreeSet<PeisId>, TupleError> {
+    alive_matching(core, wire::ALL_ALIVE).await
+}
+
+/// The PEIS whose liveliness tokens match `key_expr` and answer a query now.
+async fn alive_matching(core: &Core, key_expr: &str) -> Result<BTreeSet<PeisId>, TupleError> {
     let replies = core
         .session
         .liveliness()
-        .get(wire::ALL_ALIVE)
+        .get(key_expr)
         .timeout(core.query_timeout)
         .await
         .map_err(transport("peers"))?;

@@ -1,0 +1,130 @@
+//! Which component types a goal can use: what an executive must acquire of
+//! the ecology to plan for it (the paper's Section V, "acquired on demand").
+//!
+//! The ecology state facts that come from PEIS are `(pc P TYPE C)`, `(cost P C
+//! N on|off)` and `(status P C S)`. Every functionality and method the goal
+//! can reach names the components it may use through `pc` literals; when each
+//! of them names its type as a constant, only PEIS with a component of one of
+//! those types can take part in a configuration, and the rest of the ecology
+//! need not be read. Anything less precise (a type given by a variable, a
+//! negated `pc`, a `cost` or `status` of a component no constant-type `pc`
+//! binds) needs the whole state.
+
+use std::collections::BTreeSet;
+
+use ecology_domain::{Call, Domain, Literal, Term};
+
+/// The component types a configuration for `goal` can use, or `None` when
+/// the goal's methods and functionalities could use a component of any type
+/// (or the goal is unknown), so that every component must be acquired.
+pub fn component_types(domain: &Domain, goal: &Call) -> Option<BTreeSet<String>> {
+    let mut types = BTreeSet::new();
+    let mut seen = BTreeSet::new();
+    let mut todo = vec![&*goal.name];
+    while let Some(name) = todo.pop() {
+        if !seen.insert(name) {
+            continue;
+        }
+        if let Some(f) = domain.functionality(name) {
+            types_of(&f.precondition, &mut types)?;
+        } else if domain.task(name).is_some() {
+            for method in domain.methods_of(name) {
+                types_of(&method.precondition, &mut types)?;
+                todo.extend(method.subtasks.iter().map(|s| &*s.call.name));
+            }
+        } else {
+            return None;
+        }
+    }
+    Some(types)
+}
+
+/// Adds the types `precondition`'s `pc` literals name; `None` when it may
+/// use a component whose type it does not name.
+fn types_of(precondition: &[Literal], types: &mut BTreeSet<String>) -> Option<()> {
+    let mut typed = BTreeSet::new();
+    for literal in precondition {
+        match literal {
+            Literal::Pos(atom) if &*atom.predicate == "pc" => {
+                let [_, Term::Const(ty), component] = atom.args.as_slice() else {
+                    return None;
+                };
+                types.insert(ty.to_string());
+                if let Term::Var(v) = component {
+                    typed.insert(&**v);
+                }
+            }
+            Literal::Neg(atom) if &*atom.predicate == "pc" => return None,
+            _ => {}
+        }
+    }
+    for literal in precondition {
+        let (Literal::Pos(atom) | Literal::Neg(atom)) = literal else {
+            continue;
+        };
+        if matches!(&*atom.predicate, "cost" | "status") {
+            let bound = match atom.args.get(1) {
+                Some(Term::Var(v)) => typed.contains(&**v),
+                _ => false,
+            };
+            if !bound {
+                return None;
+            }
+        }
+    }
+    Some(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn domain(text: &str) -> Domain {
+        ecology_domain::parse_domain(text.as_bytes()).expect("a domain")
+    }
+
+    fn goal(text: &str) -> Call {
+        ecology_domain::parse_goal(text).expect("a goal")
+    }
+
+    const SEE: &str = r#"(define (domain d)
+      (:functionality cam :parameters (?p ?c) :component (?p ?c)
+        :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 5)
+      (:functionality laser :parameters (?p ?c) :component (?p ?c)
+        :precondition (pc ?p laser ?c) :output ((scan ?p)) :cost 5)
+      (:functionality any :parameters (?p ?t ?c) :component (?p ?c)
+        :precondition (pc ?p ?t ?c) :output ((image ?p)) :cost 5)
+      (:task see :parameters (?p))
+      (:method see-with-camera :parameters (?p ?c) :task (see ?p)
+        :precondition (and (pc ?p cam ?c) (status ?p ?c running)) :subtasks ((f1 (cam ?p ?c))))
+      (:task look :parameters (?p))
+      (:method look-with-anything :parameters (?p ?c ?t) :task (look ?p)
+        :precondition (pc ?p ?t ?c) :subtasks ((f1 (any ?p ?t ?c)))))"#;
+
+    #[test]
+    fn a_goal_uses_the_types_its_methods_and_functionalities_name() {
+        let d = domain(SEE);
+        let types = component_types(&d, &goal("(see robot)")).expect("types");
+        assert_eq!(types, BTreeSet::from(["cam".to_string()]));
+        let types = component_types(&d, &goal("(laser robot l1)")).expect("types");
+        assert_eq!(types, BTreeSet::from(["laser".to_string()]));
+    }
+
+    #[test]
+    fn a_type_given_by_a_variable_or_an_unknown_goal_needs_everything() {
+        let d = domain(SEE);
+        assert_eq!(component_types(&d, &goal("(look robot)")), None);
+        assert_eq!(component_types(&d, &goal("(fly robot)")), None);
+    }
+
+    #[test]
+    fn the_papers_navigation_uses_the_position_sources_and_nothing_else() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../domains/peis-home.eco");
+        let d = domain(&std::fs::read_to_string(path).expect("the domain file"));
+        let types = component_types(&d, &goal("(navigate astrid kitchen)")).expect("types");
+        for ty in ["laser", "odomet", "self-loc", "cams", "tr-sys"] {
+            assert!(types.contains(ty), "{ty} missing from {types:?}");
+        }
+        assert!(!types.contains("player"), "{types:?}");
+    }
+}

@@ -1,0 +1,76 @@
+//! What of the ecology the executive acquires (the paper's Section V: the
+//! state "can be acquired on demand", for the parts of the ecology the goal
+//! concerns).
+//!
+//! The configuration planner reads `(pc P TYPE C)`, `(cost P C N on|off)` and
+//! `(status P C S)` of the PEIS it may use. A plan whose configuration goals
+//! name the types of the components they can use ([`component_types`]) needs
+//! only the PEIS that have a component of one of those types: the driver
+//! reads every PEIS's directory (`components.C.type`), then follows the
+//! contract tuples of the PEIS that have such a component, and of no other.
+
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+use ecology_config::component_types;
+use ecology_domain::Domain;
+
+use crate::plan::{Plan, PlanBranch, PlannedAction};
+
+/// What of the ecology an executive needs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Interest {
+    /// Every tuple of every PEIS.
+    Everything,
+    /// The contract tuples of the PEIS with a component of one of these types.
+    Types(BTreeSet<String>),
+}
+
+impl Interest {
+    /// What the configuration goals of `steps` and of every branch after them can use.
+    pub fn of_plan(domain: &Domain, steps: &[PlannedAction], branches: &[PlanBranch]) -> Interest {
+        let mut types = BTreeSet::new();
+        let mut todo: Vec<(&[PlannedAction], &[PlanBranch])> = vec![(steps, branches)];
+        while let Some((steps, branches)) = todo.pop() {
+            for goal in steps.iter().filter_map(|a| a.goal.as_ref()) {
+                match component_types(domain, goal) {
+                    Some(more) => types.extend(more),
+                    None => return Interest::Everything,
+                }
+            }
+            todo.extend(
+                branches
+                    .iter()
+                    .map(|b| (b.plan.steps.as_slice(), b.plan.branches.as_slice())),
+            );
+        }
+        Interest::Types(types)
+    }
+
+    /// [`Interest::of_plan`] of a whole plan.
+    pub fn of(domain: &Domain, plan: &Plan) -> Interest {
+        Interest::of_plan(domain, &plan.steps, &plan.branches)
+    }
+
+    /// Whether a component of type `ty` is of interest.
+    pub fn covers(&self, ty: &str) -> bool {
+        match self {
+            Interest::Everything => true,
+            Interest::Types(types) => types.contains(ty),
+        }
+    }
+}
+
+/// What the executive took in from the ecology.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Intake {
+    /// Tuple updates received.
+    pub tuples: u64,
+    /// Their bytes: owner, key and value.
+    pub bytes: u64,
+    /// PEIS whose tuples were followed (on demand), or 0 when every tuple was.
+    pub followed: usize,
+    /// How long the driver took to acquire the state before the task
+    /// started (its directory and the followed PEIS's tuples), by the wall clock.
+    pub acquisition: Duration,
+}
