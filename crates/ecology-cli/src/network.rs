@@ -39,6 +39,9 @@ pub struct NetArgs {
     pub keys: Option<PathBuf>,
 }
 
+/// Whether this process has said that it runs unauthenticated.
+static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 impl NetArgs {
     /// The Zenoh options of PEIS `name`.
     pub fn options(&self, name: PeisId) -> anyhow::Result<ZenohOptions> {
@@ -65,6 +68,8 @@ impl NetArgs {
                     .with_context(|| format!("reading the keys in {}", dir.display()))?;
                 Ok(Security::Authenticated(Box::new(keys.identity(name)?)))
             }
+            // Said once a process: a process of many PEIS (`ecology peis --all`) would say it for each.
+            None if WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) => Ok(Security::Open),
             None => {
                 eprintln!(
                     "warning: {name} runs UNAUTHENTICATED: anyone who reaches its endpoints can write \

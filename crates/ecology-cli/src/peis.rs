@@ -1,5 +1,6 @@
 //! `ecology peis FILE --name P`: one PEIS as a process of its own on Zenoh,
-//! with its init component, its simulated components and its presence; and
+//! with its init component, its simulated components and its presence (or
+//! several, `--name P,Q` or `--all`, each with its own identity); and
 //! `ecology world SCENARIO`: the simulated world as a PEIS process.
 
 use std::io::Write;
@@ -19,9 +20,19 @@ use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 pub struct PeisArgs {
     /// A TOML file with [[peis]] tables (a scenario file, or PEIS alone).
     pub file: PathBuf,
-    /// Which PEIS of the file to run (needed when it describes several).
-    #[arg(long, value_name = "PEIS")]
-    pub name: Option<String>,
+    /// Which PEIS of the file to run (needed when it describes several); several, comma-separated
+    /// or repeated, run in this one process, each with its own identity and presence.
+    #[arg(
+        long,
+        value_name = "PEIS",
+        value_delimiter = ',',
+        conflicts_with = "all"
+    )]
+    pub name: Vec<String>,
+    /// Run every PEIS of the file in this one process, each with its own identity and presence
+    /// (best as clients of a router: --connect ROUTER --client).
+    #[arg(long)]
+    pub all: bool,
     /// The seed of the simulated components' noise.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub seed: u64,
@@ -50,7 +61,7 @@ fn say(line: &str) {
     let _ = out.flush();
 }
 
-/// `ecology peis FILE [--name P]`.
+/// `ecology peis FILE [--name P[,Q…] | --all]`.
 pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
     let defs = match PeisDef::load_all(&args.file) {
         Ok(defs) => defs,
@@ -59,83 +70,156 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_BAD_INPUT);
         }
     };
-    let def = match (&args.name, defs.as_slice()) {
-        (None, [only]) => only.clone(),
-        (None, _) => {
-            let names: Vec<&str> = defs.iter().map(|d| d.name.as_str()).collect();
-            eprintln!(
-                "error: {} describes {} PEIS ({}): choose one with --name",
-                args.file.display(),
-                defs.len(),
-                names.join(", ")
-            );
+    let chosen = match choose(&args.file, &defs, &args.name, args.all) {
+        Ok(chosen) => chosen,
+        Err(message) => {
+            eprintln!("error: {message}");
             return Ok(EXIT_BAD_INPUT);
         }
-        (Some(name), _) => match defs.iter().find(|d| &d.name == name) {
-            Some(def) => def.clone(),
-            None => {
-                let names: Vec<&str> = defs.iter().map(|d| d.name.as_str()).collect();
-                eprintln!(
-                    "error: {} has no PEIS {name} (it has {})",
-                    args.file.display(),
-                    names.join(", ")
-                );
-                return Ok(EXIT_BAD_INPUT);
-            }
-        },
     };
-    let id = PeisId::new(&def.name)?;
+    if chosen.len() > 1 && !args.net.listen.is_empty() {
+        eprintln!(
+            "error: {} PEIS cannot share --listen endpoints; connect them to a router instead \
+             (--connect ROUTER --client)",
+            chosen.len()
+        );
+        return Ok(EXIT_BAD_INPUT);
+    }
+    let ids = chosen
+        .iter()
+        .map(|def| PeisId::new(&def.name))
+        .collect::<Result<Vec<_>, _>>()?;
     network::runtime()?.block_on(async {
-        let space = match network::join(id.clone(), &args.net).await {
-            Ok(space) => space,
-            Err(failure) => return Ok(join_failed(failure)),
-        };
+        // Installed before any readiness line, so that no signal is lost.
         let stop = network::stop_signal();
-        let components: Vec<String> = def
-            .components
-            .iter()
-            .map(|c| {
-                let power = if c.on { "on" } else { "off" };
-                format!("{} ({}, {power})", c.id, c.kind)
-            })
-            .collect();
-        say(&format!(
-            "{id} ready: components {}; {}",
-            components.join(", "),
-            args.net.describe()
-        ));
-        let stopped = Arc::new(std::sync::Mutex::new(None));
-        let signal = stopped.clone();
-        let name = id.clone();
-        let result = ecology_sim::host_peis(
-            space.clone(),
-            Arc::new(SystemClock),
-            &def,
-            args.seed,
-            move |note| say(&format!("{name}: {note}")),
-            async move {
-                let which = stop.await;
-                if let Ok(mut slot) = signal.lock() {
-                    *slot = Some(which);
-                }
-            },
+        let (stopping, stopped) = tokio::sync::watch::channel(None::<&'static str>);
+        // Every PEIS joins at once: each join waits for the mesh to settle.
+        let joined = futures_util::future::join_all(
+            ids.iter().map(|id| network::join(id.clone(), &args.net)),
         )
         .await;
-        space.close().await;
-        match result {
-            Ok(()) => {
-                let which = stopped.lock().ok().and_then(|s| *s).unwrap_or("shutdown");
-                say(&format!(
-                    "{id}: {which}: components switched off, presence withdrawn"
-                ));
-                Ok(EXIT_OK)
-            }
-            Err(e) => {
-                eprintln!("error: PEIS {id}: {e}");
-                Ok(EXIT_NO_SOLUTION)
+        let mut spaces = Vec::new();
+        let mut failure = None;
+        for joined in joined {
+            match joined {
+                Ok(space) => spaces.push(space),
+                Err(e) => failure = failure.or(Some(e)),
             }
         }
+        if let Some(failure) = failure {
+            // Those that joined leave again: nothing is left behind for a PEIS that did not start.
+            futures_util::future::join_all(spaces.into_iter().map(|s| s.close())).await;
+            return Ok(join_failed(failure));
+        }
+        let mut hosts = tokio::task::JoinSet::new();
+        for (def, space) in chosen.into_iter().zip(spaces) {
+            let id = space.peis().clone();
+            let components: Vec<String> = def
+                .components
+                .iter()
+                .map(|c| {
+                    let power = if c.on { "on" } else { "off" };
+                    format!("{} ({}, {power})", c.id, c.kind)
+                })
+                .collect();
+            say(&format!(
+                "{id} ready: components {}; {}",
+                components.join(", "),
+                args.net.describe()
+            ));
+            let mut stopped = stopped.clone();
+            let seed = args.seed;
+            hosts.spawn(async move {
+                let name = id.clone();
+                let result = ecology_sim::host_peis(
+                    space.clone(),
+                    Arc::new(SystemClock),
+                    &def,
+                    seed,
+                    move |note| say(&format!("{name}: {note}")),
+                    async move {
+                        let _ = stopped.wait_for(Option::is_some).await;
+                    },
+                )
+                .await;
+                space.close().await;
+                (id, result)
+            });
+        }
+        if hosts.len() > 1 {
+            say(&format!("{} PEIS ready", hosts.len()));
+        }
+        let mut code = EXIT_OK;
+        tokio::pin!(stop);
+        let mut signalled = false;
+        loop {
+            tokio::select! {
+                which = &mut stop, if !signalled => {
+                    signalled = true;
+                    let _ = stopping.send(Some(which));
+                }
+                done = hosts.join_next() => {
+                    let Some(done) = done else { break };
+                    let which = (*stopping.borrow()).unwrap_or("shutdown");
+                    match done {
+                        Ok((id, Ok(()))) => say(&format!(
+                            "{id}: {which}: components switched off, presence withdrawn"
+                        )),
+                        Ok((id, Err(e))) => {
+                            eprintln!("error: PEIS {id}: {e}");
+                            code = EXIT_NO_SOLUTION;
+                        }
+                        Err(e) => {
+                            eprintln!("error: a PEIS host failed: {e}");
+                            code = EXIT_NO_SOLUTION;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(code)
     })
+}
+
+/// The PEIS of `defs` to run: those named, every one with `all`, or the only one.
+fn choose(
+    file: &std::path::Path,
+    defs: &[PeisDef],
+    names: &[String],
+    all: bool,
+) -> Result<Vec<PeisDef>, String> {
+    let listed = || {
+        let names: Vec<&str> = defs.iter().map(|d| d.name.as_str()).collect();
+        names.join(", ")
+    };
+    if all {
+        return Ok(defs.to_vec());
+    }
+    match (names, defs) {
+        ([], [only]) => Ok(vec![only.clone()]),
+        ([], _) => Err(format!(
+            "{} describes {} PEIS ({}): choose one with --name, or run them all with --all",
+            file.display(),
+            defs.len(),
+            listed()
+        )),
+        (names, _) => {
+            let mut chosen = Vec::new();
+            for name in names {
+                let Some(def) = defs.iter().find(|d| &d.name == name) else {
+                    return Err(format!(
+                        "{} has no PEIS {name} (it has {})",
+                        file.display(),
+                        listed()
+                    ));
+                };
+                if !chosen.iter().any(|c: &PeisDef| c.name == def.name) {
+                    chosen.push(def.clone());
+                }
+            }
+            Ok(chosen)
+        }
+    }
 }
 
 /// `ecology world SCENARIO`.

@@ -744,3 +744,28 @@ fn configure_writes_an_svg_picture() {
     let bad = configure(&["--svg", "/nonexistent-dir/x.svg"]);
     exits(&bad, 2, "writing /nonexistent-dir/x.svg");
 }
+
+#[test]
+fn peis_says_which_peis_of_a_file_it_cannot_run() {
+    let file = "scenarios/peis-home.toml";
+    exits(
+        &ecology(&["peis", file]),
+        2,
+        "describes 3 PEIS (astrid, hsm, pippi): choose one with --name, or run them all with --all",
+    );
+    exits(
+        &ecology(&["peis", file, "--name", "astrid,nobody"]),
+        2,
+        "has no PEIS nobody (it has astrid, hsm, pippi)",
+    );
+    exits(
+        &ecology(&["peis", file, "--all", "--listen", "tcp/127.0.0.1:0"]),
+        2,
+        "3 PEIS cannot share --listen endpoints; connect them to a router instead",
+    );
+    exits(
+        &ecology(&["peis", file, "--all", "--name", "hsm"]),
+        2,
+        "cannot be used with",
+    );
+}

@@ -390,6 +390,106 @@ fn through_a_router(secured: bool) {
     );
 }
 
+/// Several PEIS in one process (`ecology peis FILE --name astrid,hsm`), clients of a secured
+/// router: each joins with its own certificate and presence, takes remote sets as its own, is
+/// refused a twin, and is seen gone after its own lease when the process is killed.
+#[test]
+fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("many", &[TO_BEDROOM], Variant::Paper);
+    let keys = fixture.folder.join("keys").display().to_string();
+    make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
+    let router = free_endpoint().replacen("tcp/", "quic/", 1);
+    let _router = Proc::start("router", &["router", "--listen", &router, "--keys", &keys]).ready();
+    let through = [
+        "--client",
+        "--connect",
+        router.as_str(),
+        "--keys",
+        keys.as_str(),
+    ];
+    let scenario = fixture.scenario();
+    let _world = Proc::start(
+        "world",
+        &[&["world", scenario.as_str()][..], &through].concat(),
+    )
+    .ready();
+    let hosts_args = [
+        &[
+            "peis",
+            scenario.as_str(),
+            "--name",
+            "astrid,hsm",
+            "--lease",
+            "1",
+        ][..],
+        &through,
+    ]
+    .concat();
+    let mut hosts = Proc::start("hosts", &hosts_args);
+    hosts.wait_for("both ready", |l| l == "2 PEIS ready");
+    for name in ["astrid", "hsm"] {
+        assert!(
+            hosts
+                .seen
+                .iter()
+                .any(|l| l.text.starts_with(&format!("{name} ready: "))),
+            "{}",
+            hosts.transcript()
+        );
+    }
+    // A twin of one of them is refused, as it would be beside a process of its own.
+    let (code, _) = Proc::start(
+        "twin",
+        &[&["peis", scenario.as_str(), "--name", "hsm"][..], &through].concat(),
+    )
+    .finish();
+    assert_eq!(code, Some(2), "a second hsm must be refused");
+    // The executive switches, wires and runs components of both, through remote sets.
+    let plan = fixture.plan();
+    let task = [
+        &[
+            "task",
+            "--domain",
+            "domains/peis-home.eco",
+            "--plan",
+            plan.as_str(),
+            "--json",
+            "--wait-for",
+            "world,astrid,hsm",
+        ][..],
+        &through,
+    ]
+    .concat();
+    let (code, lines) = Proc::start("executive", &task).finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    // Killed, the process leaves no goodbye: each of its PEIS is seen gone after its lease.
+    let watch_args = [
+        &["tuples", "--name", "executive"][..],
+        &through,
+        &["watch", "*:components.*.currState"],
+    ]
+    .concat();
+    let mut watch = Proc::start("watch", &watch_args);
+    watch.wait_for("the snapshot", |l| l.contains("currState"));
+    hosts.signal(Signal::SIGKILL);
+    let killed = Instant::now();
+    let gone = |watch: &Proc, name: &str| {
+        let line = format!("- {name} left");
+        watch.seen.iter().any(|l| l.text == line)
+    };
+    while !(gone(&watch, "astrid") && gone(&watch, "hsm")) {
+        watch.wait_for("a PEIS leaving", |l| l.ends_with(" left"));
+    }
+    let took = killed.elapsed();
+    assert!(
+        took < Duration::from_secs(4),
+        "both seen gone {took:?} after the kill, with a lease of 1 s"
+    );
+}
+
 #[test]
 fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
     let _one = one_at_a_time();
