@@ -268,7 +268,7 @@ struct Follow<S: TupleSpace> {
     everything: bool,
     /// The types of interest so far (on demand).
     types: BTreeSet<String>,
-    /// Whether the directory (`*:components.*.type`) is subscribed.
+    /// Whether the directory (`*:components.**`) is subscribed.
     directory: bool,
     /// The PEIS whose contract tuples are followed.
     followed: BTreeSet<PeisId>,
@@ -395,20 +395,20 @@ impl<S: TupleSpace> Follow<S> {
     }
 }
 
-/// Every PEIS's directory: the types of its components.
+/// Every PEIS's directory: its init component's tuples, `components.C.type`,
+/// `.cost`, `.currState` and `.reqState` of each of its components.
 fn directory() -> TuplePattern {
-    TuplePattern::parse("*:components.*.type").expect("a valid pattern")
+    TuplePattern::parse("*:components.**").expect("a valid pattern")
 }
 
-/// The tuples of the component contract of `peis`: its init component's
-/// `components.C.*`, and each component's `C.status`, `.cause`, `.params` and
-/// `.observed` (with its input pointers, `C.mi-INFO`, but not its outputs).
-fn contract_patterns(peis: &PeisId) -> [TuplePattern; 2] {
-    let of = |key: &str| TuplePattern {
+/// The rest of the component contract of `peis`, beyond its directory: each
+/// component's `C.status`, `.cause`, `.params` and `.observed` (with its input
+/// pointers, `C.mi-INFO`, but not its outputs, `C.out.INFO`).
+fn contract_patterns(peis: &PeisId) -> [TuplePattern; 1] {
+    [TuplePattern {
         owner: OwnerPattern::Exact(peis.clone()),
-        key: KeyPattern::new(key).expect("a valid pattern"),
-    };
-    [of("components.**"), of("*.*")]
+        key: KeyPattern::new("*.*").expect("a valid pattern"),
+    }]
 }
 
 /// Hands the executive every event `sub` holds now; returns its commands.

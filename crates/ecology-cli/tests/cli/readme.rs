@@ -1,4 +1,4 @@
-//! Every command README shows, run or checked, so none goes stale: the quick ones are run and
+//! Every command README and the pages of docs/ in `PAGES` show, run or checked, so none goes stale: the quick ones are run and
 //! their exit codes and costs compared with what README says next to them (`# exit 1`, `# 80: …`);
 //! the ones that start a long-running process (a PEIS, a router, a real-time run, a sweep of
 //! 10,000 seeds) have their arguments checked by the binary (`ECOLOGY_PARSE_ONLY`); and every other
@@ -16,6 +16,7 @@ const OTHERS: &[&str] = &[
     "cargo bench -p ecology-config --bench configure",
     "cargo bench -p ecology-cli --bench fuzz",
     "cargo bench -p ecology-cli --bench faults",
+    "cargo bench -p ecology-cli --bench large",
     "cargo bench -p ecology-exec --bench reconfigure",
     "cargo bench -p ecology-actions --bench plan",
     "cargo bench -p ecology-actions --bench conditional",
@@ -135,13 +136,48 @@ fn expectation(comment: &str) -> (i32, Option<u64>) {
     (code, cost)
 }
 
+/// The pages whose commands are run: README and the pages of docs/ written as `cargo run`
+/// commands from the repository (the language reference and the tuple, component and security
+/// pages show the installed `ecology` on files of their own).
+const PAGES: &[&str] = &[
+    "README.md",
+    "docs/planning.md",
+    "docs/executive.md",
+    "docs/network.md",
+    "docs/benchmarks.md",
+];
+
+/// Each page's name and text, in the order of [`PAGES`].
+fn pages() -> Vec<(String, String)> {
+    PAGES
+        .iter()
+        .map(|page| {
+            let text = std::fs::read_to_string(root().join(page)).expect("a page");
+            (page.to_string(), text)
+        })
+        .collect()
+}
+
 #[test]
 fn every_command_in_readme_runs_as_readme_says() {
-    let readme = std::fs::read_to_string(root().join("README.md")).expect("README.md");
     let keys = std::env::temp_dir().join(format!("ecology-readme-keys-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&keys);
     let (mut ran, mut checked, mut others) = (0, 0, 0);
-    for (command, comment) in commands(&readme) {
+    let shown: Vec<(String, String, String)> = pages()
+        .into_iter()
+        .flat_map(|(page, text)| {
+            commands(&text)
+                .into_iter()
+                .map(move |(command, comment)| (page.clone(), command, comment))
+        })
+        .collect();
+    let mut last_page = String::new();
+    for (page, command, comment) in shown {
+        // Each page makes its keys afresh.
+        if page != last_page {
+            let _ = std::fs::remove_dir_all(&keys);
+            last_page = page.clone();
+        }
         let prefix = [
             "cargo run -q --release --bin ecology -- ",
             "cargo run --release --bin ecology -- ",
@@ -158,13 +194,13 @@ fn every_command_in_readme_runs_as_readme_says() {
             }
             assert!(
                 OTHERS.iter().any(|o| bare.starts_with(o)),
-                "README shows a command no test or script covers: {command}"
+                "{page} shows a command no test or script covers: {command}"
             );
             others += 1;
             continue;
         };
         let mut args = words(&command[prefix.len()..]);
-        // README's keys directory is made in a temporary folder instead of the repository.
+        // The pages' keys directory is made in a temporary folder instead of the repository.
         for a in &mut args {
             if a == "./home-keys" {
                 *a = keys.display().to_string();
@@ -183,13 +219,13 @@ fn every_command_in_readme_runs_as_readme_says() {
         assert_eq!(
             out.status.code(),
             Some(expected),
-            "`{command}` (README: {comment:?}):\n{stdout}\n{}",
+            "`{command}` ({page}: {comment:?}):\n{stdout}\n{}",
             String::from_utf8_lossy(&out.stderr)
         );
         if let (Some(cost), false) = (cost, long) {
             assert!(
                 stdout.contains(&format!("cost {cost}")),
-                "`{command}` should print cost {cost} (README: {comment:?}):\n{stdout}"
+                "`{command}` should print cost {cost} ({page}: {comment:?}):\n{stdout}"
             );
         }
         if long {
@@ -200,7 +236,7 @@ fn every_command_in_readme_runs_as_readme_says() {
     }
     let _ = std::fs::remove_dir_all(&keys);
     println!(
-        "README: {ran} commands run, {checked} long-running ones checked, {others} scripts and benchmarks"
+        "README and docs: {ran} commands run, {checked} long-running ones checked, {others} scripts and benchmarks"
     );
     assert!(
         ran >= 15 && checked >= 8,
