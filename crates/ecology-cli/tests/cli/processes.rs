@@ -341,6 +341,23 @@ fn a_secured_router_forwards_for_its_members() {
     through_a_router(true);
 }
 
+/// `ecology task` on `plan`, printing JSON lines, waiting for the world, astrid and hsm, joined
+/// with `through` (how it reaches them).
+fn task_args<'a>(plan: &'a str, through: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec![
+        "task",
+        "--domain",
+        "domains/peis-home.eco",
+        "--plan",
+        plan,
+        "--json",
+        "--wait-for",
+        "world,astrid,hsm",
+    ];
+    args.extend(through);
+    args
+}
+
 fn through_a_router(secured: bool) {
     let _one = one_at_a_time();
     let fixture = Fixture::new("router", &[TO_BEDROOM], Variant::Paper);
@@ -369,18 +386,7 @@ fn through_a_router(secured: bool) {
         procs.push(Proc::start(name, &args).ready());
     }
     let plan = fixture.plan();
-    let mut args = vec![
-        "task",
-        "--domain",
-        "domains/peis-home.eco",
-        "--plan",
-        plan.as_str(),
-        "--json",
-        "--wait-for",
-        "world,astrid,hsm",
-    ];
-    args.extend(&through);
-    let (code, lines) = Proc::start("executive", &args).finish();
+    let (code, lines) = Proc::start("executive", &task_args(&plan, &through)).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
@@ -447,21 +453,7 @@ fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
     assert_eq!(code, Some(2), "a second hsm must be refused");
     // The executive switches, wires and runs components of both, through remote sets.
     let plan = fixture.plan();
-    let task = [
-        &[
-            "task",
-            "--domain",
-            "domains/peis-home.eco",
-            "--plan",
-            plan.as_str(),
-            "--json",
-            "--wait-for",
-            "world,astrid,hsm",
-        ][..],
-        &through,
-    ]
-    .concat();
-    let (code, lines) = Proc::start("executive", &task).finish();
+    let (code, lines) = Proc::start("executive", &task_args(&plan, &through)).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
