@@ -139,7 +139,8 @@ pub async fn drive_until<S: TupleSpace>(
         Acquisition::OnDemand => exec.interest(),
         Acquisition::Everything => Interest::Everything,
     };
-    let mut pending = tuples.widen(exec, elapsed(&clock), &interest).await?;
+    // What the state handed the executive as it was read comes first.
+    let mut commands = tuples.widen(exec, elapsed(&clock), &interest).await?;
     exec.note_acquisition(acquiring.elapsed());
     let mut presence = space.subscribe_presence().await?;
     let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
@@ -149,10 +150,9 @@ pub async fn drive_until<S: TupleSpace>(
     tokio::pin!(stop);
     let mut stopped = false;
     loop {
-        let mut commands = std::mem::take(&mut pending);
-        if !commands.is_empty() {
-            // What acquiring more handed the executive comes first.
-        } else if matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
+        // Commands not yet carried out come before anything else.
+        let idle = commands.is_empty();
+        if idle && matches!(exec.status(), RunStatus::Failed { .. }) && !exec.finished() {
             commands = match replan.as_deref_mut() {
                 Some(replanner) if !stopped => {
                     // A failed read leaves the replanner the plan's own assumptions.
@@ -173,13 +173,13 @@ pub async fn drive_until<S: TupleSpace>(
                 }
                 _ => exec.abandon(elapsed(&clock)),
             };
-        } else if matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
+        } else if idle && matches!(exec.status(), RunStatus::Done | RunStatus::Failed { .. }) {
             sets.flush(exec, &clock, start).await;
             for entry in &exec.log()[observed..] {
                 observe(entry);
             }
             return Ok(exec.status().clone());
-        } else if config.limit.is_some_and(|limit| elapsed(&clock) >= limit) {
+        } else if idle && config.limit.is_some_and(|limit| elapsed(&clock) >= limit) {
             sets.flush(exec, &clock, start).await;
             return Ok(exec.status().clone());
         }
@@ -246,7 +246,7 @@ pub async fn drive_until<S: TupleSpace>(
             observe(entry);
         }
         observed = exec.log().len();
-        for command in commands {
+        for command in commands.drain(..) {
             match command {
                 Command::StartTimer { id, after } => {
                     timers.insert(id, clock.now().saturating_add(after));
@@ -264,12 +264,8 @@ pub async fn drive_until<S: TupleSpace>(
 /// directory of component types and the PEIS followed on demand.
 struct Follow<S: TupleSpace> {
     space: S,
-    /// Every tuple is followed (one subscription).
-    everything: bool,
-    /// The types of interest so far (on demand).
-    types: BTreeSet<String>,
-    /// Whether the directory (`*:components.**`) is subscribed.
-    directory: bool,
+    /// What is followed so far: the directory is subscribed once a type is.
+    interest: Interest,
     /// The PEIS whose contract tuples are followed.
     followed: BTreeSet<PeisId>,
     subs: SelectAll<ecology_tuples::Subscription>,
@@ -279,63 +275,58 @@ impl<S: TupleSpace> Follow<S> {
     fn new(space: S) -> Self {
         Follow {
             space,
-            everything: false,
-            types: BTreeSet::new(),
-            directory: false,
+            interest: Interest::Types(BTreeSet::new()),
             followed: BTreeSet::new(),
             subs: SelectAll::new(),
         }
     }
 
-    /// Follows what `interest` adds to what is followed, handing the
-    /// executive what is there now; returns the executive's commands.
+    /// Follows what `more` adds to what is followed, handing the executive
+    /// what is there now; returns the executive's commands.
     async fn widen(
         &mut self,
         exec: &mut Executive,
         now: Duration,
-        interest: &Interest,
+        more: &Interest,
     ) -> Result<Vec<Command>, TupleError> {
+        let Interest::Types(have) = &mut self.interest else {
+            return Ok(Vec::new());
+        };
+        let Interest::Types(types) = more else {
+            let mut all = self.space.subscribe(TuplePattern::everything()).await?;
+            // The new subscription brings all of it again; the mirror drops what it has.
+            let out = take_in(exec, now, &mut all);
+            self.subs = SelectAll::new();
+            self.subs.push(all);
+            self.interest = Interest::Everything;
+            exec.note_followed(0);
+            return Ok(out);
+        };
+        if types.is_subset(have) {
+            return Ok(Vec::new());
+        }
+        let first = have.is_empty();
+        have.extend(types.iter().cloned());
         let mut out = Vec::new();
-        match interest {
-            Interest::Everything if !self.everything => {
-                let mut all = self.space.subscribe(TuplePattern::everything()).await?;
-                // The new subscription brings all of it again; the mirror drops what it has.
-                out.extend(take_in(exec, now, &mut all));
-                self.subs = SelectAll::new();
-                self.subs.push(all);
-                self.everything = true;
-                exec.note_followed(0);
-                self.directory = false;
-            }
-            Interest::Types(types) if !self.everything => {
-                if types.is_subset(&self.types) {
-                    return Ok(out);
-                }
-                self.types.extend(types.iter().cloned());
-                let mut listed = Vec::new();
-                if !self.directory {
-                    let mut directory = self.space.subscribe(directory()).await?;
-                    while let Some(event) = directory.try_next() {
-                        if let TupleEvent::Changed(t) = event {
-                            out.extend(exec.handle(now, tuple_event(&t)));
-                        }
-                    }
-                    self.subs.push(directory);
-                    self.directory = true;
-                }
-                for (peis, view) in exec.mirror().peis() {
-                    let wanted = view
+        if first {
+            let mut directory = self.space.subscribe(directory()).await?;
+            out.extend(take_in(exec, now, &mut directory));
+            self.subs.push(directory);
+        }
+        let listed: Vec<PeisId> = exec
+            .mirror()
+            .peis()
+            .iter()
+            .filter(|(peis, view)| {
+                !self.followed.contains(*peis)
+                    && view
                         .components
                         .values()
-                        .any(|c| c.ty.as_deref().is_some_and(|ty| self.types.contains(ty)));
-                    if wanted && !self.followed.contains(peis) {
-                        listed.push(peis.clone());
-                    }
-                }
-                out.extend(self.follow(exec, now, listed).await?);
-            }
-            _ => {}
-        }
+                        .any(|c| c.ty.as_deref().is_some_and(|ty| self.interest.covers(ty)))
+            })
+            .map(|(peis, _)| peis.clone())
+            .collect();
+        out.extend(self.follow(exec, now, listed).await?);
         Ok(out)
     }
 
@@ -347,14 +338,14 @@ impl<S: TupleSpace> Follow<S> {
         now: Duration,
         t: &Tuple,
     ) -> Result<Vec<Command>, TupleError> {
-        if self.everything || self.followed.contains(&t.owner) {
+        if self.interest == Interest::Everything || self.followed.contains(&t.owner) {
             return Ok(Vec::new());
         }
         let typed = matches!(
             ComponentField::parse(&t.key),
             Some((_, ComponentField::Type))
         );
-        if !typed || !t.text().is_ok_and(|ty| self.types.contains(ty.trim())) {
+        if !typed || !t.text().is_ok_and(|ty| self.interest.covers(ty.trim())) {
             return Ok(Vec::new());
         }
         self.follow(exec, now, vec![t.owner.clone()]).await

@@ -200,6 +200,18 @@ pub enum LogEvent {
 }
 
 impl LogEvent {
+    /// The PEIS, component and cause of a [`LogEvent::Failure`]; `None` for any other event.
+    pub fn failure(&self) -> Option<(&str, &str, &str)> {
+        match self {
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => Some((peis, component, cause)),
+            _ => None,
+        }
+    }
+
     /// The event's name in the JSON-lines log.
     pub fn name(&self) -> &'static str {
         match self {

@@ -184,14 +184,8 @@ fn waiting_too_long_is_a_failure() {
 fn failures(exec: &Executive) -> Vec<String> {
     exec.log()
         .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } => Some(format!("{peis}:{component} {cause}")),
-            _ => None,
-        })
+        .filter_map(|e| e.event.failure())
+        .map(|(peis, component, cause)| format!("{peis}:{component} {cause}"))
         .collect()
 }
 

@@ -334,11 +334,7 @@ async fn drive_scenario(
                     lock(schedule).push((shared.now().saturating_add(delay), fault.clone()));
                 }
             }
-            if let LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } = &entry.event
+            if let Some((peis, component, cause)) = entry.event.failure()
                 && let Some(why) = unfounded(truth, peis, component, cause)
             {
                 spurious.push(format!(

@@ -306,14 +306,7 @@ async fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
     let failures: Vec<(&str, &str, &str)> = report
         .log
         .iter()
-        .filter_map(|e| match &e.event {
-            LogEvent::Failure {
-                peis,
-                component,
-                cause,
-            } => Some((peis.as_str(), component.as_str(), cause.as_str())),
-            _ => None,
-        })
+        .filter_map(|e| e.event.failure())
         .collect();
     // Once in each move: exclusions last one action.
     assert_eq!(failures.len(), 2, "{text}");
