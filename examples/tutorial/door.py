@@ -13,7 +13,7 @@ It is examples/python/robot_counter.py with another component: the wire format a
   (m1.door = `open`), then reports `done`. Until then it reports `running` (the door closed), or
   `waiting` while no position came in the last 0.5 s. Empty params or `off` close the door.
 
-Usage: door.py [--name door1] [--at X Y] [--near M] [--listen ENDPOINT]... [--connect ENDPOINT]...
+Usage: door.py [--name door1] [--at X Y] [--near M] [--listen ENDPOINT]... [--connect ENDPOINT]... [--no-epoch]
 """
 
 import argparse

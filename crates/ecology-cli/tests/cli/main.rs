@@ -6,6 +6,7 @@ mod processes;
 mod readme;
 mod support;
 mod tuples;
+mod tutorial;
 mod view;
 
 use std::path::PathBuf;

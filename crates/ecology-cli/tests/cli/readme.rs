@@ -145,6 +145,7 @@ const PAGES: &[&str] = &[
     "docs/executive.md",
     "docs/network.md",
     "docs/benchmarks.md",
+    "docs/tutorial.md",
 ];
 
 /// Each page's name and text, in the order of [`PAGES`].
