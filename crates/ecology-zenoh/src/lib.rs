@@ -19,9 +19,16 @@ pub use router::{RouterOptions, run_router};
 use ecology_tuples::TupleError;
 
 /// Sends Zenoh's own log to stderr when the `RUST_LOG` environment variable asks for it (such as
-/// `RUST_LOG=zenoh_transport=debug`); does nothing otherwise.
+/// `RUST_LOG=zenoh_transport=debug`); does nothing otherwise. Never to stdout, which carries a
+/// command's output (JSON lines, tables).
 pub fn log_from_env() {
-    zenoh::try_init_log_from_env();
+    let Ok(filter) = tracing_subscriber::EnvFilter::try_from_default_env() else {
+        return;
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
 }
 
 /// Zenoh's receive runtime as an Ecology process sets it: `ZENOH_RUNTIME`'s value when the

@@ -68,16 +68,21 @@ impl Proc {
         Proc::spawn(name, command)
     }
 
-    /// Any `command`, from the repository's root, its stdout read line by line.
+    /// Any `command`, from the repository's root, its stdout read line by line. Its stderr goes to
+    /// `NAME.log` in the folder `ECOLOGY_TEST_STDERR` names, when set (with `RUST_LOG=zenoh=debug`,
+    /// each process's Zenoh log apart), else to the test's own.
     pub fn spawn(name: &str, mut command: Command) -> Proc {
         let mut child = command
             .current_dir(root())
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(if QUIET.load(std::sync::atomic::Ordering::Relaxed) {
-                Stdio::null()
-            } else {
-                Stdio::inherit()
+            .stderr(match std::env::var_os("ECOLOGY_TEST_STDERR") {
+                Some(dir) => Stdio::from(
+                    std::fs::File::create(std::path::Path::new(&dir).join(format!("{name}.log")))
+                        .expect("a log file"),
+                ),
+                None if QUIET.load(std::sync::atomic::Ordering::Relaxed) => Stdio::null(),
+                None => Stdio::inherit(),
             })
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
