@@ -67,10 +67,8 @@ pub struct TaskArgs {
     /// How long to take in the ecology's tuples before the first action, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.5)]
     pub settle: f64,
-    /// What of the ecology the executive reads: every tuple (the default over Zenoh for now: on
-    /// demand, a PEIS that returns after a partition has been seen missed), or what the plan's
-    /// goals can use.
-    #[arg(long, value_enum, default_value_t = Acquire::Everything)]
+    /// What of the ecology the executive reads: what the plan's goals can use, or every tuple.
+    #[arg(long, value_enum, default_value_t = Acquire::OnDemand)]
     pub acquire: Acquire,
     /// Report on stderr at the end: state acquisition, planning per
     /// configuration, tuples and bytes taken in, peak memory.

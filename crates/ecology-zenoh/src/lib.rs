@@ -8,6 +8,7 @@
 
 mod config;
 mod peis;
+mod relink;
 mod router;
 pub mod security;
 pub mod wire;

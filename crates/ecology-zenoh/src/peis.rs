@@ -19,6 +19,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, Query};
 use zenoh::sample::{Sample, SampleKind};
 
+use crate::relink;
 use crate::wire::{self, Metadata, WireError};
 use crate::{Mode, ZenohError, ZenohOptions};
 
@@ -38,6 +39,8 @@ struct Inner {
     core: Arc<Core>,
     shutdown: watch::Sender<bool>,
     service: Mutex<Option<JoinHandle<()>>>,
+    /// Dials again the links this session dialled and lost (peers only).
+    relink: Mutex<Option<relink::Relink>>,
 }
 
 struct Core {
@@ -171,9 +174,21 @@ impl ZenohPeis {
     /// or a PEIS with the same name is already present. Needs tokio's multi-thread runtime.
     pub async fn open(options: ZenohOptions) -> Result<Self, ZenohError> {
         let config = options.zenoh_config()?;
-        let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
+        let (session, runtime) = relink::open(config).await.map_err(|e| ZenohError::Open {
             message: e.to_string(),
         })?;
+        let (shutdown, shutdown_rx) = watch::channel(false);
+        let relinking = match options.mode {
+            Mode::Peer => Some(
+                relink::relink(&session, runtime, shutdown_rx.clone())
+                    .await
+                    .map_err(|e| ZenohError::Open {
+                        message: e.to_string(),
+                    })?,
+            ),
+            // A client's one link is to its router, which Zenoh itself dials again.
+            Mode::Client => None,
+        };
         let me = options.name.clone();
         if options.mode == Mode::Peer {
             settle_links(&session).await;
@@ -230,7 +245,6 @@ impl ZenohPeis {
                 declare,
             }),
         });
-        let (shutdown, shutdown_rx) = watch::channel(false);
         let service = tokio::spawn(serve(
             core.clone(),
             get_queryable,
@@ -243,6 +257,7 @@ impl ZenohPeis {
                 core,
                 shutdown,
                 service: Mutex::new(Some(service)),
+                relink: Mutex::new(relinking),
             }),
         })
     }
@@ -250,6 +265,8 @@ impl ZenohPeis {
     /// Leaves the ecology: stops the service task, withdraws the liveliness token and closes the session.
     pub async fn close(self) {
         let _ = self.inner.shutdown.send(true);
+        // Links lost while closing are not dialled again.
+        drop(lock(&self.inner.relink).take());
         let service = lock(&self.inner.service).take();
         if let Some(service) = service {
             // The task ends on the signal; an error would only mean it panicked, which leaves nothing to clean.
@@ -657,7 +674,7 @@ const CATCH_UP_ATTEMPTS: u32 = 5;
 const CATCH_UP_PAUSE: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// Aborts a task when dropped: the catch-up task of a subscription.
-struct AbortOnDrop(JoinHandle<()>);
+pub(crate) struct AbortOnDrop(pub(crate) JoinHandle<()>);
 
 impl Drop for AbortOnDrop {
     fn drop(&mut self) {

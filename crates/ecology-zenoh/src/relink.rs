@@ -1,0 +1,122 @@
+//! Links lost on one side only, dialled again.
+//!
+//! Peers meet through gossip: a PEIS dials a peer it hears of only when it holds no link to it,
+//! and hears of it once, when it links to a neighbour. When a partition heals before this side's
+//! lease on a link ran out (the other side, with a shorter lease, has already dropped it), this
+//! side still holds its half when gossip names the other; it does not dial, and learns a moment
+//! later, from a reset, that the link is dead. Nothing names the other again, so the two would not
+//! meet until something else changed. Hence: a link this session dialled and lost is dialled
+//! again, at once and then a few times over a few seconds, until a link to that peer is back.
+//! A link the other side dialled is theirs to dial again.
+
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+use zenoh::Session;
+use zenoh::config::{Locator, ZenohId};
+use zenoh::internal::runtime::{Runtime, RuntimeBuilder};
+use zenoh::sample::SampleKind;
+use zenoh::session::LinkEventsListener;
+
+use crate::peis::AbortOnDrop;
+
+/// Pauses before each new dial of a lost link (4.35 s in all): the first is short, as the link
+/// usually died of a reset on a path that is back (the pause lets its transport go first).
+const PAUSES: [Duration; 5] = [
+    Duration::from_millis(100),
+    Duration::from_millis(250),
+    Duration::from_millis(500),
+    Duration::from_secs(1),
+    Duration::from_millis(2500),
+];
+
+/// Opens a session as `zenoh::open` does, keeping its runtime to dial with.
+pub(crate) async fn open(config: zenoh::Config) -> zenoh::Result<(Session, Runtime)> {
+    let mut runtime = RuntimeBuilder::new(config).build().await?;
+    let session = zenoh::session::init(runtime.clone().into()).await?;
+    runtime.start().await?;
+    Ok((session, runtime))
+}
+
+/// Dials lost links again while it lives (until `shutdown` turns true).
+pub(crate) struct Relink {
+    _listener: LinkEventsListener<()>,
+    _task: AbortOnDrop,
+}
+
+impl std::fmt::Debug for Relink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Relink")
+    }
+}
+
+/// Watches `session`'s links and dials again those it dialled and lost.
+pub(crate) async fn relink(
+    session: &Session,
+    runtime: Runtime,
+    shutdown: watch::Receiver<bool>,
+) -> zenoh::Result<Relink> {
+    let (lost, mut losses) = mpsc::unbounded_channel::<(ZenohId, Locator)>();
+    let listener = session
+        .info()
+        .link_events_listener()
+        .history(false)
+        .callback(move |event| {
+            if event.kind() == SampleKind::Delete {
+                let link = event.link();
+                let _ = lost.send((*link.zid(), link.dst().clone()));
+            }
+        })
+        .await?;
+    let session = session.clone();
+    let task = tokio::spawn(async move {
+        let mut shutdown = shutdown;
+        loop {
+            let (zid, dst) = tokio::select! {
+                _ = shutdown.changed() => return,
+                next = losses.recv() => match next {
+                    Some(next) => next,
+                    None => return,
+                },
+            };
+            // Addresses this session listens on: a link that ends there was dialled by the other.
+            let listening = runtime.get_locators();
+            if listening.iter().any(|l| l.address() == dst.address()) {
+                continue;
+            }
+            tokio::spawn(dial_again(
+                session.clone(),
+                runtime.clone(),
+                zid,
+                dst,
+                shutdown.clone(),
+            ));
+        }
+    });
+    Ok(Relink {
+        _listener: listener,
+        _task: AbortOnDrop(task),
+    })
+}
+
+/// Dials `dst` for `zid` until a link to `zid` is back, the pauses run out, or the session ends.
+async fn dial_again(
+    session: Session,
+    runtime: Runtime,
+    zid: ZenohId,
+    dst: Locator,
+    shutdown: watch::Receiver<bool>,
+) {
+    for pause in PAUSES {
+        tokio::time::sleep(pause).await;
+        if *shutdown.borrow() || session.is_closed() {
+            return;
+        }
+        if session.info().peers_zid().await.any(|peer| peer == zid) {
+            return;
+        }
+        runtime
+            .connect_peer(&zid.into(), std::slice::from_ref(&dst))
+            .await;
+    }
+}
