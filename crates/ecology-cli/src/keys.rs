@@ -146,7 +146,7 @@ pub fn keys(args: &KeysArgs) -> anyhow::Result<u8> {
             let keys = KeysDir::open(dir)?;
             let roster = keys.roster();
             println!(
-                "the ecology of {} in {}: {} members",
+                "the ecology under {} in {}: {} members",
                 roster.authority,
                 dir.display(),
                 roster.members.len()
