@@ -47,6 +47,8 @@ struct Core {
     me: PeisId,
     options: PeisOptions,
     session: zenoh::Session,
+    /// The session's runtime, closed after it.
+    runtime: relink::OwnedRuntime,
     clock: Arc<dyn Clock>,
     store: Mutex<OwnedTuples>,
     // Held from assigning a seq to handing the sample to Zenoh, so samples of a key leave in seq order.
@@ -180,7 +182,7 @@ impl ZenohPeis {
         let (shutdown, shutdown_rx) = watch::channel(false);
         let relinking = match options.mode {
             Mode::Peer => Some(
-                relink::relink(&session, runtime, shutdown_rx.clone())
+                relink::relink(&session, runtime.runtime(), shutdown_rx.clone())
                     .await
                     .map_err(|e| ZenohError::Open {
                         message: e.to_string(),
@@ -202,7 +204,9 @@ impl ZenohPeis {
                 message: e.to_string(),
             })?;
         if already.recv_async().await.is_ok() {
+            drop(relinking);
             let _ = session.close().await;
+            runtime.close().await;
             return Err(ZenohError::Space(TupleError::AlreadyPresent(me)));
         }
         let get_queryable = session
@@ -234,6 +238,7 @@ impl ZenohPeis {
             me,
             options: options.peis,
             session,
+            runtime,
             clock: options.clock,
             publishers: Mutex::new(Publishers::default()),
             expiry_changed: Notify::new(),
@@ -278,6 +283,7 @@ impl ZenohPeis {
             let _ = token.undeclare().await;
         }
         let _ = self.inner.core.session.close().await;
+        self.inner.core.runtime.close().await;
     }
 
     /// Samples dropped because they could not be read as tuples (bad key, attachment or size).

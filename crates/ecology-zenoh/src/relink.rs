@@ -31,11 +31,44 @@ const PAUSES: [Duration; 5] = [
 ];
 
 /// Opens a session as `zenoh::open` does, keeping its runtime to dial with.
-pub(crate) async fn open(config: zenoh::Config) -> zenoh::Result<(Session, Runtime)> {
+pub(crate) async fn open(config: zenoh::Config) -> zenoh::Result<(Session, OwnedRuntime)> {
     let mut runtime = RuntimeBuilder::new(config).build().await?;
+    let owned = OwnedRuntime(runtime.clone());
     let session = zenoh::session::init(runtime.clone().into()).await?;
     runtime.start().await?;
-    Ok((session, runtime))
+    Ok((session, owned))
+}
+
+/// The runtime under a session [`open`] opened. A session opened on a runtime of one's own does
+/// not close it (its listeners, its links): this does, when told or at the latest when dropped.
+pub(crate) struct OwnedRuntime(Runtime);
+
+impl OwnedRuntime {
+    /// A handle on the runtime, to dial with.
+    pub(crate) fn runtime(&self) -> Runtime {
+        self.0.clone()
+    }
+
+    /// Closes the runtime (after its session).
+    pub(crate) async fn close(&self) {
+        if !self.0.is_closed() {
+            let _ = self.0.close().await;
+        }
+    }
+}
+
+impl Drop for OwnedRuntime {
+    fn drop(&mut self) {
+        if !self.0.is_closed() {
+            let _ = zenoh::Wait::wait(self.0.close());
+        }
+    }
+}
+
+impl std::fmt::Debug for OwnedRuntime {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("OwnedRuntime")
+    }
 }
 
 /// Dials lost links again while it lives (until `shutdown` turns true).
