@@ -1,11 +1,13 @@
 //! What the live view knows: built from tuple changes, presence, and the executive's log entries
-//! (the JSON objects of `ecology task --json`, also published as the executive's `log` tuple).
+//! (the JSON objects of `ecology task --json`, also published as the executive's `log` tuple),
+//! and the home from the `world` PEIS' tuples ([`Home`]).
 
 use std::collections::BTreeMap;
 
 use ecology_tuples::{PresenceEvent, TupleEvent};
 use serde_json::{Value as Json, json};
 
+use crate::home::{Home, WORLD};
 use crate::svg::{Drawing, Edge, Mark, Node};
 
 /// The longest value preview kept per tuple.
@@ -49,6 +51,7 @@ pub struct View {
     failed: BTreeMap<String, String>,
     status: String,
     changes: u64,
+    home: Home,
 }
 
 impl View {
@@ -77,6 +80,9 @@ impl View {
                 {
                     self.log(&entry);
                 }
+                if t.owner.as_str() == WORLD {
+                    self.home.tuple(t.key.as_str(), Some(&text));
+                }
                 let id = (t.owner.to_string(), t.key.to_string());
                 if !self.tuples.contains_key(&id) && self.tuples.len() >= MAX_TUPLES {
                     self.dropped_tuples += 1;
@@ -94,6 +100,9 @@ impl View {
                 );
             }
             TupleEvent::Removed { owner, key, .. } => {
+                if owner.as_str() == WORLD {
+                    self.home.tuple(key.as_str(), None);
+                }
                 self.tuples.remove(&(owner.to_string(), key.to_string()));
             }
             TupleEvent::Retargeted { .. } => {}
@@ -371,6 +380,7 @@ impl View {
             "plan": plan,
             "configuration": configuration,
             "svg": self.drawing().map(|d| d.svg()),
+            "home": self.home.snapshot(),
             "failed": self.failed,
             "timeline": self.timeline,
             "tuples": tuples,
@@ -544,6 +554,29 @@ mod tests {
                 &"branch on (not (at x b)) (probability 0.3): (move r b c) → (get r x c)"
             ),
             "{texts:?}"
+        );
+    }
+
+    #[test]
+    fn the_world_peis_tuples_make_the_home_even_past_the_preview_length() {
+        let mut view = View::new();
+        let map = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
+                   room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+                   door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+        assert!(map.chars().count() > PREVIEW);
+        assert_eq!(view.snapshot()["home"], Json::Null);
+        view.tuple(&tuple("world", "map", map));
+        view.tuple(&tuple("world", "robots.astrid.pose", "4.000 4.000 1.5708"));
+        // The same keys of another PEIS are not the world's.
+        view.tuple(&tuple("astrid", "robots.astrid.pose", "1.0 1.0 0.0"));
+        let snapshot = view.snapshot();
+        assert_eq!(snapshot["home"]["rooms"].as_array().map(Vec::len), Some(4));
+        assert_eq!(snapshot["home"]["robots"][0]["room"], "entrance");
+        assert!(
+            snapshot["home"]["svg"]
+                .as_str()
+                .expect("svg")
+                .contains(r#"data-robot="astrid" data-room="entrance""#)
         );
     }
 

@@ -1,5 +1,6 @@
 //! The live view in a real browser: `ecology demo --view` driven by headless Chromium over the
-//! DevTools protocol, as a person would look at it (the paper's Section VIII, steps 5 and 6).
+//! DevTools protocol, as a person would look at it (the paper's Section VIII, steps 5 and 6), with
+//! the home's map beside the configuration.
 
 use std::io::{BufRead, Read, Write};
 use std::net::TcpStream;
@@ -164,7 +165,7 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
                 "--no-sandbox",
                 "--disable-gpu",
                 "--no-first-run",
-                "--window-size=1400,1000",
+                "--window-size=1280,800",
                 &format!("--remote-debugging-port={port}"),
                 &format!("--user-data-dir={}", profile.display()),
                 &url,
@@ -200,6 +201,23 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
     let mut page = Page { socket, next_id: 0 };
     let patience = Duration::from_secs(40);
 
+    // The home beside the configuration: Astrid's marker names the room she is in; the page
+    // records each room it shows her in, while the steps below are waited for.
+    page.wait_until(
+        "Astrid's marker in a room of the home",
+        r#"(() => { const m = document.querySelector('#home g.robot[data-robot="astrid"]');
+            if (m === null || !m.getAttribute("data-room")) return false;
+            window.astridRooms = [m.getAttribute("data-room")];
+            setInterval(() => {
+              const m = document.querySelector('#home g.robot[data-robot="astrid"]');
+              const room = m && m.getAttribute("data-room");
+              if (room && window.astridRooms[window.astridRooms.length - 1] !== room)
+                window.astridRooms.push(room);
+            }, 50);
+            return true; })()"#,
+        patience,
+    );
+
     // Step 5: the move to the bedroom on the ceiling cameras, cost 80.
     page.wait_until(
         "the cost-80 configuration with the ceiling cameras",
@@ -223,7 +241,7 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
     );
     page.call(
         "Emulation.setDeviceMetricsOverride",
-        json!({"width": 1400, "height": 1000, "deviceScaleFactor": 1, "mobile": false}),
+        json!({"width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": false}),
     );
     let shot = page.call("Page.captureScreenshot", json!({"format": "png"}));
     let png = base64::engine::general_purpose::STANDARD
@@ -234,11 +252,21 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
     std::fs::write(&file, &png).expect("save the screenshot");
     println!("screenshot: {} ({} bytes)", file.display(), png.len());
 
-    // The run ends with the task done.
+    // The run ends with the task done, Astrid in the bedroom, having been in another room first.
     page.wait_until(
         "the task done",
         r#"document.getElementById("status").textContent === "task done""#,
         patience,
+    );
+    page.wait_until(
+        "Astrid's marker in the bedroom after another room",
+        r#"(() => { const rooms = window.astridRooms;
+            return new Set(rooms).size >= 2 && rooms[rooms.length - 1] === "bedroom"; })()"#,
+        Duration::from_secs(5),
+    );
+    println!(
+        "astrid's rooms: {}",
+        page.eval("window.astridRooms.join(' → ')")
     );
     drop(page);
     drop(browser);

@@ -1,0 +1,537 @@
+//! The home as the `world` PEIS publishes it: its `map` tuple (rooms and doors, as
+//! `room NAME X0 Y0 X1 Y1; door A B X Y; …`), `robots.R.pose` (`X Y THETA`), `things.T.at`
+//! (`X Y`, empty while held), `things.T.holder` (a robot, or empty) and `residents.H.state`.
+//! Read leniently: what does not parse is left out, nothing panics. Drawn as SVG beside the
+//! configuration: rooms as rectangles, doors on their walls, robots as arrows showing their
+//! heading, things where they lie or beside who holds them, residents with their state.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use serde_json::{Value as Json, json};
+
+use crate::svg::escape;
+
+/// The PEIS whose tuples describe the home.
+pub const WORLD: &str = "world";
+
+/// Robots, things and residents kept at most (each); past it, new names are ignored.
+const MAX_ITEMS: usize = 1_000;
+/// Rooms and doors kept at most.
+const MAX_ROOMS: usize = 1_000;
+/// How far outside every room a position may lie and still count as in the nearest one
+/// (metres, the width of a door frame; as the simulator's `Map::room_at`).
+const DOOR_FRAME: f64 = 0.2;
+/// The longer side of the drawn home, pixels.
+const SIDE: f64 = 300.0;
+const MARGIN: f64 = 8.0;
+const TOP: f64 = 8.0;
+/// A robot's marker, metres from its centre to its nose.
+const ROBOT: f64 = 0.22;
+
+/// A rectangular room (corners ordered: `x0 <= x1`, `y0 <= y1`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Room {
+    /// Its name.
+    pub name: String,
+    /// Lower-left x.
+    pub x0: f64,
+    /// Lower-left y.
+    pub y0: f64,
+    /// Upper-right x.
+    pub x1: f64,
+    /// Upper-right y.
+    pub y1: f64,
+}
+
+impl Room {
+    fn distance(&self, x: f64, y: f64) -> f64 {
+        let dx = (self.x0 - x).max(x - self.x1).max(0.0);
+        let dy = (self.y0 - y).max(y - self.y1).max(0.0);
+        dx.hypot(dy)
+    }
+}
+
+/// A door between rooms `a` and `b` at (x, y) on their common wall.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Door {
+    /// One room.
+    pub a: String,
+    /// The other.
+    pub b: String,
+    /// The passage point x.
+    pub x: f64,
+    /// The passage point y.
+    pub y: f64,
+}
+
+/// Position in metres and heading in radians (counter-clockwise from the x axis).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+    /// Heading, radians.
+    pub theta: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+struct Thing {
+    at: Option<(f64, f64)>,
+    holder: Option<String>,
+}
+
+/// The finite numbers of `text`, if it is exactly `n` of them.
+fn numbers(text: &str, n: usize) -> Option<Vec<f64>> {
+    let values: Vec<f64> = text
+        .split_whitespace()
+        .map(|w| w.parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect::<Option<_>>()?;
+    (values.len() == n).then_some(values)
+}
+
+/// Parses the `map` tuple's text; items that do not parse are left out.
+pub fn parse_map(text: &str) -> (Vec<Room>, Vec<Door>) {
+    let mut rooms = Vec::new();
+    let mut doors = Vec::new();
+    for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
+        let words: Vec<&str> = item.split_whitespace().collect();
+        match words.as_slice() {
+            ["room", name, rest @ ..] if rooms.len() < MAX_ROOMS => {
+                if let Some(v) = numbers(&rest.join(" "), 4) {
+                    rooms.push(Room {
+                        name: (*name).to_owned(),
+                        x0: v[0].min(v[2]),
+                        y0: v[1].min(v[3]),
+                        x1: v[0].max(v[2]),
+                        y1: v[1].max(v[3]),
+                    });
+                }
+            }
+            ["door", a, b, rest @ ..] if doors.len() < MAX_ROOMS => {
+                if let Some(v) = numbers(&rest.join(" "), 2) {
+                    doors.push(Door {
+                        a: (*a).to_owned(),
+                        b: (*b).to_owned(),
+                        x: v[0],
+                        y: v[1],
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    (rooms, doors)
+}
+
+/// Parses a pose tuple's text, `X Y THETA`.
+pub fn parse_pose(text: &str) -> Option<Pose> {
+    let v = numbers(text, 3)?;
+    Some(Pose {
+        x: v[0],
+        y: v[1],
+        theta: v[2],
+    })
+}
+
+/// The room (x, y) is in: the first that contains it, or, within a door frame (0.2 m) of a wall, the
+/// nearest.
+pub fn room_at(rooms: &[Room], x: f64, y: f64) -> Option<&Room> {
+    if !x.is_finite() || !y.is_finite() {
+        return None;
+    }
+    rooms.iter().find(|r| r.distance(x, y) == 0.0).or_else(|| {
+        rooms
+            .iter()
+            .map(|r| (r.distance(x, y), r))
+            .filter(|(d, _)| *d <= DOOR_FRAME)
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, r)| r)
+    })
+}
+
+/// The home as the view sees it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Home {
+    rooms: Vec<Room>,
+    doors: Vec<Door>,
+    robots: BTreeMap<String, Pose>,
+    things: BTreeMap<String, Thing>,
+    residents: BTreeMap<String, String>,
+    seen: bool,
+}
+
+fn text_or_none(text: &str) -> Option<String> {
+    let text = text.trim();
+    (!text.is_empty()).then(|| text.to_owned())
+}
+
+impl Home {
+    /// Takes in a tuple of the `world` PEIS, `key` = `text` (`None`: removed). Other keys are
+    /// ignored.
+    pub fn tuple(&mut self, key: &str, text: Option<&str>) {
+        let parts: Vec<&str> = key.split('.').collect();
+        let fits = |len: usize, has: bool| has || len < MAX_ITEMS;
+        match (parts.as_slice(), text) {
+            (["map"], text) => {
+                (self.rooms, self.doors) = parse_map(text.unwrap_or(""));
+            }
+            (["robots", name, "pose"], Some(text)) => match parse_pose(text) {
+                Some(pose) if fits(self.robots.len(), self.robots.contains_key(*name)) => {
+                    self.robots.insert((*name).to_owned(), pose);
+                }
+                Some(_) => {}
+                None => {
+                    self.robots.remove(*name);
+                }
+            },
+            (["robots", name, "pose"], None) => {
+                self.robots.remove(*name);
+            }
+            (["things", name, field @ ("at" | "holder")], text) => {
+                let has = self.things.contains_key(*name);
+                if !fits(self.things.len(), has) {
+                    return;
+                }
+                let thing = self.things.entry((*name).to_owned()).or_default();
+                let text = text.unwrap_or("");
+                if *field == "at" {
+                    thing.at = numbers(text, 2).map(|v| (v[0], v[1]));
+                } else {
+                    thing.holder = text_or_none(text);
+                }
+            }
+            (["residents", name, "state"], Some(text)) => {
+                if fits(self.residents.len(), self.residents.contains_key(*name)) {
+                    self.residents
+                        .insert((*name).to_owned(), text.trim().to_owned());
+                }
+            }
+            (["residents", name, "state"], None) => {
+                self.residents.remove(*name);
+            }
+            _ => return,
+        }
+        self.seen = true;
+    }
+
+    /// The room a robot is in now.
+    pub fn robot_room(&self, robot: &str) -> Option<&str> {
+        let pose = self.robots.get(robot)?;
+        room_at(&self.rooms, pose.x, pose.y).map(|r| r.name.as_str())
+    }
+
+    /// Where a thing is: where it lies, or where its holder is.
+    fn thing_at(&self, thing: &Thing) -> Option<(f64, f64)> {
+        match &thing.holder {
+            Some(holder) => self.robots.get(holder).map(|p| (p.x, p.y)),
+            None => thing.at,
+        }
+    }
+
+    /// The home as JSON for the page (`null` until the world has published anything).
+    pub fn snapshot(&self) -> Json {
+        if !self.seen {
+            return Json::Null;
+        }
+        let room_of = |x: f64, y: f64| room_at(&self.rooms, x, y).map(|r| r.name.clone());
+        json!({
+            "rooms": self.rooms.iter().map(|r| json!({"name": r.name, "x0": r.x0, "y0": r.y0, "x1": r.x1, "y1": r.y1})).collect::<Vec<_>>(),
+            "doors": self.doors.iter().map(|d| json!({"between": [d.a, d.b], "x": d.x, "y": d.y})).collect::<Vec<_>>(),
+            "robots": self.robots.iter().map(|(name, p)| json!({"name": name, "x": p.x, "y": p.y, "theta": p.theta, "room": room_of(p.x, p.y)})).collect::<Vec<_>>(),
+            "things": self.things.iter().map(|(name, t)| {
+                let at = self.thing_at(t);
+                json!({"name": name, "at": t.at.map(|(x, y)| [x, y]), "holder": t.holder,
+                       "room": at.and_then(|(x, y)| room_of(x, y))})
+            }).collect::<Vec<_>>(),
+            "residents": self.residents.iter().map(|(name, state)| json!({"name": name, "state": state})).collect::<Vec<_>>(),
+            "svg": self.svg(),
+        })
+    }
+
+    /// The bounding box of everything with a position: (x0, y0, x1, y1).
+    fn bounds(&self) -> Option<(f64, f64, f64, f64)> {
+        let mut points: Vec<(f64, f64)> = Vec::new();
+        for r in &self.rooms {
+            points.push((r.x0, r.y0));
+            points.push((r.x1, r.y1));
+        }
+        points.extend(self.doors.iter().map(|d| (d.x, d.y)));
+        points.extend(self.robots.values().map(|p| (p.x, p.y)));
+        points.extend(self.things.values().filter_map(|t| t.at));
+        let (first, rest) = points.split_first()?;
+        Some(rest.iter().fold(
+            (first.0, first.1, first.0, first.1),
+            |(x0, y0, x1, y1), &(x, y)| (x0.min(x), y0.min(y), x1.max(x), y1.max(y)),
+        ))
+    }
+
+    /// The home as a standalone SVG document: north (+y) up.
+    pub fn svg(&self) -> String {
+        let (bx0, by0, bx1, by1) = self.bounds().unwrap_or((0.0, 0.0, 1.0, 1.0));
+        // Half a metre around everything, so markers at the edge stay inside.
+        let (bx0, by0, bx1, by1) = (bx0 - 0.3, by0 - 0.3, bx1 + 0.3, by1 + 0.3);
+        let scale = SIDE / (bx1 - bx0).max(by1 - by0).max(1e-3);
+        let px = |x: f64| MARGIN + (x - bx0) * scale;
+        let py = |y: f64| TOP + (by1 - y) * scale;
+        let residents = self.residents.len() as f64;
+        let width = 2.0 * MARGIN + (bx1 - bx0) * scale;
+        let height = TOP + (by1 - by0) * scale + 10.0 + residents * 18.0;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            r##"<svg xmlns="http://www.w3.org/2000/svg" width="{width:.0}" height="{height:.0}" viewBox="0 0 {width:.0} {height:.0}" font-family="sans-serif" font-size="11">
+<rect width="100%" height="100%" fill="#ffffff"/>"##
+        );
+        for r in &self.rooms {
+            let _ = writeln!(
+                out,
+                r##"<g class="room" data-room="{n}"><rect x="{x:.1}" y="{y:.1}" width="{w:.1}" height="{h:.1}" fill="#f7f4ec" stroke="#5d6d7e" stroke-width="2"/><text x="{tx:.1}" y="{ty:.1}" fill="#5d6d7e">{n}</text></g>"##,
+                n = escape(&r.name),
+                x = px(r.x0),
+                y = py(r.y1),
+                w = (r.x1 - r.x0) * scale,
+                h = (r.y1 - r.y0) * scale,
+                tx = px(r.x0) + 5.0,
+                ty = py(r.y1) + 14.0,
+            );
+        }
+        for d in &self.doors {
+            // On a vertical wall when a room's side runs through it, else on a horizontal one.
+            let vertical = self.rooms.iter().any(|r| {
+                ((r.x0 - d.x).abs() < 1e-6 || (r.x1 - d.x).abs() < 1e-6)
+                    && d.y >= r.y0
+                    && d.y <= r.y1
+            });
+            let half = 0.35;
+            let (x1, y1, x2, y2) = if vertical {
+                (d.x, d.y - half, d.x, d.y + half)
+            } else {
+                (d.x - half, d.y, d.x + half, d.y)
+            };
+            let _ = writeln!(
+                out,
+                r##"<line class="door" data-door="{a}-{b}" x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="#c8a165" stroke-width="5"/>"##,
+                px(x1),
+                py(y1),
+                px(x2),
+                py(y2),
+                a = escape(&d.a),
+                b = escape(&d.b),
+            );
+        }
+        for (name, t) in &self.things {
+            let Some((x, y)) = self.thing_at(t) else {
+                continue;
+            };
+            let held = t.holder.as_deref().map(escape);
+            let (dx, dy) = if held.is_some() {
+                (8.0, 6.0)
+            } else {
+                (0.0, 0.0)
+            };
+            let label = match &held {
+                Some(h) => format!("{} (held by {h})", escape(name)),
+                None => escape(name),
+            };
+            let _ = writeln!(
+                out,
+                r##"<g class="thing" data-thing="{n}"{holder}><rect x="{x:.1}" y="{y:.1}" width="9" height="9" fill="#f5b041" stroke="#7e5109"/><text x="{tx:.1}" y="{ty:.1}" font-size="10" fill="#7e5109">{label}</text></g>"##,
+                n = escape(name),
+                holder = held
+                    .as_ref()
+                    .map(|h| format!(r#" data-holder="{h}""#))
+                    .unwrap_or_default(),
+                x = px(x) + dx - 4.5,
+                y = py(y) + dy - 4.5,
+                tx = px(x) + dx + 8.0,
+                ty = py(y) + dy + 12.0,
+            );
+        }
+        for (name, p) in &self.robots {
+            let corner = |angle: f64, length: f64| {
+                let a = p.theta + angle;
+                format!(
+                    "{:.1},{:.1}",
+                    px(p.x + length * a.cos()),
+                    py(p.y + length * a.sin())
+                )
+            };
+            let room = self
+                .robot_room(name)
+                .map(|r| format!(r#" data-room="{}""#, escape(r)))
+                .unwrap_or_default();
+            let _ = writeln!(
+                out,
+                r##"<g class="robot" data-robot="{n}"{room}><polygon points="{} {} {}" fill="#2e86c1" stroke="#1b4f72" stroke-width="1.5"/><text x="{tx:.1}" y="{ty:.1}" font-weight="bold" fill="#1b4f72">{n}</text></g>"##,
+                corner(0.0, ROBOT),
+                corner(2.5, ROBOT),
+                corner(-2.5, ROBOT),
+                n = escape(name),
+                tx = px(p.x) + 12.0,
+                ty = py(p.y) - 8.0,
+            );
+        }
+        let mut y = TOP + (by1 - by0) * scale + 16.0;
+        for (name, state) in &self.residents {
+            let fill = if state == "awake" {
+                "#e74c3c"
+            } else {
+                "#aab7b8"
+            };
+            let _ = writeln!(
+                out,
+                r##"<g class="resident" data-resident="{n}" data-state="{s}"><circle cx="{cx:.1}" cy="{cy:.1}" r="5" fill="{fill}"/><text x="{tx:.1}" y="{y:.1}">{n}: {s}</text></g>"##,
+                n = escape(name),
+                s = escape(state),
+                cx = MARGIN + 5.0,
+                cy = y - 4.0,
+                tx = MARGIN + 16.0,
+            );
+            y += 18.0;
+        }
+        out.push_str("</svg>\n");
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
+                       room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+                       door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+
+    #[test]
+    fn the_map_text_of_the_world_parses_into_rooms_and_doors() {
+        let (rooms, doors) = parse_map(MAP);
+        assert_eq!(rooms.len(), 4);
+        assert_eq!(
+            rooms[2],
+            Room {
+                name: "entrance".into(),
+                x0: 2.5,
+                y0: 3.0,
+                x1: 5.0,
+                y1: 5.0
+            }
+        );
+        assert_eq!(doors.len(), 3);
+        assert_eq!(doors[2].a, "entrance");
+        assert_eq!(doors[2].b, "bedroom");
+        assert_eq!((doors[2].x, doors[2].y), (2.5, 4.0));
+    }
+
+    #[test]
+    fn bad_map_text_is_left_out_without_panicking() {
+        for text in [
+            "",
+            ";;;",
+            "room",
+            "room a",
+            "room a 1 2 3",
+            "room a 1 2 3 4 5",
+            "room a x 2 3 4",
+            "room a NaN 0 1 1",
+            "room a inf 0 1 1",
+            "door a b 1",
+            "door a b 1 y",
+            "window a 1 2",
+            "é;ü ü ü;\u{0}",
+        ] {
+            assert_eq!(parse_map(text), (vec![], vec![]), "{text:?}");
+        }
+        // What parses is kept beside what does not; corners come out ordered.
+        let (rooms, doors) = parse_map("room a 2 2 0 0; room b; door a b 1 2; junk");
+        assert_eq!(rooms.len(), 1);
+        assert_eq!(
+            (rooms[0].x0, rooms[0].y0, rooms[0].x1, rooms[0].y1),
+            (0.0, 0.0, 2.0, 2.0)
+        );
+        assert_eq!(doors.len(), 1);
+        for text in ["", "1 2", "1 2 3 4", "a b c", "1 2 NaN", "1e999 0 0"] {
+            assert_eq!(parse_pose(text), None, "{text:?}");
+        }
+        assert_eq!(
+            parse_pose(" 1.5 -2 0.25 "),
+            Some(Pose {
+                x: 1.5,
+                y: -2.0,
+                theta: 0.25
+            })
+        );
+    }
+
+    #[test]
+    fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
+        let (rooms, _) = parse_map(MAP);
+        let name = |x: f64, y: f64| room_at(&rooms, x, y).map(|r| r.name.as_str());
+        assert_eq!(name(1.5, 1.5), Some("living-room"));
+        assert_eq!(name(4.0, 1.0), Some("kitchen"));
+        assert_eq!(name(4.2, 4.3), Some("entrance"));
+        assert_eq!(name(1.0, 4.0), Some("bedroom"));
+        // On a wall: the first room listed that has it.
+        assert_eq!(name(3.0, 1.5), Some("living-room"));
+        // Just outside the home, within a door frame of the bedroom; too far from any room.
+        assert_eq!(name(-0.1, 4.0), Some("bedroom"));
+        assert_eq!(name(-1.0, 4.0), None);
+        assert_eq!(name(f64::NAN, 1.0), None);
+        assert_eq!(name(f64::INFINITY, 1.0), None);
+        assert_eq!(room_at(&[], 1.0, 1.0), None);
+    }
+
+    #[test]
+    fn the_world_tuples_make_the_home_and_its_drawing() {
+        let mut home = Home::default();
+        assert_eq!(home.snapshot(), Json::Null);
+        home.tuple("map", Some(MAP));
+        home.tuple("robots.astrid.pose", Some("1.500 1.500 0.0000"));
+        home.tuple("robots.pippi.pose", Some("0.6 0.6 0.8"));
+        home.tuple("things.newspaper.at", Some("4.200 4.300"));
+        home.tuple("things.newspaper.holder", Some(""));
+        home.tuple("residents.johanna.state", Some("asleep"));
+        home.tuple("unrelated", Some("x"));
+        assert_eq!(home.robot_room("astrid"), Some("living-room"));
+        let snapshot = home.snapshot();
+        assert_eq!(snapshot["rooms"].as_array().map(Vec::len), Some(4));
+        assert_eq!(snapshot["doors"].as_array().map(Vec::len), Some(3));
+        assert_eq!(snapshot["robots"][0]["name"], "astrid");
+        assert_eq!(snapshot["robots"][0]["room"], "living-room");
+        assert_eq!(snapshot["things"][0]["room"], "entrance");
+        assert_eq!(snapshot["residents"][0]["state"], "asleep");
+        let svg = snapshot["svg"].as_str().expect("svg");
+        assert!(svg.contains(r#"class="robot" data-robot="astrid" data-room="living-room""#));
+        assert!(svg.contains(r#"data-thing="newspaper""#));
+        assert!(svg.contains(r#"data-resident="johanna" data-state="asleep""#));
+        assert_eq!(svg.matches(r#"class="room""#).count(), 4);
+        assert_eq!(svg.matches(r#"class="door""#).count(), 3);
+
+        // Astrid walks into the bedroom holding the newspaper; Johanna wakes.
+        home.tuple("robots.astrid.pose", Some("1.0 4.0 3.14"));
+        home.tuple("things.newspaper.at", Some(""));
+        home.tuple("things.newspaper.holder", Some("astrid"));
+        home.tuple("residents.johanna.state", Some("awake"));
+        let snapshot = home.snapshot();
+        assert_eq!(snapshot["robots"][0]["room"], "bedroom");
+        assert_eq!(snapshot["things"][0]["holder"], "astrid");
+        assert_eq!(snapshot["things"][0]["room"], "bedroom");
+        let svg = snapshot["svg"].as_str().expect("svg");
+        assert!(svg.contains(r#"data-robot="astrid" data-room="bedroom""#));
+        assert!(svg.contains("newspaper (held by astrid)"));
+
+        // Bad values: the robot is dropped, nothing panics; removals are taken in.
+        home.tuple("robots.astrid.pose", Some("here"));
+        home.tuple("things.newspaper.at", Some("1 2 3"));
+        home.tuple("residents.<b>.state", Some("<asleep>"));
+        home.tuple("map", Some("nonsense"));
+        home.tuple("robots.pippi.pose", None);
+        let snapshot = home.snapshot();
+        assert_eq!(snapshot["robots"].as_array().map(Vec::len), Some(0));
+        assert_eq!(snapshot["rooms"].as_array().map(Vec::len), Some(0));
+        let svg = snapshot["svg"].as_str().expect("svg");
+        assert!(svg.contains("&lt;b&gt;: &lt;asleep&gt;"), "{svg}");
+        assert!(svg.trim_end().ends_with("</svg>"));
+    }
+}
