@@ -5,7 +5,8 @@
 //!
 //! Tuples of the `world` PEIS: `map` (the rooms and doors, as text),
 //! `robots.NAME.pose` (`X Y THETA`), `things.NAME.at` (`X Y` where it lies,
-//! empty while held), `things.NAME.holder` (the robot holding it, or empty) and `residents.NAME.state` (`asleep` or `awake`). It reads
+//! empty while held), `things.NAME.holder` (the robot holding it, or empty),
+//! `residents.NAME.state` (`asleep` or `awake`) and `residents.NAME.at` (`X Y`). It reads
 //! every component's `C.out.velocity` (`V W`: m/s and rad/s, for the robot
 //! that is the component's PEIS), `C.out.grasp` (the thing to grasp) and
 //! `C.out.sound` (a sound in the robot's room).
@@ -153,6 +154,10 @@ async fn publish_things<S: TupleSpace>(world: &World, space: &S) -> Result<(), T
         let state = if resident.awake { "awake" } else { "asleep" };
         space
             .set(key(&format!("residents.{name}.state"))?, Value::text(state))
+            .await?;
+        let at = format!("{:.3} {:.3}", resident.at.0, resident.at.1);
+        space
+            .set(key(&format!("residents.{name}.at"))?, Value::text(at))
             .await?;
     }
     Ok(())

@@ -1,9 +1,11 @@
 //! The home as the `world` PEIS publishes it: its `map` tuple (rooms and doors, as
 //! `room NAME X0 Y0 X1 Y1; door A B X Y; …`), `robots.R.pose` (`X Y THETA`), `things.T.at`
-//! (`X Y`, empty while held), `things.T.holder` (a robot, or empty) and `residents.H.state`.
+//! (`X Y`, empty while held), `things.T.holder` (a robot, or empty), `residents.H.state` and
+//! `residents.H.at` (`X Y`).
 //! Read leniently: what does not parse is left out, nothing panics. Drawn as SVG beside the
 //! configuration: rooms as rectangles, doors on their walls, robots as arrows showing their
-//! heading, things where they lie or beside who holds them, residents with their state.
+//! heading, things where they lie or beside who holds them, residents where they are (listed
+//! under the map while the world has not said) with their state.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -151,6 +153,13 @@ pub fn room_at(rooms: &[Room], x: f64, y: f64) -> Option<&Room> {
     })
 }
 
+/// A resident: their state (`asleep`, `awake`) and where they are, when the world says.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct Resident {
+    state: String,
+    at: Option<(f64, f64)>,
+}
+
 /// The home as the view sees it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Home {
@@ -158,7 +167,7 @@ pub struct Home {
     doors: Vec<Door>,
     robots: BTreeMap<String, Pose>,
     things: BTreeMap<String, Thing>,
-    residents: BTreeMap<String, String>,
+    residents: BTreeMap<String, Resident>,
     seen: bool,
 }
 
@@ -202,14 +211,17 @@ impl Home {
                     thing.holder = text_or_none(text);
                 }
             }
-            (["residents", name, "state"], Some(text)) => {
-                if fits(self.residents.len(), self.residents.contains_key(*name)) {
-                    self.residents
-                        .insert((*name).to_owned(), text.trim().to_owned());
+            (["residents", name, field @ ("state" | "at")], text) => {
+                if !fits(self.residents.len(), self.residents.contains_key(*name)) {
+                    return;
                 }
-            }
-            (["residents", name, "state"], None) => {
-                self.residents.remove(*name);
+                let resident = self.residents.entry((*name).to_owned()).or_default();
+                let text = text.unwrap_or("");
+                if *field == "state" {
+                    resident.state = text.trim().to_owned();
+                } else {
+                    resident.at = numbers(text, 2).map(|v| (v[0], v[1]));
+                }
             }
             _ => return,
         }
@@ -245,7 +257,8 @@ impl Home {
                 json!({"name": name, "at": t.at.map(|(x, y)| [x, y]), "holder": t.holder,
                        "room": at.and_then(|(x, y)| room_of(x, y))})
             }).collect::<Vec<_>>(),
-            "residents": self.residents.iter().map(|(name, state)| json!({"name": name, "state": state})).collect::<Vec<_>>(),
+            "residents": self.residents.iter().map(|(name, r)| json!({"name": name, "state": r.state, "at": r.at.map(|(x, y)| [x, y]),
+                                                                     "room": r.at.and_then(|(x, y)| room_of(x, y))})).collect::<Vec<_>>(),
             "svg": self.svg(),
         })
     }
@@ -260,6 +273,7 @@ impl Home {
         points.extend(self.doors.iter().map(|d| (d.x, d.y)));
         points.extend(self.robots.values().map(|p| (p.x, p.y)));
         points.extend(self.things.values().filter_map(|t| t.at));
+        points.extend(self.residents.values().filter_map(|r| r.at));
         let (first, rest) = points.split_first()?;
         Some(rest.iter().fold(
             (first.0, first.1, first.0, first.1),
@@ -275,7 +289,8 @@ impl Home {
         let scale = SIDE / (bx1 - bx0).max(by1 - by0).max(1e-3);
         let px = |x: f64| MARGIN + (x - bx0) * scale;
         let py = |y: f64| TOP + (by1 - y) * scale;
-        let residents = self.residents.len() as f64;
+        // Residents whose place is not known are listed under the map.
+        let residents = self.residents.values().filter(|r| r.at.is_none()).count() as f64;
         let width = 2.0 * MARGIN + (bx1 - bx0) * scale;
         let height = TOP + (by1 - by0) * scale + 10.0 + residents * 18.0;
         let mut out = String::new();
@@ -374,22 +389,30 @@ impl Home {
             );
         }
         let mut y = TOP + (by1 - by0) * scale + 16.0;
-        for (name, state) in &self.residents {
-            let fill = if state == "awake" {
+        for (name, resident) in &self.residents {
+            let fill = if resident.state == "awake" {
                 "#e74c3c"
             } else {
                 "#aab7b8"
             };
+            let (cx, cy, tx, ty) = match resident.at {
+                Some((x, ry)) => (px(x), py(ry), px(x) + 9.0, py(ry) + 4.0),
+                None => {
+                    y += 18.0;
+                    (MARGIN + 5.0, y - 22.0, MARGIN + 16.0, y - 18.0)
+                }
+            };
+            let room = resident
+                .at
+                .and_then(|(x, ry)| room_at(&self.rooms, x, ry))
+                .map(|r| format!(r#" data-room="{}""#, escape(&r.name)))
+                .unwrap_or_default();
             let _ = writeln!(
                 out,
-                r##"<g class="resident" data-resident="{n}" data-state="{s}"><circle cx="{cx:.1}" cy="{cy:.1}" r="5" fill="{fill}"/><text x="{tx:.1}" y="{y:.1}">{n}: {s}</text></g>"##,
+                r##"<g class="resident" data-resident="{n}" data-state="{s}"{room}><circle cx="{cx:.1}" cy="{cy:.1}" r="6" fill="{fill}" stroke="#7b241c" stroke-width="1"/><text x="{tx:.1}" y="{ty:.1}">{n} ({s})</text></g>"##,
                 n = escape(name),
-                s = escape(state),
-                cx = MARGIN + 5.0,
-                cy = y - 4.0,
-                tx = MARGIN + 16.0,
+                s = escape(&resident.state),
             );
-            y += 18.0;
         }
         out.push_str("</svg>\n");
         out
@@ -513,13 +536,16 @@ mod tests {
         home.tuple("things.newspaper.at", Some(""));
         home.tuple("things.newspaper.holder", Some("astrid"));
         home.tuple("residents.johanna.state", Some("awake"));
+        home.tuple("residents.johanna.at", Some("1.5 4.5"));
         let snapshot = home.snapshot();
+        assert_eq!(snapshot["residents"][0]["room"], "bedroom");
         assert_eq!(snapshot["robots"][0]["room"], "bedroom");
         assert_eq!(snapshot["things"][0]["holder"], "astrid");
         assert_eq!(snapshot["things"][0]["room"], "bedroom");
         let svg = snapshot["svg"].as_str().expect("svg");
         assert!(svg.contains(r#"data-robot="astrid" data-room="bedroom""#));
         assert!(svg.contains("newspaper (held by astrid)"));
+        assert!(svg.contains(r#"data-resident="johanna" data-state="awake" data-room="bedroom""#));
 
         // Bad values: the robot is dropped, nothing panics; removals are taken in.
         home.tuple("robots.astrid.pose", Some("here"));
@@ -531,7 +557,7 @@ mod tests {
         assert_eq!(snapshot["robots"].as_array().map(Vec::len), Some(0));
         assert_eq!(snapshot["rooms"].as_array().map(Vec::len), Some(0));
         let svg = snapshot["svg"].as_str().expect("svg");
-        assert!(svg.contains("&lt;b&gt;: &lt;asleep&gt;"), "{svg}");
+        assert!(svg.contains("&lt;b&gt; (&lt;asleep&gt;)"), "{svg}");
         assert!(svg.trim_end().ends_with("</svg>"));
     }
 }
