@@ -38,6 +38,11 @@ impl Symbols {
         self.map.get(name).copied()
     }
 
+    /// How many names are interned.
+    pub(crate) fn len(&self) -> usize {
+        self.names.len()
+    }
+
     pub(crate) fn name(&self, sym: Sym) -> &str {
         &self.names[sym.0 as usize]
     }
@@ -294,7 +299,7 @@ pub(crate) struct Compiled {
     pub(crate) funcs: Vec<CFunc>,
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
-    pub(crate) callee_by_name: HashMap<Box<str>, Callee>,
+    pub(crate) callee_by_name: HashMap<ecology_domain::Name, Callee>,
     /// Reading the state was cut short by the caller's budget: facts are missing.
     pub(crate) cut: bool,
 }

@@ -56,6 +56,16 @@ use ground::{Ctx, Excluded};
 
 use search::Engine;
 
+/// The planner's first step alone, for the benchmark of reading a state: every name of the
+/// state interned and its facts indexed for the domain's preconditions. Returns the number of
+/// symbols.
+#[doc(hidden)]
+pub fn compile_state(domain: &Domain, state: &EcologyState) -> usize {
+    compile::Compiled::new_until(domain, state, &|| false)
+        .syms
+        .len()
+}
+
 /// What to plan for.
 #[derive(Debug, Clone, Copy)]
 pub struct Request<'a> {

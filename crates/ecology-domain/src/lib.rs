@@ -15,6 +15,7 @@
 //! ```
 
 mod diagnostic;
+mod facts;
 mod format;
 mod model;
 mod parse;
@@ -114,6 +115,23 @@ pub fn parse_facts_until(
     stop: &mut dyn FnMut() -> bool,
 ) -> Result<FactsRead, Diagnostics> {
     let text = syntax::decode(source).map_err(|d| Diagnostics(vec![d]))?;
+    match facts::read(text, stop) {
+        facts::Read::Done(state) => Ok(FactsRead {
+            state,
+            complete: true,
+        }),
+        facts::Read::Stopped(state) => Ok(FactsRead {
+            state,
+            complete: false,
+        }),
+        // The general reader, for what it says about the file.
+        facts::Read::Unusual => facts_in_general(text, stop),
+    }
+}
+
+/// [`parse_facts_until`] through the general reader (S-expressions, then facts), which reads
+/// and reports anything.
+fn facts_in_general(text: &str, stop: &mut dyn FnMut() -> bool) -> Result<FactsRead, Diagnostics> {
     let mut parser = Parser::default();
     let mut state = EcologyState::new();
     let stopped = |state| {

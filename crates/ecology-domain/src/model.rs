@@ -11,7 +11,7 @@ use crate::diagnostic::Span;
 use crate::format::Information;
 
 /// A name: a symbol of the language, lowercased.
-pub type Name = Box<str>;
+pub type Name = std::sync::Arc<str>;
 
 /// An argument: a variable (`?r`, stored without the `?`) or a constant (`astrid`, `25`).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]

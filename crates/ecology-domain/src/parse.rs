@@ -24,14 +24,14 @@ pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
 
 /// What kind of atom a token is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum AtomKind {
+pub(crate) enum AtomKind {
     Symbol,
     Variable,
     Keyword,
     Number,
 }
 
-fn classify(text: &str) -> AtomKind {
+pub(crate) fn classify(text: &str) -> AtomKind {
     let mut chars = text.chars();
     match chars.next() {
         Some('?') => AtomKind::Variable,
@@ -46,7 +46,7 @@ fn classify(text: &str) -> AtomKind {
 
 /// Whether `text` is a well-formed number: digits, optionally a sign and a
 /// fractional part (`25`, `-3`, `12.5`).
-fn is_well_formed_number(text: &str) -> bool {
+pub(crate) fn is_well_formed_number(text: &str) -> bool {
     let body = text.strip_prefix(['-', '+']).unwrap_or(text);
     let (int, frac) = match body.split_once('.') {
         Some((int, frac)) => (int, Some(frac)),

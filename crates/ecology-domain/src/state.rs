@@ -4,8 +4,11 @@
 //! file of S-expressions like `(pc astrid laser l1)`. Facts with a fixed
 //! meaning (`peis`, `pc`, `cost`, `status`, `channel-cost`) are checked when read.
 
-use std::collections::HashSet;
 use std::fmt;
+use std::hash::BuildHasher;
+
+use hashbrown::HashTable;
+use rustc_hash::FxBuildHasher;
 
 use crate::diagnostic::{Diagnostic, Span};
 use crate::model::{Name, write_call};
@@ -64,10 +67,21 @@ pub struct ComponentCost {
 }
 
 /// A set of ground facts, in insertion order without duplicates.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default)]
 pub struct EcologyState {
     facts: Vec<Fact>,
-    seen: HashSet<Fact>,
+    /// Where each fact is in `facts`, by its hash: each fact is stored once.
+    seen: HashTable<u32>,
+}
+
+impl PartialEq for EcologyState {
+    fn eq(&self, other: &EcologyState) -> bool {
+        self.facts == other.facts
+    }
+}
+
+fn hash(fact: &Fact) -> u64 {
+    FxBuildHasher.hash_one(fact)
 }
 
 impl EcologyState {
@@ -76,19 +90,37 @@ impl EcologyState {
         EcologyState::default()
     }
 
+    /// An empty state with room for `facts` facts.
+    pub fn with_capacity(facts: usize) -> EcologyState {
+        EcologyState {
+            facts: Vec::with_capacity(facts),
+            seen: HashTable::with_capacity(facts),
+        }
+    }
+
     /// Adds a fact; returns false if it was already there.
     pub fn insert(&mut self, fact: Fact) -> bool {
-        if self.seen.contains(&fact) {
+        let hash = hash(&fact);
+        let facts = &self.facts;
+        if self
+            .seen
+            .find(hash, |&at| facts[at as usize] == fact)
+            .is_some()
+        {
             return false;
         }
-        self.seen.insert(fact.clone());
+        let at = u32::try_from(self.facts.len()).expect("fewer than 2^32 facts");
+        self.seen
+            .insert_unique(hash, at, |&at| self::hash(&facts[at as usize]));
         self.facts.push(fact);
         true
     }
 
     /// Whether the fact holds.
     pub fn contains(&self, fact: &Fact) -> bool {
-        self.seen.contains(fact)
+        self.seen
+            .find(hash(fact), |&at| self.facts[at as usize] == *fact)
+            .is_some()
     }
 
     /// All facts, in insertion order.

@@ -523,7 +523,61 @@ proptest! {
         let facts = mutate(PEIS_HOME_FACTS.as_bytes(), &edits);
         let _ = parse_facts(&facts);
     }
+
+    /// The fast path of `.facts` reads a file exactly as the general reader does: the same
+    /// facts in the same order, or the same diagnostics (it hands over what it does not read).
+    /// Most pieces are those of good facts, so that both paths are taken.
+    #[test]
+    fn facts_read_fast_are_those_the_general_reader_reads(
+        pieces in proptest::collection::vec(
+            prop_oneof![
+                30 => proptest::sample::select(GOOD_FACT_PIECES),
+                1 => proptest::sample::select(BAD_FACT_PIECES),
+            ],
+            0..60,
+        )
+    ) {
+        let text: String = pieces.concat();
+        let fast = parse_facts(text.as_bytes());
+        let general = crate::facts_in_general(&text, &mut || false).map(|read| read.state);
+        prop_assert_eq!(fast, general, "{}", text);
+    }
 }
+
+/// Pieces of good `.facts` files, for the fast path's property.
+const GOOD_FACT_PIECES: &[&str] = &[
+    "(peis Astrid)",
+    "(peis astrid)",
+    "(pc astrid laser l1)",
+    "(cost astrid l1 10 on)",
+    "(cost astrid l1 10 off)",
+    "(channel-cost astrid hsm 5)",
+    "(status astrid l1 running)",
+    "(at Astrid Kitchen -3 1.5)",
+    " ",
+    "\n",
+    "\t",
+    "; a note\n",
+    "(peis\n hsm) ",
+];
+
+/// Pieces that only the general reader reads or reports.
+const BAD_FACT_PIECES: &[&str] = &[
+    "(",
+    ")",
+    "()",
+    "(peis ?x)",
+    "(peis :k)",
+    "(1 a)",
+    "(cost astrid l1 x on)",
+    "(cost astrid l1 10 dim)",
+    "(pc a b)",
+    "(peis 1.2.3)",
+    "(peis é)",
+    "(peis \u{1})",
+    "(peis (nested))",
+    "word",
+];
 
 /// Checks `problem` against the PEIS-Home domain and compares the rendered
 /// diagnostics with `expected`.

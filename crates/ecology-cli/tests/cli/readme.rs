@@ -14,6 +14,7 @@ const OTHERS: &[&str] = &[
     "scripts/test",         // README's test command: CI runs it
     "scripts/bench-config", // benchmarks: run by hand, minutes each
     "cargo bench -p ecology-config --bench configure",
+    "cargo bench -p ecology-config --bench facts",
     "cargo bench -p ecology-cli --bench fuzz",
     "cargo bench -p ecology-cli --bench faults",
     "cargo bench -p ecology-cli --bench large",
