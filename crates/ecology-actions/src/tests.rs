@@ -800,3 +800,48 @@ fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
         assert_eq!(found.to_string(), "(go c e)\n; cost = 1\n");
     }
 }
+
+/// Two things IPC domains write that other PDDL readers take: a variable glued to a name
+/// (zenotravel's `(aircraft?a)`), and a type listed under `object` and again under a parent
+/// (storage's `area`). Both read, and plan as if written the usual way.
+#[test]
+fn ipc_spellings_read_as_other_planners_read_them() {
+    let domain = "(define (domain hoists)
+      (:requirements :typing)
+      (:types hoist place area - object
+              area - place
+              store - area)
+      (:predicates (at?h - hoist ?a - area) (near ?a ?b - area) (done ?a - area))
+      (:action move
+        :parameters (?h - hoist ?from ?to - area)
+        :precondition (and (at ?h?from) (near ?from ?to))
+        :effect (and (not (at ?h ?from)) (at ?h ?to)))
+      (:action mark
+        :parameters (?h - hoist ?a - store)
+        :precondition (at ?h ?a)
+        :effect (done ?a)))";
+    let problem = "(define (problem two-stores) (:domain hoists)
+      (:objects h - hoist hall - area s1 s2 - store)
+      (:init (at h hall) (near hall s1) (near s1 hall) (near hall s2) (near s2 hall))
+      (:goal (and (done s1) (done s2))))";
+    let (domain, problem) = load(domain, problem);
+    let area = domain
+        .types
+        .iter()
+        .filter(|t| &*t.name == "area")
+        .collect::<Vec<_>>();
+    assert_eq!(area.len(), 1, "{area:?}");
+    assert_eq!(&*area[0].parent, "place");
+    // Out to one store, back through the hall to the other, marking each.
+    check_optimum(&domain, &problem, 5);
+
+    // Under two parents besides `object`, a type is an error that says so.
+    let twice = "(define (domain d) (:requirements :typing)
+      (:types a b - object c - a c - b) (:predicates (p ?x - c)))";
+    let err = parse_domain(twice.as_bytes()).expect_err("two parents");
+    let text = err.render("d.pddl", twice.as_bytes());
+    assert!(
+        text.contains("type `c` is listed under two parents, `a` and `b`"),
+        "{text}"
+    );
+}

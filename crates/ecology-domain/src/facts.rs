@@ -84,7 +84,8 @@ fn fact<'t>(
             _ => {
                 let start = pos;
                 while pos < bytes.len() && !is_delimiter(bytes[pos]) {
-                    if !bytes[pos].is_ascii_graphic() {
+                    // A `?` (a variable, or one glued to a name) is the general reader's.
+                    if !bytes[pos].is_ascii_graphic() || bytes[pos] == b'?' {
                         return None;
                     }
                     pos += 1;

@@ -1030,9 +1030,23 @@ impl Parser {
                 }
                 Some(":types") => {
                     for param in self.typed_list(&list[1..], false) {
+                        let parent = param.ty.unwrap_or_else(|| "object".into());
+                        // A type may be listed again (IPC's storage lists `area` under `object`
+                        // and under `surface`): a parent refines `object`, and the same parent
+                        // again changes nothing. Two other parents: validation says so.
+                        if let Some(known) = domain.types.iter_mut().find(|t| t.name == param.name)
+                        {
+                            if &*parent == "object" || known.parent == parent {
+                                continue;
+                            }
+                            if &*known.parent == "object" {
+                                known.parent = parent;
+                                continue;
+                            }
+                        }
                         domain.types.push(TypeDecl {
                             name: param.name,
-                            parent: param.ty.unwrap_or_else(|| "object".into()),
+                            parent,
                             span: param.span,
                         });
                     }

@@ -149,7 +149,12 @@ pub fn read_until(
             _ if byte.is_ascii_whitespace() => pos += 1,
             _ => {
                 let start = pos;
-                while pos < bytes.len() && !is_delimiter(bytes[pos]) {
+                // A `?` ends a name glued to a variable, as other PDDL readers take it:
+                // `(aircraft?a)` is `(aircraft ?a)`.
+                while pos < bytes.len()
+                    && !is_delimiter(bytes[pos])
+                    && !(bytes[pos] == b'?' && pos > start)
+                {
                     pos += 1;
                 }
                 if let Some((offset, c)) =

@@ -239,7 +239,17 @@ impl Validator {
         }
         for (i, t) in domain.types.iter().enumerate() {
             if let Some(first) = domain.types[..i].iter().find(|u| u.name == t.name) {
-                self.duplicate("type", &t.name, t.span, first.span);
+                self.diags.push(
+                    Diagnostic::error(
+                        t.span,
+                        format!(
+                            "type `{}` is listed under two parents, `{}` and `{}`",
+                            t.name, first.parent, t.parent
+                        ),
+                    )
+                    .with_secondary(first.span, "first listed here")
+                    .with_note("a type has one parent (besides `object`)"),
+                );
             }
         }
         self.unique_params(&domain.constants, "`:constants`");
