@@ -10,6 +10,16 @@ planners then solve the same files, each as a process of its own:
 - satisficing: ours (greedy best-first, FF, preferred operators) against
   `--alias lama-first`.
 
+With `BENCH_IPC`, the problems are instead those of the IPC benchmark
+collection as Fast Downward's users know it (laid out as the public
+`aibasel/downward-benchmarks` repository): `BENCH_IPC=DIR` reads a copy in
+DIR, `BENCH_IPC=fetch` clones it into `target/downward-benchmarks` first.
+The domains are the suite `optimal_strips` of its `suites.py` (or
+`BENCH_IPC_DOMAINS`, names separated by spaces), and the first
+`BENCH_IPC_PROBLEMS` (5) problems of each. The summary counts coverage: how
+many each planner solved, and for satisficing how many of ours were within
+2x Fast Downward's time and 1.25x its cost.
+
 Times are wall-clock times of the whole process, measured here the same way
 for both: reading and parsing the files, grounding (Fast Downward: its
 Python translator) and search. `search s` is the search alone, as each
@@ -17,6 +27,7 @@ planner reports it; expansions per second are taken over it. Optimal costs
 must agree; the script fails otherwise (and on an invalid plan of ours).
 """
 
+import ast
 import os
 import re
 import signal
@@ -52,6 +63,63 @@ LARGE = [
 if os.environ.get("BENCH_LARGE"):
     PROBLEMS += LARGE
 
+IPC = os.environ.get("BENCH_IPC")
+IPC_URL = "https://github.com/aibasel/downward-benchmarks"
+IPC_PROBLEMS = int(os.environ.get("BENCH_IPC_PROBLEMS", "5"))
+
+
+def ipc_root():
+    """The folder of the IPC collection: BENCH_IPC, or a clone made for `fetch`."""
+    if IPC != "fetch":
+        if not os.path.isdir(IPC):
+            raise SystemExit(f"BENCH_IPC={IPC}: no such folder")
+        return IPC
+    dest = os.path.join(ROOT, "target", "downward-benchmarks")
+    if not os.path.isdir(dest):
+        print(f"cloning {IPC_URL} into {dest} ...", file=sys.stderr, flush=True)
+        done = subprocess.run(["git", "clone", "--quiet", "--depth", "1", IPC_URL, dest])
+        if done.returncode != 0:
+            raise SystemExit(f"cannot clone {IPC_URL}: clone it where you can "
+                             "and set BENCH_IPC to its folder")
+    return dest
+
+
+def ipc_domain_file(folder, problem):
+    """The domain file of `problem` in `folder`: its own (pNN-domain.pddl, domain_pNN.pddl, ...)
+    or the folder's domain.pddl."""
+    stem = problem[:-len(".pddl")]
+    prefix = stem.split("-")[0]
+    for name in (f"{stem}-domain.pddl", f"domain_{stem}.pddl", f"domain-{stem}.pddl",
+                 f"{prefix}-domain.pddl", f"domain_{prefix}.pddl", "domain.pddl"):
+        if os.path.isfile(os.path.join(folder, name)):
+            return os.path.join(folder, name)
+    return None
+
+
+def ipc_problems():
+    """(name, domain file, problem file) for the first problems of each IPC domain."""
+    root = ipc_root()
+    names = os.environ.get("BENCH_IPC_DOMAINS", "").split()
+    if not names:
+        listed = subprocess.run([sys.executable, os.path.join(root, "suites.py"), "optimal_strips"],
+                                capture_output=True, text=True, check=True)
+        names = ast.literal_eval(listed.stdout.strip())
+    out = []
+    for domain in names:
+        folder = os.path.join(root, domain)
+        if not os.path.isdir(folder):
+            raise SystemExit(f"{folder}: no such domain folder")
+        problems = sorted(f for f in os.listdir(folder)
+                          if f.endswith(".pddl") and "domain" not in f)[:IPC_PROBLEMS]
+        for problem in problems:
+            domain_file = ipc_domain_file(folder, problem)
+            if domain_file is None:
+                raise SystemExit(f"{folder}/{problem}: no domain file found")
+            name = f"{domain}/{problem[:-len('.pddl')]}"
+            if ONLY.search(name):
+                out.append((name, domain_file, os.path.join(folder, problem)))
+    return out
+
 
 def timed(cmd, cwd):
     """Runs `cmd`; (seconds, stdout, timed_out). Kills its process group on timeout."""
@@ -76,6 +144,10 @@ def ours(domain, problem, optimal, cwd):
     secs, out, timed_out = timed(cmd, cwd)
     line = out.strip().splitlines()[-1] if out.strip() else ""
     fields = dict(kv.split("=", 1) for kv in line.split() if "=" in kv)
+    if not timed_out and "status" not in fields:
+        # Refused (a construct not read, say): shown as such, and said on stderr.
+        print(f"ours on {problem}: {out.strip()[:300]}", file=sys.stderr, flush=True)
+        return {"secs": secs, "cost": None, "expanded": None, "search": None, "error": True}
     if timed_out or fields.get("status") != "found":
         return {"secs": secs, "cost": None, "expanded": fields.get("expanded"), "search": None}
     if fields.get("valid") != "true":
@@ -117,17 +189,27 @@ def rate(r):
 
 
 def cell(r):
+    if r.get("error"):
+        return "error"
     return human(r["secs"]) if r["cost"] is not None else f"> {TIMEOUT_S:.0f} s"
 
 
 def main():
     failures = []
     worst = {}
+    # Per mode: problems tried, solved by ours, by FD; satisficing: ours within 2x time and 1.25x cost.
+    coverage = {}
     with tempfile.TemporaryDirectory() as tmp:
-        names = [p for p in PROBLEMS if ONLY.search(p)]
-        subprocess.run([SOLVE, "write", tmp, *names], check=True)
+        if IPC:
+            tasks = ipc_problems()
+        else:
+            names = [p for p in PROBLEMS if ONLY.search(p)]
+            subprocess.run([SOLVE, "write", tmp, *names], check=True)
+            tasks = [(name, os.path.join(tmp, f"{name.split('-')[0]}-domain.pddl"),
+                      os.path.join(tmp, f"{name}.pddl")) for name in names]
         for mode in MODES:
             optimal = mode == "optimal"
+            tally = coverage.setdefault(mode, {"tried": 0, "ours": 0, "fd": 0, "close": 0})
             print()
             if optimal:
                 print("Optimal: ours (A*, LM-cut) against Fast Downward `astar(lmcut())`.")
@@ -142,14 +224,14 @@ def main():
                 print("| problem | ours | FD | ours ÷ FD | cost: ours / FD | ours cost ÷ FD cost "
                       "| expanded: ours / FD |")
                 print("|---|---|---|---|---|---|---|")
-            for name in names:
-                family = name.split("-")[0]
-                domain = os.path.join(tmp, f"{family}-domain.pddl")
-                problem = os.path.join(tmp, f"{name}.pddl")
-                run_dir = os.path.join(tmp, f"run-{name}-{mode}")
+            for name, domain, problem in tasks:
+                run_dir = os.path.join(tmp, "run-" + name.replace("/", "-") + f"-{mode}")
                 os.makedirs(run_dir, exist_ok=True)
                 a = ours(domain, problem, optimal, run_dir)
                 b = fd(domain, problem, optimal, run_dir)
+                tally["tried"] += 1
+                tally["ours"] += a["cost"] is not None
+                tally["fd"] += b["cost"] is not None
                 both = a["cost"] is not None and b["cost"] is not None
                 ratio = a["secs"] / b["secs"] if both else None
                 if ratio is not None:
@@ -169,10 +251,21 @@ def main():
                     cost_ratio = f"{a['cost'] / b['cost']:.2f}" if both and b["cost"] else "-"
                     if both and b["cost"]:
                         worst["cost"] = max(worst.get("cost", 0), a["cost"] / b["cost"])
+                    if a["cost"] is not None and (
+                            b["cost"] is None
+                            or (a["secs"] <= 2 * b["secs"] and a["cost"] <= 1.25 * b["cost"])):
+                        tally["close"] += 1
                     print(f"| {name} | {cell(a)} | {cell(b)} | {ratio_text} "
                           f"| {a['cost'] if a['cost'] is not None else '-'} / "
                           f"{b['cost'] if b['cost'] is not None else '-'} | {cost_ratio} "
                           f"| {a['expanded'] or '-'} / {b['expanded'] or '-'} |", flush=True)
+    print()
+    for mode, t in coverage.items():
+        line = f"{mode}: solved {t['ours']} of {t['tried']} (ours), {t['fd']} (FD)"
+        if mode != "optimal":
+            line += (f"; ours within 2x FD's time and 1.25x its cost (or solved where FD did not): "
+                     f"{t['close']}")
+        print(line)
     print()
     print(f"Timeout {TIMEOUT_S:.0f} s per planner and run. Largest ours ÷ FD time where both solved: "
           + ", ".join(f"{k} {v:.2f}" for k, v in worst.items()))

@@ -801,9 +801,10 @@ fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
     }
 }
 
-/// Two things IPC domains write that other PDDL readers take: a variable glued to a name
-/// (zenotravel's `(aircraft?a)`), and a type listed under `object` and again under a parent
-/// (storage's `area`). Both read, and plan as if written the usual way.
+/// Three things IPC domains write that other PDDL readers take: a variable glued to a name
+/// (zenotravel's `(aircraft?a)`), a type listed under `object` and again under a parent
+/// (storage's `area`), and `either` types where predicates are declared (storage's `in`). All
+/// read, and plan as if written the usual way.
 #[test]
 fn ipc_spellings_read_as_other_planners_read_them() {
     let domain = "(define (domain hoists)
@@ -811,7 +812,8 @@ fn ipc_spellings_read_as_other_planners_read_them() {
       (:types hoist place area - object
               area - place
               store - area)
-      (:predicates (at?h - hoist ?a - area) (near ?a ?b - area) (done ?a - area))
+      (:predicates (at?h - hoist ?a - area) (near ?a ?b - area) (done ?a - area)
+                   (in ?x - (either store hoist) ?p - place))
       (:action move
         :parameters (?h - hoist ?from ?to - area)
         :precondition (and (at ?h?from) (near ?from ?to))
@@ -842,6 +844,16 @@ fn ipc_spellings_read_as_other_planners_read_them() {
     let text = err.render("d.pddl", twice.as_bytes());
     assert!(
         text.contains("type `c` is listed under two parents, `a` and `b`"),
+        "{text}"
+    );
+    // `either` is read where predicates are declared only.
+    let either = "(define (domain d) (:requirements :typing) (:types a b)
+      (:predicates (p ?x - a))
+      (:action go :parameters (?x - (either a b)) :precondition (p ?x) :effect (not (p ?x))))";
+    let err = parse_domain(either.as_bytes()).expect_err("either in parameters");
+    let text = err.render("d.pddl", either.as_bytes());
+    assert!(
+        text.contains("`either` types are not supported here"),
         "{text}"
     );
 }

@@ -331,16 +331,25 @@ impl Parser {
     }
 
     fn typed_list(&mut self, items: &[Sexp], variables: bool) -> Vec<Param> {
+        self.typed_list_either(items, variables, false)
+    }
+
+    /// [`Parser::typed_list`]; with `either`, an `(either T …)` type is read (as `object`:
+    /// where predicates are declared, the types of their arguments are not used).
+    fn typed_list_either(&mut self, items: &[Sexp], variables: bool, either: bool) -> Vec<Param> {
         let mut params: Vec<Param> = Vec::new();
         let mut untyped_from = 0;
         let mut iter = items.iter();
         while let Some(item) = iter.next() {
             if item.atom() == Some("-") {
                 let ty = match iter.next() {
+                    Some(ty) if either && self.either_type(ty) => None,
                     Some(ty) if ty.list().is_some() => {
                         self.push(
-                            Diagnostic::error(ty.span, "`either` types are not supported")
-                                .with_note("declare a common supertype instead"),
+                            Diagnostic::error(ty.span, "`either` types are not supported here")
+                                .with_note(
+                                    "only in `:predicates`; declare a common supertype instead",
+                                ),
                         );
                         None
                     }
@@ -381,6 +390,18 @@ impl Parser {
             }
         }
         params
+    }
+
+    /// Whether `ty` is `(either T …)` with type names.
+    fn either_type(&mut self, ty: &Sexp) -> bool {
+        let Some([head, types @ ..]) = ty.list() else {
+            return false;
+        };
+        head.atom() == Some("either")
+            && !types.is_empty()
+            && types
+                .iter()
+                .all(|t| self.symbol(t, "a type name").is_some())
     }
 
     /// A condition: `()`, a literal, `(and ...)`, or a list of literals.
@@ -1128,7 +1149,7 @@ impl Parser {
             if let Some(name) = self.symbol(head, "a predicate name") {
                 out.push(PredicateDecl {
                     name,
-                    params: self.typed_list(&list[1..], true),
+                    params: self.typed_list_either(&list[1..], true, true),
                     span: item.span,
                 });
             }
