@@ -737,7 +737,10 @@ pub fn ground_within(
             .collect(),
         by_first_pre: Vec::new(),
         no_pre: Vec::new(),
-        action_costs: domain.requires("action-costs"),
+        // Priced by their `increase` effects when the domain says `:action-costs`, or the problem
+        // minimizes `total-cost` (as other planners read IPC domains that declare only the metric).
+        action_costs: domain.requires("action-costs")
+            || problem.metric == Some(ecology_domain::Metric::MinimizeTotalCost),
     };
     let mut g = Grounder {
         problem,

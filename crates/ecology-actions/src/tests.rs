@@ -846,6 +846,23 @@ fn ipc_spellings_read_as_other_planners_read_them() {
         text.contains("type `c` is listed under two parents, `a` and `b`"),
         "{text}"
     );
+    // Declared `:adl` and priced by a metric without `:action-costs` (floortile, data-network):
+    // the costs count, as for Fast Downward: two steps of 1 beat one of 10.
+    let priced = "(define (domain jumps) (:requirements :adl)
+      (:predicates (at ?x) (hop ?x ?y) (leap ?x ?y)) (:functions (total-cost))
+      (:action hop :parameters (?x ?y) :precondition (and (at ?x) (hop ?x ?y))
+        :effect (and (not (at ?x)) (at ?y) (increase (total-cost) 1)))
+      (:action leap :parameters (?x ?y) :precondition (and (at ?x) (leap ?x ?y))
+        :effect (and (not (at ?x)) (at ?y) (increase (total-cost) 10))))";
+    let metric = "(define (problem p) (:domain jumps) (:objects a b c)
+      (:init (at a) (hop a b) (hop b c) (leap a c) (= (total-cost) 0))
+      (:goal (at c)) (:metric minimize (total-cost)))";
+    let (domain, problem) = load(priced, metric);
+    check_optimum(&domain, &problem, 2);
+    let unit = metric.replace("(:metric minimize (total-cost))", "");
+    let (domain, problem) = load(priced, &unit);
+    check_optimum(&domain, &problem, 1);
+
     // `either` is read where predicates are declared only.
     let either = "(define (domain d) (:requirements :typing) (:types a b)
       (:predicates (p ?x - a))

@@ -255,7 +255,9 @@ impl<'a> Semantics<'a> {
         for literal in &action.precondition {
             Self::literal_holds(literal, &bind, world).map_err(StepFailure::Precondition)?;
         }
-        let action_costs = self.domain.requires("action-costs");
+        // As the grounder prices actions: `:action-costs`, or a problem that minimizes `total-cost`.
+        let action_costs = self.domain.requires("action-costs")
+            || self.problem.metric == Some(ecology_domain::Metric::MinimizeTotalCost);
         let mut cost = if action_costs { 0u64 } else { 1 };
         let mut next = world.clone();
         let mut adds = Vec::new();

@@ -12,6 +12,18 @@ use crate::syntax::Sexp;
 /// How far above 1 a sum of probabilities may go (decimal rounding, `1/3`).
 pub const PROBABILITY_EPSILON: f64 = 1e-6;
 
+/// Requirements read as declarations only, as other PDDL readers take them (IPC domains declare
+/// `:adl` and use only STRIPS): the constructs they allow (`forall`, `when`, `or`, …) are still
+/// refused where they appear, with the construct named.
+pub const DECLARED_ONLY_REQUIREMENTS: &[&str] = &[
+    "adl",
+    "quantified-preconditions",
+    "existential-preconditions",
+    "universal-preconditions",
+    "conditional-effects",
+    "disjunctive-preconditions",
+];
+
 /// The requirements the language supports.
 pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
     "strips",
@@ -1028,7 +1040,10 @@ impl Parser {
                 Some(":requirements") => {
                     for item in &list[1..] {
                         match item.atom().and_then(|t| t.strip_prefix(':')) {
-                            Some(req) if SUPPORTED_REQUIREMENTS.contains(&req) => {
+                            Some(req)
+                                if SUPPORTED_REQUIREMENTS.contains(&req)
+                                    || DECLARED_ONLY_REQUIREMENTS.contains(&req) =>
+                            {
                                 domain.requirements.push(req.into())
                             }
                             Some(req) => self.push(

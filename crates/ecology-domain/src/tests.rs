@@ -422,8 +422,14 @@ fn files_over_8_mib() {
 #[test]
 fn unsupported_pddl_is_named() {
     assert_error(
-        "(define (domain d) (:requirements :strips :adl))",
-        "requirement `:adl` is not supported",
+        "(define (domain d) (:requirements :strips :fluents))",
+        "requirement `:fluents` is not supported",
+    );
+    // `:adl` is a declaration; what it allows is refused where it appears.
+    assert_error(
+        "(define (domain d) (:requirements :adl) (:predicates (p ?x) (q ?x))
+           (:action a :parameters (?x) :precondition (or (p ?x) (q ?x)) :effect (p ?x)))",
+        "`or` is not supported in conditions",
     );
     assert_error(
         "(define (domain d) (:action a :parameters (?x) :precondition (or (p ?x) (q ?x))))",
