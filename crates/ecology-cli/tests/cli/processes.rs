@@ -589,9 +589,9 @@ fn make_keys(dir: &str, peis: &[&str], routers: &[&str]) {
     }
 }
 
-/// The Python to run the example with: `ECOLOGY_PYTHON` (set by `scripts/test`
+/// The Python to run the examples with: `ECOLOGY_PYTHON` (set by `scripts/test`
 /// to its virtual environment), else the repository's `.venv`, else `python3`.
-fn python() -> String {
+pub(crate) fn python() -> String {
     if let Ok(python) = std::env::var("ECOLOGY_PYTHON") {
         return python;
     }

@@ -7,21 +7,8 @@ use std::process::Command;
 
 use nix::sys::signal::Signal;
 
-use crate::processes::{costs, events, named, one_at_a_time, strings};
+use crate::processes::{costs, events, named, one_at_a_time, python, strings};
 use crate::support::{Proc, free_endpoint, root};
-
-/// The Python to run the door with: `ECOLOGY_PYTHON` (set by `scripts/test` to its virtual
-/// environment), else the repository's `.venv`, else `python3`.
-fn python() -> String {
-    if let Ok(python) = std::env::var("ECOLOGY_PYTHON") {
-        return python;
-    }
-    let venv = root().join(".venv/bin/python");
-    if venv.exists() {
-        return venv.display().to_string();
-    }
-    "python3".to_string()
-}
 
 #[test]
 fn the_tutorials_door_in_python_opens_for_the_robot() {
