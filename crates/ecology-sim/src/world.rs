@@ -126,6 +126,10 @@ impl Map {
     /// The room at (x, y): the first that contains it, or, within 0.2 m of a
     /// wall (the width of a door frame), the nearest.
     pub fn room_at(&self, x: f64, y: f64) -> Option<&Room> {
+        // Nowhere is in no room (NaN would read as on every wall).
+        if !x.is_finite() || !y.is_finite() {
+            return None;
+        }
         if let Some(room) = self.rooms.iter().find(|r| r.contains(x, y)) {
             return Some(room);
         }
@@ -222,12 +226,17 @@ impl Map {
         text.trim_end_matches([';', ' ']).to_string()
     }
 
-    /// Parses [`Map::to_text`]'s form.
+    /// Parses [`Map::to_text`]'s form: every item a room or a door, every number finite.
     pub fn parse(text: &str) -> Option<Map> {
         let mut map = Map::default();
         for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
             let words: Vec<&str> = item.split_whitespace().collect();
-            let num = |i: usize| words.get(i).and_then(|w| w.parse::<f64>().ok());
+            let num = |i: usize| {
+                words
+                    .get(i)
+                    .and_then(|w| w.parse::<f64>().ok())
+                    .filter(|v| v.is_finite())
+            };
             match words.first() {
                 Some(&"room") if words.len() == 6 => map.rooms.push(Room {
                     name: words[1].to_string(),
@@ -379,5 +388,54 @@ impl World {
                 thing.at = (pose.pose.x, pose.pose.y);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
+                       room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+                       door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+
+    #[test]
+    fn the_map_text_parses_back_into_the_map() {
+        let map = Map::parse(MAP).expect("parses");
+        assert_eq!((map.rooms.len(), map.doors.len()), (4, 3));
+        assert_eq!(map.rooms[2].name, "entrance");
+        assert_eq!((map.doors[2].x, map.doors[2].y), (2.5, 4.0));
+        assert_eq!(Map::parse(&map.to_text()), Some(map));
+        for bad in [
+            "room",
+            "room a 1 2 3",
+            "room a 1 2 3 4 5",
+            "room a x 2 3 4",
+            "room a NaN 0 1 1",
+            "room a inf 0 1 1",
+            "door a b 1",
+            "door a b 1 y",
+            "window a 1 2",
+            "room a 0 0 1 1; junk",
+        ] {
+            assert_eq!(Map::parse(bad), None, "{bad:?}");
+        }
+        assert_eq!(Map::parse(""), Some(Map::default()));
+    }
+
+    #[test]
+    fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
+        let map = Map::parse(MAP).expect("parses");
+        let name = |x: f64, y: f64| map.room_at(x, y).map(|r| r.name.as_str());
+        assert_eq!(name(1.5, 1.5), Some("living-room"));
+        assert_eq!(name(4.2, 4.3), Some("entrance"));
+        // On a wall: the first room listed that has it.
+        assert_eq!(name(3.0, 1.5), Some("living-room"));
+        // Just outside the home, within a door frame of the bedroom; too far from any room.
+        assert_eq!(name(-0.1, 4.0), Some("bedroom"));
+        assert_eq!(name(-1.0, 4.0), None);
+        assert_eq!(name(f64::NAN, 1.0), None);
+        assert_eq!(name(f64::INFINITY, 1.0), None);
+        assert_eq!(Map::default().room_at(1.0, 1.0), None);
     }
 }

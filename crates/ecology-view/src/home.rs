@@ -2,7 +2,9 @@
 //! `room NAME X0 Y0 X1 Y1; door A B X Y; …`), `robots.R.pose` (`X Y THETA`), `things.T.at`
 //! (`X Y`, empty while held), `things.T.holder` (a robot, or empty), `residents.H.state` and
 //! `residents.H.at` (`X Y`).
-//! Read leniently: what does not parse is left out, nothing panics. Drawn as SVG beside the
+//! The map and poses are read as the simulator writes them (`ecology_sim::Map::parse`,
+//! `Pose::parse`): a map that does not parse shows no rooms, a pose that does not parse drops
+//! its robot; nothing panics. Drawn as SVG beside the
 //! configuration: rooms as rectangles, doors on their walls, robots as arrows showing their
 //! heading, things where they lie or beside who holds them, residents where they are (listed
 //! under the map while the world has not said) with their state.
@@ -11,6 +13,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use serde_json::{Value as Json, json};
+
+use ecology_sim::{Map, Pose};
 
 use crate::svg::escape;
 
@@ -21,62 +25,12 @@ pub const WORLD: &str = "world";
 const MAX_ITEMS: usize = 1_000;
 /// Rooms and doors kept at most.
 const MAX_ROOMS: usize = 1_000;
-/// How far outside every room a position may lie and still count as in the nearest one
-/// (metres, the width of a door frame; as the simulator's `Map::room_at`).
-const DOOR_FRAME: f64 = 0.2;
 /// The longer side of the drawn home, pixels.
 const SIDE: f64 = 300.0;
 const MARGIN: f64 = 8.0;
 const TOP: f64 = 8.0;
 /// A robot's marker, metres from its centre to its nose.
 const ROBOT: f64 = 0.22;
-
-/// A rectangular room (corners ordered: `x0 <= x1`, `y0 <= y1`).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Room {
-    /// Its name.
-    pub name: String,
-    /// Lower-left x.
-    pub x0: f64,
-    /// Lower-left y.
-    pub y0: f64,
-    /// Upper-right x.
-    pub x1: f64,
-    /// Upper-right y.
-    pub y1: f64,
-}
-
-impl Room {
-    fn distance(&self, x: f64, y: f64) -> f64 {
-        let dx = (self.x0 - x).max(x - self.x1).max(0.0);
-        let dy = (self.y0 - y).max(y - self.y1).max(0.0);
-        dx.hypot(dy)
-    }
-}
-
-/// A door between rooms `a` and `b` at (x, y) on their common wall.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Door {
-    /// One room.
-    pub a: String,
-    /// The other.
-    pub b: String,
-    /// The passage point x.
-    pub x: f64,
-    /// The passage point y.
-    pub y: f64,
-}
-
-/// Position in metres and heading in radians (counter-clockwise from the x axis).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
-    /// x, metres.
-    pub x: f64,
-    /// y, metres.
-    pub y: f64,
-    /// Heading, radians.
-    pub theta: f64,
-}
 
 #[derive(Clone, Debug, Default, PartialEq)]
 struct Thing {
@@ -93,66 +47,6 @@ fn numbers(text: &str, n: usize) -> Option<Vec<f64>> {
     (values.len() == n).then_some(values)
 }
 
-/// Parses the `map` tuple's text; items that do not parse are left out.
-pub fn parse_map(text: &str) -> (Vec<Room>, Vec<Door>) {
-    let mut rooms = Vec::new();
-    let mut doors = Vec::new();
-    for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
-        let words: Vec<&str> = item.split_whitespace().collect();
-        match words.as_slice() {
-            ["room", name, rest @ ..] if rooms.len() < MAX_ROOMS => {
-                if let Some(v) = numbers(&rest.join(" "), 4) {
-                    rooms.push(Room {
-                        name: (*name).to_owned(),
-                        x0: v[0].min(v[2]),
-                        y0: v[1].min(v[3]),
-                        x1: v[0].max(v[2]),
-                        y1: v[1].max(v[3]),
-                    });
-                }
-            }
-            ["door", a, b, rest @ ..] if doors.len() < MAX_ROOMS => {
-                if let Some(v) = numbers(&rest.join(" "), 2) {
-                    doors.push(Door {
-                        a: (*a).to_owned(),
-                        b: (*b).to_owned(),
-                        x: v[0],
-                        y: v[1],
-                    });
-                }
-            }
-            _ => {}
-        }
-    }
-    (rooms, doors)
-}
-
-/// Parses a pose tuple's text, `X Y THETA`.
-pub fn parse_pose(text: &str) -> Option<Pose> {
-    let v = numbers(text, 3)?;
-    Some(Pose {
-        x: v[0],
-        y: v[1],
-        theta: v[2],
-    })
-}
-
-/// The room (x, y) is in: the first that contains it, or, within a door frame (0.2 m) of a wall, the
-/// nearest.
-pub fn room_at(rooms: &[Room], x: f64, y: f64) -> Option<&Room> {
-    if !x.is_finite() || !y.is_finite() {
-        return None;
-    }
-    rooms.iter().find(|r| r.distance(x, y) == 0.0).or_else(|| {
-        rooms
-            .iter()
-            .map(|r| (r.distance(x, y), r))
-            .filter(|(d, _)| *d <= DOOR_FRAME)
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, r)| r)
-    })
-}
-
 /// A resident: their state (`asleep`, `awake`) and where they are, when the world says.
 #[derive(Clone, Debug, Default, PartialEq)]
 struct Resident {
@@ -163,8 +57,7 @@ struct Resident {
 /// The home as the view sees it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Home {
-    rooms: Vec<Room>,
-    doors: Vec<Door>,
+    map: Map,
     robots: BTreeMap<String, Pose>,
     things: BTreeMap<String, Thing>,
     residents: BTreeMap<String, Resident>,
@@ -184,9 +77,12 @@ impl Home {
         let fits = |len: usize, has: bool| has || len < MAX_ITEMS;
         match (parts.as_slice(), text) {
             (["map"], text) => {
-                (self.rooms, self.doors) = parse_map(text.unwrap_or(""));
+                // A map that does not parse shows no rooms; a huge one, its first rooms.
+                self.map = Map::parse(text.unwrap_or("")).unwrap_or_default();
+                self.map.rooms.truncate(MAX_ROOMS);
+                self.map.doors.truncate(MAX_ROOMS);
             }
-            (["robots", name, "pose"], Some(text)) => match parse_pose(text) {
+            (["robots", name, "pose"], Some(text)) => match Pose::parse(text) {
                 Some(pose) if fits(self.robots.len(), self.robots.contains_key(*name)) => {
                     self.robots.insert((*name).to_owned(), pose);
                 }
@@ -231,7 +127,7 @@ impl Home {
     /// The room a robot is in now.
     pub fn robot_room(&self, robot: &str) -> Option<&str> {
         let pose = self.robots.get(robot)?;
-        room_at(&self.rooms, pose.x, pose.y).map(|r| r.name.as_str())
+        self.map.room_at(pose.x, pose.y).map(|r| r.name.as_str())
     }
 
     /// Where a thing is: where it lies, or where its holder is.
@@ -247,10 +143,10 @@ impl Home {
         if !self.seen {
             return Json::Null;
         }
-        let room_of = |x: f64, y: f64| room_at(&self.rooms, x, y).map(|r| r.name.clone());
+        let room_of = |x: f64, y: f64| self.map.room_at(x, y).map(|r| r.name.clone());
         json!({
-            "rooms": self.rooms.iter().map(|r| json!({"name": r.name, "x0": r.x0, "y0": r.y0, "x1": r.x1, "y1": r.y1})).collect::<Vec<_>>(),
-            "doors": self.doors.iter().map(|d| json!({"between": [d.a, d.b], "x": d.x, "y": d.y})).collect::<Vec<_>>(),
+            "rooms": self.map.rooms.iter().map(|r| json!({"name": r.name, "x0": r.x0, "y0": r.y0, "x1": r.x1, "y1": r.y1})).collect::<Vec<_>>(),
+            "doors": self.map.doors.iter().map(|d| json!({"between": [d.a, d.b], "x": d.x, "y": d.y})).collect::<Vec<_>>(),
             "robots": self.robots.iter().map(|(name, p)| json!({"name": name, "x": p.x, "y": p.y, "theta": p.theta, "room": room_of(p.x, p.y)})).collect::<Vec<_>>(),
             "things": self.things.iter().map(|(name, t)| {
                 let at = self.thing_at(t);
@@ -266,11 +162,11 @@ impl Home {
     /// The bounding box of everything with a position: (x0, y0, x1, y1).
     fn bounds(&self) -> Option<(f64, f64, f64, f64)> {
         let mut points: Vec<(f64, f64)> = Vec::new();
-        for r in &self.rooms {
+        for r in &self.map.rooms {
             points.push((r.x0, r.y0));
             points.push((r.x1, r.y1));
         }
-        points.extend(self.doors.iter().map(|d| (d.x, d.y)));
+        points.extend(self.map.doors.iter().map(|d| (d.x, d.y)));
         points.extend(self.robots.values().map(|p| (p.x, p.y)));
         points.extend(self.things.values().filter_map(|t| t.at));
         points.extend(self.residents.values().filter_map(|r| r.at));
@@ -299,7 +195,7 @@ impl Home {
             r##"<svg xmlns="http://www.w3.org/2000/svg" width="{width:.0}" height="{height:.0}" viewBox="0 0 {width:.0} {height:.0}" font-family="sans-serif" font-size="11">
 <rect width="100%" height="100%" fill="#ffffff"/>"##
         );
-        for r in &self.rooms {
+        for r in &self.map.rooms {
             let _ = writeln!(
                 out,
                 r##"<g class="room" data-room="{n}"><rect x="{x:.1}" y="{y:.1}" width="{w:.1}" height="{h:.1}" fill="#f7f4ec" stroke="#5d6d7e" stroke-width="2"/><text x="{tx:.1}" y="{ty:.1}" fill="#5d6d7e">{n}</text></g>"##,
@@ -312,9 +208,9 @@ impl Home {
                 ty = py(r.y1) + 14.0,
             );
         }
-        for d in &self.doors {
+        for d in &self.map.doors {
             // On a vertical wall when a room's side runs through it, else on a horizontal one.
-            let vertical = self.rooms.iter().any(|r| {
+            let vertical = self.map.rooms.iter().any(|r| {
                 ((r.x0 - d.x).abs() < 1e-6 || (r.x1 - d.x).abs() < 1e-6)
                     && d.y >= r.y0
                     && d.y <= r.y1
@@ -404,7 +300,7 @@ impl Home {
             };
             let room = resident
                 .at
-                .and_then(|(x, ry)| room_at(&self.rooms, x, ry))
+                .and_then(|(x, ry)| self.map.room_at(x, ry))
                 .map(|r| format!(r#" data-room="{}""#, escape(&r.name)))
                 .unwrap_or_default();
             let _ = writeln!(
@@ -426,84 +322,6 @@ mod tests {
     const MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
                        room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
                        door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
-
-    #[test]
-    fn the_map_text_of_the_world_parses_into_rooms_and_doors() {
-        let (rooms, doors) = parse_map(MAP);
-        assert_eq!(rooms.len(), 4);
-        assert_eq!(
-            rooms[2],
-            Room {
-                name: "entrance".into(),
-                x0: 2.5,
-                y0: 3.0,
-                x1: 5.0,
-                y1: 5.0
-            }
-        );
-        assert_eq!(doors.len(), 3);
-        assert_eq!(doors[2].a, "entrance");
-        assert_eq!(doors[2].b, "bedroom");
-        assert_eq!((doors[2].x, doors[2].y), (2.5, 4.0));
-    }
-
-    #[test]
-    fn bad_map_text_is_left_out_without_panicking() {
-        for text in [
-            "",
-            ";;;",
-            "room",
-            "room a",
-            "room a 1 2 3",
-            "room a 1 2 3 4 5",
-            "room a x 2 3 4",
-            "room a NaN 0 1 1",
-            "room a inf 0 1 1",
-            "door a b 1",
-            "door a b 1 y",
-            "window a 1 2",
-            "é;ü ü ü;\u{0}",
-        ] {
-            assert_eq!(parse_map(text), (vec![], vec![]), "{text:?}");
-        }
-        // What parses is kept beside what does not; corners come out ordered.
-        let (rooms, doors) = parse_map("room a 2 2 0 0; room b; door a b 1 2; junk");
-        assert_eq!(rooms.len(), 1);
-        assert_eq!(
-            (rooms[0].x0, rooms[0].y0, rooms[0].x1, rooms[0].y1),
-            (0.0, 0.0, 2.0, 2.0)
-        );
-        assert_eq!(doors.len(), 1);
-        for text in ["", "1 2", "1 2 3 4", "a b c", "1 2 NaN", "1e999 0 0"] {
-            assert_eq!(parse_pose(text), None, "{text:?}");
-        }
-        assert_eq!(
-            parse_pose(" 1.5 -2 0.25 "),
-            Some(Pose {
-                x: 1.5,
-                y: -2.0,
-                theta: 0.25
-            })
-        );
-    }
-
-    #[test]
-    fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
-        let (rooms, _) = parse_map(MAP);
-        let name = |x: f64, y: f64| room_at(&rooms, x, y).map(|r| r.name.as_str());
-        assert_eq!(name(1.5, 1.5), Some("living-room"));
-        assert_eq!(name(4.0, 1.0), Some("kitchen"));
-        assert_eq!(name(4.2, 4.3), Some("entrance"));
-        assert_eq!(name(1.0, 4.0), Some("bedroom"));
-        // On a wall: the first room listed that has it.
-        assert_eq!(name(3.0, 1.5), Some("living-room"));
-        // Just outside the home, within a door frame of the bedroom; too far from any room.
-        assert_eq!(name(-0.1, 4.0), Some("bedroom"));
-        assert_eq!(name(-1.0, 4.0), None);
-        assert_eq!(name(f64::NAN, 1.0), None);
-        assert_eq!(name(f64::INFINITY, 1.0), None);
-        assert_eq!(room_at(&[], 1.0, 1.0), None);
-    }
 
     #[test]
     fn the_world_tuples_make_the_home_and_its_drawing() {
