@@ -3,8 +3,8 @@
 
 It speaks the Ecology component contract (docs/components.md) over Eclipse Zenoh with the stock
 `eclipse-zenoh` package (pip install eclipse-zenoh==1.10.2) and the standard library, nothing else.
-It is examples/python/robot_counter.py with another component: the wire format and the PEIS
-(presence, gets, remote sets, leaving) are the same code.
+Like examples/python/robot_counter.py, it leaves the wire format and the PEIS (presence, gets, remote
+sets, leaving) to the module examples/python/ecology_peis.py; this file is its component.
 
 - As the PEIS's init component it publishes components.m1.type (`door`), .cost and .currState (on:
   the motor is always powered) and applies components.m1.reqState.
@@ -17,98 +17,23 @@ Usage: door.py [--name door1] [--at X Y] [--near M] [--listen ENDPOINT]... [--co
 """
 
 import argparse
-import json
 import math
-import re
-import signal
-import struct
+import os
 import sys
-import threading
 import time
-import queue
 
 import zenoh
+
+# The PEIS part (wire format, tuples, gets, remote sets, presence) is examples/python/ecology_peis.py,
+# shared with robot_counter.py: its folder goes on the module path, found from this file's own place.
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+from ecology_peis import decode_meta, key_expr, logger, parse_meta_tuple, serve  # noqa: E402
 
 C = "m1"                      # the component's name
 KIND, COST = "door", 5        # its type (the `pc` fact) and cost (running: it is always on)
 STALE = 0.5                   # an input older than this is missing: report `waiting`
 REMOTE_SETTABLE = {f"components.{C}.reqState", f"{C}.params", f"{C}.mi-position"}
-MAX_VALUE = 1 << 20           # largest value accepted, in bytes
-NAME = re.compile(r"[A-Za-z0-9_-]{1,255}\Z")
-KEY = re.compile(r"[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*\Z")
-
-
-def log(text):
-    print(f"door: {text}", file=sys.stderr, flush=True)
-
-
-# --- Wire format: the metadata attachment, version 1, little-endian -----------------------------
-
-F_TS_USER, F_EXPIRY, F_EXPIRED, F_EPOCH, F_CREATOR = 1, 2, 4, 8, 16
-
-
-def encode_meta(seq, ts_write, epoch, mimetype, creator=None):
-    """version, flags, seq, ts_write, [epoch if flag bit 3], mimetype length, mimetype,
-    [creator length, creator if flag bit 4]."""
-    flags = (F_EPOCH if epoch else 0) | (F_CREATOR if creator else 0)
-    out = struct.pack("<BBQQ", 1, flags, seq, ts_write)
-    if epoch:
-        out += struct.pack("<Q", epoch)
-    mime = mimetype.encode("ascii")
-    out += bytes([len(mime)]) + mime
-    if creator:
-        name = creator.encode("ascii")
-        out += bytes([len(name)]) + name
-    return out
-
-
-def decode_meta(data):
-    """Reads an attachment; raises ValueError on any deviation from the layout."""
-    if len(data) < 18 or data[0] != 1:
-        raise ValueError("not a version 1 metadata attachment")
-    flags = data[1]
-    seq, ts_write = struct.unpack_from("<QQ", data, 2)
-    at, fields = 18, {}
-    for flag, name in ((F_TS_USER, "ts_user"), (F_EXPIRY, "expiry"), (F_EPOCH, "epoch")):
-        if flags & flag:
-            if len(data) < at + 8:
-                raise ValueError("attachment too short")
-            fields[name] = struct.unpack_from("<Q", data, at)[0]
-            at += 8
-    if len(data) < at + 1 or len(data) < at + 1 + data[at]:
-        raise ValueError("bad mimetype length")
-    end = at + 1 + data[at]
-    mime = data[at + 1:end].decode("ascii")  # raises UnicodeDecodeError, a ValueError
-    if not mime or not all(" " <= ch <= "~" for ch in mime):
-        raise ValueError("invalid mimetype")
-    creator = None
-    if flags & F_CREATOR:
-        if len(data) < end + 1 or len(data) < end + 1 + data[end]:
-            raise ValueError("bad creator length")
-        creator = data[end + 1:end + 1 + data[end]].decode("ascii")
-        end += 1 + data[end]
-    if len(data) != end:
-        raise ValueError("trailing bytes")
-    return dict(seq=seq, ts_write=ts_write, mimetype=mime, epoch=fields.get("epoch", 0),
-                ts_user=fields.get("ts_user"), expiry=fields.get("expiry"), creator=creator)
-
-
-def key_expr(owner, key):
-    """Tuple (OWNER, a.b.c) lives at peis/OWNER/a/b/c."""
-    return f"peis/{owner}/{key.replace('.', '/')}"
-
-
-def parse_meta_tuple(text):
-    """`(meta OWNER KEY)` -> (OWNER, KEY); raises ValueError saying what is wrong."""
-    inner = text.strip()
-    if not (inner.startswith("(") and inner.endswith(")")):
-        raise ValueError(f"{text!r} is not (meta OWNER KEY)")
-    words = inner[1:-1].split()
-    if len(words) != 3 or words[0] != "meta":
-        raise ValueError(f"{text!r} is not (meta OWNER KEY)")
-    if not NAME.match(words[1]) or not KEY.match(words[2]) or len(words[2]) > 255:
-        raise ValueError(f"{text!r} names an invalid PEIS or key")
-    return words[1], words[2]
+log = logger("door")
 
 
 def parse_position(text):
@@ -123,140 +48,12 @@ def parse_position(text):
     return x, y
 
 
-# --- The PEIS: owns its tuples, answers gets, applies remote sets --------------------------------
-
-class Peis:
-    def __init__(self, args):
-        self.name = args.name
-        self.at, self.near = args.at, args.near  # where the door is; how near opens it
-        self.epoch = 0 if args.no_epoch else time.time_ns()  # identifies this run of the PEIS
-        self.tuples = {}   # key -> (KeyExpr, payload bytes, attachment bytes)
-        self.seqs = {}     # key -> last seq
-        self.events = queue.Queue()  # everything Zenoh delivers, handled by the main thread
-        self.stop = threading.Event()
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        conf.insert_json5("transport/link/tx/lease", "2000")  # we leave 2 s after vanishing
-        # Like the Rust PEIS: gossip completes the mesh, only the greater Zenoh id dials.
-        conf.insert_json5("scouting/gossip/autoconnect_strategy",
-                          '{ peer: { to_router: "always", to_peer: "greater-zid" } }')
-        if args.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(args.listen))
-        if args.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-            conf.insert_json5("connect/timeout_ms", "5000")
-            conf.insert_json5("connect/exit_on_failure", "true")
-        self.session = zenoh.open(conf)
-        self.settle_links()
-        alive = f"peis/{self.name}/@alive"
-        if any(r.ok is not None for r in self.session.liveliness().get(alive, timeout=2.0)):
-            self.session.close()
-            raise SystemExit(f"door: PEIS {self.name} is already present")
-        self.door = Door(self)
-        self.queryables = [
-            self.session.declare_queryable(f"peis/{self.name}/**",
-                                           lambda q: self.events.put(("get", q))),
-            self.session.declare_queryable(f"peis/{self.name}/@set/**",
-                                           lambda q: self.events.put(("set", q))),
-        ]
-        self.token = self.session.liveliness().declare_token(alive)
-
-    def settle_links(self, quiet=0.25, most=3.0):
-        """Waits for the mesh to form before asking anything: linked at first only to the PEIS we
-        connected to, we learn the others from gossip and link to them a moment later, and peers do
-        not relay. So the name check waits until the set of linked peers stays the same for
-        `quiet` seconds (at most `most`), and not at all when no peer is linked."""
-        linked = lambda: {str(z) for z in self.session.info.peers_zid()}
-        start = time.monotonic()
-        seen = linked()
-        since = start
-        while seen and time.monotonic() - since < quiet and time.monotonic() - start < most:
-            time.sleep(0.025)
-            now = linked()
-            if now != seen:
-                seen, since = now, time.monotonic()
-
-    def set(self, key, data, mimetype="text/plain", creator=None):
-        """Publishes our tuple `key` with the next seq; returns (payload, attachment)."""
-        data = data.encode() if isinstance(data, str) else data
-        seq = self.seqs[key] = self.seqs.get(key, 0) + 1
-        meta = encode_meta(seq, time.time_ns(), self.epoch, mimetype, creator)
-        ke = key_expr(self.name, key)
-        self.tuples[key] = (zenoh.KeyExpr(ke), data, meta)
-        self.session.put(ke, data, attachment=meta, congestion_control=zenoh.CongestionControl.BLOCK)
-        return data, meta
-
-    def answer_get(self, query):
-        for ke, data, meta in list(self.tuples.values()):
-            if query.key_expr.intersects(ke):
-                query.reply(ke, data, attachment=meta)
-
-    def apply_remote_set(self, query):
-        prefix = f"peis/{self.name}/@set/"
-        key = str(query.key_expr)[len(prefix):].replace("/", ".")
-        if key not in REMOTE_SETTABLE:
-            return query.reply_err(f"remote set of {key} is not allowed by {self.name}")
-        data = query.payload.to_bytes() if query.payload is not None else b""
-        mimetype, creator = "application/octet-stream", None  # a request without metadata
-        if query.attachment is not None:
-            try:
-                request = decode_meta(query.attachment.to_bytes())
-            except ValueError as e:
-                return query.reply_err(f"malformed attachment: {e}")
-            if request["expiry"] is not None:
-                return query.reply_err(f"{self.name} does not support a time to live")
-            mimetype, creator = request["mimetype"], request["creator"]
-        if len(data) > MAX_VALUE:
-            return query.reply_err(f"value of {len(data)} bytes is over {MAX_VALUE}")
-        if key.endswith(".reqState") and data.decode("utf-8", "replace").strip() not in ("on", "off"):
-            return query.reply_err(f"{key} must be on or off, not {data[:40]!r}")
-        data, meta = self.set(key, data, mimetype, creator)
-        query.reply(query.key_expr, data, attachment=meta)
-        log(f"remote set {key} = {data.decode('utf-8', 'replace')}")
-        self.door.on_set(key, data.decode("utf-8", "replace"))
-
-    def run(self):
-        """The main loop: one thread handles every event, so no state is shared between threads."""
-        print("ready", flush=True)
-        while not self.stop.is_set():
-            try:
-                kind, item = self.events.get(timeout=0.05)
-            except queue.Empty:
-                kind, item = None, None
-            try:
-                if kind in ("get", "set"):
-                    with item:  # leaving the block finishes the query: the asker stops waiting
-                        (self.answer_get if kind == "get" else self.apply_remote_set)(item)
-                elif kind == "position":
-                    self.door.on_position(*item)
-                self.door.tick(time.monotonic())
-            except Exception as e:  # a bug or a Zenoh error must not take the PEIS down
-                log(f"error handling {kind}: {e!r}")
-            item = None
-
-    def close(self):
-        """Reports the component switched off, then leaves: token first, then the session."""
-        try:
-            self.door.unfollow()
-            self.set(f"components.{C}.currState", "off")
-            if self.door.on:
-                self.set(f"{C}.status", "idle")
-            # Zenoh sends the token's withdrawal ahead of data still queued: a query, queued
-            # behind our last tuples, comes back once the peers have taken them in.
-            for _ in self.session.get("peis/*/leaving", timeout=0.5):
-                pass
-            self.token.undeclare()
-        finally:
-            self.session.close()
-
-
 # --- The component: init-component duties for m1, and its body -----------------------------------
 
 class Door:
-    def __init__(self, peis):
+    def __init__(self, peis, at, near):
         self.peis = peis
-        self.at, self.near = peis.at, peis.near
+        self.at, self.near = at, near         # where the door is; how near opens it
         self.on = True                        # the motor is powered from the start
         self.params, self.meta = None, None   # m1.params and m1.mi-position, as last set
         self.robot = None                     # R of the params
@@ -343,11 +140,11 @@ class Door:
         fid, ke, events = self.follow_id, key_expr(owner, key), self.peis.events
         # Subscribe first, then get the current value: nothing published in between is missed.
         self.subscriber = self.peis.session.declare_subscriber(
-            ke, lambda sample: events.put(("position", (fid, sample))))
+            ke, lambda sample: events.put(("input", (fid, sample))))
 
         def on_reply(reply):
             if reply.ok is not None:
-                events.put(("position", (fid, reply.ok)))
+                events.put(("input", (fid, reply.ok)))
         self.peis.session.get(ke, on_reply, timeout=2.0)
         log(f"{C}: following {owner}:{key}")
 
@@ -358,7 +155,7 @@ class Door:
             self.subscriber.undeclare()
             self.subscriber = None
 
-    def on_position(self, fid, sample):
+    def on_input(self, fid, sample):
         if fid != self.follow_id or not self.active or self.done or self.broken:
             return
         if sample.kind != zenoh.SampleKind.PUT:
@@ -404,24 +201,7 @@ def main():
                         help="where the door is, in metres (default: 4.0 1.5)")
     parser.add_argument("--near", type=float, default=1.0, metavar="M",
                         help="open when the robot is this close, in metres (default: 1.0)")
-    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
-    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
-    parser.add_argument("--no-epoch", action="store_true",
-                        help="publish without the epoch field (for readers that predate it)")
-    args = parser.parse_args()
-    if not NAME.match(args.name):
-        parser.error("--name: 1-255 characters from A-Z a-z 0-9 _ -")
-    try:
-        peis = Peis(args)
-    except zenoh.ZError as e:
-        sys.exit(f"door: cannot join: {e}")
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: peis.stop.set())
-    try:
-        peis.run()
-    finally:
-        peis.close()
-        log("left")
+    serve(parser, "door", C, REMOTE_SETTABLE, lambda peis, args: Door(peis, args.at, args.near))
 
 
 if __name__ == "__main__":
