@@ -6,7 +6,7 @@
 //! side still holds its half when gossip names the other; it does not dial, and learns a moment
 //! later, from a reset, that the link is dead. Nothing names the other again, so the two would not
 //! meet until something else changed. Hence: a link this session dialled and lost is dialled
-//! again, at once and then a few times over a few seconds, until a link to that peer is back.
+//! again, soon and then a few times over a few seconds, until a link to that peer is back.
 //! A link the other side dialled is theirs to dial again.
 
 use std::time::Duration;
@@ -89,7 +89,8 @@ pub(crate) async fn relink(
     runtime: Runtime,
     shutdown: watch::Receiver<bool>,
 ) -> zenoh::Result<Relink> {
-    let (lost, mut losses) = mpsc::unbounded_channel::<(ZenohId, Locator)>();
+    // Each lost link: the peer, this end's address and the other end's.
+    let (lost, mut losses) = mpsc::unbounded_channel::<(ZenohId, Locator, Locator)>();
     let listener = session
         .info()
         .link_events_listener()
@@ -97,7 +98,7 @@ pub(crate) async fn relink(
         .callback(move |event| {
             if event.kind() == SampleKind::Delete {
                 let link = event.link();
-                let _ = lost.send((*link.zid(), link.dst().clone()));
+                let _ = lost.send((*link.zid(), link.src().clone(), link.dst().clone()));
             }
         })
         .await?;
@@ -105,16 +106,17 @@ pub(crate) async fn relink(
     let task = tokio::spawn(async move {
         let mut shutdown = shutdown;
         loop {
-            let (zid, dst) = tokio::select! {
+            let (zid, src, dst) = tokio::select! {
                 _ = shutdown.changed() => return,
                 next = losses.recv() => match next {
                     Some(next) => next,
                     None => return,
                 },
             };
-            // Addresses this session listens on: a link that ends there was dialled by the other.
+            // A link whose end here is an address this session listens on was dialled by the
+            // other side (this end of a link it dialled is an ephemeral port).
             let listening = runtime.get_locators();
-            if listening.iter().any(|l| l.address() == dst.address()) {
+            if listening.iter().any(|l| l.address() == src.address()) {
                 continue;
             }
             tokio::spawn(dial_again(
