@@ -343,19 +343,31 @@ fn a_secured_router_forwards_for_its_members() {
 
 /// `ecology task` on `plan`, printing JSON lines, waiting for the world, astrid and hsm, joined
 /// with `through` (how it reaches them).
-fn task_args<'a>(plan: &'a str, through: &[&'a str]) -> Vec<&'a str> {
+/// `ecology task` on `domain` and `plan` as JSON lines, once the PEIS `wait_for` are present,
+/// with `through` (how it reaches the ecology).
+pub(crate) fn task_args<'a>(
+    domain: &'a str,
+    plan: &'a str,
+    wait_for: &'a str,
+    through: &[&'a str],
+) -> Vec<&'a str> {
     let mut args = vec![
         "task",
         "--domain",
-        "domains/peis-home.eco",
+        domain,
         "--plan",
         plan,
         "--json",
         "--wait-for",
-        "world,astrid,hsm",
+        wait_for,
     ];
     args.extend(through);
     args
+}
+
+/// [`task_args`] for the PEIS-Home's move.
+fn home_task_args<'a>(plan: &'a str, through: &[&'a str]) -> Vec<&'a str> {
+    task_args("domains/peis-home.eco", plan, "world,astrid,hsm", through)
 }
 
 fn through_a_router(secured: bool) {
@@ -386,7 +398,7 @@ fn through_a_router(secured: bool) {
         procs.push(Proc::start(name, &args).ready());
     }
     let plan = fixture.plan();
-    let (code, lines) = Proc::start("executive", &task_args(&plan, &through)).finish();
+    let (code, lines) = Proc::start("executive", &home_task_args(&plan, &through)).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
@@ -453,7 +465,7 @@ fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
     assert_eq!(code, Some(2), "a second hsm must be refused");
     // The executive switches, wires and runs components of both, through remote sets.
     let plan = fixture.plan();
-    let (code, lines) = Proc::start("executive", &task_args(&plan, &through)).finish();
+    let (code, lines) = Proc::start("executive", &home_task_args(&plan, &through)).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
@@ -652,20 +664,12 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     let listen = free_endpoint();
     let task = Proc::start(
         "executive",
-        &[
-            "task",
-            "--domain",
+        &task_args(
             "examples/python/robot-counter.eco",
-            "--plan",
             "examples/python/robot-counter.plan",
-            "--json",
-            "--wait-for",
             "world,hsm,counter",
-            "--listen",
-            &listen,
-            "--connect",
-            &world_endpoint,
-        ],
+            &["--listen", &listen, "--connect", &world_endpoint],
+        ),
     );
     let (code, lines) = task.finish();
     let all = events(&lines);

@@ -7,7 +7,7 @@ use std::process::Command;
 
 use nix::sys::signal::Signal;
 
-use crate::processes::{costs, events, named, one_at_a_time, python, strings};
+use crate::processes::{costs, events, named, one_at_a_time, python, strings, task_args};
 use crate::support::{Proc, free_endpoint, root};
 
 #[test]
@@ -61,20 +61,12 @@ fn the_tutorials_door_in_python_opens_for_the_robot() {
     let listen = free_endpoint();
     let task = Proc::start(
         "executive",
-        &[
-            "task",
-            "--domain",
+        &task_args(
             "examples/tutorial/door.eco",
-            "--plan",
             "examples/tutorial/door.plan",
-            "--json",
-            "--wait-for",
             "world,rex,eye,door1",
-            "--listen",
-            &listen,
-            "--connect",
-            &world,
-        ],
+            &["--listen", &listen, "--connect", &world],
+        ),
     );
     let (code, lines) = task.finish();
     let all = events(&lines);
