@@ -125,13 +125,13 @@ wire(C,T,N) :- feed(C,T,D), comp(C,P,_,_), comp(D,Q,_,_), P != Q, chan(Q,P,N).
     return "\n".join(lines)
 
 
-def clingo_solve(program):
-    """(seconds, cost, proven): the median of up to five runs while they take
-    under half a second in all, as for our planner."""
+def median_run(once, *args):
+    """(seconds, cost, proven) of `once(*args)`: the median of up to five runs
+    while they take under half a second in all, as for our planner."""
     runs = []
     began = time.perf_counter()
     while len(runs) < 5 and (not runs or time.perf_counter() - began < 0.5):
-        runs.append(clingo_once(program))
+        runs.append(once(*args))
     runs.sort(key=lambda r: r[0])
     return runs[len(runs) // 2]
 
@@ -211,26 +211,6 @@ def highs_once(comps, chan, user):
     info = h.getInfo()
     value = round(info.objective_function_value) if info.primal_solution_status == 2 else None
     return elapsed, value, proven
-
-
-def highs_solve(comps, chan, user):
-    runs = []
-    began = time.perf_counter()
-    while len(runs) < 5 and (not runs or time.perf_counter() - began < 0.5):
-        runs.append(highs_once(comps, chan, user))
-    runs.sort(key=lambda r: r[0])
-    return runs[len(runs) // 2]
-
-
-def bnb_solve(comps, chan, user):
-    """(seconds, cost, proven): the median of up to five runs while they take
-    under half a second in all, as for the others."""
-    runs = []
-    began = time.perf_counter()
-    while len(runs) < 5 and (not runs or time.perf_counter() - began < 0.5):
-        runs.append(bnb_once(comps, chan, user))
-    runs.sort(key=lambda r: r[0])
-    return runs[len(runs) // 2]
 
 
 def bnb_once(comps, chan, user):
@@ -446,9 +426,9 @@ def main():
                 t_ours, c_ours, p_ours, first = ours(d)
                 comps, chan, user = read_instance(d)
                 peers = [
-                    clingo_solve(asp_program(comps, chan, user)),
-                    highs_solve(comps, chan, user),
-                    bnb_solve(comps, chan, user),
+                    median_run(clingo_once, asp_program(comps, chan, user)),
+                    median_run(highs_once, comps, chan, user),
+                    median_run(bnb_once, comps, chan, user),
                 ]
                 mark = lambda c, proven: "none" if c is None else f"{c}{'' if proven else '?'}"
                 proven_costs = {c for _, c, pr in peers if pr}

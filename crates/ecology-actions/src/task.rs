@@ -677,6 +677,14 @@ struct Grounder<'a> {
     fluent_values: HashMap<(Name, Vec<u32>), u64>,
 }
 
+/// Whether actions cost the sum of their `increase` effects (else 1 each): when the domain says
+/// `:action-costs`, or the problem minimizes `total-cost` (as other planners read IPC domains
+/// that declare only the metric). The grounder and the validator price actions alike.
+pub(crate) fn priced_by_effects(domain: &Domain, problem: &Problem) -> bool {
+    domain.requires("action-costs")
+        || problem.metric == Some(ecology_domain::Metric::MinimizeTotalCost)
+}
+
 /// Grounds `domain`'s actions over `problem`'s objects and the domain's
 /// constants.
 ///
@@ -737,10 +745,7 @@ pub fn ground_within(
             .collect(),
         by_first_pre: Vec::new(),
         no_pre: Vec::new(),
-        // Priced by their `increase` effects when the domain says `:action-costs`, or the problem
-        // minimizes `total-cost` (as other planners read IPC domains that declare only the metric).
-        action_costs: domain.requires("action-costs")
-            || problem.metric == Some(ecology_domain::Metric::MinimizeTotalCost),
+        action_costs: priced_by_effects(domain, problem),
     };
     let mut g = Grounder {
         problem,

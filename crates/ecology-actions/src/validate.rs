@@ -255,9 +255,7 @@ impl<'a> Semantics<'a> {
         for literal in &action.precondition {
             Self::literal_holds(literal, &bind, world).map_err(StepFailure::Precondition)?;
         }
-        // As the grounder prices actions: `:action-costs`, or a problem that minimizes `total-cost`.
-        let action_costs = self.domain.requires("action-costs")
-            || self.problem.metric == Some(ecology_domain::Metric::MinimizeTotalCost);
+        let action_costs = crate::task::priced_by_effects(self.domain, self.problem);
         let mut cost = if action_costs { 0u64 } else { 1 };
         let mut next = world.clone();
         let mut adds = Vec::new();

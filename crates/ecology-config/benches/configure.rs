@@ -9,13 +9,17 @@
 // The counting allocator forwards to the system allocator; that needs `unsafe`.
 #![allow(unsafe_code)]
 
+mod common;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use ecology_config::oracle::{self, Limit};
 use ecology_config::synthetic::{self, Shape};
 use ecology_config::{NoClock, Options, PaperCost, Request, Status, plan};
+
+use common::median;
 
 struct Counting;
 
@@ -42,20 +46,6 @@ unsafe impl GlobalAlloc for Counting {
 
 #[global_allocator]
 static ALLOCATOR: Counting = Counting;
-
-/// Runs `f` `runs` times; returns the median duration and the last result.
-fn median<T>(runs: usize, mut f: impl FnMut() -> T) -> (Duration, T) {
-    let mut times = Vec::with_capacity(runs);
-    let mut last = None;
-    for _ in 0..runs.max(1) {
-        let start = Instant::now();
-        let out = f();
-        times.push(start.elapsed());
-        last = Some(out);
-    }
-    times.sort();
-    (times[times.len() / 2], last.expect("at least one run"))
-}
 
 fn human(d: Duration) -> String {
     let us = d.as_secs_f64() * 1e6;

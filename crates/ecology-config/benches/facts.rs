@@ -8,25 +8,16 @@
 //! levels of 4 components each (`synthetic::sharing`, seed 1), about 1.9 MB. Run with
 //! `cargo bench -p ecology-config --bench facts`.
 
+mod common;
+
 use std::hint::black_box;
 use std::io::BufRead;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use common::median;
 
 use ecology_config::synthetic::{self, Sharing};
 use ecology_config::{Options, PaperCost, Request, Search};
-
-/// The median wall time of `runs` runs of `f`.
-fn median(runs: usize, mut f: impl FnMut()) -> Duration {
-    let mut times: Vec<Duration> = (0..runs)
-        .map(|_| {
-            let start = Instant::now();
-            f();
-            start.elapsed()
-        })
-        .collect();
-    times.sort();
-    times[runs / 2]
-}
 
 fn main() {
     let shape = Sharing {
@@ -49,19 +40,19 @@ fn main() {
         text.iter().filter(|&&b| b == b'\n').count(),
         facts.len()
     );
-    let lines = median(21, || {
+    let (lines, ()) = median(21, || {
         let count = std::io::BufReader::new(text).lines().count();
         black_box(count);
     });
-    let read = median(21, || {
+    let (read, ()) = median(21, || {
         let state = ecology_domain::parse_facts(black_box(text)).expect("parses");
         black_box(state.len());
     });
-    let compiled = median(21, || {
+    let (compiled, ()) = median(21, || {
         let state = ecology_domain::parse_facts(black_box(text)).expect("parses");
         black_box(ecology_config::compile_state(&instance.domain, &state));
     });
-    let prepared = median(5, || {
+    let (prepared, ()) = median(5, || {
         let state = ecology_domain::parse_facts(black_box(text)).expect("parses");
         let request = Request {
             domain: &instance.domain,

@@ -10,6 +10,7 @@ use rustc_hash::FxHashMap;
 
 use crate::parse::{AtomKind, classify, is_well_formed_number};
 use crate::state::{self, EcologyState, Fact};
+use crate::syntax::{CHECK_EVERY, is_delimiter};
 use crate::{Name, Span};
 
 /// What the fast path made of a file.
@@ -21,9 +22,6 @@ pub(crate) enum Read {
     /// Something only the general reader reads, or reports.
     Unusual,
 }
-
-/// How many bytes are read between two calls of `stop`.
-const CHECK_EVERY: usize = 16 * 1024;
 
 /// Reads `text` as flat facts, asking `stop` every 16 KiB whether to give up.
 pub(crate) fn read(text: &str, stop: &mut dyn FnMut() -> bool) -> Read {
@@ -133,10 +131,6 @@ fn skip_blank(bytes: &[u8], mut pos: usize) -> usize {
         }
     }
     pos
-}
-
-fn is_delimiter(byte: u8) -> bool {
-    matches!(byte, b'(' | b')' | b';') || byte.is_ascii_whitespace()
 }
 
 /// Names are case-insensitive, kept lowercase.

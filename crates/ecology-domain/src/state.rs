@@ -80,7 +80,7 @@ impl PartialEq for EcologyState {
     }
 }
 
-fn hash(fact: &Fact) -> u64 {
+fn fact_hash(fact: &Fact) -> u64 {
     FxBuildHasher.hash_one(fact)
 }
 
@@ -100,26 +100,27 @@ impl EcologyState {
 
     /// Adds a fact; returns false if it was already there.
     pub fn insert(&mut self, fact: Fact) -> bool {
-        let hash = hash(&fact);
-        let facts = &self.facts;
-        if self
-            .seen
-            .find(hash, |&at| facts[at as usize] == fact)
-            .is_some()
-        {
+        let hash = fact_hash(&fact);
+        if self.find(hash, &fact) {
             return false;
         }
         let at = u32::try_from(self.facts.len()).expect("fewer than 2^32 facts");
+        let facts = &self.facts;
         self.seen
-            .insert_unique(hash, at, |&at| self::hash(&facts[at as usize]));
+            .insert_unique(hash, at, |&at| fact_hash(&facts[at as usize]));
         self.facts.push(fact);
         true
     }
 
     /// Whether the fact holds.
     pub fn contains(&self, fact: &Fact) -> bool {
+        self.find(fact_hash(fact), fact)
+    }
+
+    /// Whether `fact`, whose hash is `hash`, is stored.
+    fn find(&self, hash: u64, fact: &Fact) -> bool {
         self.seen
-            .find(hash(fact), |&at| self.facts[at as usize] == *fact)
+            .find(hash, |&at| self.facts[at as usize] == *fact)
             .is_some()
     }
 

@@ -82,7 +82,7 @@ pub fn read(src: &str, diags: &mut Vec<Diagnostic>) -> Vec<Sexp> {
 }
 
 /// How many bytes are read between two calls of a `stop` check.
-const CHECK_EVERY: usize = 16 * 1024;
+pub(crate) const CHECK_EVERY: usize = 16 * 1024;
 
 /// [`read`], asking `stop` every 16 KiB whether to give up; `None` when it did.
 pub fn read_until(
@@ -201,6 +201,6 @@ fn push(open: &mut [(usize, Vec<Sexp>)], top: &mut Vec<Sexp>, sexp: Sexp) {
     }
 }
 
-fn is_delimiter(byte: u8) -> bool {
+pub(crate) fn is_delimiter(byte: u8) -> bool {
     matches!(byte, b'(' | b')' | b';') || byte.is_ascii_whitespace()
 }

@@ -395,17 +395,23 @@ impl World {
 mod tests {
     use super::*;
 
-    const MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
-                       room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
-                       door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+    /// The PEIS-Home's map, from its scenario file.
+    fn peis_home() -> Map {
+        let file =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/peis-home.toml");
+        crate::Scenario::load(&file)
+            .expect("loads")
+            .world_for(1)
+            .map
+    }
 
     #[test]
     fn the_map_text_parses_back_into_the_map() {
-        let map = Map::parse(MAP).expect("parses");
+        let map = Map::parse(&peis_home().to_text()).expect("parses");
+        assert_eq!(map, peis_home());
         assert_eq!((map.rooms.len(), map.doors.len()), (4, 3));
         assert_eq!(map.rooms[2].name, "entrance");
         assert_eq!((map.doors[2].x, map.doors[2].y), (2.5, 4.0));
-        assert_eq!(Map::parse(&map.to_text()), Some(map));
         for bad in [
             "room",
             "room a 1 2 3",
@@ -425,7 +431,7 @@ mod tests {
 
     #[test]
     fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
-        let map = Map::parse(MAP).expect("parses");
+        let map = peis_home();
         let name = |x: f64, y: f64| map.room_at(x, y).map(|r| r.name.as_str());
         assert_eq!(name(1.5, 1.5), Some("living-room"));
         assert_eq!(name(4.2, 4.3), Some("entrance"));

@@ -18,9 +18,6 @@ use ecology_sim::{Map, Pose};
 
 use crate::svg::escape;
 
-/// The PEIS whose tuples describe the home.
-pub const WORLD: &str = "world";
-
 /// Robots, things and residents kept at most (each); past it, new names are ignored.
 const MAX_ITEMS: usize = 1_000;
 /// Rooms and doors kept at most.
@@ -38,13 +35,13 @@ struct Thing {
     holder: Option<String>,
 }
 
-/// The finite numbers of `text`, if it is exactly `n` of them.
-fn numbers(text: &str, n: usize) -> Option<Vec<f64>> {
-    let values: Vec<f64> = text
-        .split_whitespace()
-        .map(|w| w.parse::<f64>().ok().filter(|v| v.is_finite()))
-        .collect::<Option<_>>()?;
-    (values.len() == n).then_some(values)
+/// A point, `X Y`: exactly two finite numbers.
+fn point(text: &str) -> Option<(f64, f64)> {
+    let mut words = text.split_whitespace().map(|w| w.parse::<f64>().ok());
+    match (words.next(), words.next(), words.next()) {
+        (Some(Some(x)), Some(Some(y)), None) if x.is_finite() && y.is_finite() => Some((x, y)),
+        _ => None,
+    }
 }
 
 /// A resident: their state (`asleep`, `awake`) and where they are, when the world says.
@@ -102,7 +99,7 @@ impl Home {
                 let thing = self.things.entry((*name).to_owned()).or_default();
                 let text = text.unwrap_or("");
                 if *field == "at" {
-                    thing.at = numbers(text, 2).map(|v| (v[0], v[1]));
+                    thing.at = point(text);
                 } else {
                     thing.holder = text_or_none(text);
                 }
@@ -116,7 +113,7 @@ impl Home {
                 if *field == "state" {
                     resident.state = text.trim().to_owned();
                 } else {
-                    resident.at = numbers(text, 2).map(|v| (v[0], v[1]));
+                    resident.at = point(text);
                 }
             }
             _ => return,
@@ -316,18 +313,25 @@ impl Home {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    const MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
-                       room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
-                       door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+    /// The PEIS-Home's `map` tuple, as its world publishes it.
+    pub(crate) fn peis_home_map() -> String {
+        let file =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/peis-home.toml");
+        ecology_sim::Scenario::load(&file)
+            .expect("loads")
+            .world_for(1)
+            .map
+            .to_text()
+    }
 
     #[test]
     fn the_world_tuples_make_the_home_and_its_drawing() {
         let mut home = Home::default();
         assert_eq!(home.snapshot(), Json::Null);
-        home.tuple("map", Some(MAP));
+        home.tuple("map", Some(&peis_home_map()));
         home.tuple("robots.astrid.pose", Some("1.500 1.500 0.0000"));
         home.tuple("robots.pippi.pose", Some("0.6 0.6 0.8"));
         home.tuple("things.newspaper.at", Some("4.200 4.300"));

@@ -4,10 +4,11 @@
 
 use std::collections::BTreeMap;
 
+use ecology_sim::WORLD;
 use ecology_tuples::{PresenceEvent, TupleEvent};
 use serde_json::{Value as Json, json};
 
-use crate::home::{Home, WORLD};
+use crate::home::Home;
 use crate::svg::{Drawing, Edge, Mark, Node};
 
 /// The longest value preview kept per tuple.
@@ -560,12 +561,10 @@ mod tests {
     #[test]
     fn the_world_peis_tuples_make_the_home_even_past_the_preview_length() {
         let mut view = View::new();
-        let map = "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
-                   room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
-                   door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+        let map = crate::home::tests::peis_home_map();
         assert!(map.chars().count() > PREVIEW);
         assert_eq!(view.snapshot()["home"], Json::Null);
-        view.tuple(&tuple("world", "map", map));
+        view.tuple(&tuple("world", "map", &map));
         view.tuple(&tuple("world", "robots.astrid.pose", "4.000 4.000 1.5708"));
         // The same keys of another PEIS are not the world's.
         view.tuple(&tuple("astrid", "robots.astrid.pose", "1.0 1.0 0.0"));

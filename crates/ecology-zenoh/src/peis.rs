@@ -39,8 +39,8 @@ struct Inner {
     core: Arc<Core>,
     shutdown: watch::Sender<bool>,
     service: Mutex<Option<JoinHandle<()>>>,
-    /// Dials again the links this session dialled and lost (peers only).
-    relink: Mutex<Option<relink::Relink>>,
+    /// Dials again the links this session dialled and lost (peers only), until `shutdown`.
+    _relink: Option<relink::Relink>,
 }
 
 struct Core {
@@ -204,7 +204,6 @@ impl ZenohPeis {
                 message: e.to_string(),
             })?;
         if already.recv_async().await.is_ok() {
-            drop(relinking);
             let _ = session.close().await;
             runtime.close().await;
             return Err(ZenohError::Space(TupleError::AlreadyPresent(me)));
@@ -262,16 +261,15 @@ impl ZenohPeis {
                 core,
                 shutdown,
                 service: Mutex::new(Some(service)),
-                relink: Mutex::new(relinking),
+                _relink: relinking,
             }),
         })
     }
 
     /// Leaves the ecology: stops the service task, withdraws the liveliness token and closes the session.
     pub async fn close(self) {
+        // Also tells the re-dialler to stop: links lost while closing are not dialled again.
         let _ = self.inner.shutdown.send(true);
-        // Links lost while closing are not dialled again.
-        drop(lock(&self.inner.relink).take());
         let service = lock(&self.inner.service).take();
         if let Some(service) = service {
             // The task ends on the signal; an error would only mean it panicked, which leaves nothing to clean.

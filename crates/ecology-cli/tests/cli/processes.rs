@@ -341,11 +341,9 @@ fn a_secured_router_forwards_for_its_members() {
     through_a_router(true);
 }
 
-/// `ecology task` on `plan`, printing JSON lines, waiting for the world, astrid and hsm, joined
-/// with `through` (how it reaches them).
 /// `ecology task` on `domain` and `plan` as JSON lines, once the PEIS `wait_for` are present,
 /// with `through` (how it reaches the ecology).
-pub(crate) fn task_args<'a>(
+fn task_args<'a>(
     domain: &'a str,
     plan: &'a str,
     wait_for: &'a str,
@@ -633,46 +631,18 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         "{python} has no `zenoh` module: run scripts/test, which installs eclipse-zenoh into .venv"
     );
     let _one = one_at_a_time();
-    let scenario = root()
-        .join("scenarios/peis-home.toml")
-        .display()
-        .to_string();
-    let world_endpoint = free_endpoint();
-    let _world = Proc::start("world", &["world", &scenario, "--listen", &world_endpoint]).ready();
-    let hsm_endpoint = free_endpoint();
-    let _hsm = Proc::start(
-        "hsm",
-        &[
-            "peis",
-            &scenario,
-            "--name",
-            "hsm",
-            "--listen",
-            &hsm_endpoint,
-            "--connect",
-            &world_endpoint,
-        ],
-    )
-    .ready();
-    let counter_endpoint = free_endpoint();
-    let mut command = Command::new(&python);
-    command
-        .arg(root().join("examples/python/robot_counter.py"))
-        .args(["--listen", &counter_endpoint, "--connect", &world_endpoint]);
-    let mut counter = Proc::spawn("counter", command);
-    counter.wait_for("ready", |l| l == "ready");
-    let listen = free_endpoint();
-    let task = Proc::start(
-        "executive",
-        &task_args(
-            "examples/python/robot-counter.eco",
-            "examples/python/robot-counter.plan",
-            "world,hsm,counter",
-            &["--listen", &listen, "--connect", &world_endpoint],
-        ),
+    let ecology = WithPython::start(
+        &python,
+        "scenarios/peis-home.toml",
+        &["hsm"],
+        "examples/python/robot_counter.py",
+        "counter",
     );
-    let (code, lines) = task.finish();
-    let all = events(&lines);
+    let (code, all) = ecology.task(
+        "examples/python/robot-counter.eco",
+        "examples/python/robot-counter.plan",
+        "world,hsm,counter",
+    );
     assert_eq!(code, Some(0), "{all:#?}");
     // Discovered (its init tuples priced it: start-up 5 + default 5), switched on, wired, done.
     assert_eq!(costs(&all), [(30, false)], "{all:#?}");
@@ -689,14 +659,93 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     // A second Python `counter` joining through hsm, one hop from the first, is refused.
     let mut twin = Command::new(&python);
     twin.arg(root().join("examples/python/robot_counter.py"))
-        .args(["--listen", &free_endpoint(), "--connect", &hsm_endpoint]);
+        .args([
+            "--listen",
+            &free_endpoint(),
+            "--connect",
+            &ecology.peis[0].1,
+        ]);
     let (code, lines) = Proc::spawn("twin", twin).finish();
     assert_eq!(code, Some(1), "{lines:?}");
     assert!(lines.iter().all(|l| l.text != "ready"), "{lines:?}");
-    // Stopped by SIGTERM, the Python PEIS exits cleanly.
-    counter.signal(Signal::SIGTERM);
-    let (code, _) = counter.finish();
-    assert_eq!(code, Some(0));
+    ecology.stop_component();
+}
+
+/// An ecology of processes with one component written in Python: the world and the PEIS `peis`
+/// of a scenario, each listening on an endpoint of its own and connected to the world, and a
+/// Python PEIS joining the same way.
+pub(crate) struct WithPython {
+    world: String,
+    _world: Proc,
+    /// Each PEIS's process and endpoint.
+    pub(crate) peis: Vec<(Proc, String)>,
+    component: Proc,
+}
+
+impl WithPython {
+    /// Starts the world and `peis` of `scenario`, then `script` (named `name`) with `python`;
+    /// returns once each said it is ready.
+    pub(crate) fn start(
+        python: &str,
+        scenario: &str,
+        peis: &[&str],
+        script: &str,
+        name: &str,
+    ) -> WithPython {
+        let scenario = root().join(scenario).display().to_string();
+        let world = free_endpoint();
+        let world_proc = Proc::start("world", &["world", &scenario, "--listen", &world]).ready();
+        let peis = peis
+            .iter()
+            .map(|&peis| {
+                let listen = free_endpoint();
+                let args = [
+                    "peis",
+                    &scenario,
+                    "--name",
+                    peis,
+                    "--listen",
+                    &listen,
+                    "--connect",
+                    &world,
+                ];
+                (Proc::start(peis, &args).ready(), listen)
+            })
+            .collect();
+        let mut command = Command::new(python);
+        command
+            .arg(root().join(script))
+            .args(["--listen", &free_endpoint(), "--connect", &world]);
+        let mut component = Proc::spawn(name, command);
+        component.wait_for("ready", |l| l == "ready");
+        WithPython {
+            world,
+            _world: world_proc,
+            peis,
+            component,
+        }
+    }
+
+    /// The executive on `domain` and `plan`, once `wait_for` are present: its exit code and events.
+    pub(crate) fn task(
+        &self,
+        domain: &str,
+        plan: &str,
+        wait_for: &str,
+    ) -> (Option<i32>, Vec<Value>) {
+        let listen = free_endpoint();
+        let through = ["--listen", &listen, "--connect", &self.world];
+        let task = Proc::start("executive", &task_args(domain, plan, wait_for, &through));
+        let (code, lines) = task.finish();
+        (code, events(&lines))
+    }
+
+    /// Stops the Python PEIS with SIGTERM; it exits cleanly.
+    pub(crate) fn stop_component(self) {
+        self.component.signal(Signal::SIGTERM);
+        let (code, _) = self.component.finish();
+        assert_eq!(code, Some(0));
+    }
 }
 
 #[test]
