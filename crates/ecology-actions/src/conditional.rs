@@ -1,29 +1,37 @@
 //! The conditional planner (PTLplan's class of plans): actions with
 //! probabilistic outcomes, sensing actions that reveal atoms, and uncertain
-//! initial states. A plan is a tree of actions that branches on what the
-//! sensing actions observe; it reaches the goal with some probability at an
-//! expected cost.
+//! initial states. A plan is a graph of actions that branches on what the
+//! sensing actions observe, its branches joining where they meet the same
+//! belief again; it reaches the goal with some probability at an expected
+//! cost.
 //!
 //! The search is AO* over beliefs: a belief is a probability distribution
 //! over the ground [`State`]s, an OR node chooses an action applicable in
 //! every state of its belief (or stops), and an AND node splits the
-//! successor belief by observation. Nodes are (belief, actions left), so the
-//! graph is acyclic and plans are at most `horizon` actions deep on every
-//! branch. A plan is scored by `lambda * P(success) - E(cost)`; with `lambda`
-//! infinite the score is lexicographic (most probable, then cheapest), and
-//! the threshold is met by walking the upper convex hull of (cost,
-//! probability) with finite `lambda`s between the cheapest plan below the
-//! threshold and the cheapest above it. The bound of an unexpanded belief is
-//! the fully observable, all-outcomes one: each state that is not a goal
-//! counts as reached at the cost of an admissible deterministic heuristic
-//! (h-max or LM-cut on [`Task::determinized`]), which overestimates the score.
+//! successor belief by observation. A node is first a belief alone, however
+//! many actions led to it; if the beliefs met form a cycle, or the best plan
+//! is deeper than the horizon, the search is run again on nodes (belief,
+//! actions left), whose graph is acyclic and whose plans are at most
+//! `horizon` actions deep on every branch. A plan is scored by `lambda *
+//! P(success) - E(cost)`; with `lambda` infinite the score is lexicographic
+//! (most probable, then cheapest), and the threshold is met by walking the
+//! upper convex hull of (cost, probability) with finite `lambda`s between
+//! the cheapest plan below the threshold and the cheapest above it. The
+//! bound of an unexpanded belief is the fully observable, all-outcomes one:
+//! each state that is not a goal counts as reached at the cost of an
+//! admissible deterministic heuristic (h-max or LM-cut on
+//! [`Task::determinized`]), which overestimates the score.
 
+use std::cmp::Reverse;
 use std::collections::{BTreeSet, HashMap};
-use std::fmt;
 
 use crate::heuristic::{Heuristic, HeuristicKind};
+use crate::plan_graph::{self, GraphBuilder};
+use crate::relevance::Relevance;
 use crate::task::{AtomId, OpId, State, Task};
 use crate::{Budget, Clock, Step};
+
+pub use crate::plan_graph::{Branch, PlanGraph, PlanNode, evaluate, observation_text, round};
 
 pub use ecology_core::EPSILON;
 
@@ -76,154 +84,24 @@ impl<'t> ConditionalRequest<'t> {
     }
 }
 
-/// A conditional plan: a node of the tree.
-#[derive(Debug, Clone, PartialEq)]
-pub enum PlanTree {
-    /// The plan ends here; the goal holds with `success` probability given
-    /// the observations that led here.
-    Stop {
-        /// The probability that the goal holds here.
-        success: f64,
-    },
-    /// Run an action, then follow the branch of what it observes.
-    Act {
-        /// The action.
-        step: Step,
-        /// One branch per possible observation (one, with no atoms, for an
-        /// action that senses nothing).
-        branches: Vec<Branch>,
-    },
-}
-
-/// A branch of a conditional plan: an observation and what follows it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Branch {
-    /// Each observed atom and whether it was seen to hold.
-    pub observation: Vec<(AtomId, bool)>,
-    /// The probability of this observation, given the path to the action.
-    pub probability: f64,
-    /// The rest of the plan.
-    pub next: PlanTree,
-}
-
 /// A conditional plan with its success probability and expected cost.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConditionalPlan {
-    /// The tree.
-    pub root: PlanTree,
+    /// The plan.
+    pub graph: PlanGraph,
     /// The probability that it ends with the goal holding.
     pub success: f64,
     /// The expected sum of the costs of the actions it runs.
     pub expected_cost: f64,
 }
 
-impl PlanTree {
-    /// Actions in the tree (every branch counted).
-    pub fn actions(&self) -> usize {
-        match self {
-            PlanTree::Stop { .. } => 0,
-            PlanTree::Act { branches, .. } => {
-                1 + branches.iter().map(|b| b.next.actions()).sum::<usize>()
-            }
-        }
-    }
-
-    /// The most actions on one branch.
-    pub fn depth(&self) -> usize {
-        match self {
-            PlanTree::Stop { .. } => 0,
-            PlanTree::Act { branches, .. } => {
-                1 + branches.iter().map(|b| b.next.depth()).max().unwrap_or(0)
-            }
-        }
-    }
-}
-
 impl ConditionalPlan {
-    /// The plan as an indented tree: one action per line, and under a
-    /// sensing action each observation with its probability.
-    pub fn display<'a>(&'a self, task: &'a Task) -> impl fmt::Display + 'a {
-        Tree {
-            task,
-            root: &self.root,
-        }
+    /// The plan as indented text: one action per line, under a sensing
+    /// action each observation with its probability, shared parts labelled
+    /// and joined.
+    pub fn display<'a>(&'a self, task: &'a Task) -> plan_graph::Display<'a> {
+        self.graph.display(task)
     }
-}
-
-struct Tree<'a> {
-    task: &'a Task,
-    root: &'a PlanTree,
-}
-
-/// `(at newspaper entrance)` or `(not (at newspaper entrance))`, joined.
-pub fn observation_text(task: &Task, observation: &[(AtomId, bool)]) -> String {
-    observation
-        .iter()
-        .map(|&(a, holds)| {
-            if holds {
-                task.atom_name(a)
-            } else {
-                format!("(not {})", task.atom_name(a))
-            }
-        })
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
-impl Tree<'_> {
-    fn write(&self, f: &mut fmt::Formatter<'_>, node: &PlanTree, indent: usize) -> fmt::Result {
-        let mut node = node;
-        loop {
-            match node {
-                PlanTree::Stop { success } => {
-                    if *success >= 1.0 - EPSILON {
-                        return writeln!(f, "{:indent$}done", "");
-                    }
-                    return writeln!(
-                        f,
-                        "{:indent$}done ; goal holds with probability {}",
-                        "",
-                        round(*success)
-                    );
-                }
-                PlanTree::Act { step, branches } => {
-                    match &step.configure {
-                        Some(goal) => writeln!(f, "{:indent$}{step}  ; configure {goal}", "")?,
-                        None => writeln!(f, "{:indent$}{step}", "")?,
-                    }
-                    if let [only] = &branches[..]
-                        && only.observation.is_empty()
-                    {
-                        node = &only.next;
-                        continue;
-                    }
-                    for b in branches {
-                        writeln!(
-                            f,
-                            "{:indent$}  if {} ; probability {}",
-                            "",
-                            observation_text(self.task, &b.observation),
-                            round(b.probability)
-                        )?;
-                        self.write(f, &b.next, indent + 4)?;
-                    }
-                    return Ok(());
-                }
-            }
-        }
-    }
-}
-
-impl fmt::Display for Tree<'_> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        self.write(f, self.root, 0)
-    }
-}
-
-/// `p` with at most 6 decimals, for people.
-pub fn round(p: f64) -> f64 {
-    // `+ 0.0` turns -0 (an empty sum) into 0.
-    (p * 1e6).round() / 1e6 + 0.0
 }
 
 /// What the conditional planner concluded.
@@ -251,6 +129,10 @@ pub struct ConditionalStats {
     pub beliefs: u64,
     /// AO* runs (one per `lambda`).
     pub rounds: u64,
+    /// Whether one node per belief sufficed (no cycle among the beliefs
+    /// met, a plan within the horizon); otherwise nodes are (belief,
+    /// actions left), and the counts include the first search.
+    pub shared: bool,
     /// Time spent, by the caller's clock.
     pub micros: u64,
 }
@@ -308,8 +190,12 @@ struct Choice {
 #[derive(Debug, Clone)]
 struct Node {
     belief: u32,
-    /// Actions left.
+    /// Actions left ([`UNBOUNDED`] when beliefs are shared across depths).
     depth: u32,
+    /// The most actions on a path from the root in the graph built so far:
+    /// a child's level is greater than its parents', so the levels order
+    /// the nodes children first.
+    level: u32,
     expanded: bool,
     choices: Vec<Choice>,
     parents: Vec<u32>,
@@ -352,6 +238,7 @@ impl Lambda {
 
 struct Engine<'t> {
     task: &'t Task,
+    relevance: Relevance,
     heuristic: Box<dyn Heuristic + 't>,
     h_cache: HashMap<State, Option<u64>>,
     excluded: Vec<bool>,
@@ -364,7 +251,13 @@ struct Engine<'t> {
     /// Visit stamps for walks over the solution graph.
     stamp: Vec<u32>,
     round: u32,
+    /// Whether an expansion closed a cycle (only when sharing beliefs
+    /// across depths).
+    cyclic: bool,
 }
+
+/// The depth of nodes when beliefs are shared across depths.
+const UNBOUNDED: u32 = u32::MAX;
 
 impl<'t> Engine<'t> {
     fn h(&mut self, state: &State) -> Option<u64> {
@@ -413,13 +306,20 @@ impl<'t> Engine<'t> {
     }
 
     fn node(&mut self, belief: u32, depth: u32, parent: Option<u32>) -> u32 {
+        let level = parent.map_or(0, |p| self.nodes[p as usize].level + 1);
         let id = match self.node_ids.get(&(belief, depth)) {
-            Some(&id) => id,
+            Some(&id) => {
+                if self.nodes[id as usize].level < level {
+                    self.raise(id, level, parent);
+                }
+                id
+            }
             None => {
                 let id = self.nodes.len() as u32;
                 self.nodes.push(Node {
                     belief,
                     depth,
+                    level,
                     expanded: false,
                     choices: Vec::new(),
                     parents: Vec::new(),
@@ -441,6 +341,27 @@ impl<'t> Engine<'t> {
             self.nodes[id as usize].parents.push(parent);
         }
         id
+    }
+
+    /// Raises node `id` to `level` and its descendants below it, keeping
+    /// children's levels above their parents'; reaching `parent` (the node
+    /// whose new edge leads to `id`) means that edge closes a cycle.
+    fn raise(&mut self, id: u32, level: u32, parent: Option<u32>) {
+        let mut stack = vec![(id, level)];
+        while let Some((id, level)) = stack.pop() {
+            if Some(id) == parent {
+                self.cyclic = true;
+                return;
+            }
+            let node = &mut self.nodes[id as usize];
+            if node.level >= level {
+                continue;
+            }
+            node.level = level;
+            for choice in &node.choices {
+                stack.extend(choice.children.iter().map(|&(_, _, c)| (c, level + 1)));
+            }
+        }
     }
 
     /// The goal's probability in `belief`: what stopping there scores.
@@ -516,6 +437,11 @@ impl<'t> Engine<'t> {
             let n = &self.nodes[id as usize];
             (n.belief, n.depth)
         };
+        let child_depth = if depth == UNBOUNDED {
+            UNBOUNDED
+        } else {
+            depth - 1
+        };
         let b = self.beliefs[belief as usize].clone();
         let mut ops = Vec::new();
         self.task
@@ -533,6 +459,7 @@ impl<'t> Engine<'t> {
                     let mut next = s.clone();
                     next.change(add, del);
                     let seen: Vec<bool> = o.observe.iter().map(|&a| next.holds(a)).collect();
+                    self.relevance.clear_irrelevant(self.task, &mut next);
                     match groups.iter_mut().find(|(g, _)| *g == seen) {
                         Some((_, states)) => states.push((next, p * q)),
                         None => groups.push((seen, vec![(next, p * q)])),
@@ -559,7 +486,7 @@ impl<'t> Engine<'t> {
             let cost = o.cost;
             let children = children
                 .into_iter()
-                .map(|(w, obs, cb)| (w, obs, self.node(cb, depth - 1, Some(id))))
+                .map(|(w, obs, cb)| (w, obs, self.node(cb, child_depth, Some(id))))
                 .collect();
             choices.push(Choice { op, cost, children });
         }
@@ -570,14 +497,15 @@ impl<'t> Engine<'t> {
 
     /// Re-evaluates `changed` nodes and their ancestors, children first.
     fn propagate(&mut self, changed: impl IntoIterator<Item = u32>) {
-        let mut work: BTreeSet<(u32, u32)> = changed
+        let key = |n: &Node, id: u32| (Reverse(n.level), id);
+        let mut work: BTreeSet<(Reverse<u32>, u32)> = changed
             .into_iter()
-            .map(|id| (self.nodes[id as usize].depth, id))
+            .map(|id| key(&self.nodes[id as usize], id))
             .collect();
         while let Some((_, id)) = work.pop_first() {
             if self.evaluate(id) {
                 for &parent in &self.nodes[id as usize].parents {
-                    work.insert((self.nodes[parent as usize].depth, parent));
+                    work.insert(key(&self.nodes[parent as usize], parent));
                 }
             }
         }
@@ -587,7 +515,7 @@ impl<'t> Engine<'t> {
     fn set_lambda(&mut self, lambda: Lambda) {
         self.lambda = lambda;
         let mut order: Vec<u32> = (0..self.nodes.len() as u32).collect();
-        order.sort_by_key(|&id| self.nodes[id as usize].depth);
+        order.sort_by_key(|&id| Reverse(self.nodes[id as usize].level));
         for id in order {
             self.evaluate(id);
         }
@@ -628,82 +556,112 @@ impl<'t> Engine<'t> {
         tips
     }
 
-    /// The plan the best choices from `id` make (unexpanded nodes stop).
-    fn extract(&self, id: u32) -> PlanTree {
-        let n = &self.nodes[id as usize];
-        let stop = PlanTree::Stop {
-            success: self.stop_value(n.belief),
-        };
-        let Some(k) = n.best.filter(|_| n.expanded) else {
-            return stop;
-        };
-        let choice = &n.choices[k as usize];
-        let o = self.task.operator(choice.op);
-        PlanTree::Act {
-            step: Step {
-                op: choice.op,
-                action: o.action.clone(),
-                args: o.args.clone(),
-                cost: o.cost,
-                configure: o.configure.clone(),
-            },
-            branches: choice
-                .children
-                .iter()
-                .map(|(w, obs, child)| Branch {
-                    observation: obs.clone(),
-                    probability: *w,
-                    next: self.extract(*child),
-                })
-                .collect(),
+    /// The nodes of the best partial plan from `root`, each with the most
+    /// actions on a branch from it (its height).
+    fn heights(&mut self, root: u32) -> HashMap<u32, u32> {
+        self.round += 1;
+        let round = self.round;
+        let mut seen = Vec::new();
+        let mut stack = vec![root];
+        while let Some(id) = stack.pop() {
+            if std::mem::replace(&mut self.stamp[id as usize], round) == round {
+                continue;
+            }
+            seen.push(id);
+            let n = &self.nodes[id as usize];
+            if let Some(k) = n.best.filter(|_| n.expanded) {
+                stack.extend(n.choices[k as usize].children.iter().map(|&(_, _, c)| c));
+            }
         }
-    }
-}
-
-/// The success probability and expected cost of `tree` run from `belief`,
-/// by following beliefs through it (the planner's own reading; the oracle
-/// has an independent one). `None` if an action does not apply in some
-/// state or an observation has no branch.
-pub fn evaluate(task: &Task, belief: &[(f64, State)], tree: &PlanTree) -> Option<(f64, f64)> {
-    match tree {
-        PlanTree::Stop { .. } => Some((
-            belief
-                .iter()
-                .filter(|(_, s)| task.is_goal(s))
-                .map(|(p, _)| p)
-                .sum(),
-            0.0,
-        )),
-        PlanTree::Act { step, branches } => {
-            let o = task.operator(step.op);
-            let mut split: Vec<Vec<(f64, State)>> = vec![Vec::new(); branches.len()];
-            for (p, s) in belief {
-                if !task.applicable(s, step.op) {
-                    return None;
-                }
-                for (q, add, del) in o.each_outcome() {
-                    let mut next = s.clone();
-                    next.change(add, del);
-                    let k = branches
+        // Children first.
+        seen.sort_by_key(|&id| Reverse(self.nodes[id as usize].level));
+        let mut heights = HashMap::with_capacity(seen.len());
+        for id in seen {
+            let n = &self.nodes[id as usize];
+            let h = match n.best.filter(|_| n.expanded) {
+                Some(k) => {
+                    1 + n.choices[k as usize]
+                        .children
                         .iter()
-                        .position(|b| b.observation.iter().all(|&(a, v)| next.holds(a) == v))?;
-                    split[k].push((p * q, next));
+                        .map(|(_, _, c)| heights[c])
+                        .max()
+                        .unwrap_or(0)
                 }
-            }
-            let (mut p, mut c) = (0.0, step.cost as f64);
-            for (part, b) in split.iter().zip(branches) {
-                let w: f64 = part.iter().map(|(p, _)| p).sum();
-                if w <= 0.0 {
-                    continue;
-                }
-                let normal: Vec<(f64, State)> =
-                    part.iter().map(|(p, s)| (p / w, s.clone())).collect();
-                let (bp, bc) = evaluate(task, &normal, &b.next)?;
-                p += w * bp;
-                c += w * bc;
-            }
-            Some((p, c))
+                None => 0,
+            };
+            heights.insert(id, h);
         }
+        heights
+    }
+
+    /// The plan the best choices from `root` make (unexpanded nodes stop),
+    /// cut after `horizon` actions on every branch.
+    fn extract(&mut self, root: u32, horizon: u32) -> PlanGraph {
+        let heights = self.heights(root);
+        let mut builder = GraphBuilder::default();
+        let mut made = HashMap::new();
+        let top = self.extract_at(root, horizon, &heights, &mut builder, &mut made);
+        builder.finish(top)
+    }
+
+    fn extract_at(
+        &self,
+        id: u32,
+        left: u32,
+        heights: &HashMap<u32, u32>,
+        builder: &mut GraphBuilder,
+        made: &mut HashMap<u32, usize>,
+    ) -> usize {
+        // A node whose plan fits in what is left is the same wherever it is
+        // reached from.
+        let whole = heights[&id] <= left;
+        if whole && let Some(&done) = made.get(&id) {
+            return done;
+        }
+        let n = &self.nodes[id as usize];
+        let node = match n.best.filter(|_| n.expanded && left > 0) {
+            None => PlanNode::Stop {
+                success: self.stop_value(n.belief),
+            },
+            Some(k) => {
+                let choice = &n.choices[k as usize];
+                let o = self.task.operator(choice.op);
+                let branches = choice
+                    .children
+                    .iter()
+                    .map(|(w, obs, child)| Branch {
+                        observation: obs.clone(),
+                        probability: *w,
+                        next: self.extract_at(*child, left - 1, heights, builder, made),
+                    })
+                    .collect();
+                PlanNode::Act {
+                    step: Step {
+                        op: choice.op,
+                        action: o.action.clone(),
+                        args: o.args.clone(),
+                        cost: o.cost,
+                        configure: o.configure.clone(),
+                    },
+                    branches,
+                }
+            }
+        };
+        let at = builder.add(node);
+        if whole {
+            made.insert(id, at);
+        }
+        at
+    }
+
+    /// Forgets every node (keeping beliefs and heuristic values), to search
+    /// again with nodes of another kind.
+    fn clear_nodes(&mut self) {
+        self.nodes.clear();
+        self.node_ids.clear();
+        self.stamp.clear();
+        self.lambda = Lambda(None);
+        self.cyclic = false;
     }
 }
 
@@ -716,6 +674,13 @@ const EXPANSIONS_PER_CHECK: usize = 16;
 const TIPS_PER_WALK: usize = 1024;
 
 /// Plans conditionally for `request`, stopping when the budget runs out.
+///
+/// Beliefs are first searched once whatever the number of actions left (a
+/// graph search: a belief reached along paths of different lengths is one
+/// node). That is exact when the beliefs the search meets form no cycle and
+/// the plan it finds is no deeper than the horizon: every plan within the
+/// horizon is among those it weighs. Otherwise, and only then, the search
+/// runs again on nodes (belief, actions left), which the horizon bounds.
 pub fn plan_conditional(
     request: &ConditionalRequest<'_>,
     options: &ConditionalOptions,
@@ -740,6 +705,7 @@ pub fn plan_conditional(
     };
     let mut engine = Engine {
         task,
+        relevance: Relevance::new(task, &excluded),
         heuristic: kind.build(&det, &det_excluded),
         h_cache: HashMap::new(),
         excluded,
@@ -751,14 +717,19 @@ pub fn plan_conditional(
         stats: ConditionalStats::default(),
         stamp: Vec::new(),
         round: 0,
+        cyclic: false,
     };
     let start: Vec<(State, f64)> = request
         .belief
         .iter()
         .filter(|(p, _)| *p > 0.0)
-        .map(|(p, s)| (task.fit(s), *p))
+        .map(|(p, s)| {
+            let mut s = task.fit(s);
+            engine.relevance.clear_irrelevant(task, &mut s);
+            (s, *p)
+        })
         .collect();
-    let finish = |engine: &Engine<'_>, verdict, complete| {
+    let finish = |engine: &Engine<'_>, (verdict, complete)| {
         let mut stats = engine.stats;
         stats.micros = clock.elapsed().as_micros() as u64;
         ConditionalOutcome {
@@ -769,123 +740,194 @@ pub fn plan_conditional(
     };
     if start.is_empty() {
         let plan = ConditionalPlan {
-            root: PlanTree::Stop { success: 0.0 },
+            graph: PlanGraph::stop(0.0),
             success: 0.0,
             expected_cost: 0.0,
         };
-        return finish(&engine, ConditionalVerdict::BelowThreshold(plan), true);
+        return finish(&engine, (ConditionalVerdict::BelowThreshold(plan), true));
     }
     let belief = engine.belief(start);
-    let normal: Vec<(f64, State)> = {
-        let b = &engine.beliefs[belief as usize];
-        b.probs
-            .iter()
-            .copied()
-            .zip(b.states.iter().cloned())
-            .collect()
+    let search = Search {
+        options,
+        clock,
+        belief,
     };
-    let root = engine.node(belief, options.horizon, None);
-    let over = |engine: &Engine<'_>| {
-        options
-            .budget
+    engine.stats.shared = true;
+    if let Some(result) = search.run(&mut engine, UNBOUNDED) {
+        return finish(&engine, result);
+    }
+    engine.clear_nodes();
+    engine.stats.shared = false;
+    let result = search
+        .run(&mut engine, options.horizon)
+        .unwrap_or_else(|| unreachable!("nodes bounded by the horizon form no cycle"));
+    finish(&engine, result)
+}
+
+/// One search from a belief.
+struct Search<'a> {
+    options: &'a ConditionalOptions,
+    clock: &'a dyn Clock,
+    belief: u32,
+}
+
+/// How one AO* run under the engine's lambda ended.
+enum Solved {
+    /// The best plan is complete.
+    Done,
+    /// The budget ran out.
+    Budget,
+    /// Sharing beliefs across depths met a cycle, or a tip at the horizon.
+    Cyclic,
+}
+
+impl Search<'_> {
+    /// Whether the budget has run out.
+    fn over(&self, engine: &Engine<'_>) -> bool {
+        let budget = &self.options.budget;
+        budget
             .max_expansions
             .is_some_and(|m| engine.stats.expanded >= m)
-            || options
-                .budget
-                .max_time
-                .is_some_and(|t| clock.elapsed() >= t)
-    };
-    // One AO* run under the engine's lambda: `false` if the budget ran out.
-    let solve = |engine: &mut Engine<'_>| -> bool {
+            || budget.max_time.is_some_and(|t| self.clock.elapsed() >= t)
+    }
+
+    /// One AO* run under the engine's lambda.
+    fn solve(&self, engine: &mut Engine<'_>, root: u32) -> Solved {
         engine.stats.rounds += 1;
         loop {
             // Never more expansions than the budget has left.
-            let left = options
+            let left = self
+                .options
                 .budget
                 .max_expansions
                 .map_or(u64::MAX, |m| m.saturating_sub(engine.stats.expanded));
             let batch = (TIPS_PER_WALK as u64).min(left.max(1)) as usize;
             let tips = engine.tips(root, batch);
             if tips.is_empty() {
-                return true;
+                return Solved::Done;
+            }
+            // Sharing beliefs, a tip as many actions from the root as the
+            // horizon allows (along some path) would make the plan deeper
+            // than the horizon if it were expanded and chosen: the nodes
+            // that count the actions left are needed.
+            if engine.nodes[root as usize].depth == UNBOUNDED
+                && tips
+                    .iter()
+                    .any(|&t| engine.nodes[t as usize].level >= self.options.horizon)
+            {
+                return Solved::Cyclic;
             }
             for chunk in tips.chunks(EXPANSIONS_PER_CHECK) {
-                if over(engine) {
-                    return false;
+                if self.over(engine) {
+                    return Solved::Budget;
                 }
                 for &tip in chunk {
                     engine.expand(tip);
+                    if engine.cyclic {
+                        return Solved::Cyclic;
+                    }
                 }
                 engine.propagate(chunk.iter().copied());
             }
         }
-    };
-    let plan_of = |engine: &Engine<'_>| {
-        let tree = engine.extract(root);
+    }
+
+    /// The best plan from `root`, cut at the horizon, with its probability
+    /// and expected cost.
+    fn plan_of(&self, engine: &mut Engine<'_>, root: u32) -> ConditionalPlan {
+        let graph = engine.extract(root, self.options.horizon);
+        let b = &engine.beliefs[self.belief as usize];
+        let normal: Vec<(f64, State)> = b
+            .probs
+            .iter()
+            .copied()
+            .zip(b.states.iter().cloned())
+            .collect();
         let (success, expected_cost) =
-            evaluate(task, &normal, &tree).unwrap_or((0.0, f64::INFINITY));
+            evaluate(engine.task, &normal, &graph).unwrap_or((0.0, f64::INFINITY));
         ConditionalPlan {
-            root: tree,
+            graph,
             success,
             expected_cost,
         }
-    };
-    // The most probable plan, and the cheapest among those.
-    if !solve(&mut engine) {
-        let best = plan_of(&engine);
-        return finish(
-            &engine,
-            ConditionalVerdict::BudgetExceeded(Some(best)),
-            false,
-        );
     }
-    let most = plan_of(&engine);
-    let threshold = match options.min_probability {
-        None if most.success > EPSILON => {
-            return finish(&engine, ConditionalVerdict::Found(most), true);
-        }
-        None => return finish(&engine, ConditionalVerdict::BelowThreshold(most), true),
-        Some(t) if most.success < t - EPSILON || most.success <= EPSILON => {
-            return finish(&engine, ConditionalVerdict::BelowThreshold(most), true);
-        }
-        Some(t) => t,
-    };
-    // Cheaper plans that still reach the threshold: between the cheapest
-    // plan (stopping at once) and the most probable one, each finite lambda
-    // is the slope of the segment joining a plan below the threshold and
-    // one above; a plan scoring better than both splits the segment.
-    let stop = ConditionalPlan {
-        root: PlanTree::Stop {
-            success: engine.stop_value(belief),
-        },
-        success: engine.stop_value(belief),
-        expected_cost: 0.0,
-    };
-    if stop.success >= threshold - EPSILON {
-        return finish(&engine, ConditionalVerdict::Found(stop), true);
+
+    /// Whether the plan from `root` that the engine's search found fits in
+    /// the horizon.
+    fn fits(&self, engine: &mut Engine<'_>, root: u32) -> bool {
+        engine.heights(root)[&root] <= self.options.horizon
     }
-    let (mut low, mut high) = (stop, most);
-    for _ in 0..64 {
-        let dp = high.success - low.success;
-        if dp <= EPSILON {
-            break;
+
+    /// Searches with nodes of `depth` actions left: the verdict and whether
+    /// the search finished, or `None` if sharing beliefs across depths
+    /// (`depth` [`UNBOUNDED`]) met a cycle or a plan deeper than the horizon.
+    fn run(&self, engine: &mut Engine<'_>, depth: u32) -> Option<(ConditionalVerdict, bool)> {
+        let root = engine.node(self.belief, depth, None);
+        // The most probable plan, and the cheapest among those.
+        match self.solve(engine, root) {
+            Solved::Done => {}
+            Solved::Budget => {
+                let best = self.plan_of(engine, root);
+                return Some((ConditionalVerdict::BudgetExceeded(Some(best)), false));
+            }
+            Solved::Cyclic => return None,
         }
-        let lambda = (high.expected_cost - low.expected_cost) / dp;
-        engine.set_lambda(Lambda(Some(lambda)));
-        if !solve(&mut engine) {
-            return finish(&engine, ConditionalVerdict::Found(high), false);
+        if !self.fits(engine, root) {
+            return None;
         }
-        let plan = plan_of(&engine);
-        let score = |p: &ConditionalPlan| lambda * p.success - p.expected_cost;
-        let tol = EPSILON * (1.0 + lambda.abs() + high.expected_cost);
-        if score(&plan) <= score(&high) + tol {
-            break;
+        let most = self.plan_of(engine, root);
+        let threshold = match self.options.min_probability {
+            None if most.success > EPSILON => {
+                return Some((ConditionalVerdict::Found(most), true));
+            }
+            None => return Some((ConditionalVerdict::BelowThreshold(most), true)),
+            Some(t) if most.success < t - EPSILON || most.success <= EPSILON => {
+                return Some((ConditionalVerdict::BelowThreshold(most), true));
+            }
+            Some(t) => t,
+        };
+        // Cheaper plans that still reach the threshold: between the cheapest
+        // plan (stopping at once) and the most probable one, each finite
+        // lambda is the slope of the segment joining a plan below the
+        // threshold and one above; a plan scoring better than both splits
+        // the segment.
+        let stopping = engine.stop_value(self.belief);
+        let stop = ConditionalPlan {
+            graph: PlanGraph::stop(stopping),
+            success: stopping,
+            expected_cost: 0.0,
+        };
+        if stop.success >= threshold - EPSILON {
+            return Some((ConditionalVerdict::Found(stop), true));
         }
-        if plan.success >= threshold - EPSILON {
-            high = plan;
-        } else {
-            low = plan;
+        let (mut low, mut high) = (stop, most);
+        for _ in 0..64 {
+            let dp = high.success - low.success;
+            if dp <= EPSILON {
+                break;
+            }
+            let lambda = (high.expected_cost - low.expected_cost) / dp;
+            engine.set_lambda(Lambda(Some(lambda)));
+            match self.solve(engine, root) {
+                Solved::Done => {}
+                Solved::Budget => return Some((ConditionalVerdict::Found(high), false)),
+                Solved::Cyclic => return None,
+            }
+            if !self.fits(engine, root) {
+                return None;
+            }
+            let plan = self.plan_of(engine, root);
+            let score = |p: &ConditionalPlan| lambda * p.success - p.expected_cost;
+            let tol = EPSILON * (1.0 + lambda.abs() + high.expected_cost);
+            if score(&plan) <= score(&high) + tol {
+                break;
+            }
+            if plan.success >= threshold - EPSILON {
+                high = plan;
+            } else {
+                low = plan;
+            }
         }
+        Some((ConditionalVerdict::Found(high), true))
     }
-    finish(&engine, ConditionalVerdict::Found(high), true)
 }

@@ -38,8 +38,10 @@ mod improve;
 mod lmcut;
 pub mod oracle;
 pub mod oracle_conditional;
+pub mod plan_graph;
 pub mod problems;
 mod queue;
+mod relevance;
 mod search;
 mod task;
 mod validate;
@@ -56,7 +58,7 @@ use ecology_domain::{Call, Name};
 
 pub use conditional::{
     ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
-    ConditionalVerdict, PlanTree, plan_conditional,
+    ConditionalVerdict, PlanGraph, PlanNode, plan_conditional,
 };
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{

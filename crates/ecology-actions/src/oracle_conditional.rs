@@ -13,13 +13,22 @@ use std::collections::HashMap;
 
 use ecology_domain::{Action, Domain, Effect, Name, Problem, Term};
 
-use crate::conditional::{EPSILON, PlanTree};
+use crate::conditional::EPSILON;
+use crate::plan_graph::{PlanGraph, PlanNode};
 use crate::task::Task;
 use crate::validate::{Semantics, World, binding};
 
-/// A conditional plan written with names, as the oracle reads it.
+/// A conditional plan written with names, as the oracle reads it: nodes,
+/// the first where it starts, each branch naming the node it leads to.
 #[derive(Debug, Clone, PartialEq)]
-pub enum NamedPlan {
+pub struct NamedPlan {
+    /// The nodes.
+    pub nodes: Vec<NamedNode>,
+}
+
+/// A node of a [`NamedPlan`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum NamedNode {
     /// The plan ends.
     Stop,
     /// Run `(action args...)`, then the branch whose observation matches.
@@ -28,31 +37,37 @@ pub enum NamedPlan {
         action: Name,
         /// Its arguments.
         args: Vec<Name>,
-        /// Each branch: the observed atoms as text with their truth, and the rest.
-        branches: Vec<(Vec<(String, bool)>, NamedPlan)>,
+        /// Each branch: the observed atoms as text with their truth, and
+        /// the node it leads to.
+        branches: Vec<(Vec<(String, bool)>, usize)>,
     },
 }
 
-/// `tree` with names instead of ids.
-pub fn named(task: &Task, tree: &PlanTree) -> NamedPlan {
-    match tree {
-        PlanTree::Stop { .. } => NamedPlan::Stop,
-        PlanTree::Act { step, branches } => NamedPlan::Act {
-            action: step.action.clone(),
-            args: step.args.clone(),
-            branches: branches
-                .iter()
-                .map(|b| {
-                    let observation = b
-                        .observation
-                        .iter()
-                        .map(|&(a, v)| (task.atom_name(a), v))
-                        .collect();
-                    (observation, named(task, &b.next))
-                })
-                .collect(),
-        },
-    }
+/// `graph` with names instead of ids.
+pub fn named(task: &Task, graph: &PlanGraph) -> NamedPlan {
+    let nodes = graph
+        .nodes
+        .iter()
+        .map(|node| match node {
+            PlanNode::Stop { .. } => NamedNode::Stop,
+            PlanNode::Act { step, branches } => NamedNode::Act {
+                action: step.action.clone(),
+                args: step.args.clone(),
+                branches: branches
+                    .iter()
+                    .map(|b| {
+                        let observation = b
+                            .observation
+                            .iter()
+                            .map(|&(a, v)| (task.atom_name(a), v))
+                            .collect();
+                        (observation, b.next)
+                    })
+                    .collect(),
+            },
+        })
+        .collect();
+    NamedPlan { nodes }
 }
 
 type Fact = (Name, Vec<Name>);
@@ -172,21 +187,33 @@ impl Oracle<'_> {
             .sum()
     }
 
+    /// The probability that `plan` from node `id` ends in a goal world and
+    /// its expected cost, run from `world`; each (node, world) is followed
+    /// once, so a plan whose branches join is not followed once per path.
     fn run(
         &self,
         world: &World,
-        p: f64,
         plan: &NamedPlan,
-        total: &mut (f64, f64),
-    ) -> Result<(), String> {
-        match plan {
-            NamedPlan::Stop => {
+        id: usize,
+        memo: &mut HashMap<(usize, World), (f64, f64)>,
+    ) -> Result<(f64, f64), String> {
+        if let Some(&value) = memo.get(&(id, world.clone())) {
+            return Ok(value);
+        }
+        let node = plan
+            .nodes
+            .get(id)
+            .ok_or_else(|| format!("a branch leads to node {id}, which the plan does not have"))?;
+        let value = match node {
+            NamedNode::Stop => (
                 if self.semantics.unmet_goals(world).is_empty() {
-                    total.0 += p;
-                }
-                Ok(())
-            }
-            NamedPlan::Act {
+                    1.0
+                } else {
+                    0.0
+                },
+                0.0,
+            ),
+            NamedNode::Act {
                 action,
                 args,
                 branches,
@@ -199,7 +226,7 @@ impl Oracle<'_> {
                 let (cost, outcomes) = self
                     .step(schema, args, world)
                     .ok_or_else(|| format!("{call} does not apply in a world the plan reaches"))?;
-                total.1 += p * cost as f64;
+                let mut total = (0.0, cost as f64);
                 for (next, q, observation) in outcomes {
                     let mut seen = observation.clone();
                     seen.sort();
@@ -208,16 +235,23 @@ impl Oracle<'_> {
                         obs.sort();
                         obs == seen
                     });
-                    let Some((_, rest)) = branch else {
+                    let Some(&(_, rest)) = branch else {
                         return Err(format!(
                             "{call} can observe {observation:?}, which has no branch"
                         ));
                     };
-                    self.run(&next, p * q, rest, total)?;
+                    if rest <= id {
+                        return Err(format!("a branch of {call} leads back to an earlier node"));
+                    }
+                    let (p, c) = self.run(&next, plan, rest, memo)?;
+                    total.0 += q * p;
+                    total.1 += q * c;
                 }
-                Ok(())
+                total
             }
-        }
+        };
+        memo.insert((id, world.clone()), value);
+        Ok(value)
     }
 }
 
@@ -247,8 +281,11 @@ pub fn evaluate(
         domain,
     };
     let mut total = (0.0, 0.0);
+    let mut memo = HashMap::new();
     for (world, p) in oracle.initial(problem) {
-        oracle.run(&world, p, plan, &mut total)?;
+        let (q, c) = oracle.run(&world, plan, 0, &mut memo)?;
+        total.0 += p * q;
+        total.1 += p * c;
     }
     Ok(total)
 }

@@ -2,7 +2,7 @@
 //! on small random problems against the brute-force oracle (its evaluation
 //! of the returned plan, and its exhaustive search over plans).
 
-use crate::conditional::{EPSILON, PlanTree};
+use crate::conditional::{EPSILON, PlanGraph, PlanNode};
 use crate::oracle_conditional::{self, Exhaustive};
 use crate::{
     ConditionalOptions, ConditionalPlan, ConditionalRequest, ConditionalVerdict, NoClock, Options,
@@ -32,7 +32,7 @@ fn found_plan(task: &Task, options: &ConditionalOptions) -> (ConditionalPlan, bo
 /// probability of success and the expected cost the planner gives it.
 #[track_caller]
 fn the_oracle_agrees(domain: &Domain, problem: &Problem, task: &Task, plan: &ConditionalPlan) {
-    let named = oracle_conditional::named(task, &plan.root);
+    let named = oracle_conditional::named(task, &plan.graph);
     let (p, c) = oracle_conditional::evaluate(domain, problem, &named).expect("runs");
     assert!(
         close(p, plan.success) && close(c, plan.expected_cost),
@@ -126,7 +126,7 @@ fn random_uncertain_problems_agree_with_the_oracle() {
             other => panic!("seed {seed}: {other:?}"),
         };
         // The planner's numbers are the oracle's for the plan it returns...
-        let named = oracle_conditional::named(&task, &found.root);
+        let named = oracle_conditional::named(&task, &found.graph);
         let (p, c) = oracle_conditional::evaluate(&inst.domain, &inst.problem, &named)
             .unwrap_or_else(|e| panic!("seed {seed}: {e}\n{}", inst.domain_text));
         assert!(
@@ -139,13 +139,13 @@ fn random_uncertain_problems_agree_with_the_oracle() {
             "seed {seed}: {c} vs {}",
             found.expected_cost
         );
-        assert!(found.root.depth() <= horizon as usize);
+        assert!(found.graph.depth() <= horizon as usize);
         if success <= EPSILON {
             zero += 1;
         } else if success >= 1.0 - EPSILON {
             sure += 1;
         }
-        if branches(&found.root) {
+        if branches(&found.graph) {
             branching += 1;
         }
         // ...and the plan is the most probable, then the cheapest, of all
@@ -174,7 +174,7 @@ fn random_uncertain_problems_agree_with_the_oracle() {
             if met.expected_cost < cost - 1e-6 {
                 cheaper += 1;
             }
-            let named = oracle_conditional::named(&task, &met.root);
+            let named = oracle_conditional::named(&task, &met.graph);
             let (p, c) =
                 oracle_conditional::evaluate(&inst.domain, &inst.problem, &named).expect("runs");
             assert!(
@@ -247,11 +247,11 @@ fn random_uncertain_problems_agree_with_the_oracle() {
 }
 
 /// Whether the plan has a node with two branches or more.
-fn branches(tree: &PlanTree) -> bool {
-    match tree {
-        PlanTree::Stop { .. } => false,
-        PlanTree::Act { branches: b, .. } => b.len() > 1 || b.iter().any(|b| branches(&b.next)),
-    }
+fn branches(graph: &PlanGraph) -> bool {
+    graph
+        .nodes
+        .iter()
+        .any(|n| matches!(n, PlanNode::Act { branches, .. } if branches.len() > 1))
 }
 
 #[test]
@@ -336,5 +336,108 @@ fn tireworld_matches_the_ippc_instance_and_is_solved_surely() {
     the_oracle_agrees(&inst.domain, &inst.problem, &task, &found);
     // The straight road reaches the goal with probability 1/2 at best
     // (one flat tire and the car is stuck), for 2 actions.
-    assert!(matches!(found.root, PlanTree::Act { .. }));
+    assert!(matches!(found.graph.root(), PlanNode::Act { .. }));
+}
+
+#[test]
+fn tireworld_one_to_eight_is_solved_surely_by_a_graph_far_smaller_than_its_tree() {
+    for n in 1..=8 {
+        let inst = problems::tireworld(n).expect("generated");
+        let task = ground(&inst.domain, &inst.problem).expect("ground");
+        let options = ConditionalOptions {
+            horizon: 12 * n as u32,
+            ..ConditionalOptions::default()
+        };
+        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
+        let ConditionalVerdict::Found(plan) = &outcome.verdict else {
+            panic!("tireworld-{n}: {:?}", outcome.verdict);
+        };
+        assert!(outcome.complete && outcome.stats.shared, "tireworld-{n}");
+        assert!(close(plan.success, 1.0), "tireworld-{n}: {}", plan.success);
+        // Every location at most once on a branch, and the branches join:
+        // the tree doubles with every move, the graph does not.
+        assert!(plan.graph.actions() <= 20 * n, "tireworld-{n}");
+        assert!(plan.graph.tree_actions() > 1 << (2 * n), "tireworld-{n}");
+        if n <= 3 {
+            the_oracle_agrees(&inst.domain, &inst.problem, &task, plan);
+        }
+    }
+}
+
+#[test]
+fn sharing_beliefs_across_depths_finds_the_exhaustive_optimum_at_every_horizon() {
+    let inst = problems::tireworld(1).expect("generated");
+    let task = ground(&inst.domain, &inst.problem).expect("ground");
+    for horizon in 2..=12 {
+        let options = ConditionalOptions {
+            horizon,
+            ..ConditionalOptions::default()
+        };
+        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
+        let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
+            &outcome.verdict
+        else {
+            panic!("horizon {horizon}: {:?}", outcome.verdict);
+        };
+        let Exhaustive::Best { success, cost } =
+            oracle_conditional::most_probable(&inst.domain, &inst.problem, horizon, 10_000_000)
+        else {
+            panic!("horizon {horizon}: too large for the exhaustive search");
+        };
+        assert!(
+            close(plan.success, success) && close(plan.expected_cost, cost),
+            "horizon {horizon}: the planner ({}, {}), the exhaustive search ({success}, {cost})",
+            plan.success,
+            plan.expected_cost
+        );
+        assert!(plan.graph.depth() <= horizon as usize);
+        the_oracle_agrees(&inst.domain, &inst.problem, &task, plan);
+        // The sure plan is 10 actions deep on its longest branch: below
+        // that the horizon cuts it, and nodes must count the actions left.
+        assert_eq!(outcome.stats.shared, horizon >= 10, "horizon {horizon}");
+    }
+}
+
+#[test]
+fn beliefs_that_form_a_cycle_are_searched_per_depth() {
+    // Astrid can go back and forth between rooms: the beliefs form cycles.
+    let domain = ecology_domain::parse_domain(DOMAIN.as_bytes()).expect("domain");
+    let problem = ecology_domain::parse_problem_for(&domain, PROBLEM.as_bytes()).expect("problem");
+    let task = ground(&domain, &problem).expect("ground");
+    let outcome = plan_conditional(
+        &ConditionalRequest::new(&task),
+        &ConditionalOptions::default(),
+        &NoClock,
+    );
+    let ConditionalVerdict::Found(plan) = &outcome.verdict else {
+        panic!("{:?}", outcome.verdict);
+    };
+    assert!(!outcome.stats.shared);
+    assert!(close(plan.expected_cost, 5.9), "{}", plan.expected_cost);
+    the_oracle_agrees(&domain, &problem, &task, plan);
+}
+
+#[test]
+fn the_tireworld_files_are_the_generators() {
+    assert_eq!(
+        include_str!("../../../domains/pddl/triangle-tire.pddl"),
+        problems::TIREWORLD
+    );
+    for (n, text) in [
+        (
+            1,
+            include_str!("../../../domains/pddl/triangle-tire-1.pddl"),
+        ),
+        (
+            4,
+            include_str!("../../../domains/pddl/triangle-tire-4.pddl"),
+        ),
+        (
+            8,
+            include_str!("../../../domains/pddl/triangle-tire-8.pddl"),
+        ),
+    ] {
+        let inst = problems::tireworld(n).expect("generated");
+        assert_eq!(text, inst.problem_text, "triangle-tire-{n}.pddl");
+    }
 }

@@ -1,13 +1,13 @@
 //! `ecology plan --conditional`: the conditional planner, printing the plan
-//! as an indented tree (each branch with its observation and probability)
-//! or as JSON.
+//! as an indented graph (each branch with its observation and probability,
+//! shared parts labelled and joined) or as JSON.
 
 use std::time::Duration;
 
 use ecology_actions::conditional::{self, Branch, round};
 use ecology_actions::{
     Budget, ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
-    ConditionalVerdict, HeuristicKind, OpId, PlanTree, Task,
+    ConditionalVerdict, HeuristicKind, OpId, PlanGraph, PlanNode, Task,
 };
 use serde_json::{Value, json};
 
@@ -80,7 +80,7 @@ pub fn run(
                 );
             } else {
                 eprintln!("no plan: {reason}");
-                if best.root.actions() > 0 {
+                if best.graph.actions() > 0 {
                     println!("; the most probable plan found:");
                     print_plan(task, best, &outcome);
                 }
@@ -117,10 +117,15 @@ fn print_plan(task: &Task, plan: &ConditionalPlan, outcome: &ConditionalOutcome)
         round(plan.success),
         round(plan.expected_cost)
     );
+    let (actions, tree) = (plan.graph.actions(), plan.graph.tree_actions());
+    let size = if actions as u64 == tree {
+        format!("{actions} actions in the tree")
+    } else {
+        format!("{actions} actions in the graph ({tree} as a tree)")
+    };
     println!(
-        "; {} actions in the tree, at most {} per branch; {}, {} beliefs expanded, {} µs",
-        plan.root.actions(),
-        plan.root.depth(),
+        "; {size}, at most {} per branch; {}, {} beliefs expanded, {} µs",
+        plan.graph.depth(),
         if outcome.complete {
             "search complete"
         } else {
@@ -132,19 +137,52 @@ fn print_plan(task: &Task, plan: &ConditionalPlan, outcome: &ConditionalOutcome)
     print!("{}", plan.display(task));
 }
 
-fn tree_json(task: &Task, node: &PlanTree) -> Value {
-    match node {
-        PlanTree::Stop { success } => json!({"done": true, "success": round(*success)}),
-        PlanTree::Act { step, branches } => json!({
+/// The plan as nested JSON: a node that more than one branch reaches is
+/// written once, with `"label": N`, and `{"go_to": N}` elsewhere.
+fn graph_json(task: &Task, graph: &PlanGraph) -> Value {
+    let labels = graph.labels();
+    let mut written = vec![false; graph.nodes.len()];
+    node_json(task, graph, &labels, &mut written, 0)
+}
+
+fn node_json(
+    task: &Task,
+    graph: &PlanGraph,
+    labels: &[Option<usize>],
+    written: &mut [bool],
+    id: usize,
+) -> Value {
+    if let Some(label) = labels[id] {
+        if written[id] {
+            return json!({"go_to": label});
+        }
+        written[id] = true;
+    }
+    let mut value = match &graph.nodes[id] {
+        PlanNode::Stop { success } => json!({"done": true, "success": round(*success)}),
+        PlanNode::Act { step, branches } => json!({
             "action": step.to_string(),
             "configure": step.configure.as_ref().map(ToString::to_string),
             "cost": step.cost,
-            "branches": branches.iter().map(|b| branch_json(task, b)).collect::<Vec<_>>(),
+            "branches": branches
+                .iter()
+                .map(|b| branch_json(task, graph, labels, written, b))
+                .collect::<Vec<_>>(),
         }),
+    };
+    if let Some(label) = labels[id] {
+        value["label"] = json!(label);
     }
+    value
 }
 
-fn branch_json(task: &Task, branch: &Branch) -> Value {
+fn branch_json(
+    task: &Task,
+    graph: &PlanGraph,
+    labels: &[Option<usize>],
+    written: &mut [bool],
+    branch: &Branch,
+) -> Value {
     json!({
         "observation": branch
             .observation
@@ -153,7 +191,7 @@ fn branch_json(task: &Task, branch: &Branch) -> Value {
             .collect::<Vec<_>>(),
         "text": conditional::observation_text(task, &branch.observation),
         "probability": round(branch.probability),
-        "plan": tree_json(task, &branch.next),
+        "plan": node_json(task, graph, labels, written, branch.next),
     })
 }
 
@@ -167,11 +205,14 @@ fn outcome_json(
         "success": round(plan.success),
         "expected_cost": round(plan.expected_cost),
         "complete": outcome.complete,
-        "plan": tree_json(task, &plan.root),
+        "plan": graph_json(task, &plan.graph),
         "stats": {
             "expanded": outcome.stats.expanded,
             "beliefs": outcome.stats.beliefs,
             "rounds": outcome.stats.rounds,
+            "shared": outcome.stats.shared,
+            "actions": plan.graph.actions(),
+            "tree_actions": plan.graph.tree_actions(),
             "micros": outcome.stats.micros,
         },
     });

@@ -19,6 +19,7 @@
 //! explanation.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 use std::time::Duration;
 
 use ecology_config::{Clock as PlannerClock, Configuration, Exclusion, NoClock, Options, Request};
@@ -1523,7 +1524,7 @@ impl Executive {
                 probability: branch.probability,
                 actions: branch.plan.steps.iter().map(|a| a.action.clone()).collect(),
             });
-            self.continue_with(branch.plan);
+            self.continue_with(Arc::unwrap_or_clone(branch.plan));
         }
         self.start_action(index + 1, out);
     }

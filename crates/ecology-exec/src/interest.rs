@@ -9,7 +9,8 @@
 //! reads every PEIS's directory (`components.C.type`), then follows the
 //! contract tuples of the PEIS that have such a component, and of no other.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashSet};
+use std::sync::Arc;
 use std::time::Duration;
 
 use ecology_config::component_types;
@@ -31,6 +32,8 @@ impl Interest {
     pub fn of_plan(domain: &Domain, steps: &[PlannedAction], branches: &[PlanBranch]) -> Interest {
         let mut types = BTreeSet::new();
         let mut todo: Vec<(&[PlannedAction], &[PlanBranch])> = vec![(steps, branches)];
+        // Branches that join share their plan: each is read once.
+        let mut seen = HashSet::new();
         while let Some((steps, branches)) = todo.pop() {
             for goal in steps.iter().filter_map(|a| a.goal.as_ref()) {
                 match component_types(domain, goal) {
@@ -41,6 +44,7 @@ impl Interest {
             todo.extend(
                 branches
                     .iter()
+                    .filter(|b| seen.insert(Arc::as_ptr(&b.plan)))
                     .map(|b| (b.plan.steps.as_slice(), b.plan.branches.as_slice())),
             );
         }

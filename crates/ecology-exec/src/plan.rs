@@ -10,7 +10,9 @@
 //! `(not (thing-at newspaper entrance))` in the `C.observed` tuple a sensing
 //! component writes.
 
+use std::collections::HashMap;
 use std::fmt;
+use std::sync::Arc;
 
 use ecology_domain::{Call, Literal, parse_literals};
 
@@ -68,8 +70,9 @@ pub struct PlanBranch {
     pub observation: Vec<Observation>,
     /// How probable the planner thought this observation, given the path to it.
     pub probability: f64,
-    /// The rest of the plan.
-    pub plan: Plan,
+    /// The rest of the plan, shared with the other branches that lead to
+    /// the same place (a conditional plan is a graph).
+    pub plan: Arc<Plan>,
 }
 
 impl From<Vec<PlannedAction>> for Plan {
@@ -95,23 +98,40 @@ impl Plan {
 
     /// The most actions on one path through the plan.
     pub fn depth(&self) -> usize {
-        self.steps.len()
-            + self
-                .branches
-                .iter()
-                .map(|b| b.plan.depth())
-                .max()
-                .unwrap_or(0)
+        self.fold(&mut HashMap::new(), &|steps, below| {
+            steps + below.iter().copied().max().unwrap_or(0)
+        })
     }
 
-    /// Actions in the whole tree, every branch counted.
+    /// Actions in the whole tree, every branch counted (a part that
+    /// branches share counted once for each), saturating.
     pub fn actions(&self) -> usize {
-        self.steps.len()
-            + self
-                .branches
-                .iter()
-                .map(|b| b.plan.actions())
-                .sum::<usize>()
+        self.fold(&mut HashMap::new(), &|steps, below| {
+            below.iter().fold(steps, |a, &b| a.saturating_add(b))
+        })
+    }
+
+    /// `combine(steps, values of the branches)` from the leaves up, each
+    /// shared part computed once.
+    fn fold(
+        &self,
+        memo: &mut HashMap<*const Plan, usize>,
+        combine: &dyn Fn(usize, &[usize]) -> usize,
+    ) -> usize {
+        let below: Vec<usize> = self
+            .branches
+            .iter()
+            .map(|b| {
+                let key = Arc::as_ptr(&b.plan);
+                if let Some(&v) = memo.get(&key) {
+                    return v;
+                }
+                let v = b.plan.fold(memo, combine);
+                memo.insert(key, v);
+                v
+            })
+            .collect();
+        combine(self.steps.len(), &below)
     }
 }
 

@@ -12,6 +12,16 @@
 //! as literals, `(thing-at newspaper entrance)` or `(not (thing-at newspaper
 //! entrance))`) followed by the branch's plan, indented further, ending with
 //! `done`. The atoms the branches name are what the sensing action observes.
+//!
+//! Branches of a conditional plan may join: an action that more than one
+//! branch reaches is written once with a label, `[3] (move-car l-1-2
+//! l-1-3)`, and another branch that reaches it ends with the line `go to
+//! [3]`: it goes on with the labelled action and everything written after
+//! it in its block (its branches included). A label is defined before it is
+//! joined, and never from inside its own block.
+
+use std::collections::{HashMap, HashSet};
+use std::sync::Arc;
 
 use ecology_domain::parse_goal;
 
@@ -76,31 +86,62 @@ pub fn parse_plan(text: &str) -> Result<Plan, PlanFileError> {
         });
     };
     let mut at = 0;
-    let plan = block(&lines, &mut at, first.indent, 0)?;
+    let mut labels = Labels::default();
+    let plan = block(&lines, &mut at, first.indent, 0, &mut labels)?;
     if let Some(extra) = lines.get(at) {
         return Err(extra.error("this line is indented less than the plan it ends"));
     }
     Ok(plan)
 }
 
+/// The labelled parts of a plan: those whose block is read, and those
+/// whose block is being read.
+#[derive(Default)]
+struct Labels {
+    done: HashMap<u64, Plan>,
+    open: HashSet<u64>,
+}
+
+/// `[N]` at the start of `text`: `N` and what follows.
+fn label(line: &Line<'_>, text: &str) -> Result<Option<(u64, usize)>, PlanFileError> {
+    let Some(rest) = text.strip_prefix('[') else {
+        return Ok(None);
+    };
+    let Some((number, _)) = rest.split_once(']') else {
+        return Err(line.error(format!("`{text}`: a label is `[N]`")));
+    };
+    let n = number
+        .trim()
+        .parse::<u64>()
+        .map_err(|_| line.error(format!("`[{number}]` is not a label: labels are numbers")))?;
+    Ok(Some((n, number.len() + 2)))
+}
+
 /// The plan whose lines start at `lines[*at]`, indented `indent`: actions,
-/// then either `done`, the end, or the branches of the last action.
+/// then either `done`, `go to [N]`, the end, or the branches of the last
+/// action.
 fn block(
     lines: &[Line<'_>],
     at: &mut usize,
     indent: usize,
     depth: usize,
+    labels: &mut Labels,
 ) -> Result<Plan, PlanFileError> {
     let mut plan = Plan::default();
-    while let Some(line) = lines.get(*at) {
+    // The labels of this block, each with the index of its action.
+    let mut here: Vec<(u64, usize)> = Vec::new();
+    let plan = loop {
+        let Some(line) = lines.get(*at) else {
+            break plan;
+        };
         if line.indent < indent {
-            break;
+            break plan;
         }
         if line.indent > indent && !line.text.starts_with("if ") {
             return Err(line.error("an action indented more than the one before it"));
         }
         if line.text.starts_with("if ") {
-            plan.branches = branches(lines, at, line.indent, depth)?;
+            plan.branches = branches(lines, at, line.indent, depth, labels)?;
             let Some(sensing) = plan.steps.last_mut() else {
                 return Err(line.error("a branch before any action"));
             };
@@ -112,16 +153,51 @@ fn block(
             atoms.sort();
             atoms.dedup();
             sensing.observe = atoms;
-            return Ok(plan);
+            break plan;
         }
         *at += 1;
         if line.text == "done" {
             if let Some(p) = line.comment.strip_prefix("goal holds with probability") {
                 plan.success = probability(line, p)?;
             }
-            return Ok(plan);
+            break plan;
         }
-        plan.steps.push(action(line)?);
+        if let Some(target) = line.text.strip_prefix("go to ") {
+            let target = target.trim();
+            let Some((n, _)) = label(line, target)?.filter(|&(_, len)| len == target.len()) else {
+                return Err(line.error(format!("`go to {target}`: a join is `go to [N]`")));
+            };
+            let Some(rest) = labels.done.get(&n) else {
+                let why = if labels.open.contains(&n) {
+                    "it would go back to an action before it (a loop)"
+                } else {
+                    "no action before it has that label"
+                };
+                return Err(line.error(format!("`go to [{n}]`: {why}")));
+            };
+            plan.steps.extend(rest.steps.iter().cloned());
+            plan.branches = rest.branches.clone();
+            plan.success = rest.success;
+            break plan;
+        }
+        let mut text = line.text;
+        if let Some((n, len)) = label(line, text)? {
+            if labels.done.contains_key(&n) || !labels.open.insert(n) {
+                return Err(line.error(format!("label [{n}] is given twice")));
+            }
+            here.push((n, plan.steps.len()));
+            text = text[len..].trim_start();
+        }
+        plan.steps.push(action(line, text)?);
+    };
+    for (n, k) in here {
+        labels.open.remove(&n);
+        let rest = Plan {
+            steps: plan.steps[k..].to_vec(),
+            branches: plan.branches.clone(),
+            success: plan.success,
+        };
+        labels.done.insert(n, rest);
     }
     Ok(plan)
 }
@@ -132,6 +208,7 @@ fn branches(
     at: &mut usize,
     indent: usize,
     depth: usize,
+    labels: &mut Labels,
 ) -> Result<Vec<PlanBranch>, PlanFileError> {
     let mut branches = Vec::new();
     while let Some(line) = lines.get(*at).filter(|l| l.indent == indent) {
@@ -156,11 +233,11 @@ fn branches(
             .filter(|l| l.indent > indent)
             .ok_or_else(|| line.error("a branch needs its plan, indented under it"))?
             .indent;
-        let plan = block(lines, at, inner, depth + 1)?;
+        let plan = block(lines, at, inner, depth + 1, labels)?;
         branches.push(PlanBranch {
             observation,
             probability,
-            plan,
+            plan: Arc::new(plan),
         });
     }
     Ok(branches)
@@ -175,12 +252,12 @@ fn probability(line: &Line<'_>, text: &str) -> Result<f64, PlanFileError> {
         .ok_or_else(|| line.error(format!("`{}` is not a probability", text.trim())))
 }
 
-/// An action line.
-fn action(line: &Line<'_>) -> Result<PlannedAction, PlanFileError> {
-    let call = parse_goal(line.text).map_err(|d| {
+/// The action `text` of an action line.
+fn action(line: &Line<'_>, text: &str) -> Result<PlannedAction, PlanFileError> {
+    let call = parse_goal(text).map_err(|d| {
         line.error(format!(
             "`{}` is not an action: {}",
-            line.text,
+            text,
             d.0.first().map_or("malformed", |d| d.message.as_str())
         ))
     })?;
@@ -248,6 +325,80 @@ mod tests {
         assert!(gives_up.plan.steps.is_empty());
         assert_eq!(gives_up.plan.success, 0.0);
         assert_eq!((plan.depth(), plan.actions()), (5, 6));
+    }
+
+    /// Triangle tireworld's first problem as `ecology plan --conditional`
+    /// prints it: branches that meet again join a labelled action.
+    const GRAPH: &str = "\
+(move-car l-1-1 l-2-1)
+  if (not-flattire) ; probability 0.5
+    (loadtire l-2-1)
+    (move-car l-2-1 l-1-2)
+      if (not-flattire) ; probability 0.5
+        [1] (move-car l-1-2 l-1-3)
+          if (not-flattire) ; probability 0.5
+            done
+          if (not (not-flattire)) ; probability 0.5
+            done
+      if (not (not-flattire)) ; probability 0.5
+        (changetire)
+        go to [1]
+  if (not (not-flattire)) ; probability 0.5
+    (loadtire l-2-1)
+    (changetire)
+    [2] (move-car l-2-1 l-3-1)
+      if (not-flattire) ; probability 0.5
+        done
+      if (not (not-flattire)) ; probability 0.5
+        go to [2]
+";
+
+    #[test]
+    fn a_join_goes_on_with_the_labelled_action_and_shares_its_branches() {
+        let text = GRAPH.replace(
+            "        go to [2]\n",
+            "        (loadtire l-3-1)\n        done\n",
+        );
+        let plan = parse_plan(&text).expect("a plan");
+        let actions =
+            |p: &Plan| -> Vec<String> { p.steps.iter().map(|s| s.action.clone()).collect() };
+        let flat = &plan.branches[0].plan;
+        let [straight, changed] = &flat.branches[..] else {
+            panic!("two branches: {flat:?}");
+        };
+        let (straight, changed) = (&straight.plan, &changed.plan);
+        assert_eq!(actions(straight), ["(move-car l-1-2 l-1-3)"]);
+        assert_eq!(actions(changed), ["(changetire)", "(move-car l-1-2 l-1-3)"]);
+        assert_eq!(changed.steps[1].observe, ["(not-flattire)"]);
+        // The branches after the joined action are the labelled one's.
+        for (a, b) in straight.branches.iter().zip(&changed.branches) {
+            assert!(Arc::ptr_eq(&a.plan, &b.plan));
+        }
+        assert_eq!((plan.depth(), plan.actions()), (5, 10));
+    }
+
+    #[test]
+    fn a_join_names_a_label_written_before_it_outside_its_own_block() {
+        // `go to [2]` under [2] itself would loop.
+        let e = parse_plan(GRAPH).expect_err("a loop");
+        assert_eq!(e.line, 21, "{e}");
+        assert!(e.message.contains("a loop"), "{e}");
+        for (text, line, says) in [
+            (
+                "(a)\n  if (p) ; probability 1\n    go to [4]\n",
+                3,
+                "no action before it",
+            ),
+            ("[1] (a)\n[1] (b)\n", 2, "given twice"),
+            ("[x] (a)\n", 1, "labels are numbers"),
+            ("[1 (a)\n", 1, "a label is `[N]`"),
+            ("(a)\ngo to 1\n", 2, "a join is `go to [N]`"),
+            ("(a)\ngo to [1] (b)\n", 2, "a join is `go to [N]`"),
+        ] {
+            let e = parse_plan(text).expect_err(text);
+            assert_eq!(e.line, line, "{text:?}: {e}");
+            assert!(e.message.contains(says), "{text:?}: {e}");
+        }
     }
 
     #[test]

@@ -55,7 +55,7 @@ fn branch(holds: bool, then: &str) -> PlanBranch {
             holds,
         }],
         probability: if holds { 0.6 } else { 0.4 },
-        plan: Plan::from(vec![plain(then)]),
+        plan: Plan::from(vec![plain(then)]).into(),
     }
 }
 
@@ -267,7 +267,7 @@ fn a_branch_that_gives_up_fails_the_task_and_releases_what_it_used() {
         success: 0.0,
     };
     let mut plan = plan();
-    plan.branches[1].plan = gives_up;
+    plan.branches[1].plan = gives_up.into();
     let mut exec = looking(plan);
     exec.handle(
         Duration::from_secs(2),

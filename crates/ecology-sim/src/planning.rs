@@ -1,9 +1,12 @@
 //! The action planners as the simulator and `ecology task` use them: a plan
 //! for a problem (conditional when the problem is uncertain), and the
-//! planners' trees turned into the executive's [`Plan`].
+//! planners' plans turned into the executive's [`Plan`].
+
+use std::collections::HashMap;
+use std::sync::Arc;
 
 use ecology_actions::{
-    Budget, ConditionalOptions, ConditionalRequest, ConditionalVerdict, PlanTree, Task,
+    Budget, ConditionalOptions, ConditionalRequest, ConditionalVerdict, PlanGraph, PlanNode, Task,
 };
 use ecology_domain::{Domain, Problem};
 use ecology_exec::{Observation, Plan, PlanBranch, PlannedAction};
@@ -90,24 +93,37 @@ pub(crate) fn run_conditional_planner(request: &ConditionalRequest<'_>) -> Resul
                 .to_string(),
         );
     }
-    Ok(executive_plan(request.task, &plan.root))
+    Ok(executive_plan(request.task, &plan.graph))
 }
 
-/// The conditional planner's tree as the executive's plan: actions in order
-/// until one that branches on what it observes.
-pub fn executive_plan(task: &Task, tree: &PlanTree) -> Plan {
+/// The conditional planner's plan as the executive's: actions in order
+/// until one that branches on what it observes. Branches that join in the
+/// planner's graph share their plan.
+pub fn executive_plan(task: &Task, graph: &PlanGraph) -> Plan {
+    let mut made = HashMap::new();
+    executive_plan_from(task, graph, 0, &mut made)
+}
+
+/// The executive's plan from node `start` of `graph`; `made` holds the
+/// plans already made for the nodes that branches lead to.
+fn executive_plan_from(
+    task: &Task,
+    graph: &PlanGraph,
+    start: usize,
+    made: &mut HashMap<usize, Arc<Plan>>,
+) -> Plan {
     let mut steps = Vec::new();
-    let mut node = tree;
+    let mut node = start;
     loop {
-        let (step, branches) = match node {
-            PlanTree::Stop { success } => {
+        let (step, branches) = match &graph.nodes[node] {
+            PlanNode::Stop { success } => {
                 return Plan {
                     steps,
                     branches: Vec::new(),
                     success: *success,
                 };
             }
-            PlanTree::Act { step, branches } => (step, branches),
+            PlanNode::Act { step, branches } => (step, branches),
         };
         let operator = task.operator(step.op);
         steps.push(PlannedAction {
@@ -122,22 +138,32 @@ pub fn executive_plan(task: &Task, tree: &PlanTree) -> Plan {
         if let [only] = &branches[..]
             && only.observation.is_empty()
         {
-            node = &only.next;
+            node = only.next;
             continue;
         }
         let branches = branches
             .iter()
-            .map(|b| PlanBranch {
-                observation: b
-                    .observation
-                    .iter()
-                    .map(|&(atom, holds)| Observation {
-                        atom: task.atom_name(atom),
-                        holds,
-                    })
-                    .collect(),
-                probability: b.probability,
-                plan: executive_plan(task, &b.next),
+            .map(|b| {
+                let plan = match made.get(&b.next) {
+                    Some(plan) => plan.clone(),
+                    None => {
+                        let plan = Arc::new(executive_plan_from(task, graph, b.next, made));
+                        made.insert(b.next, plan.clone());
+                        plan
+                    }
+                };
+                PlanBranch {
+                    observation: b
+                        .observation
+                        .iter()
+                        .map(|&(atom, holds)| Observation {
+                            atom: task.atom_name(atom),
+                            holds,
+                        })
+                        .collect(),
+                    probability: b.probability,
+                    plan,
+                }
             })
             .collect();
         return Plan::branching(steps, branches);

@@ -301,7 +301,38 @@ fn a_printed_conditional_plan_reads_back_as_the_same_plan() {
     // What `ecology plan --conditional` prints, as `ecology task --plan` reads it.
     let printed = plan.display(&task).to_string();
     let read = ecology_exec::parse_plan(&printed).expect("reads");
-    let planned = crate::executive_plan(&task, &plan.root);
+    let planned = crate::executive_plan(&task, &plan.graph);
     assert!(same(&read, &planned), "{printed}\n{read:#?}\n{planned:#?}");
     assert!(same(&read, &scenario.plan), "{printed}");
+}
+
+#[test]
+fn a_printed_plan_whose_branches_join_reads_back_as_the_same_plan() {
+    let inst = ecology_actions::problems::tireworld(3).expect("generated");
+    let task = ecology_actions::ground(&inst.domain, &inst.problem).expect("grounds");
+    let options = ecology_actions::ConditionalOptions {
+        horizon: 36,
+        ..ecology_actions::ConditionalOptions::default()
+    };
+    let outcome = ecology_actions::plan_conditional(
+        &ecology_actions::ConditionalRequest::new(&task),
+        &options,
+        &ecology_actions::NoClock,
+    );
+    let ecology_actions::ConditionalVerdict::Found(plan) = outcome.verdict else {
+        panic!("no plan: {:?}", outcome.verdict);
+    };
+    let printed = plan.display(&task).to_string();
+    assert!(printed.contains("go to [1]"), "{printed}");
+    let read = ecology_exec::parse_plan(&printed).expect("reads");
+    let planned = crate::executive_plan(&task, &plan.graph);
+    assert!(same(&read, &planned), "{printed}");
+    // The executive's plan shares what the graph shares: the tree it stands
+    // for has many more actions than the text has lines.
+    assert_eq!(read.actions() as u64, plan.graph.tree_actions());
+    assert!(
+        read.actions() > 10 * printed.lines().count(),
+        "{}",
+        read.actions()
+    );
 }

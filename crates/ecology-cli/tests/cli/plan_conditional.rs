@@ -1,5 +1,5 @@
 //! `ecology plan --conditional`: the newspaper task of `domains/`, the tree,
-//! its JSON, thresholds that cannot be met, and bad input.
+//! its JSON, triangle tireworld's graphs, thresholds that cannot be met, and bad input.
 
 use std::process::Output;
 
@@ -65,6 +65,81 @@ fn plan_conditional_json() {
     );
     assert_eq!(look["branches"][1]["probability"], 0.3);
     assert!(value["stats"]["expanded"].as_u64().is_some_and(|n| n > 0));
+}
+
+/// Triangle tireworld's problem `n` of `domains/pddl/`, planned with a
+/// horizon of 12n.
+fn plan_tireworld(n: usize, extra: &[&str]) -> Output {
+    let problem = format!("domains/pddl/triangle-tire-{n}.pddl");
+    let horizon = (12 * n).to_string();
+    let mut args = vec![
+        "plan",
+        "--domain",
+        "domains/pddl/triangle-tire.pddl",
+        "--problem",
+        &problem,
+        "--conditional",
+        "--horizon",
+        &horizon,
+    ];
+    args.extend_from_slice(extra);
+    ecology(&args)
+}
+
+#[test]
+fn plan_conditional_prints_a_graph_whose_branches_join() {
+    let out = plan_tireworld(1, &[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "; success probability 1, expected cost 6.25");
+    assert!(
+        lines[1].starts_with("; 14 actions in the graph (21 as a tree), at most 10 per branch"),
+        "{text}"
+    );
+    // A labelled action, written once, and a branch that joins it.
+    let labelled = text
+        .lines()
+        .filter(|l| l.trim_start().starts_with("[1] (move-car"))
+        .count();
+    assert_eq!(labelled, 1, "{text}");
+    assert!(text.contains("\n        go to [1]\n"), "{text}");
+
+    let value = json(&plan_tireworld(1, &["--json"]));
+    assert_eq!(
+        (
+            &value["stats"]["actions"],
+            &value["stats"]["tree_actions"],
+            &value["stats"]["shared"]
+        ),
+        (
+            &serde_json::json!(14),
+            &serde_json::json!(21),
+            &serde_json::json!(true)
+        )
+    );
+    let text = value["plan"].to_string();
+    assert_eq!(text.matches("\"label\":1").count(), 1, "{text}");
+    assert!(text.contains("{\"go_to\":1}"), "{text}");
+}
+
+#[test]
+fn plan_conditional_tireworld_8_surely_in_a_graph_of_153_actions() {
+    let out = plan_tireworld(8, &[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    let lines: Vec<&str> = text.lines().collect();
+    assert!(
+        lines[0].starts_with("; success probability 1, "),
+        "{}",
+        lines[0]
+    );
+    assert!(
+        lines[1].starts_with("; 153 actions in the graph (2147500044 as a tree)"),
+        "{}",
+        lines[1]
+    );
+    assert!(lines[1].contains("search complete"), "{}", lines[1]);
 }
 
 #[test]
