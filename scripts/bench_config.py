@@ -12,7 +12,7 @@ what a user might write), and prints the times, the costs and the ratio to the
 fastest peer that proved optimality. All times exclude reading and parsing
 the files; ours includes compiling, grounding and search, clingo's includes
 its grounding and solving, HiGHS's includes building the model, the branch
-and bound's its precomputation. All report the median of up to five runs
+and bound's its precomputation. All report the median of up to 25 runs
 while they take under half a second in all. Costs must agree wherever two
 prove optimality; the script fails otherwise.
 """
@@ -126,11 +126,12 @@ wire(C,T,N) :- feed(C,T,D), comp(C,P,_,_), comp(D,Q,_,_), P != Q, chan(Q,P,N).
 
 
 def median_run(once, *args):
-    """(seconds, cost, proven) of `once(*args)`: the median of up to five runs
-    while they take under half a second in all, as for our planner."""
+    """(seconds, cost, proven) of `once(*args)`: the median of up to 25 runs
+    while they take under half a second in all, as for our planner (a lone
+    run mostly measures cold caches, in an interpreter as in a binary)."""
     runs = []
     began = time.perf_counter()
-    while len(runs) < 5 and (not runs or time.perf_counter() - began < 0.5):
+    while len(runs) < 25 and (not runs or time.perf_counter() - began < 0.5):
         runs.append(once(*args))
     runs.sort(key=lambda r: r[0])
     return runs[len(runs) // 2]

@@ -5,6 +5,11 @@
 //! - 1: no solution (no configuration, no plan) or the task failed;
 //! - 2: bad input or usage, with `file:line:col` diagnostics on stderr.
 
+/// mimalloc: the planners allocate many small, short-lived vectors, and
+/// glibc's allocator took a third of a small configuration's time.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 mod configure;
 mod demo;
 mod generate;

@@ -3,7 +3,7 @@
 
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
-use ecology_domain::{Domain, EcologyState, Info, Literal, Term};
+use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
 
 /// An interned symbol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -12,8 +12,8 @@ pub(crate) struct Sym(pub(crate) u32);
 /// The symbol table of one planning problem.
 #[derive(Debug, Default)]
 pub(crate) struct Symbols {
-    map: HashMap<Box<str>, Sym>,
-    names: Vec<Box<str>>,
+    map: HashMap<Name, Sym>,
+    names: Vec<Name>,
 }
 
 impl Symbols {
@@ -24,14 +24,23 @@ impl Symbols {
         }
     }
 
-    pub(crate) fn intern(&mut self, name: &str) -> Sym {
-        if let Some(&sym) = self.map.get(name) {
+    /// The symbol of `name`, shared with the domain and state it comes from.
+    pub(crate) fn intern(&mut self, name: &Name) -> Sym {
+        if let Some(&sym) = self.map.get(&**name) {
             return sym;
         }
         let sym = Sym(self.names.len() as u32);
-        self.names.push(name.into());
-        self.map.insert(name.into(), sym);
+        self.names.push(name.clone());
+        self.map.insert(name.clone(), sym);
         sym
+    }
+
+    /// The symbol of a name given as text.
+    pub(crate) fn intern_str(&mut self, name: &str) -> Sym {
+        match self.map.get(name) {
+            Some(&sym) => sym,
+            None => self.intern(&Name::from(name)),
+        }
     }
 
     pub(crate) fn get(&self, name: &str) -> Option<Sym> {

@@ -652,12 +652,12 @@ fn excluded(compiled: &mut Compiled, exclusions: &[Exclusion]) -> Excluded {
     for e in exclusions {
         match e {
             Exclusion::Component { peis, component } => {
-                let p = compiled.syms.intern(peis);
-                let c = compiled.syms.intern(component);
+                let p = compiled.syms.intern_str(peis);
+                let c = compiled.syms.intern_str(component);
                 out.components.insert((p, c));
             }
             Exclusion::Peis(peis) => {
-                let p = compiled.syms.intern(peis);
+                let p = compiled.syms.intern_str(peis);
                 out.peis.insert(p);
             }
         }

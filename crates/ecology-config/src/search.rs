@@ -16,7 +16,9 @@
 //! cheapest first.
 
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap, HashSet};
+use std::collections::BinaryHeap;
+
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use crate::compile::{Callee, GInfo, Sym};
 use crate::ground::{Ctx, Graph, INFEASIBLE, ItemId, ItemKind};
@@ -142,7 +144,7 @@ impl<'a> Engine<'a> {
             bound: INFEASIBLE,
             assembled: Vec::new(),
             accepted: Vec::new(),
-            signatures: HashSet::new(),
+            signatures: HashSet::default(),
             expanded: 0,
             generated: 0,
             rejections: Vec::new(),
@@ -630,7 +632,7 @@ impl<'a> Engine<'a> {
         partial: &Partial,
     ) -> Result<(HashMap<ComponentKey, u32>, Vec<u32>), Inadmissible> {
         let c = &self.ctx.compiled;
-        let mut by_component: HashMap<ComponentKey, u32> = HashMap::new();
+        let mut by_component: HashMap<ComponentKey, u32> = HashMap::default();
         let mut order: Vec<u32> = Vec::new();
         for (at, inst) in partial.insts.iter().enumerate() {
             let Some(f) = self.graph.func(inst.item) else {
@@ -854,7 +856,7 @@ impl<'a> Engine<'a> {
         };
         let mut cost: u64 = 0;
         let mut channels = Vec::new();
-        let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> = HashSet::new();
+        let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> = HashSet::default();
         for (ckey, info, producer, _) in wires {
             let Some(pkey) = self.component_at(partial, *producer) else {
                 continue;
