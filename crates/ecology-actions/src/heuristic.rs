@@ -54,7 +54,22 @@ impl HeuristicKind {
 
     /// The heuristic for `task`, ignoring the `excluded` operators.
     pub fn build<'t>(self, task: &'t Task, excluded: &[bool]) -> Box<dyn Heuristic + 't> {
-        let relaxed = Relaxed::new(task, excluded);
+        self.build_costed(task, excluded, Costs::Task)
+    }
+
+    /// The heuristic for `task` counting operator costs as `costs` says.
+    pub(crate) fn build_costed<'t>(
+        self,
+        task: &'t Task,
+        excluded: &[bool],
+        costs: Costs,
+    ) -> Box<dyn Heuristic + 't> {
+        let mut relaxed = Relaxed::new(task, excluded);
+        if costs == Costs::PlusOne {
+            for o in &mut relaxed.ops {
+                o.cost = o.cost.saturating_add(1);
+            }
+        }
         match self {
             HeuristicKind::Blind => Box::new(Blind),
             HeuristicKind::Max => Box::new(HMax(Exploration::new(relaxed))),
@@ -88,6 +103,18 @@ impl std::str::FromStr for HeuristicKind {
 }
 
 const INF: u64 = u64::MAX;
+
+/// The operator costs a heuristic counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Costs {
+    /// The task's own.
+    Task,
+    /// Each one more than the task's: actions that cost nothing still
+    /// count, so that a relaxed plan of them is not free (greedy search
+    /// would otherwise wander plateaus of zero-cost actions, as in
+    /// openstacks, where LAMA counts them the same way).
+    PlusOne,
+}
 
 /// A relaxed operator: preconditions and effects as facts.
 #[derive(Debug, Clone)]

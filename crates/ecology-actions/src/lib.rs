@@ -60,6 +60,7 @@ pub use conditional::{
     ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
     ConditionalVerdict, PlanGraph, PlanNode, plan_conditional,
 };
+use heuristic::Costs;
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
     AtomId, Chance, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, MAX_OUTCOMES,
@@ -358,17 +359,22 @@ impl<'t> Search<'t> {
                 *slot = true;
             }
         }
-        let (kind, algorithm) = match strategy {
+        let (kind, algorithm, costs) = match strategy {
+            // Greedy search orders states by h alone: its heuristic counts
+            // zero-cost actions too.
             Strategy::Greedy {
                 heuristic,
                 preferred,
-            } => (heuristic, Algorithm::Greedy { preferred }),
-            Strategy::AStar { heuristic } => (heuristic, Algorithm::AStar { weight: 1 }),
+            } => (heuristic, Algorithm::Greedy { preferred }, Costs::PlusOne),
+            Strategy::AStar { heuristic } => {
+                (heuristic, Algorithm::AStar { weight: 1 }, Costs::Task)
+            }
             Strategy::Weighted { heuristic, weight } => (
                 heuristic,
                 Algorithm::AStar {
                     weight: weight.max(1),
                 },
+                Costs::Task,
             ),
         };
         let initial = task.fit(&request.initial);
@@ -376,7 +382,7 @@ impl<'t> Search<'t> {
         // cannot matter from this start; `excluded` stays as asked, for
         // explaining unreachable goals.
         let useless = task.useless_operators(&initial, &excluded);
-        let heuristic = kind.build(task, &useless);
+        let heuristic = kind.build_costed(task, &useless, costs);
         let engine = Engine::new(task, &initial, useless, heuristic, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))

@@ -874,3 +874,58 @@ fn ipc_spellings_read_as_other_planners_read_them() {
         "{text}"
     );
 }
+
+#[test]
+fn greedy_search_is_guided_across_actions_that_cost_nothing() {
+    // A road of 40 cells, each with three loops of 3 cells back to it,
+    // walked for free; only arriving costs. With zero-cost actions counted
+    // as free, every relaxed plan costs the same, and greedy search walks
+    // the loops too.
+    let domain = "(define (domain road) (:requirements :strips :action-costs)
+      (:predicates (at ?c) (link ?a ?b) (end ?c) (arrived))
+      (:functions (total-cost))
+      (:action walk :parameters (?a ?b) :precondition (and (at ?a) (link ?a ?b))
+        :effect (and (at ?b) (not (at ?a)) (increase (total-cost) 0)))
+      (:action arrive :parameters (?c) :precondition (and (at ?c) (end ?c))
+        :effect (and (arrived) (increase (total-cost) 1))))";
+    let mut objects = String::new();
+    let mut init = String::from("(at c0) (end c40) (= (total-cost) 0)");
+    for i in 0..40 {
+        objects.push_str(&format!(" c{i}"));
+        init.push_str(&format!(" (link c{i} c{})", i + 1));
+        for side in 0..3 {
+            let mut from = format!("c{i}");
+            for k in 0..3 {
+                // Named to come before, among and after the road's cells
+                // in every order the search may break ties in.
+                let prefix = ["a", "d", "z"][side];
+                let cell = format!("{prefix}{i}-{k}");
+                objects.push_str(&format!(" {cell}"));
+                init.push_str(&format!(" (link {from} {cell})"));
+                from = cell;
+            }
+            init.push_str(&format!(" (link {from} c{i})"));
+        }
+    }
+    let problem = format!(
+        "(define (problem walk) (:domain road) (:objects{objects} c40)
+          (:init {init}) (:goal (arrived)) (:metric minimize (total-cost)))"
+    );
+    let (domain, problem) = load(domain, &problem);
+    let task = ground(&domain, &problem).expect("grounds");
+    // Without preferred operators, which would otherwise point the way.
+    let greedy = Strategy::Greedy {
+        heuristic: HeuristicKind::Ff,
+        preferred: false,
+    };
+    let outcome = run(&task, greedy);
+    let Verdict::Found(plan) = &outcome.verdict else {
+        panic!("{outcome:?}");
+    };
+    assert_eq!((plan.steps.len(), plan.cost), (41, 1));
+    assert!(
+        outcome.stats.expanded <= 2 * 41,
+        "{} expansions",
+        outcome.stats.expanded
+    );
+}

@@ -42,7 +42,7 @@ pub struct PlanArgs {
     #[arg(long)]
     pub json: bool,
     /// Plan conditionally: probabilistic outcomes, sensing actions and
-    /// uncertain initial states; the plan is a tree branching on observations.
+    /// uncertain initial states; the plan is a graph branching on observations.
     #[arg(long)]
     pub conditional: bool,
     /// With --conditional: the least success probability wanted (default: the most probable plan).
