@@ -85,6 +85,18 @@ pub enum Strategy {
         /// Whether to use preferred operators (only FF offers them).
         preferred: bool,
     },
+    /// Lazy greedy best-first search (LAMA's): a state's successors wait
+    /// in the queue under its value and are evaluated only when taken, so
+    /// a state with many successors costs one evaluation, not one each.
+    /// With `preferred`, the successors by the heuristic's preferred
+    /// operators get their own queue. Plans are shortened by action
+    /// elimination, as for [`Strategy::Greedy`].
+    Lazy {
+        /// The heuristic.
+        heuristic: HeuristicKind,
+        /// Whether to use preferred operators (only FF offers them).
+        preferred: bool,
+    },
     /// A*: optimal when the heuristic is admissible.
     AStar {
         /// The heuristic.
@@ -366,6 +378,10 @@ impl<'t> Search<'t> {
                 heuristic,
                 preferred,
             } => (heuristic, Algorithm::Greedy { preferred }, Costs::PlusOne),
+            Strategy::Lazy {
+                heuristic,
+                preferred,
+            } => (heuristic, Algorithm::LazyGreedy { preferred }, Costs::PlusOne),
             Strategy::AStar { heuristic } => {
                 (heuristic, Algorithm::AStar { weight: 1 }, Costs::Task)
             }

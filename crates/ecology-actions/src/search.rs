@@ -1,5 +1,6 @@
 //! The search engines: greedy best-first search (with preferred operators),
-//! A* and weighted A*, as loops of expansion steps over an arena of nodes.
+//! eager or lazy, A* and weighted A*, as loops of expansion steps over an
+//! arena of nodes.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -98,7 +99,14 @@ const DEAD: u64 = u64::MAX;
 /// Which algorithm runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Algorithm {
+    /// Every successor evaluated when generated.
     Greedy {
+        preferred: bool,
+    },
+    /// Successors wait under their parent's value and are evaluated when
+    /// taken from the queue (LAMA's search): one evaluation per expansion
+    /// instead of one per successor.
+    LazyGreedy {
         preferred: bool,
     },
     /// Best-first on `g + weight * h`: A* with weight 1.
@@ -111,7 +119,7 @@ impl Algorithm {
     fn weight(self) -> Option<u64> {
         match self {
             Algorithm::AStar { weight } => Some(weight),
-            Algorithm::Greedy { .. } => None,
+            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => None,
         }
     }
 }
@@ -136,6 +144,13 @@ pub(crate) struct Engine<'t> {
     /// older node first.
     open: BinaryHeap<Reverse<(u64, u64, u32)>>,
     preferred_open: BinaryHeap<Reverse<(u64, u64, u32)>>,
+    /// Lazy search: (parent's h, order of insertion, parent, operator).
+    lazy_open: BinaryHeap<Reverse<(u64, u64, u32, u32)>>,
+    lazy_preferred: BinaryHeap<Reverse<(u64, u64, u32, u32)>>,
+    /// Lazy search: successors queued so far (ties go to the older), and
+    /// whether the initial node was expanded.
+    queued: u64,
+    started: bool,
     /// Expansions left from the preferred queue before alternating again.
     boost: u64,
     best_h: u64,
@@ -180,6 +195,10 @@ impl<'t> Engine<'t> {
             closed: Vec::new(),
             open: BinaryHeap::new(),
             preferred_open: BinaryHeap::new(),
+            lazy_open: BinaryHeap::new(),
+            lazy_preferred: BinaryHeap::new(),
+            queued: 0,
+            started: false,
             boost: 0,
             best_h: u64::MAX,
             turn: false,
@@ -220,7 +239,7 @@ impl<'t> Engine<'t> {
             Algorithm::AStar { weight } => {
                 Reverse((g.saturating_add(h.saturating_mul(weight)), h, id))
             }
-            Algorithm::Greedy { .. } => Reverse((h, 0, id)),
+            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, 0, id)),
         };
         if preferred {
             self.preferred_open.push(entry);
@@ -261,8 +280,107 @@ impl<'t> Engine<'t> {
         }
     }
 
+    /// Lazy search: the next queued successor that reaches a new state,
+    /// made a node and evaluated (with the preferred operators of its
+    /// state in `preferred`); `Err` when the search ends (a goal, or
+    /// nothing left).
+    fn lazy_pop(&mut self, preferred: &mut Vec<OpId>) -> Result<u32, StepResult> {
+        loop {
+            let use_preferred = !self.lazy_preferred.is_empty() && (self.boost > 0 || self.turn);
+            self.turn = !self.turn;
+            let entry = if use_preferred {
+                self.boost = self.boost.saturating_sub(1);
+                self.lazy_preferred.pop()
+            } else {
+                self.lazy_open.pop()
+            };
+            let Reverse((_, _, parent, op)) = match entry {
+                Some(e) => e,
+                None if self.lazy_open.is_empty() && self.lazy_preferred.is_empty() => {
+                    return Err(StepResult::Exhausted);
+                }
+                None => continue,
+            };
+            self.generated += 1;
+            self.scratch.words.copy_from_slice(self.registry.get(parent));
+            self.task.apply_in_place(&mut self.scratch, OpId(op));
+            let (child, is_new) = self.registry.insert(&self.scratch.words);
+            if !is_new {
+                continue;
+            }
+            let g = self.nodes[parent as usize]
+                .g
+                .saturating_add(self.task.operator(OpId(op)).cost);
+            self.evaluated += 1;
+            preferred.clear();
+            let h = self.heuristic.estimate(&self.scratch, preferred);
+            self.nodes.push(Node {
+                parent,
+                op,
+                g,
+                h: h.unwrap_or(DEAD),
+            });
+            self.closed.push(false);
+            let Some(h) = h else { continue };
+            if self.task.is_goal(&self.scratch) {
+                return Err(StepResult::Solved(child));
+            }
+            if h < self.best_h {
+                self.best_h = h;
+                self.boost += 1000;
+            }
+            return Ok(child);
+        }
+    }
+
+    /// Lazy search: expands one node, queueing its successors unevaluated.
+    fn lazy_step(&mut self, use_preferred: bool) -> StepResult {
+        let mut preferred = std::mem::take(&mut self.preferred);
+        let id = if self.started {
+            match self.lazy_pop(&mut preferred) {
+                Ok(id) => id,
+                Err(done) => {
+                    self.preferred = preferred;
+                    return done;
+                }
+            }
+        } else {
+            // The initial node, evaluated already: its preferred operators.
+            self.started = true;
+            self.scratch.words.copy_from_slice(self.registry.get(0));
+            let state = self.scratch.clone();
+            preferred.clear();
+            self.heuristic.estimate(&state, &mut preferred);
+            0
+        };
+        preferred.sort_unstable();
+        self.closed[id as usize] = true;
+        self.expanded += 1;
+        let h = self.nodes[id as usize].h;
+        self.scratch.words.copy_from_slice(self.registry.get(id));
+        let excluded = &self.excluded;
+        let (open, preferred_open, queued) =
+            (&mut self.lazy_open, &mut self.lazy_preferred, &mut self.queued);
+        self.task.for_each_applicable(&self.scratch, |op| {
+            if excluded.get(op.index()).copied().unwrap_or(false) {
+                return;
+            }
+            *queued += 1;
+            let entry = Reverse((h, *queued, id, op.0));
+            if use_preferred && preferred.binary_search(&op).is_ok() {
+                preferred_open.push(entry);
+            }
+            open.push(entry);
+        });
+        self.preferred = preferred;
+        StepResult::Continue
+    }
+
     /// Expands one node.
     pub(crate) fn step(&mut self) -> StepResult {
+        if let Algorithm::LazyGreedy { preferred } = self.algorithm {
+            return self.lazy_step(preferred);
+        }
         let Some(id) = self.pop() else {
             return StepResult::Exhausted;
         };

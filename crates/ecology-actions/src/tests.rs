@@ -18,8 +18,16 @@ const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_TASK: &str = include_str!("../../../domains/peis-home-task.problem");
 
 /// Every strategy the tests exercise: the satisficing ones, then the optimal ones.
-const SATISFICING: [Strategy; 5] = [
+const SATISFICING: [Strategy; 7] = [
     Strategy::SATISFICING,
+    Strategy::Greedy {
+        heuristic: HeuristicKind::Ff,
+        preferred: true,
+    },
+    Strategy::Lazy {
+        heuristic: HeuristicKind::Add,
+        preferred: false,
+    },
     Strategy::Weighted {
         heuristic: HeuristicKind::Ff,
         weight: 3,
