@@ -594,7 +594,17 @@ impl Task {
 
     /// The ground operator written `(action args...)`: `Ok(None)` when the
     /// instance is well formed but can never apply (grounding pruned it).
+    /// An action with a disjunctive precondition may have several operators
+    /// for one instance; this is the first, [`Task::find_operators`] all.
     pub fn find_operator(&self, call: &Call) -> Result<Option<OpId>, InstanceError> {
+        Ok(self.find_operators(call)?.first().copied())
+    }
+
+    /// Every operator of the instance written `(action args...)`: one per
+    /// disjunct of its precondition that can hold (one for a conjunctive
+    /// precondition), none when grounding pruned it. Excluding an instance
+    /// excludes them all.
+    pub fn find_operators(&self, call: &Call) -> Result<Vec<OpId>, InstanceError> {
         let Some(&arity) = self.arities.get(&call.name) else {
             return Err(InstanceError::UnknownAction(call.name.to_string()));
         };
@@ -616,8 +626,10 @@ impl Task {
         Ok(self
             .operators
             .iter()
-            .position(|o| o.action == call.name && o.args == args)
-            .map(|i| OpId(i as u32)))
+            .enumerate()
+            .filter(|(_, o)| o.action == call.name && o.args == args)
+            .map(|(i, _)| OpId(i as u32))
+            .collect())
     }
 }
 
@@ -646,20 +658,30 @@ enum CLit {
 /// An effect of a schema with names resolved: `(is_add, predicate, args)`.
 type CEffect = (bool, u32, Vec<Arg>);
 
-/// A schema compiled for grounding: its precondition literals, which of them
-/// are fluent (the rest are checked while binding), its effects as
-/// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
-/// and its `:configure` goal.
-struct Schema<'a> {
-    action: &'a Action,
+/// A precondition compiled for grounding: its literals, which of them are
+/// fluent, and at which depth of the binding each of the others (static and
+/// equality literals) is checked: as soon as its last parameter is bound.
+struct Precondition {
     lits: Vec<CLit>,
     dynamic: Vec<usize>,
+    checks: Vec<Vec<usize>>,
+}
+
+/// A schema compiled for grounding: its precondition (one disjunct's, for a
+/// disjunctive one), its effects as `(is_add, predicate, args)`, its cost
+/// terms as `(function, amount, args)`, and its `:configure` goal.
+struct Schema<'a> {
+    action: &'a Action,
+    pre: Precondition,
     effects: Vec<(bool, u32, Vec<Arg>)>,
     costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
     configure: Option<(&'a Call, Vec<Arg>)>,
     /// Each `probabilistic` form's outcomes (the rest, "nothing happens", included).
     chances: Vec<Vec<(f64, Vec<CEffect>)>>,
     observe: Vec<(u32, Vec<Arg>)>,
+    /// Whether the action's precondition has other disjuncts, whose operators
+    /// may repeat this one's.
+    disjunctive: bool,
 }
 
 struct Grounder<'a> {
@@ -675,6 +697,9 @@ struct Grounder<'a> {
     object_types: Vec<Name>,
     parents: HashMap<Name, Name>,
     fluent_values: HashMap<(Name, Vec<u32>), u64>,
+    /// The operators of the action being grounded, as (binding, positive and
+    /// negative preconditions), when its precondition is disjunctive.
+    seen_instances: HashSet<(Vec<u32>, Vec<AtomId>, Vec<AtomId>)>,
 }
 
 /// Whether actions cost the sum of their `increase` effects (else 1 each): when the domain says
@@ -761,6 +786,7 @@ pub fn ground_within(
             .map(|t| (t.name.clone(), t.parent.clone()))
             .collect(),
         fluent_values: HashMap::new(),
+        seen_instances: HashSet::new(),
     };
     for p in &domain.predicates {
         g.predicate(&p.name, &fluent_predicates);
@@ -998,23 +1024,6 @@ impl Grounder<'_> {
     }
 
     fn action(&mut self, action: &Action, fluent: &HashSet<&str>) -> Result<(), GroundError> {
-        // Compile the precondition; static and equality literals are checked
-        // as soon as their last parameter is bound.
-        let mut lits = Vec::new();
-        for literal in &action.precondition {
-            lits.push(match literal {
-                Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
-                    positive: matches!(literal, Literal::Pos(_)),
-                    predicate: self.predicate(&atom.predicate, fluent),
-                    args: self.resolve_all(action, &atom.args)?,
-                },
-                Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => CLit::Eq {
-                    positive: matches!(literal, Literal::Eq(..)),
-                    a: self.resolve(action, a)?,
-                    b: self.resolve(action, b)?,
-                },
-            });
-        }
         let mut effects = Vec::new();
         let mut costs = Vec::new();
         for effect in &action.effects {
@@ -1066,6 +1075,64 @@ impl Grounder<'_> {
             let p = self.predicate(&atom.predicate, fluent);
             observe.push((p, self.resolve_all(action, &atom.args)?));
         }
+        let candidates: Vec<Vec<u32>> = action
+            .params
+            .iter()
+            .map(|p| {
+                let ty: &str = p.ty.as_deref().unwrap_or("object");
+                (0..self.task.objects.len() as u32)
+                    .filter(|&o| self.is_a(&self.object_types[o as usize], ty))
+                    .collect()
+            })
+            .collect();
+        // A disjunctive precondition is grounded one disjunct at a time, each
+        // with the literals they share: the operators of all are the action's.
+        let no_alternative: [Vec<Literal>; 1] = [Vec::new()];
+        let disjuncts = if action.alternatives.is_empty() {
+            &no_alternative[..]
+        } else {
+            &action.alternatives[..]
+        };
+        self.seen_instances.clear();
+        for disjunct in disjuncts {
+            let pre = self.compile_precondition(action, disjunct, fluent)?;
+            let schema = Schema {
+                action,
+                pre,
+                effects: effects.clone(),
+                costs: costs.clone(),
+                configure: configure.clone(),
+                chances: chances.clone(),
+                observe: observe.clone(),
+                disjunctive: disjuncts.len() > 1,
+            };
+            self.instantiate(&schema, &candidates)?;
+        }
+        Ok(())
+    }
+
+    /// Compiles `action`'s precondition with `disjunct` of its alternatives.
+    fn compile_precondition(
+        &mut self,
+        action: &Action,
+        disjunct: &[Literal],
+        fluent: &HashSet<&str>,
+    ) -> Result<Precondition, GroundError> {
+        let mut lits = Vec::new();
+        for literal in action.precondition.iter().chain(disjunct) {
+            lits.push(match literal {
+                Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
+                    positive: matches!(literal, Literal::Pos(_)),
+                    predicate: self.predicate(&atom.predicate, fluent),
+                    args: self.resolve_all(action, &atom.args)?,
+                },
+                Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => CLit::Eq {
+                    positive: matches!(literal, Literal::Eq(..)),
+                    a: self.resolve(action, a)?,
+                    b: self.resolve(action, b)?,
+                },
+            });
+        }
         let n = action.params.len();
         let mut checks: Vec<Vec<usize>> = vec![Vec::new(); n + 1];
         let mut dynamic = Vec::new();
@@ -1093,27 +1160,22 @@ impl Grounder<'_> {
                 dynamic.push(i);
             }
         }
-        let candidates: Vec<Vec<u32>> = action
-            .params
-            .iter()
-            .map(|p| {
-                let ty: &str = p.ty.as_deref().unwrap_or("object");
-                (0..self.task.objects.len() as u32)
-                    .filter(|&o| self.is_a(&self.object_types[o as usize], ty))
-                    .collect()
-            })
-            .collect();
-        let schema = Schema {
-            action,
+        Ok(Precondition {
             lits,
             dynamic,
-            effects,
-            costs,
-            configure,
-            chances,
-            observe,
-        };
-        let lits = &schema.lits;
+            checks,
+        })
+    }
+
+    /// Builds the operators of `schema` for every binding of its parameters
+    /// to `candidates` that passes its static checks.
+    fn instantiate(
+        &mut self,
+        schema: &Schema<'_>,
+        candidates: &[Vec<u32>],
+    ) -> Result<(), GroundError> {
+        let n = candidates.len();
+        let Precondition { lits, checks, .. } = &schema.pre;
         let mut binding = vec![0u32; n];
         if !checks[0].iter().all(|&i| self.holds(&lits[i], &binding)) {
             return Ok(());
@@ -1123,7 +1185,7 @@ impl Grounder<'_> {
         let mut cursor = vec![0usize; n];
         let mut depth = 0;
         if n == 0 {
-            return self.emit(&schema, &binding);
+            return self.emit(schema, &binding);
         }
         loop {
             if cursor[depth] == candidates[depth].len() {
@@ -1148,7 +1210,7 @@ impl Grounder<'_> {
                 depth += 1;
                 continue;
             }
-            self.emit(&schema, &binding)?;
+            self.emit(schema, &binding)?;
             cursor[depth] += 1;
         }
     }
@@ -1190,13 +1252,13 @@ impl Grounder<'_> {
     fn emit(&mut self, schema: &Schema<'_>, binding: &[u32]) -> Result<(), GroundError> {
         let Schema {
             action,
-            lits,
-            dynamic,
+            pre: Precondition { lits, dynamic, .. },
             effects,
             costs,
             configure,
             chances,
             observe,
+            disjunctive,
         } = schema;
         if self.task.operators.len() >= self.limits.max_operators {
             return Err(GroundError::TooLarge {
@@ -1250,6 +1312,14 @@ impl Grounder<'_> {
         pre_neg.sort_unstable();
         pre_neg.dedup();
         if pre.iter().any(|a| pre_neg.contains(a)) {
+            return Ok(());
+        }
+        // Disjuncts that differ only in static literals give the same operator.
+        if *disjunctive
+            && !self
+                .seen_instances
+                .insert((binding.to_vec(), pre.clone(), pre_neg.clone()))
+        {
             return Ok(());
         }
         let mut add = Vec::new();

@@ -236,13 +236,21 @@ fn check_replanning(domain: &Domain, problem: &Problem) {
     let Some(first) = cheapest.steps.first() else {
         return;
     };
-    let request = Request::replan(&task, task.initial().clone(), vec![first.op]);
+    // The instance is excluded: every operator of it (one per disjunct of its precondition).
+    let instance = parse_goal(&first.to_string()).expect("a step is a call");
+    let excluded = task.find_operators(&instance).expect("an instance");
+    let request = Request::replan(&task, task.initial().clone(), excluded);
     let expected = oracle::cheapest(domain, problem, &[first.to_string()], 100_000);
     for options in [Options::default(), Options::optimal()] {
         let outcome = plan(&request, &options, &NoClock);
         match (&outcome.verdict, &expected) {
             (Verdict::Found(plan), Cheapest::Cost(cost, _)) => {
-                assert!(plan.steps.iter().all(|s| s.op != first.op), "{plan}");
+                assert!(
+                    plan.steps
+                        .iter()
+                        .all(|s| s.to_string() != first.to_string()),
+                    "{plan}"
+                );
                 assert_eq!(validate(domain, problem, &plan.calls()), Ok(plan.cost));
                 assert!(plan.cost >= cheapest.cost);
                 if outcome.optimal {
@@ -545,10 +553,14 @@ fn check_admissible_along(task: &Task, lines: &[String], cost: u64) -> Result<()
         );
         let Some(line) = lines.get(k) else { break };
         let call = parse_goal(line).map_err(|e| TestCaseError::fail(e.to_string()))?;
-        let Ok(Some(op)) = task.find_operator(&call) else {
+        // One operator per disjunct of a disjunctive precondition: the step is any that applies.
+        let Ok(ops) = task.find_operators(&call) else {
             return Err(TestCaseError::fail(format!("grounding lacks {line}")));
         };
-        prop_assert!(task.applicable(&state, op), "{} is not applicable", line);
+        let applicable = ops.into_iter().find(|&op| task.applicable(&state, op));
+        let Some(op) = applicable else {
+            return Err(TestCaseError::fail(format!("{line} is not applicable")));
+        };
         remaining -= task.operator(op).cost;
         state = task.apply(&state, op);
     }
@@ -872,5 +884,87 @@ fn ipc_spellings_read_as_other_planners_read_them() {
     assert!(
         text.contains("`either` types are not supported here"),
         "{text}"
+    );
+}
+
+const DOORS: &str = "(define (domain doors)
+  (:requirements :strips :typing :negative-preconditions :disjunctive-preconditions)
+  (:types room)
+  (:predicates (at ?r - room) (door ?a ?b - room) (locked ?r - room) (key-in ?r - room)
+               (has-key))
+  (:action go :parameters (?a ?b - room)
+    :precondition (and (at ?a) (or (door ?a ?b) (door ?b ?a)) (imply (locked ?b) (has-key)))
+    :effect (and (at ?b) (not (at ?a))))
+  (:action take :parameters (?r - room)
+    :precondition (and (at ?r) (key-in ?r))
+    :effect (and (has-key) (not (key-in ?r)))))";
+
+/// Doors listed one way are passable both ways; the locked room needs the key, which lies
+/// in a side room.
+const DOORS_PROBLEM: &str = "(define (problem p) (:domain doors) (:objects a b c d e - room)
+  (:init (at a) (door a b) (door b a) (door c b) (door c d) (door b e) (locked d) (key-in e))
+  (:goal (at d)))";
+
+/// A disjunctive precondition grounds one operator per disjunct that can hold (operators
+/// alike in everything are built once), plans agree with the brute-force oracle, which
+/// reads the disjunction itself, and excluding an instance excludes all its operators.
+#[test]
+fn disjunctive_preconditions_ground_one_operator_per_disjunct() {
+    let (domain, problem) = load(DOORS, DOORS_PROBLEM);
+    check_optimum(&domain, &problem, 6);
+    assert!(matches!(
+        oracle::cheapest(&domain, &problem, &[], 10_000),
+        Cheapest::Cost(6, _)
+    ));
+    let task = ground(&domain, &problem).expect("grounds");
+    let operators = |text: &str| -> Vec<String> {
+        let call = parse_goal(text).expect("parses");
+        let ops = task.find_operators(&call).expect("an instance");
+        ops.iter()
+            .map(|&op| {
+                let o = task.operator(op);
+                let mut pre: Vec<String> = o.pre.iter().map(|&a| task.atom_name(a)).collect();
+                pre.extend(
+                    o.pre_neg
+                        .iter()
+                        .map(|&a| format!("(not {})", task.atom_name(a))),
+                );
+                pre.join(" ")
+            })
+            .collect()
+    };
+    // `door` both ways: the two disjuncts of the `or` give the same operators.
+    assert_eq!(operators("(go a b)"), ["(at a)", "(at a) (has-key)"]);
+    // Into the locked room only with the key.
+    assert_eq!(operators("(go c d)"), ["(at c) (has-key)"]);
+    assert_eq!(operators("(go a c)"), Vec::<String>::new());
+    // Without the way back from the side room, the key is out of reach.
+    let options = Options {
+        strategy: Strategy::OPTIMAL,
+        budget: Budget::default(),
+    };
+    let excluded = task
+        .find_operators(&parse_goal("(go e b)").expect("parses"))
+        .expect("an instance");
+    assert_eq!(excluded.len(), 2);
+    let outcome = plan(
+        &Request::replan(&task, task.initial().clone(), excluded),
+        &options,
+        &NoClock,
+    );
+    assert!(matches!(outcome.verdict, Verdict::Unsolvable(_)));
+    // The validator names the disjunction that fails.
+    let calls: Vec<_> = ["(go a b)", "(go b c)", "(go c d)"]
+        .iter()
+        .map(|l| parse_goal(l).expect("parses"))
+        .collect();
+    assert_eq!(
+        validate(&domain, &problem, &calls).map_err(|e| e.to_string()),
+        Err(
+            "step 3: precondition (or (and (door c d) (not (locked d))) \
+             (and (door c d) (has-key)) (and (door d c) (not (locked d))) \
+             (and (door d c) (has-key))) of (go c d) does not hold"
+                .to_string()
+        )
     );
 }

@@ -218,9 +218,19 @@ impl<'a> Semantics<'a> {
         bind: &HashMap<&str, &Name>,
         world: &World,
     ) -> Result<(), String> {
+        let (ok, text) = Self::literal_truth(literal, bind, world);
+        if ok { Ok(()) } else { Err(text) }
+    }
+
+    /// Whether `literal` holds in `world`, and the ground literal as text.
+    fn literal_truth(
+        literal: &Literal,
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> (bool, String) {
         let ground_all =
             |args: &[Term]| -> Vec<Name> { args.iter().map(|t| Self::ground(t, bind)).collect() };
-        let (ok, text) = match literal {
+        match literal {
             Literal::Pos(atom) => {
                 let args = ground_all(&atom.args);
                 let text = write_fact(&atom.predicate, &args);
@@ -239,8 +249,28 @@ impl<'a> Semantics<'a> {
                 let (a, b) = (Self::ground(a, bind), Self::ground(b, bind));
                 (a != b, format!("(not (= {a} {b}))"))
             }
-        };
-        if ok { Ok(()) } else { Err(text) }
+        }
+    }
+
+    /// `(or ...)` of the ground `disjuncts`, each a literal or `(and ...)`.
+    fn disjunction_text(
+        disjuncts: &[Vec<Literal>],
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> String {
+        let mut out = String::from("(or");
+        for disjunct in disjuncts {
+            let literals: Vec<String> = disjunct
+                .iter()
+                .map(|l| Self::literal_truth(l, bind, world).1)
+                .collect();
+            match &literals[..] {
+                [one] => out.push_str(&format!(" {one}")),
+                many => out.push_str(&format!(" (and {})", many.join(" "))),
+            }
+        }
+        out.push(')');
+        out
     }
 
     /// Applies `action(args)` to `world`: `Err` names the failing
@@ -254,6 +284,18 @@ impl<'a> Semantics<'a> {
         let bind = binding(action, args);
         for literal in &action.precondition {
             Self::literal_holds(literal, &bind, world).map_err(StepFailure::Precondition)?;
+        }
+        let one_disjunct_holds = action.alternatives.iter().any(|disjunct| {
+            disjunct
+                .iter()
+                .all(|l| Self::literal_holds(l, &bind, world).is_ok())
+        });
+        if !action.alternatives.is_empty() && !one_disjunct_holds {
+            return Err(StepFailure::Precondition(Self::disjunction_text(
+                &action.alternatives,
+                &bind,
+                world,
+            )));
         }
         let action_costs = crate::task::priced_by_effects(self.domain, self.problem);
         let mut cost = if action_costs { 0u64 } else { 1 };

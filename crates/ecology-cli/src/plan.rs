@@ -90,10 +90,9 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
         let Ok(call) = input::goal(text) else {
             return Ok(EXIT_BAD_INPUT);
         };
-        match task.find_operator(&call) {
-            Ok(Some(op)) => excluded.push(op),
-            // Well formed, but it can never apply: excluding it changes nothing.
-            Ok(None) => {}
+        // Well formed but never applicable (no operators): excluding it changes nothing.
+        match task.find_operators(&call) {
+            Ok(ops) => excluded.extend(ops),
             Err(err) => {
                 eprintln!("error: --exclude '{text}': {err}");
                 return Ok(EXIT_BAD_INPUT);

@@ -36,7 +36,7 @@ pub use model::{
     Name, NumExpr, Param, PredicateDecl, Probabilistic, Problem, Redirect, Subtask, Task, Term,
     TypeDecl, Weighted,
 };
-pub use parse::{PROBABILITY_EPSILON, SUPPORTED_REQUIREMENTS};
+pub use parse::{MAX_DISJUNCTS, PROBABILITY_EPSILON, SUPPORTED_REQUIREMENTS};
 pub use problem::check_problem;
 pub use state::{ComponentCost, EcologyState, Fact, Power};
 pub use validate::ECOLOGY_PREDICATES;

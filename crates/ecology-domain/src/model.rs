@@ -336,8 +336,12 @@ pub struct Action {
     pub name: Name,
     /// Its parameters (typed with `:typing`).
     pub params: Vec<Param>,
-    /// Conditions on the world state.
+    /// Conditions on the world state: the conjunction every application needs.
     pub precondition: Vec<Literal>,
+    /// The disjunctive rest of the precondition (`or`, `imply`, a negated `and`) in
+    /// disjunctive normal form, negation pushed onto atoms: besides `precondition`, one of
+    /// these conjunctions must hold. Empty when the precondition is a conjunction.
+    pub alternatives: Vec<Vec<Literal>>,
     /// What it changes.
     pub effects: Vec<Effect>,
     /// The configuration goal that performs it, if any.

@@ -662,8 +662,10 @@ impl Validator {
                 }
             }
         }
-        self.literal_vars(&a.precondition, &params, &what);
-        self.literal_arities(domain, &a.precondition, true);
+        for literals in std::iter::once(&a.precondition).chain(&a.alternatives) {
+            self.literal_vars(literals, &params, &what);
+            self.literal_arities(domain, literals, true);
+        }
         for effect in &a.effects {
             match effect {
                 Effect::Add(atom) | Effect::Del(atom) => {
