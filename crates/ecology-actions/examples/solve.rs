@@ -81,7 +81,14 @@ fn run(args: &[String]) -> Result<(), String> {
         ecology_domain::parse_domain(&domain_text).map_err(|d| format!("{domain_path}: {d}"))?;
     let problem = ecology_domain::parse_problem_for(&domain, &problem_text)
         .map_err(|d| format!("{problem_path}: {d}"))?;
-    let task = ecology_actions::ground(&domain, &problem).map_err(|e| e.to_string())?;
+    // One search from the initial state: ground only what it can reach, as Fast Downward does.
+    let limits = ecology_actions::GroundLimits {
+        instances: ecology_actions::Instances::Reachable,
+        ..ecology_actions::GroundLimits::default()
+    };
+    let task =
+        ecology_actions::ground_within(&domain, &problem, &limits, &ecology_actions::NoClock)
+            .map_err(|e| e.to_string())?;
     let ground_ms = start.elapsed().as_secs_f64() * 1000.0;
     let options = Options {
         strategy,

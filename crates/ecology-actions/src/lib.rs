@@ -60,8 +60,8 @@ pub use conditional::{
 };
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
-    AtomId, Chance, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, MAX_OUTCOMES,
-    MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
+    AtomId, Chance, GroundError, GroundLimits, InstanceError, Instances, MAX_OPERATORS,
+    MAX_OUTCOMES, MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
 };
 pub use validate::{PlanError, validate};
 

@@ -968,3 +968,140 @@ fn disjunctive_preconditions_ground_one_operator_per_disjunct() {
         )
     );
 }
+
+/// Grounds `domain` and `problem` by relaxed reachability.
+fn ground_reachable(domain: &Domain, problem: &Problem, max_bytes: usize) -> Result<Task, String> {
+    let limits = crate::GroundLimits {
+        max_bytes,
+        instances: crate::Instances::Reachable,
+        ..crate::GroundLimits::default()
+    };
+    crate::ground_within(domain, problem, &limits, &NoClock).map_err(|e| e.to_string())
+}
+
+/// An operator with everything it does, by name, to compare tasks grounded apart.
+fn operator_text(task: &Task, op: &crate::Operator) -> String {
+    let names = |atoms: &[crate::AtomId]| {
+        let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
+        names.sort();
+        names.join(" ")
+    };
+    format!(
+        "{op} pre {} neg {} add {} del {} cost {}",
+        names(&op.pre),
+        names(&op.pre_neg),
+        names(&op.add),
+        names(&op.del),
+        op.cost
+    )
+}
+
+/// Grounding by relaxed reachability builds, in the same order and alike, every operator
+/// of the full grounding that relaxed reachability from the start (every initial world's
+/// atoms) fires, and no operator the full grounding lacks; planning on it finds the same
+/// optimum.
+pub(crate) fn check_reachable_grounding(domain: &Domain, problem: &Problem) -> Result<(), String> {
+    let all = ground(domain, problem).map_err(|e| e.to_string())?;
+    let reachable = ground_reachable(domain, problem, usize::MAX)?;
+    let mut start = all.initial().clone();
+    for (_, world) in all.initial_belief() {
+        for atom in world.atoms() {
+            start.set(atom);
+        }
+    }
+    let fired = all.relaxed_reachable(&start, &[]);
+    let texts: Vec<String> = reachable
+        .operators()
+        .iter()
+        .map(|o| operator_text(&reachable, o))
+        .collect();
+    let mut next = 0;
+    for (o, fired) in all.operators().iter().zip(fired) {
+        let text = operator_text(&all, o);
+        if texts.get(next) == Some(&text) {
+            next += 1;
+        } else if fired {
+            return Err(format!("reachable grounding lacks {text}"));
+        }
+    }
+    if let Some(extra) = texts.get(next) {
+        return Err(format!(
+            "reachable grounding has {extra}, out of order or unknown"
+        ));
+    }
+    if !all.is_uncertain() {
+        let cost = |task: &Task| match run(task, Strategy::OPTIMAL).verdict {
+            Verdict::Found(plan) => Some(plan.cost),
+            _ => None,
+        };
+        if cost(&all) != cost(&reachable) {
+            return Err(format!(
+                "optimum {:?} grounding all, {:?} by reachability",
+                cost(&all),
+                cost(&reachable)
+            ));
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+    #[test]
+    fn reachable_grounding_keeps_what_the_start_reaches(seed in any::<u64>()) {
+        let inst = problems::random_small(seed).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        check_reachable_grounding(&inst.domain, &inst.problem).map_err(TestCaseError::fail)?;
+    }
+}
+
+/// Grounding by reachability leaves out what the start cannot reach (unlike the default,
+/// which replanning needs), and so grounds within limits grounding everything exceeds.
+#[test]
+fn reachable_grounding_leaves_out_what_the_start_cannot_reach() {
+    let (domain, problem) = load(
+        "(define (domain d) (:requirements :strips :typing) (:types room)
+           (:predicates (at ?x - room) (door ?x ?y - room))
+           (:action go :parameters (?x ?y - room)
+             :precondition (and (at ?x) (door ?x ?y))
+             :effect (and (at ?y) (not (at ?x)))))",
+        "(define (problem p) (:domain d) (:objects a b c e - room)
+           (:init (at a) (door a b) (door c e)) (:goal (at b)))",
+    );
+    let names =
+        |task: &Task| -> Vec<String> { task.operators().iter().map(ToString::to_string).collect() };
+    let all = ground(&domain, &problem).expect("grounds");
+    assert_eq!(names(&all), ["(go a b)", "(go c e)"]);
+    let reachable = ground_reachable(&domain, &problem, usize::MAX).expect("grounds");
+    assert_eq!(names(&reachable), ["(go a b)"]);
+    // 40 objects, three of them `at`: 40^3 instances of `a`, 27 reachable.
+    let objects: Vec<String> = (0..40).map(|i| format!("o{i}")).collect();
+    let (domain, problem) = load(
+        "(define (domain big) (:requirements :strips) (:predicates (at ?x) (q ?a ?b ?c))
+           (:action a :parameters (?a ?b ?c) :precondition (and (at ?a) (at ?b) (at ?c))
+             :effect (q ?a ?b ?c))
+           (:action leave :parameters (?x) :precondition (at ?x) :effect (not (at ?x))))",
+        &format!(
+            "(define (problem big-1) (:domain big) (:objects {})
+               (:init (at o0) (at o1) (at o2)) (:goal (q o2 o1 o0)))",
+            objects.join(" ")
+        ),
+    );
+    let limits = crate::GroundLimits {
+        max_bytes: 1024 * 1024,
+        ..crate::GroundLimits::default()
+    };
+    assert_eq!(
+        crate::ground_within(&domain, &problem, &limits, &NoClock)
+            .err()
+            .map(|e| e.to_string()),
+        Some("grounding needs more than 1 MiB; the problem is too large".to_string())
+    );
+    let reachable = ground_reachable(&domain, &problem, 1024 * 1024).expect("grounds");
+    assert_eq!(reachable.operators().len(), 27 + 3);
+    let Verdict::Found(found) = run(&reachable, Strategy::OPTIMAL).verdict else {
+        panic!("no plan");
+    };
+    assert_eq!(found.to_string(), "(a o2 o1 o0)\n; cost = 1\n");
+    check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
+}

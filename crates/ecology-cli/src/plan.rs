@@ -62,9 +62,12 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
     let Ok(problem) = input::problem(&args.problem, &domain)? else {
         return Ok(EXIT_BAD_INPUT);
     };
-    // `--max-millis` bounds the whole command: grounding too.
+    // `--max-millis` bounds the whole command: grounding too. The plan starts
+    // from the problem's initial states alone, so only what relaxed
+    // reachability reaches from them is grounded.
     let limits = ecology_actions::GroundLimits {
         max_time: args.max_millis.map(Duration::from_millis),
+        instances: ecology_actions::Instances::Reachable,
         ..ecology_actions::GroundLimits::default()
     };
     let task = match ecology_actions::ground_within(&domain, &problem, &limits, &clock) {
