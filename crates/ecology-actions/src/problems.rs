@@ -215,7 +215,8 @@ pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, 
 }
 
 /// A random small domain and problem: two types, four predicates, four
-/// actions with positive, negative, equality and disjunctive preconditions and costs,
+/// actions with positive, negative, equality and disjunctive preconditions,
+/// conditional effects and costs,
 /// three or four objects. Small enough for [`crate::oracle::cheapest`].
 pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     let mut rng = Rng::new(seed);
@@ -224,7 +225,7 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     let _ = writeln!(
         d,
         "(define (domain random-{seed})\n  (:requirements :strips :typing :negative-preconditions :equality \
-         :disjunctive-preconditions{})",
+         :disjunctive-preconditions :conditional-effects{})",
         if action_costs { " :action-costs" } else { "" }
     );
     d.push_str(
@@ -266,6 +267,11 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         let mut eff = Vec::new();
         for _ in 0..2 + rng.index(2) {
             eff.push(sometimes_negated(atom(&mut rng), &mut rng, 0.25));
+        }
+        if rng.chance(0.3) {
+            let condition = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            let effect = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            eff.push(format!("(when {condition} {effect})"));
         }
         if action_costs {
             if rng.chance(0.5) {

@@ -4,7 +4,11 @@
 //! Predicates that no action changes are *static*: their literals are decided
 //! while grounding (an operator whose static precondition fails is never
 //! built), and they are left out of the state. Everything else is a fluent,
-//! interned as an [`AtomId`] on first use.
+//! interned as an [`AtomId`] on first use. An action is grounded one variant
+//! at a time ([`ecology_domain::Action::variants`]: a disjunct of its
+//! precondition, each `when` condition holding or failing), so one instance
+//! may be several operators; `reach` grounds only what relaxed reachability
+//! reaches.
 
 use std::collections::{HashMap, HashSet};
 use std::fmt;
@@ -623,16 +627,18 @@ impl Task {
 
     /// The ground operator written `(action args...)`: `Ok(None)` when the
     /// instance is well formed but can never apply (grounding pruned it).
-    /// An action with a disjunctive precondition may have several operators
-    /// for one instance; this is the first, [`Task::find_operators`] all.
+    /// An action with a disjunctive precondition or conditional effects may
+    /// have several operators for one instance; this is the first,
+    /// [`Task::find_operators`] all.
     pub fn find_operator(&self, call: &Call) -> Result<Option<OpId>, InstanceError> {
         Ok(self.find_operators(call)?.first().copied())
     }
 
     /// Every operator of the instance written `(action args...)`: one per
-    /// disjunct of its precondition that can hold (one for a conjunctive
-    /// precondition), none when grounding pruned it. Excluding an instance
-    /// excludes them all.
+    /// variant of the action that can hold (a disjunct of its precondition,
+    /// with each `when` condition holding or failing; one for a conjunctive
+    /// precondition without `when`), none when grounding pruned it. Excluding
+    /// an instance excludes them all.
     pub fn find_operators(&self, call: &Call) -> Result<Vec<OpId>, InstanceError> {
         let Some(&arity) = self.arities.get(&call.name) else {
             return Err(InstanceError::UnknownAction(call.name.to_string()));
@@ -687,6 +693,15 @@ enum CLit {
 /// An effect of a schema with names resolved: `(is_add, predicate, args)`.
 type CEffect = (bool, u32, Vec<Arg>);
 
+/// An operator of an action with several variants, as grounding built it:
+/// the variant's `when` effects, the binding, and the positive and negative
+/// preconditions.
+type Instance = (Vec<usize>, Vec<u32>, Vec<AtomId>, Vec<AtomId>);
+
+/// A cost term of a schema with names resolved: `(function, amount, args)`,
+/// the amount when there is no function.
+type CCost = (Option<Name>, u64, Vec<Arg>);
+
 /// A precondition compiled for grounding: its literals, which of them are
 /// fluent, and at which depth of the binding each of the others (static and
 /// equality literals) is checked: as soon as its last parameter is bound.
@@ -696,23 +711,25 @@ struct Precondition {
     checks: Vec<Vec<usize>>,
 }
 
-/// A schema compiled for grounding: its precondition (one disjunct's, for a
-/// disjunctive one), its effects as `(is_add, predicate, args)`, its cost
-/// terms as `(function, amount, args)`, and its `:configure` goal.
+/// A schema compiled for grounding: one variant of an action (see
+/// [`Action::variants`]) with its precondition, its effects as `(is_add,
+/// predicate, args)`, its cost terms as `(function, amount, args)`, and its
+/// `:configure` goal.
 struct Schema<'a> {
     action: &'a Action,
     pre: Precondition,
-    effects: Vec<(bool, u32, Vec<Arg>)>,
-    costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
+    effects: Vec<CEffect>,
+    costs: Vec<CCost>,
     configure: Option<(&'a Call, Vec<Arg>)>,
     /// Each `probabilistic` form's outcomes (the rest, "nothing happens", included).
     chances: Vec<Vec<(f64, Vec<CEffect>)>>,
     observe: Vec<(u32, Vec<Arg>)>,
     /// The objects each parameter may take (of its type), in increasing order.
     candidates: Vec<Vec<u32>>,
-    /// Whether the action's precondition has other disjuncts, whose operators
-    /// may repeat this one's.
-    disjunctive: bool,
+    /// When the action has other variants (disjuncts of its precondition,
+    /// ways its `when` conditions hold or fail), the `when` effects of this
+    /// one: operators of variants alike in these may repeat this one's.
+    variants: Option<Vec<usize>>,
 }
 
 struct Grounder<'a> {
@@ -728,9 +745,9 @@ struct Grounder<'a> {
     object_types: Vec<Name>,
     parents: HashMap<Name, Name>,
     fluent_values: HashMap<(Name, Vec<u32>), u64>,
-    /// The operators of the action being grounded, as (binding, positive and
-    /// negative preconditions), when its precondition is disjunctive.
-    seen_instances: HashSet<(Vec<u32>, Vec<AtomId>, Vec<AtomId>)>,
+    /// The operators built of the action being grounded, when it has several
+    /// variants.
+    seen_instances: HashSet<Instance>,
 }
 
 /// Whether actions cost the sum of their `increase` effects (else 1 each): when the domain says
@@ -761,7 +778,9 @@ pub fn ground_within(
     let mut fluent_predicates: HashSet<&str> = HashSet::new();
     for action in &domain.actions {
         let outcomes = action.chances.iter().flat_map(|c| &c.outcomes);
-        for effect in action.effects.iter().chain(outcomes.flat_map(|o| &o.items)) {
+        let conditional = action.conditional.iter().flat_map(|c| &c.effects);
+        let effects = action.effects.iter().chain(conditional);
+        for effect in effects.chain(outcomes.flat_map(|o| &o.items)) {
             if let Effect::Add(a) | Effect::Del(a) = effect {
                 fluent_predicates.insert(&a.predicate);
             }
@@ -1095,21 +1114,10 @@ impl Grounder<'_> {
         action: &'a Action,
         fluent: &HashSet<&str>,
     ) -> Result<Vec<Schema<'a>>, GroundError> {
-        let mut effects = Vec::new();
-        let mut costs = Vec::new();
-        for effect in &action.effects {
-            match effect {
-                Effect::Add(atom) | Effect::Del(atom) => {
-                    let p = self.predicate(&atom.predicate, fluent);
-                    let args = self.resolve_all(action, &atom.args)?;
-                    effects.push((matches!(effect, Effect::Add(_)), p, args));
-                }
-                Effect::IncreaseCost(NumExpr::Number(n), _) => costs.push((None, *n, Vec::new())),
-                Effect::IncreaseCost(NumExpr::Function(call), _) => {
-                    let args = self.resolve_all(action, &call.args)?;
-                    costs.push((Some(call.name.clone()), 0, args));
-                }
-            }
+        let (effects, costs) = self.compile_effects(action, &action.effects, fluent)?;
+        let mut conditional = Vec::new();
+        for when in &action.conditional {
+            conditional.push(self.compile_effects(action, &when.effects, fluent)?);
         }
         let configure = match &action.configure {
             Some(call) => Some((call, self.resolve_all(action, &call.args)?)),
@@ -1156,41 +1164,68 @@ impl Grounder<'_> {
                     .collect()
             })
             .collect();
-        // A disjunctive precondition is grounded one disjunct at a time, each
-        // with the literals they share: the operators of all are the action's.
-        let no_alternative: [Vec<Literal>; 1] = [Vec::new()];
-        let disjuncts = if action.alternatives.is_empty() {
-            &no_alternative[..]
-        } else {
-            &action.alternatives[..]
-        };
+        // One schema per variant: a disjunct of the precondition with one way
+        // each `when` condition holds (and its effects happen) or fails.
+        let variants = action.variants();
         let mut schemas = Vec::new();
-        for disjunct in disjuncts {
-            let pre = self.compile_precondition(action, disjunct, fluent)?;
+        for variant in &variants {
+            let pre = self.compile_precondition(action, &variant.precondition, fluent)?;
+            let (mut effects, mut costs) = (effects.clone(), costs.clone());
+            for &i in &variant.conditional {
+                effects.extend(conditional[i].0.iter().cloned());
+                costs.extend(conditional[i].1.iter().cloned());
+            }
             schemas.push(Schema {
                 action,
                 pre,
-                effects: effects.clone(),
-                costs: costs.clone(),
+                effects,
+                costs,
                 configure: configure.clone(),
                 chances: chances.clone(),
                 observe: observe.clone(),
                 candidates: candidates.clone(),
-                disjunctive: disjuncts.len() > 1,
+                variants: (variants.len() > 1).then(|| variant.conditional.clone()),
             });
         }
         Ok(schemas)
     }
 
-    /// Compiles `action`'s precondition with `disjunct` of its alternatives.
+    /// Compiles `effects` of `action`: the atoms it adds and deletes as
+    /// `(is_add, predicate, args)`, and its cost terms.
+    fn compile_effects(
+        &mut self,
+        action: &Action,
+        effects: &[Effect],
+        fluent: &HashSet<&str>,
+    ) -> Result<(Vec<CEffect>, Vec<CCost>), GroundError> {
+        let mut atoms = Vec::new();
+        let mut costs = Vec::new();
+        for effect in effects {
+            match effect {
+                Effect::Add(atom) | Effect::Del(atom) => {
+                    let p = self.predicate(&atom.predicate, fluent);
+                    let args = self.resolve_all(action, &atom.args)?;
+                    atoms.push((matches!(effect, Effect::Add(_)), p, args));
+                }
+                Effect::IncreaseCost(NumExpr::Number(n), _) => costs.push((None, *n, Vec::new())),
+                Effect::IncreaseCost(NumExpr::Function(call), _) => {
+                    let args = self.resolve_all(action, &call.args)?;
+                    costs.push((Some(call.name.clone()), 0, args));
+                }
+            }
+        }
+        Ok((atoms, costs))
+    }
+
+    /// Compiles a conjunction of `action`'s literals: a variant's precondition.
     fn compile_precondition(
         &mut self,
         action: &Action,
-        disjunct: &[Literal],
+        literals: &[Literal],
         fluent: &HashSet<&str>,
     ) -> Result<Precondition, GroundError> {
         let mut lits = Vec::new();
-        for literal in action.precondition.iter().chain(disjunct) {
+        for literal in literals {
             lits.push(match literal {
                 Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
                     positive: matches!(literal, Literal::Pos(_)),
@@ -1334,7 +1369,7 @@ impl Grounder<'_> {
             configure,
             chances,
             observe,
-            disjunctive,
+            variants,
             ..
         } = schema;
         if self.task.operators.len() >= self.limits.max_operators {
@@ -1391,11 +1426,14 @@ impl Grounder<'_> {
         if pre.iter().any(|a| pre_neg.contains(a)) {
             return Ok(());
         }
-        // Disjuncts that differ only in static literals give the same operator.
-        if *disjunctive
-            && !self
-                .seen_instances
-                .insert((binding.to_vec(), pre.clone(), pre_neg.clone()))
+        // Variants that differ only in static literals give the same operator.
+        if let Some(conditional) = variants
+            && !self.seen_instances.insert((
+                conditional.clone(),
+                binding.to_vec(),
+                pre.clone(),
+                pre_neg.clone(),
+            ))
         {
             return Ok(());
         }

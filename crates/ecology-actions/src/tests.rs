@@ -1105,3 +1105,86 @@ fn reachable_grounding_leaves_out_what_the_start_cannot_reach() {
     assert_eq!(found.to_string(), "(a o2 o1 o0)\n; cost = 1\n");
     check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
 }
+
+const LAMP: &str = "(define (domain lamp)
+  (:requirements :strips :typing :negative-preconditions :conditional-effects :action-costs)
+  (:types room)
+  (:predicates (at ?r - room) (door ?a ?b - room) (dark ?r - room) (lit ?r - room)
+               (has-lamp) (lamp-in ?r - room))
+  (:functions (total-cost) - number)
+  (:action go :parameters (?a ?b - room)
+    :precondition (and (at ?a) (door ?a ?b))
+    :effect (and (at ?b) (not (at ?a)) (increase (total-cost) 1)
+                 (when (has-lamp) (lit ?b))
+                 (when (dark ?b) (increase (total-cost) 5))))
+  (:action take :parameters (?r - room)
+    :precondition (and (at ?r) (lamp-in ?r))
+    :effect (and (has-lamp) (not (lamp-in ?r)) (increase (total-cost) 1))))";
+
+/// Going into the dark room costs more; the room is lit only if one brings the lamp.
+const LAMP_PROBLEM: &str = "(define (problem p) (:domain lamp) (:objects a b c - room)
+  (:init (at a) (door a b) (door b a) (door b c) (door a c) (door c a) (lamp-in b) (dark c))
+  (:goal (lit c)) (:metric minimize (total-cost)))";
+
+/// Conditional effects are compiled away: one operator per way the conditions hold or
+/// fail, static conditions decided while grounding. Plans agree with the brute-force
+/// oracle and the validator, which read `when` themselves.
+#[test]
+fn conditional_effects_ground_one_operator_per_variant() {
+    let (domain, problem) = load(LAMP, LAMP_PROBLEM);
+    check_optimum(&domain, &problem, 8);
+    assert!(matches!(
+        oracle::cheapest(&domain, &problem, &[], 10_000),
+        Cheapest::Cost(8, _)
+    ));
+    let task = ground(&domain, &problem).expect("grounds");
+    let operators = |text: &str| -> Vec<String> {
+        let call = parse_goal(text).expect("parses");
+        let ops = task.find_operators(&call).expect("an instance");
+        ops.iter()
+            .map(|&op| {
+                let o = task.operator(op);
+                let names = |atoms: &[crate::AtomId]| -> Vec<String> {
+                    let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
+                    names.sort();
+                    names
+                };
+                format!(
+                    "pre {:?} neg {:?} add {:?} cost {}",
+                    names(&o.pre),
+                    names(&o.pre_neg),
+                    names(&o.add),
+                    o.cost
+                )
+            })
+            .collect()
+    };
+    // `dark` is static: into c every operator costs 6, into b 1; `has-lamp` splits each.
+    assert_eq!(
+        operators("(go b c)"),
+        [
+            r#"pre ["(at b)", "(has-lamp)"] neg [] add ["(at c)", "(lit c)"] cost 6"#,
+            r#"pre ["(at b)"] neg ["(has-lamp)"] add ["(at c)"] cost 6"#,
+        ]
+    );
+    assert_eq!(
+        operators("(go a b)"),
+        [
+            r#"pre ["(at a)", "(has-lamp)"] neg [] add ["(at b)", "(lit b)"] cost 1"#,
+            r#"pre ["(at a)"] neg ["(has-lamp)"] add ["(at b)"] cost 1"#,
+        ]
+    );
+    let check = |text: &str| {
+        let calls: Vec<_> = text
+            .split(", ")
+            .map(|l| parse_goal(l).expect("parses"))
+            .collect();
+        validate(&domain, &problem, &calls).map_err(|e| e.to_string())
+    };
+    assert_eq!(check("(go a b), (take b), (go b c)"), Ok(8));
+    assert_eq!(
+        check("(go a b), (go b c)"),
+        Err("the goal does not hold at the end: (lit c)".to_string())
+    );
+    check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
+}

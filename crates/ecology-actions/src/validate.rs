@@ -273,6 +273,26 @@ impl<'a> Semantics<'a> {
         out
     }
 
+    /// The effects of `action` under `bind` applied to `world`: its own, and
+    /// those of each `when` whose condition holds in `world`.
+    pub(crate) fn effects_in<'e>(
+        action: &'e Action,
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> Vec<&'e Effect> {
+        let mut effects: Vec<&Effect> = action.effects.iter().collect();
+        for when in &action.conditional {
+            let holds = when
+                .condition
+                .iter()
+                .all(|l| Self::literal_truth(l, bind, world).0);
+            if holds {
+                effects.extend(&when.effects);
+            }
+        }
+        effects
+    }
+
     /// Applies `action(args)` to `world`: `Err` names the failing
     /// precondition or undefined cost fluent.
     pub(crate) fn apply(
@@ -301,7 +321,7 @@ impl<'a> Semantics<'a> {
         let mut cost = if action_costs { 0u64 } else { 1 };
         let mut next = world.clone();
         let mut adds = Vec::new();
-        for effect in &action.effects {
+        for effect in Self::effects_in(action, &bind, world) {
             match effect {
                 Effect::Del(atom) => {
                     let args = atom.args.iter().map(|t| Self::ground(t, &bind)).collect();

@@ -14,13 +14,12 @@ pub const PROBABILITY_EPSILON: f64 = 1e-6;
 
 /// Requirements read as declarations only, as other PDDL readers take them (IPC domains declare
 /// `:adl` and use little of it): the constructs they allow beyond what is supported (`forall`,
-/// `exists`, `when`, …) are still refused where they appear, with the construct named.
+/// `exists`, …) are still refused where they appear, with the construct named.
 pub const DECLARED_ONLY_REQUIREMENTS: &[&str] = &[
     "adl",
     "quantified-preconditions",
     "existential-preconditions",
     "universal-preconditions",
-    "conditional-effects",
 ];
 
 /// The requirements the language supports.
@@ -32,6 +31,7 @@ pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
     "action-costs",
     "probabilistic-effects",
     "disjunctive-preconditions",
+    "conditional-effects",
 ];
 
 /// The most disjuncts an action's precondition may have in disjunctive normal form: each
@@ -942,24 +942,45 @@ impl Parser {
             self.optional(&fields, ":precondition", Self::action_precondition);
         let mut effects = Vec::new();
         let mut chances = Vec::new();
+        let mut conditional = Vec::new();
         if let Some(sexp) = Self::field(&fields, ":effect") {
-            self.effect_into(sexp, &mut effects, Some(&mut chances));
+            self.effect_into(
+                sexp,
+                &mut effects,
+                Some(&mut chances),
+                Some(&mut conditional),
+            );
         }
         let configure = Self::field(&fields, ":configure")
             .and_then(|c| self.call(c, "a configuration goal like `(navigate ?r ?to)`"));
         let observe = self.optional(&fields, ":observe", Self::observe);
-        Some(Action {
+        let action = Action {
             name,
             params,
             precondition,
             alternatives,
             effects,
+            conditional,
             configure,
             chances,
             observe,
             span: form.span,
             name_span: name_sexp.span,
-        })
+        };
+        if action.variant_count() > MAX_DISJUNCTS {
+            self.push(
+                Diagnostic::error(
+                    name_sexp.span,
+                    format!(
+                        "action `{}` has more than {MAX_DISJUNCTS} variants: the disjuncts of its \
+                         precondition times the ways each `when` condition holds or fails",
+                        action.name
+                    ),
+                )
+                .with_note("each becomes operators of its own; write the action as several"),
+            );
+        }
+        Some(action)
     }
 
     /// `:observe`: an atom, a list of atoms or `(and ...)` of atoms.
@@ -1094,6 +1115,7 @@ impl Parser {
         sexp: &Sexp,
         out: &mut Vec<Effect>,
         mut chances: Option<&mut Vec<Probabilistic<Effect>>>,
+        mut conditional: Option<&mut Vec<Conditional>>,
     ) {
         let Some(items) = sexp.list() else {
             self.error(sexp.span, "expected an effect in parentheses");
@@ -1104,21 +1126,55 @@ impl Parser {
         };
         if head.list().is_some() {
             for item in items {
-                self.effect_into(item, out, chances.as_deref_mut());
+                self.effect_into(
+                    item,
+                    out,
+                    chances.as_deref_mut(),
+                    conditional.as_deref_mut(),
+                );
             }
             return;
         }
         match head.atom() {
             Some("and") => {
                 for item in &items[1..] {
-                    self.effect_into(item, out, chances.as_deref_mut());
+                    self.effect_into(
+                        item,
+                        out,
+                        chances.as_deref_mut(),
+                        conditional.as_deref_mut(),
+                    );
                 }
+            }
+            Some("when") => {
+                let Some(conditional) = conditional else {
+                    self.error(head.span, "`when` is not supported inside `probabilistic`");
+                    return;
+                };
+                let [_, condition, effect] = items else {
+                    self.error(sexp.span, "`when` takes a condition and an effect");
+                    return;
+                };
+                let condition = self.condition(condition);
+                let (mut effects, mut chances, mut nested) = (Vec::new(), Vec::new(), Vec::new());
+                self.effect_into(effect, &mut effects, Some(&mut chances), Some(&mut nested));
+                if let Some(form) = chances.first() {
+                    self.error(form.span, "`probabilistic` is not supported inside `when`");
+                }
+                if let Some(inner) = nested.first() {
+                    self.error(inner.span, "`when` does not nest")
+                }
+                conditional.push(Conditional {
+                    condition,
+                    effects,
+                    span: sexp.span,
+                });
             }
             Some("probabilistic" | "oneof") => match chances {
                 Some(chances) => {
                     let form = self.probabilistic(sexp, items, |p, x| {
                         let mut effects = Vec::new();
-                        p.effect_into(x, &mut effects, None);
+                        p.effect_into(x, &mut effects, None, None);
                         effects
                     });
                     chances.extend(form);

@@ -995,3 +995,94 @@ fn bad_information_declarations_are_reported() {
         "`:hz`",
     );
 }
+
+#[test]
+fn conditional_effects_are_read_with_their_variants() {
+    let src = "(define (domain d) (:requirements :adl :action-costs)
+       (:predicates (p ?x) (q ?x) (r ?x) (s ?x))
+       (:action a :parameters (?x ?y)
+         :precondition (or (p ?x) (p ?y))
+         :effect (and (s ?x)
+                      (when (and (q ?x) (not (= ?x ?y))) (and (r ?y) (not (q ?x))))
+                      (when (r ?x) (increase (total-cost) 2)))))";
+    let domain = parse_domain(src.as_bytes()).expect("valid");
+    let action = &domain.actions[0];
+    assert_eq!(action.effects.len(), 1);
+    assert_eq!(action.conditional.len(), 2);
+    assert_eq!(action.conditional[0].effects.len(), 2);
+    // Two disjuncts, times three ways for the first condition (holds, or one of its two
+    // literals fails), times two for the second.
+    assert_eq!(action.variant_count(), 12);
+    let variants: Vec<String> = action
+        .variants()
+        .iter()
+        .map(|v| {
+            let pre: Vec<String> = v.precondition.iter().map(ToString::to_string).collect();
+            format!("{} => {:?}", pre.join(" "), v.conditional)
+        })
+        .collect();
+    assert_eq!(variants.len(), 12);
+    assert_eq!(
+        variants[..6],
+        [
+            "(p ?x) (q ?x) (not (= ?x ?y)) (r ?x) => [0, 1]",
+            "(p ?x) (q ?x) (not (= ?x ?y)) (not (r ?x)) => [0]",
+            "(p ?x) (not (q ?x)) (r ?x) => [1]",
+            "(p ?x) (not (q ?x)) (not (r ?x)) => []",
+            "(p ?x) (= ?x ?y) (r ?x) => [1]",
+            "(p ?x) (= ?x ?y) (not (r ?x)) => []",
+        ]
+    );
+    // Variables and arities inside `when` are checked like any other.
+    assert_error(
+        &src.replace("(r ?y) (not", "(r ?z) (not"),
+        "variable `?z` is not a parameter of action `a`",
+    );
+    assert_error(
+        &src.replace("(when (r ?x)", "(when (r ?x ?y)"),
+        "wrong arity: `r` takes 1 argument, given 2",
+    );
+}
+
+#[test]
+fn conditional_effects_are_bounded_and_do_not_nest() {
+    let action = |effect: &str| {
+        format!(
+            "(define (domain d) (:requirements :adl :probabilistic-effects)
+               (:predicates (p ?x) (q ?x))
+               (:action a :parameters (?x) :precondition (p ?x) :effect {effect}))"
+        )
+    };
+    assert_error(
+        &action("(when (p ?x) (when (q ?x) (p ?x)))"),
+        "`when` does not nest",
+    );
+    assert_error(
+        &action("(when (p ?x) (probabilistic 0.5 (q ?x)))"),
+        "`probabilistic` is not supported inside `when`",
+    );
+    assert_error(
+        &action("(probabilistic 0.5 (when (p ?x) (q ?x)))"),
+        "`when` is not supported inside `probabilistic`",
+    );
+    assert_error(
+        &action("(when (p ?x))"),
+        "`when` takes a condition and an effect",
+    );
+    assert_error(
+        &action("(when (or (p ?x) (q ?x)) (q ?x))"),
+        "`or` is not supported here: it makes a disjunction",
+    );
+    // Six one-literal conditions are 64 variants; seven are too many.
+    let six = "(when (q ?x) (p ?x)) ".repeat(6);
+    let domain = parse_domain(action(&format!("(and {six})")).as_bytes()).expect("64 variants");
+    assert_eq!(domain.actions[0].variants().len(), 64);
+    let seven = "(when (q ?x) (p ?x)) ".repeat(7);
+    assert_eq!(
+        messages(action(&format!("(and {seven})")).as_bytes()),
+        [
+            "action `a` has more than 64 variants: the disjuncts of its precondition times the \
+          ways each `when` condition holds or fails"
+        ]
+    );
+}
