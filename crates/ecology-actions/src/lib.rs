@@ -4,8 +4,11 @@
 //! planner.
 //!
 //! It speaks the STRIPS fragment of PDDL with `:typing`,
-//! `:negative-preconditions`, `:equality` and `:action-costs`. [`ground`]
-//! turns a domain and a problem into a [`Task`]; [`plan`] searches it, greedy
+//! `:negative-preconditions`, `:equality` and `:action-costs`, and compiles
+//! `:disjunctive-preconditions` and `:conditional-effects` away (one operator
+//! per variant of an action). [`ground`] turns a domain and a problem into a
+//! [`Task`] ([`ground_within`] with [`Instances::Reachable`] only what the
+//! initial state reaches); [`plan`] searches it, greedy
 //! best-first with the FF heuristic for fast plans or A* with LM-cut for
 //! optimal ones, under a [`Budget`]. [`Request`] says where to start and
 //! which action instances are unavailable, which is how the executive
@@ -63,8 +66,8 @@ pub use conditional::{
 use heuristic::Costs;
 pub use heuristic::{Heuristic, HeuristicKind};
 pub use task::{
-    AtomId, Chance, GroundError, GroundLimits, InstanceError, MAX_OPERATORS, MAX_OUTCOMES,
-    MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
+    AtomId, Chance, GroundError, GroundLimits, InstanceError, Instances, MAX_OPERATORS,
+    MAX_OUTCOMES, MAX_WORLDS, OpId, Operator, State, StateError, Task, ground, ground_within,
 };
 pub use validate::{PlanError, validate};
 
@@ -381,7 +384,11 @@ impl<'t> Search<'t> {
             Strategy::Lazy {
                 heuristic,
                 preferred,
-            } => (heuristic, Algorithm::LazyGreedy { preferred }, Costs::PlusOne),
+            } => (
+                heuristic,
+                Algorithm::LazyGreedy { preferred },
+                Costs::PlusOne,
+            ),
             Strategy::AStar { heuristic } => {
                 (heuristic, Algorithm::AStar { weight: 1 }, Costs::Task)
             }

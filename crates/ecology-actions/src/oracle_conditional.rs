@@ -131,7 +131,8 @@ impl Oracle<'_> {
         let (_, cost) = self.semantics.apply(action, args, world).ok()?;
         let bind = binding(action, args);
         // Every combination of the `probabilistic` forms' outcomes.
-        let mut combos: Vec<(f64, Vec<&Effect>)> = vec![(1.0, action.effects.iter().collect())];
+        let effects = Semantics::effects_in(action, &bind, world);
+        let mut combos: Vec<(f64, Vec<&Effect>)> = vec![(1.0, effects)];
         for form in &action.chances {
             let mut next = Vec::new();
             for (p, effects) in &combos {

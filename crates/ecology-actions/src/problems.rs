@@ -215,7 +215,8 @@ pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, 
 }
 
 /// A random small domain and problem: two types, four predicates, four
-/// actions with positive, negative and equality preconditions and costs,
+/// actions with positive, negative, equality and disjunctive preconditions,
+/// conditional effects and costs,
 /// three or four objects. Small enough for [`crate::oracle::cheapest`].
 pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     let mut rng = Rng::new(seed);
@@ -223,7 +224,8 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     let mut d = String::new();
     let _ = writeln!(
         d,
-        "(define (domain random-{seed})\n  (:requirements :strips :typing :negative-preconditions :equality{})",
+        "(define (domain random-{seed})\n  (:requirements :strips :typing :negative-preconditions :equality \
+         :disjunctive-preconditions :conditional-effects{})",
         if action_costs { " :action-costs" } else { "" }
     );
     d.push_str(
@@ -257,9 +259,19 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
         if rng.chance(0.3) {
             pre.push("(not (= ?y ?z))".to_string());
         }
+        if rng.chance(0.3) {
+            let either = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            let or = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            pre.push(format!("(or {either} {or})"));
+        }
         let mut eff = Vec::new();
         for _ in 0..2 + rng.index(2) {
             eff.push(sometimes_negated(atom(&mut rng), &mut rng, 0.25));
+        }
+        if rng.chance(0.3) {
+            let condition = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            let effect = sometimes_negated(atom(&mut rng), &mut rng, 0.25);
+            eff.push(format!("(when {condition} {effect})"));
         }
         if action_costs {
             if rng.chance(0.5) {

@@ -100,19 +100,13 @@ const DEAD: u64 = u64::MAX;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Algorithm {
     /// Every successor evaluated when generated.
-    Greedy {
-        preferred: bool,
-    },
+    Greedy { preferred: bool },
     /// Successors wait under their parent's value and are evaluated when
     /// taken from the queue (LAMA's search): one evaluation per expansion
     /// instead of one per successor.
-    LazyGreedy {
-        preferred: bool,
-    },
+    LazyGreedy { preferred: bool },
     /// Best-first on `g + weight * h`: A* with weight 1.
-    AStar {
-        weight: u64,
-    },
+    AStar { weight: u64 },
 }
 
 impl Algorithm {
@@ -302,7 +296,9 @@ impl<'t> Engine<'t> {
                 None => continue,
             };
             self.generated += 1;
-            self.scratch.words.copy_from_slice(self.registry.get(parent));
+            self.scratch
+                .words
+                .copy_from_slice(self.registry.get(parent));
             self.task.apply_in_place(&mut self.scratch, OpId(op));
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if !is_new {
@@ -359,8 +355,11 @@ impl<'t> Engine<'t> {
         let h = self.nodes[id as usize].h;
         self.scratch.words.copy_from_slice(self.registry.get(id));
         let excluded = &self.excluded;
-        let (open, preferred_open, queued) =
-            (&mut self.lazy_open, &mut self.lazy_preferred, &mut self.queued);
+        let (open, preferred_open, queued) = (
+            &mut self.lazy_open,
+            &mut self.lazy_preferred,
+            &mut self.queued,
+        );
         self.task.for_each_applicable(&self.scratch, |op| {
             if excluded.get(op.index()).copied().unwrap_or(false) {
                 return;

@@ -4,12 +4,18 @@
 //! Predicates that no action changes are *static*: their literals are decided
 //! while grounding (an operator whose static precondition fails is never
 //! built), and they are left out of the state. Everything else is a fluent,
-//! interned as an [`AtomId`] on first use.
+//! interned as an [`AtomId`] on first use. An action is grounded one variant
+//! at a time ([`ecology_domain::Action::variants`]: a disjunct of its
+//! precondition, each `when` condition holding or failing), so one instance
+//! may be several operators; `reach` grounds only what relaxed reachability
+//! reaches.
 
 use std::collections::{HashMap, HashSet};
 use std::fmt;
 
 use ecology_domain::{Action, Call, Domain, Effect, Literal, Name, NumExpr, Problem, Term};
+
+mod reach;
 
 /// A ground fluent atom such as `(at astrid entrance)`, by index.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -209,6 +215,22 @@ pub enum GroundError {
     },
 }
 
+/// Which action instances grounding builds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Instances {
+    /// Every binding whose static preconditions hold: the task serves a
+    /// search from any state, as replanning needs.
+    #[default]
+    All,
+    /// Only the bindings whose positive preconditions can all hold in a state
+    /// reachable from the problem's initial states when deletes are ignored
+    /// (relaxed reachability, as Fast Downward's translator grounds): no
+    /// search from those states needs the others, and problems whose schemas
+    /// have many parameters ground in a fraction of the time and memory. A
+    /// search from any other state may lack operators it needs.
+    Reachable,
+}
+
 /// Limits on grounding.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct GroundLimits {
@@ -218,6 +240,8 @@ pub struct GroundLimits {
     pub max_time: Option<std::time::Duration>,
     /// Memory the operators may hold at most, in bytes (estimated as they are built).
     pub max_bytes: usize,
+    /// Which instances to build.
+    pub instances: Instances,
 }
 
 impl Default for GroundLimits {
@@ -226,6 +250,7 @@ impl Default for GroundLimits {
             max_operators: MAX_OPERATORS,
             max_time: None,
             max_bytes: 512 * 1024 * 1024,
+            instances: Instances::All,
         }
     }
 }
@@ -448,6 +473,22 @@ impl Task {
     /// change no state they apply to. Searching without them finds the same
     /// plans, with fewer successors to test and a smaller relaxation.
     pub(crate) fn useless_operators(&self, initial: &State, excluded: &[bool]) -> Vec<bool> {
+        let fired = self.relaxed_reachable(initial, excluded);
+        self.operators
+            .iter()
+            .enumerate()
+            .map(|(i, o)| {
+                let no_change = o.add.iter().all(|a| o.pre.contains(a))
+                    && o.del.iter().all(|a| o.pre_neg.contains(a));
+                !fired[i] || no_change
+            })
+            .collect()
+    }
+
+    /// For each operator, whether its positive preconditions can all hold in
+    /// a state reachable from `initial` without the `excluded` operators when
+    /// deletes are ignored.
+    pub(crate) fn relaxed_reachable(&self, initial: &State, excluded: &[bool]) -> Vec<bool> {
         let n = self.operators.len();
         let is_excluded = |i: usize| excluded.get(i).copied().unwrap_or(false);
         // Operators by each positive precondition, as flat lists.
@@ -495,15 +536,7 @@ impl Task {
                 }
             }
         }
-        self.operators
-            .iter()
-            .enumerate()
-            .map(|(i, o)| {
-                let no_change = o.add.iter().all(|a| o.pre.contains(a))
-                    && o.del.iter().all(|a| o.pre_neg.contains(a));
-                !fired[i] || no_change
-            })
-            .collect()
+        fired
     }
 
     /// `state` cut to this task's atoms, so that a state from elsewhere (for
@@ -594,7 +627,19 @@ impl Task {
 
     /// The ground operator written `(action args...)`: `Ok(None)` when the
     /// instance is well formed but can never apply (grounding pruned it).
+    /// An action with a disjunctive precondition or conditional effects may
+    /// have several operators for one instance; this is the first,
+    /// [`Task::find_operators`] all.
     pub fn find_operator(&self, call: &Call) -> Result<Option<OpId>, InstanceError> {
+        Ok(self.find_operators(call)?.first().copied())
+    }
+
+    /// Every operator of the instance written `(action args...)`: one per
+    /// variant of the action that can hold (a disjunct of its precondition,
+    /// with each `when` condition holding or failing; one for a conjunctive
+    /// precondition without `when`), none when grounding pruned it. Excluding
+    /// an instance excludes them all.
+    pub fn find_operators(&self, call: &Call) -> Result<Vec<OpId>, InstanceError> {
         let Some(&arity) = self.arities.get(&call.name) else {
             return Err(InstanceError::UnknownAction(call.name.to_string()));
         };
@@ -616,8 +661,10 @@ impl Task {
         Ok(self
             .operators
             .iter()
-            .position(|o| o.action == call.name && o.args == args)
-            .map(|i| OpId(i as u32)))
+            .enumerate()
+            .filter(|(_, o)| o.action == call.name && o.args == args)
+            .map(|(i, _)| OpId(i as u32))
+            .collect())
     }
 }
 
@@ -646,20 +693,43 @@ enum CLit {
 /// An effect of a schema with names resolved: `(is_add, predicate, args)`.
 type CEffect = (bool, u32, Vec<Arg>);
 
-/// A schema compiled for grounding: its precondition literals, which of them
-/// are fluent (the rest are checked while binding), its effects as
-/// `(is_add, predicate, args)`, its cost terms as `(function, amount, args)`,
-/// and its `:configure` goal.
-struct Schema<'a> {
-    action: &'a Action,
+/// An operator of an action with several variants, as grounding built it:
+/// the variant's `when` effects, the binding, and the positive and negative
+/// preconditions.
+type Instance = (Vec<usize>, Vec<u32>, Vec<AtomId>, Vec<AtomId>);
+
+/// A cost term of a schema with names resolved: `(function, amount, args)`,
+/// the amount when there is no function.
+type CCost = (Option<Name>, u64, Vec<Arg>);
+
+/// A precondition compiled for grounding: its literals, which of them are
+/// fluent, and at which depth of the binding each of the others (static and
+/// equality literals) is checked: as soon as its last parameter is bound.
+struct Precondition {
     lits: Vec<CLit>,
     dynamic: Vec<usize>,
-    effects: Vec<(bool, u32, Vec<Arg>)>,
-    costs: Vec<(Option<Name>, u64, Vec<Arg>)>,
+    checks: Vec<Vec<usize>>,
+}
+
+/// A schema compiled for grounding: one variant of an action (see
+/// [`Action::variants`]) with its precondition, its effects as `(is_add,
+/// predicate, args)`, its cost terms as `(function, amount, args)`, and its
+/// `:configure` goal.
+struct Schema<'a> {
+    action: &'a Action,
+    pre: Precondition,
+    effects: Vec<CEffect>,
+    costs: Vec<CCost>,
     configure: Option<(&'a Call, Vec<Arg>)>,
     /// Each `probabilistic` form's outcomes (the rest, "nothing happens", included).
     chances: Vec<Vec<(f64, Vec<CEffect>)>>,
     observe: Vec<(u32, Vec<Arg>)>,
+    /// The objects each parameter may take (of its type), in increasing order.
+    candidates: Vec<Vec<u32>>,
+    /// When the action has other variants (disjuncts of its precondition,
+    /// ways its `when` conditions hold or fail), the `when` effects of this
+    /// one: operators of variants alike in these may repeat this one's.
+    variants: Option<Vec<usize>>,
 }
 
 struct Grounder<'a> {
@@ -675,6 +745,9 @@ struct Grounder<'a> {
     object_types: Vec<Name>,
     parents: HashMap<Name, Name>,
     fluent_values: HashMap<(Name, Vec<u32>), u64>,
+    /// The operators built of the action being grounded, when it has several
+    /// variants.
+    seen_instances: HashSet<Instance>,
 }
 
 /// Whether actions cost the sum of their `increase` effects (else 1 each): when the domain says
@@ -705,7 +778,9 @@ pub fn ground_within(
     let mut fluent_predicates: HashSet<&str> = HashSet::new();
     for action in &domain.actions {
         let outcomes = action.chances.iter().flat_map(|c| &c.outcomes);
-        for effect in action.effects.iter().chain(outcomes.flat_map(|o| &o.items)) {
+        let conditional = action.conditional.iter().flat_map(|c| &c.effects);
+        let effects = action.effects.iter().chain(conditional);
+        for effect in effects.chain(outcomes.flat_map(|o| &o.items)) {
             if let Effect::Add(a) | Effect::Del(a) = effect {
                 fluent_predicates.insert(&a.predicate);
             }
@@ -761,6 +836,7 @@ pub fn ground_within(
             .map(|t| (t.name.clone(), t.parent.clone()))
             .collect(),
         fluent_values: HashMap::new(),
+        seen_instances: HashSet::new(),
     };
     for p in &domain.predicates {
         g.predicate(&p.name, &fluent_predicates);
@@ -797,8 +873,42 @@ pub fn ground_within(
     let initial_atoms: Vec<AtomId> = initial_keys.into_iter().map(|k| g.intern(k)).collect();
     let uncertain = g.uncertain(&fluent_predicates)?;
     g.goal(&fluent_predicates)?;
-    for action in &domain.actions {
-        g.action(action, &fluent_predicates)?;
+    match limits.instances {
+        Instances::All => {
+            for action in &domain.actions {
+                g.seen_instances.clear();
+                for schema in g.schemas(action, &fluent_predicates)? {
+                    let candidates: Vec<&[u32]> =
+                        schema.candidates.iter().map(Vec::as_slice).collect();
+                    g.instantiate(&schema, &candidates, &mut |g, binding| {
+                        g.emit(&schema, binding)
+                    })?;
+                }
+            }
+        }
+        Instances::Reachable => {
+            let mut schemas = Vec::new();
+            for (i, action) in domain.actions.iter().enumerate() {
+                for schema in g.schemas(action, &fluent_predicates)? {
+                    schemas.push((i, schema));
+                }
+            }
+            let mut start: Vec<AtomId> = initial_atoms.clone();
+            start.extend(uncertain.iter().flat_map(|(_, atoms)| atoms));
+            let reachable = g.reachable_bindings(&schemas, &start)?;
+            // Built in the order grounding every instance builds them, so
+            // that the task differs from that one only by what is left out.
+            let mut action = None;
+            for ((i, schema), bindings) in schemas.iter().zip(reachable) {
+                if action != Some(*i) {
+                    action = Some(*i);
+                    g.seen_instances.clear();
+                }
+                for binding in bindings.sorted() {
+                    g.emit(schema, binding)?;
+                }
+            }
+        }
     }
     let mut task = g.task;
     let mut initial = State::empty(task.atoms.len());
@@ -997,39 +1107,17 @@ impl Grounder<'_> {
         terms.iter().map(|t| self.resolve(action, t)).collect()
     }
 
-    fn action(&mut self, action: &Action, fluent: &HashSet<&str>) -> Result<(), GroundError> {
-        // Compile the precondition; static and equality literals are checked
-        // as soon as their last parameter is bound.
-        let mut lits = Vec::new();
-        for literal in &action.precondition {
-            lits.push(match literal {
-                Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
-                    positive: matches!(literal, Literal::Pos(_)),
-                    predicate: self.predicate(&atom.predicate, fluent),
-                    args: self.resolve_all(action, &atom.args)?,
-                },
-                Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => CLit::Eq {
-                    positive: matches!(literal, Literal::Eq(..)),
-                    a: self.resolve(action, a)?,
-                    b: self.resolve(action, b)?,
-                },
-            });
-        }
-        let mut effects = Vec::new();
-        let mut costs = Vec::new();
-        for effect in &action.effects {
-            match effect {
-                Effect::Add(atom) | Effect::Del(atom) => {
-                    let p = self.predicate(&atom.predicate, fluent);
-                    let args = self.resolve_all(action, &atom.args)?;
-                    effects.push((matches!(effect, Effect::Add(_)), p, args));
-                }
-                Effect::IncreaseCost(NumExpr::Number(n), _) => costs.push((None, *n, Vec::new())),
-                Effect::IncreaseCost(NumExpr::Function(call), _) => {
-                    let args = self.resolve_all(action, &call.args)?;
-                    costs.push((Some(call.name.clone()), 0, args));
-                }
-            }
+    /// Compiles `action` for grounding: one schema per disjunct of its
+    /// precondition (one for a conjunction).
+    fn schemas<'a>(
+        &mut self,
+        action: &'a Action,
+        fluent: &HashSet<&str>,
+    ) -> Result<Vec<Schema<'a>>, GroundError> {
+        let (effects, costs) = self.compile_effects(action, &action.effects, fluent)?;
+        let mut conditional = Vec::new();
+        for when in &action.conditional {
+            conditional.push(self.compile_effects(action, &when.effects, fluent)?);
         }
         let configure = match &action.configure {
             Some(call) => Some((call, self.resolve_all(action, &call.args)?)),
@@ -1066,6 +1154,91 @@ impl Grounder<'_> {
             let p = self.predicate(&atom.predicate, fluent);
             observe.push((p, self.resolve_all(action, &atom.args)?));
         }
+        let candidates: Vec<Vec<u32>> = action
+            .params
+            .iter()
+            .map(|p| {
+                let ty: &str = p.ty.as_deref().unwrap_or("object");
+                (0..self.task.objects.len() as u32)
+                    .filter(|&o| self.is_a(&self.object_types[o as usize], ty))
+                    .collect()
+            })
+            .collect();
+        // One schema per variant: a disjunct of the precondition with one way
+        // each `when` condition holds (and its effects happen) or fails.
+        let variants = action.variants();
+        let mut schemas = Vec::new();
+        for variant in &variants {
+            let pre = self.compile_precondition(action, &variant.precondition, fluent)?;
+            let (mut effects, mut costs) = (effects.clone(), costs.clone());
+            for &i in &variant.conditional {
+                effects.extend(conditional[i].0.iter().cloned());
+                costs.extend(conditional[i].1.iter().cloned());
+            }
+            schemas.push(Schema {
+                action,
+                pre,
+                effects,
+                costs,
+                configure: configure.clone(),
+                chances: chances.clone(),
+                observe: observe.clone(),
+                candidates: candidates.clone(),
+                variants: (variants.len() > 1).then(|| variant.conditional.clone()),
+            });
+        }
+        Ok(schemas)
+    }
+
+    /// Compiles `effects` of `action`: the atoms it adds and deletes as
+    /// `(is_add, predicate, args)`, and its cost terms.
+    fn compile_effects(
+        &mut self,
+        action: &Action,
+        effects: &[Effect],
+        fluent: &HashSet<&str>,
+    ) -> Result<(Vec<CEffect>, Vec<CCost>), GroundError> {
+        let mut atoms = Vec::new();
+        let mut costs = Vec::new();
+        for effect in effects {
+            match effect {
+                Effect::Add(atom) | Effect::Del(atom) => {
+                    let p = self.predicate(&atom.predicate, fluent);
+                    let args = self.resolve_all(action, &atom.args)?;
+                    atoms.push((matches!(effect, Effect::Add(_)), p, args));
+                }
+                Effect::IncreaseCost(NumExpr::Number(n), _) => costs.push((None, *n, Vec::new())),
+                Effect::IncreaseCost(NumExpr::Function(call), _) => {
+                    let args = self.resolve_all(action, &call.args)?;
+                    costs.push((Some(call.name.clone()), 0, args));
+                }
+            }
+        }
+        Ok((atoms, costs))
+    }
+
+    /// Compiles a conjunction of `action`'s literals: a variant's precondition.
+    fn compile_precondition(
+        &mut self,
+        action: &Action,
+        literals: &[Literal],
+        fluent: &HashSet<&str>,
+    ) -> Result<Precondition, GroundError> {
+        let mut lits = Vec::new();
+        for literal in literals {
+            lits.push(match literal {
+                Literal::Pos(atom) | Literal::Neg(atom) => CLit::Atom {
+                    positive: matches!(literal, Literal::Pos(_)),
+                    predicate: self.predicate(&atom.predicate, fluent),
+                    args: self.resolve_all(action, &atom.args)?,
+                },
+                Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => CLit::Eq {
+                    positive: matches!(literal, Literal::Eq(..)),
+                    a: self.resolve(action, a)?,
+                    b: self.resolve(action, b)?,
+                },
+            });
+        }
         let n = action.params.len();
         let mut checks: Vec<Vec<usize>> = vec![Vec::new(); n + 1];
         let mut dynamic = Vec::new();
@@ -1093,27 +1266,27 @@ impl Grounder<'_> {
                 dynamic.push(i);
             }
         }
-        let candidates: Vec<Vec<u32>> = action
-            .params
-            .iter()
-            .map(|p| {
-                let ty: &str = p.ty.as_deref().unwrap_or("object");
-                (0..self.task.objects.len() as u32)
-                    .filter(|&o| self.is_a(&self.object_types[o as usize], ty))
-                    .collect()
-            })
-            .collect();
-        let schema = Schema {
-            action,
+        Ok(Precondition {
             lits,
             dynamic,
-            effects,
-            costs,
-            configure,
-            chances,
-            observe,
-        };
-        let lits = &schema.lits;
+            checks,
+        })
+    }
+
+    /// Calls `found` with every binding of `schema`'s parameters to
+    /// `candidates` (one list per parameter, each in increasing order) that
+    /// passes its static checks, in lexicographic order.
+    fn instantiate<F>(
+        &mut self,
+        schema: &Schema<'_>,
+        candidates: &[&[u32]],
+        found: &mut F,
+    ) -> Result<(), GroundError>
+    where
+        F: FnMut(&mut Self, &[u32]) -> Result<(), GroundError>,
+    {
+        let n = candidates.len();
+        let Precondition { lits, checks, .. } = &schema.pre;
         let mut binding = vec![0u32; n];
         if !checks[0].iter().all(|&i| self.holds(&lits[i], &binding)) {
             return Ok(());
@@ -1123,7 +1296,7 @@ impl Grounder<'_> {
         let mut cursor = vec![0usize; n];
         let mut depth = 0;
         if n == 0 {
-            return self.emit(&schema, &binding);
+            return found(self, &binding);
         }
         loop {
             if cursor[depth] == candidates[depth].len() {
@@ -1148,7 +1321,7 @@ impl Grounder<'_> {
                 depth += 1;
                 continue;
             }
-            self.emit(&schema, &binding)?;
+            found(self, &binding)?;
             cursor[depth] += 1;
         }
     }
@@ -1190,13 +1363,14 @@ impl Grounder<'_> {
     fn emit(&mut self, schema: &Schema<'_>, binding: &[u32]) -> Result<(), GroundError> {
         let Schema {
             action,
-            lits,
-            dynamic,
+            pre: Precondition { lits, dynamic, .. },
             effects,
             costs,
             configure,
             chances,
             observe,
+            variants,
+            ..
         } = schema;
         if self.task.operators.len() >= self.limits.max_operators {
             return Err(GroundError::TooLarge {
@@ -1250,6 +1424,17 @@ impl Grounder<'_> {
         pre_neg.sort_unstable();
         pre_neg.dedup();
         if pre.iter().any(|a| pre_neg.contains(a)) {
+            return Ok(());
+        }
+        // Variants that differ only in static literals give the same operator.
+        if let Some(conditional) = variants
+            && !self.seen_instances.insert((
+                conditional.clone(),
+                binding.to_vec(),
+                pre.clone(),
+                pre_neg.clone(),
+            ))
+        {
             return Ok(());
         }
         let mut add = Vec::new();

@@ -244,13 +244,21 @@ fn check_replanning(domain: &Domain, problem: &Problem) {
     let Some(first) = cheapest.steps.first() else {
         return;
     };
-    let request = Request::replan(&task, task.initial().clone(), vec![first.op]);
+    // The instance is excluded: every operator of it (one per disjunct of its precondition).
+    let instance = parse_goal(&first.to_string()).expect("a step is a call");
+    let excluded = task.find_operators(&instance).expect("an instance");
+    let request = Request::replan(&task, task.initial().clone(), excluded);
     let expected = oracle::cheapest(domain, problem, &[first.to_string()], 100_000);
     for options in [Options::default(), Options::optimal()] {
         let outcome = plan(&request, &options, &NoClock);
         match (&outcome.verdict, &expected) {
             (Verdict::Found(plan), Cheapest::Cost(cost, _)) => {
-                assert!(plan.steps.iter().all(|s| s.op != first.op), "{plan}");
+                assert!(
+                    plan.steps
+                        .iter()
+                        .all(|s| s.to_string() != first.to_string()),
+                    "{plan}"
+                );
                 assert_eq!(validate(domain, problem, &plan.calls()), Ok(plan.cost));
                 assert!(plan.cost >= cheapest.cost);
                 if outcome.optimal {
@@ -553,10 +561,14 @@ fn check_admissible_along(task: &Task, lines: &[String], cost: u64) -> Result<()
         );
         let Some(line) = lines.get(k) else { break };
         let call = parse_goal(line).map_err(|e| TestCaseError::fail(e.to_string()))?;
-        let Ok(Some(op)) = task.find_operator(&call) else {
+        // One operator per disjunct of a disjunctive precondition: the step is any that applies.
+        let Ok(ops) = task.find_operators(&call) else {
             return Err(TestCaseError::fail(format!("grounding lacks {line}")));
         };
-        prop_assert!(task.applicable(&state, op), "{} is not applicable", line);
+        let applicable = ops.into_iter().find(|&op| task.applicable(&state, op));
+        let Some(op) = applicable else {
+            return Err(TestCaseError::fail(format!("{line} is not applicable")));
+        };
         remaining -= task.operator(op).cost;
         state = task.apply(&state, op);
     }
@@ -936,4 +948,306 @@ fn greedy_search_is_guided_across_actions_that_cost_nothing() {
         "{} expansions",
         outcome.stats.expanded
     );
+}
+
+const DOORS: &str = "(define (domain doors)
+  (:requirements :strips :typing :negative-preconditions :disjunctive-preconditions)
+  (:types room)
+  (:predicates (at ?r - room) (door ?a ?b - room) (locked ?r - room) (key-in ?r - room)
+               (has-key))
+  (:action go :parameters (?a ?b - room)
+    :precondition (and (at ?a) (or (door ?a ?b) (door ?b ?a)) (imply (locked ?b) (has-key)))
+    :effect (and (at ?b) (not (at ?a))))
+  (:action take :parameters (?r - room)
+    :precondition (and (at ?r) (key-in ?r))
+    :effect (and (has-key) (not (key-in ?r)))))";
+
+/// Doors listed one way are passable both ways; the locked room needs the key, which lies
+/// in a side room.
+const DOORS_PROBLEM: &str = "(define (problem p) (:domain doors) (:objects a b c d e - room)
+  (:init (at a) (door a b) (door b a) (door c b) (door c d) (door b e) (locked d) (key-in e))
+  (:goal (at d)))";
+
+/// A disjunctive precondition grounds one operator per disjunct that can hold (operators
+/// alike in everything are built once), plans agree with the brute-force oracle, which
+/// reads the disjunction itself, and excluding an instance excludes all its operators.
+#[test]
+fn disjunctive_preconditions_ground_one_operator_per_disjunct() {
+    let (domain, problem) = load(DOORS, DOORS_PROBLEM);
+    check_optimum(&domain, &problem, 6);
+    assert!(matches!(
+        oracle::cheapest(&domain, &problem, &[], 10_000),
+        Cheapest::Cost(6, _)
+    ));
+    let task = ground(&domain, &problem).expect("grounds");
+    let operators = |text: &str| -> Vec<String> {
+        let call = parse_goal(text).expect("parses");
+        let ops = task.find_operators(&call).expect("an instance");
+        ops.iter()
+            .map(|&op| {
+                let o = task.operator(op);
+                let mut pre: Vec<String> = o.pre.iter().map(|&a| task.atom_name(a)).collect();
+                pre.extend(
+                    o.pre_neg
+                        .iter()
+                        .map(|&a| format!("(not {})", task.atom_name(a))),
+                );
+                pre.join(" ")
+            })
+            .collect()
+    };
+    // `door` both ways: the two disjuncts of the `or` give the same operators.
+    assert_eq!(operators("(go a b)"), ["(at a)", "(at a) (has-key)"]);
+    // Into the locked room only with the key.
+    assert_eq!(operators("(go c d)"), ["(at c) (has-key)"]);
+    assert_eq!(operators("(go a c)"), Vec::<String>::new());
+    // Without the way back from the side room, the key is out of reach.
+    let options = Options {
+        strategy: Strategy::OPTIMAL,
+        budget: Budget::default(),
+    };
+    let excluded = task
+        .find_operators(&parse_goal("(go e b)").expect("parses"))
+        .expect("an instance");
+    assert_eq!(excluded.len(), 2);
+    let outcome = plan(
+        &Request::replan(&task, task.initial().clone(), excluded),
+        &options,
+        &NoClock,
+    );
+    assert!(matches!(outcome.verdict, Verdict::Unsolvable(_)));
+    // The validator names the disjunction that fails.
+    let calls: Vec<_> = ["(go a b)", "(go b c)", "(go c d)"]
+        .iter()
+        .map(|l| parse_goal(l).expect("parses"))
+        .collect();
+    assert_eq!(
+        validate(&domain, &problem, &calls).map_err(|e| e.to_string()),
+        Err(
+            "step 3: precondition (or (and (door c d) (not (locked d))) \
+             (and (door c d) (has-key)) (and (door d c) (not (locked d))) \
+             (and (door d c) (has-key))) of (go c d) does not hold"
+                .to_string()
+        )
+    );
+}
+
+/// Grounds `domain` and `problem` by relaxed reachability.
+fn ground_reachable(domain: &Domain, problem: &Problem, max_bytes: usize) -> Result<Task, String> {
+    let limits = crate::GroundLimits {
+        max_bytes,
+        instances: crate::Instances::Reachable,
+        ..crate::GroundLimits::default()
+    };
+    crate::ground_within(domain, problem, &limits, &NoClock).map_err(|e| e.to_string())
+}
+
+/// An operator with everything it does, by name, to compare tasks grounded apart.
+fn operator_text(task: &Task, op: &crate::Operator) -> String {
+    let names = |atoms: &[crate::AtomId]| {
+        let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
+        names.sort();
+        names.join(" ")
+    };
+    format!(
+        "{op} pre {} neg {} add {} del {} cost {}",
+        names(&op.pre),
+        names(&op.pre_neg),
+        names(&op.add),
+        names(&op.del),
+        op.cost
+    )
+}
+
+/// Grounding by relaxed reachability builds, in the same order and alike, every operator
+/// of the full grounding that relaxed reachability from the start (every initial world's
+/// atoms) fires, and no operator the full grounding lacks; planning on it finds the same
+/// optimum.
+pub(crate) fn check_reachable_grounding(domain: &Domain, problem: &Problem) -> Result<(), String> {
+    let all = ground(domain, problem).map_err(|e| e.to_string())?;
+    let reachable = ground_reachable(domain, problem, usize::MAX)?;
+    let mut start = all.initial().clone();
+    for (_, world) in all.initial_belief() {
+        for atom in world.atoms() {
+            start.set(atom);
+        }
+    }
+    let fired = all.relaxed_reachable(&start, &[]);
+    let texts: Vec<String> = reachable
+        .operators()
+        .iter()
+        .map(|o| operator_text(&reachable, o))
+        .collect();
+    let mut next = 0;
+    for (o, fired) in all.operators().iter().zip(fired) {
+        let text = operator_text(&all, o);
+        if texts.get(next) == Some(&text) {
+            next += 1;
+        } else if fired {
+            return Err(format!("reachable grounding lacks {text}"));
+        }
+    }
+    if let Some(extra) = texts.get(next) {
+        return Err(format!(
+            "reachable grounding has {extra}, out of order or unknown"
+        ));
+    }
+    if !all.is_uncertain() {
+        let cost = |task: &Task| match run(task, Strategy::OPTIMAL).verdict {
+            Verdict::Found(plan) => Some(plan.cost),
+            _ => None,
+        };
+        if cost(&all) != cost(&reachable) {
+            return Err(format!(
+                "optimum {:?} grounding all, {:?} by reachability",
+                cost(&all),
+                cost(&reachable)
+            ));
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+    #[test]
+    fn reachable_grounding_keeps_what_the_start_reaches(seed in any::<u64>()) {
+        let inst = problems::random_small(seed).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        check_reachable_grounding(&inst.domain, &inst.problem).map_err(TestCaseError::fail)?;
+    }
+}
+
+/// Grounding by reachability leaves out what the start cannot reach (unlike the default,
+/// which replanning needs), and so grounds within limits grounding everything exceeds.
+#[test]
+fn reachable_grounding_leaves_out_what_the_start_cannot_reach() {
+    let (domain, problem) = load(
+        "(define (domain d) (:requirements :strips :typing) (:types room)
+           (:predicates (at ?x - room) (door ?x ?y - room))
+           (:action go :parameters (?x ?y - room)
+             :precondition (and (at ?x) (door ?x ?y))
+             :effect (and (at ?y) (not (at ?x)))))",
+        "(define (problem p) (:domain d) (:objects a b c e - room)
+           (:init (at a) (door a b) (door c e)) (:goal (at b)))",
+    );
+    let names =
+        |task: &Task| -> Vec<String> { task.operators().iter().map(ToString::to_string).collect() };
+    let all = ground(&domain, &problem).expect("grounds");
+    assert_eq!(names(&all), ["(go a b)", "(go c e)"]);
+    let reachable = ground_reachable(&domain, &problem, usize::MAX).expect("grounds");
+    assert_eq!(names(&reachable), ["(go a b)"]);
+    // 40 objects, three of them `at`: 40^3 instances of `a`, 27 reachable.
+    let objects: Vec<String> = (0..40).map(|i| format!("o{i}")).collect();
+    let (domain, problem) = load(
+        "(define (domain big) (:requirements :strips) (:predicates (at ?x) (q ?a ?b ?c))
+           (:action a :parameters (?a ?b ?c) :precondition (and (at ?a) (at ?b) (at ?c))
+             :effect (q ?a ?b ?c))
+           (:action leave :parameters (?x) :precondition (at ?x) :effect (not (at ?x))))",
+        &format!(
+            "(define (problem big-1) (:domain big) (:objects {})
+               (:init (at o0) (at o1) (at o2)) (:goal (q o2 o1 o0)))",
+            objects.join(" ")
+        ),
+    );
+    let limits = crate::GroundLimits {
+        max_bytes: 1024 * 1024,
+        ..crate::GroundLimits::default()
+    };
+    assert_eq!(
+        crate::ground_within(&domain, &problem, &limits, &NoClock)
+            .err()
+            .map(|e| e.to_string()),
+        Some("grounding needs more than 1 MiB; the problem is too large".to_string())
+    );
+    let reachable = ground_reachable(&domain, &problem, 1024 * 1024).expect("grounds");
+    assert_eq!(reachable.operators().len(), 27 + 3);
+    let Verdict::Found(found) = run(&reachable, Strategy::OPTIMAL).verdict else {
+        panic!("no plan");
+    };
+    assert_eq!(found.to_string(), "(a o2 o1 o0)\n; cost = 1\n");
+    check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
+}
+
+const LAMP: &str = "(define (domain lamp)
+  (:requirements :strips :typing :negative-preconditions :conditional-effects :action-costs)
+  (:types room)
+  (:predicates (at ?r - room) (door ?a ?b - room) (dark ?r - room) (lit ?r - room)
+               (has-lamp) (lamp-in ?r - room))
+  (:functions (total-cost) - number)
+  (:action go :parameters (?a ?b - room)
+    :precondition (and (at ?a) (door ?a ?b))
+    :effect (and (at ?b) (not (at ?a)) (increase (total-cost) 1)
+                 (when (has-lamp) (lit ?b))
+                 (when (dark ?b) (increase (total-cost) 5))))
+  (:action take :parameters (?r - room)
+    :precondition (and (at ?r) (lamp-in ?r))
+    :effect (and (has-lamp) (not (lamp-in ?r)) (increase (total-cost) 1))))";
+
+/// Going into the dark room costs more; the room is lit only if one brings the lamp.
+const LAMP_PROBLEM: &str = "(define (problem p) (:domain lamp) (:objects a b c - room)
+  (:init (at a) (door a b) (door b a) (door b c) (door a c) (door c a) (lamp-in b) (dark c))
+  (:goal (lit c)) (:metric minimize (total-cost)))";
+
+/// Conditional effects are compiled away: one operator per way the conditions hold or
+/// fail, static conditions decided while grounding. Plans agree with the brute-force
+/// oracle and the validator, which read `when` themselves.
+#[test]
+fn conditional_effects_ground_one_operator_per_variant() {
+    let (domain, problem) = load(LAMP, LAMP_PROBLEM);
+    check_optimum(&domain, &problem, 8);
+    assert!(matches!(
+        oracle::cheapest(&domain, &problem, &[], 10_000),
+        Cheapest::Cost(8, _)
+    ));
+    let task = ground(&domain, &problem).expect("grounds");
+    let operators = |text: &str| -> Vec<String> {
+        let call = parse_goal(text).expect("parses");
+        let ops = task.find_operators(&call).expect("an instance");
+        ops.iter()
+            .map(|&op| {
+                let o = task.operator(op);
+                let names = |atoms: &[crate::AtomId]| -> Vec<String> {
+                    let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
+                    names.sort();
+                    names
+                };
+                format!(
+                    "pre {:?} neg {:?} add {:?} cost {}",
+                    names(&o.pre),
+                    names(&o.pre_neg),
+                    names(&o.add),
+                    o.cost
+                )
+            })
+            .collect()
+    };
+    // `dark` is static: into c every operator costs 6, into b 1; `has-lamp` splits each.
+    assert_eq!(
+        operators("(go b c)"),
+        [
+            r#"pre ["(at b)", "(has-lamp)"] neg [] add ["(at c)", "(lit c)"] cost 6"#,
+            r#"pre ["(at b)"] neg ["(has-lamp)"] add ["(at c)"] cost 6"#,
+        ]
+    );
+    assert_eq!(
+        operators("(go a b)"),
+        [
+            r#"pre ["(at a)", "(has-lamp)"] neg [] add ["(at b)", "(lit b)"] cost 1"#,
+            r#"pre ["(at a)"] neg ["(has-lamp)"] add ["(at b)"] cost 1"#,
+        ]
+    );
+    let check = |text: &str| {
+        let calls: Vec<_> = text
+            .split(", ")
+            .map(|l| parse_goal(l).expect("parses"))
+            .collect();
+        validate(&domain, &problem, &calls).map_err(|e| e.to_string())
+    };
+    assert_eq!(check("(go a b), (take b), (go b c)"), Ok(8));
+    assert_eq!(
+        check("(go a b), (go b c)"),
+        Err("the goal does not hold at the end: (lit c)".to_string())
+    );
+    check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
 }

@@ -106,6 +106,9 @@ fn random_uncertain_problems_agree_with_the_oracle() {
     for seed in 0..200 {
         let inst = problems::random_uncertain(seed).expect("generated");
         let task = ground(&inst.domain, &inst.problem).expect("ground");
+        // Every initial world's atoms are where relaxed reachability starts.
+        crate::tests::check_reachable_grounding(&inst.domain, &inst.problem)
+            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
         let horizon = 4;
         let exhaustive =
             oracle_conditional::most_probable(&inst.domain, &inst.problem, horizon, 200_000);

@@ -218,9 +218,19 @@ impl<'a> Semantics<'a> {
         bind: &HashMap<&str, &Name>,
         world: &World,
     ) -> Result<(), String> {
+        let (ok, text) = Self::literal_truth(literal, bind, world);
+        if ok { Ok(()) } else { Err(text) }
+    }
+
+    /// Whether `literal` holds in `world`, and the ground literal as text.
+    fn literal_truth(
+        literal: &Literal,
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> (bool, String) {
         let ground_all =
             |args: &[Term]| -> Vec<Name> { args.iter().map(|t| Self::ground(t, bind)).collect() };
-        let (ok, text) = match literal {
+        match literal {
             Literal::Pos(atom) => {
                 let args = ground_all(&atom.args);
                 let text = write_fact(&atom.predicate, &args);
@@ -239,8 +249,48 @@ impl<'a> Semantics<'a> {
                 let (a, b) = (Self::ground(a, bind), Self::ground(b, bind));
                 (a != b, format!("(not (= {a} {b}))"))
             }
-        };
-        if ok { Ok(()) } else { Err(text) }
+        }
+    }
+
+    /// `(or ...)` of the ground `disjuncts`, each a literal or `(and ...)`.
+    fn disjunction_text(
+        disjuncts: &[Vec<Literal>],
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> String {
+        let mut out = String::from("(or");
+        for disjunct in disjuncts {
+            let literals: Vec<String> = disjunct
+                .iter()
+                .map(|l| Self::literal_truth(l, bind, world).1)
+                .collect();
+            match &literals[..] {
+                [one] => out.push_str(&format!(" {one}")),
+                many => out.push_str(&format!(" (and {})", many.join(" "))),
+            }
+        }
+        out.push(')');
+        out
+    }
+
+    /// The effects of `action` under `bind` applied to `world`: its own, and
+    /// those of each `when` whose condition holds in `world`.
+    pub(crate) fn effects_in<'e>(
+        action: &'e Action,
+        bind: &HashMap<&str, &Name>,
+        world: &World,
+    ) -> Vec<&'e Effect> {
+        let mut effects: Vec<&Effect> = action.effects.iter().collect();
+        for when in &action.conditional {
+            let holds = when
+                .condition
+                .iter()
+                .all(|l| Self::literal_truth(l, bind, world).0);
+            if holds {
+                effects.extend(&when.effects);
+            }
+        }
+        effects
     }
 
     /// Applies `action(args)` to `world`: `Err` names the failing
@@ -255,11 +305,23 @@ impl<'a> Semantics<'a> {
         for literal in &action.precondition {
             Self::literal_holds(literal, &bind, world).map_err(StepFailure::Precondition)?;
         }
+        let one_disjunct_holds = action.alternatives.iter().any(|disjunct| {
+            disjunct
+                .iter()
+                .all(|l| Self::literal_holds(l, &bind, world).is_ok())
+        });
+        if !action.alternatives.is_empty() && !one_disjunct_holds {
+            return Err(StepFailure::Precondition(Self::disjunction_text(
+                &action.alternatives,
+                &bind,
+                world,
+            )));
+        }
         let action_costs = crate::task::priced_by_effects(self.domain, self.problem);
         let mut cost = if action_costs { 0u64 } else { 1 };
         let mut next = world.clone();
         let mut adds = Vec::new();
-        for effect in &action.effects {
+        for effect in Self::effects_in(action, &bind, world) {
             match effect {
                 Effect::Del(atom) => {
                     let args = atom.args.iter().map(|t| Self::ground(t, &bind)).collect();

@@ -62,9 +62,12 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
     let Ok(problem) = input::problem(&args.problem, &domain)? else {
         return Ok(EXIT_BAD_INPUT);
     };
-    // `--max-millis` bounds the whole command: grounding too.
+    // `--max-millis` bounds the whole command: grounding too. The plan starts
+    // from the problem's initial states alone, so only what relaxed
+    // reachability reaches from them is grounded.
     let limits = ecology_actions::GroundLimits {
         max_time: args.max_millis.map(Duration::from_millis),
+        instances: ecology_actions::Instances::Reachable,
         ..ecology_actions::GroundLimits::default()
     };
     let task = match ecology_actions::ground_within(&domain, &problem, &limits, &clock) {
@@ -90,10 +93,9 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
         let Ok(call) = input::goal(text) else {
             return Ok(EXIT_BAD_INPUT);
         };
-        match task.find_operator(&call) {
-            Ok(Some(op)) => excluded.push(op),
-            // Well formed, but it can never apply: excluding it changes nothing.
-            Ok(None) => {}
+        // Well formed but never applicable (no operators): excluding it changes nothing.
+        match task.find_operators(&call) {
+            Ok(ops) => excluded.extend(ops),
             Err(err) => {
                 eprintln!("error: --exclude '{text}': {err}");
                 return Ok(EXIT_BAD_INPUT);

@@ -32,11 +32,11 @@ mod tests_uncertain;
 pub use diagnostic::{Diagnostic, Diagnostics, Span, line_col, render};
 pub use format::{Field, FieldType, Format, Information};
 pub use model::{
-    Action, Atom, Call, ChannelSpec, Domain, Effect, Functionality, Info, Literal, Method, Metric,
-    Name, NumExpr, Param, PredicateDecl, Probabilistic, Problem, Redirect, Subtask, Task, Term,
-    TypeDecl, Weighted,
+    Action, Atom, Call, ChannelSpec, Conditional, Domain, Effect, Functionality, Info, Literal,
+    Method, Metric, Name, NumExpr, Param, PredicateDecl, Probabilistic, Problem, Redirect, Subtask,
+    Task, Term, TypeDecl, Variant, Weighted,
 };
-pub use parse::{PROBABILITY_EPSILON, SUPPORTED_REQUIREMENTS};
+pub use parse::{MAX_DISJUNCTS, PROBABILITY_EPSILON, SUPPORTED_REQUIREMENTS};
 pub use problem::check_problem;
 pub use state::{ComponentCost, EcologyState, Fact, Power};
 pub use validate::ECOLOGY_PREDICATES;

@@ -103,6 +103,18 @@ impl Literal {
     }
 }
 
+impl Literal {
+    /// The literal that holds exactly when this one does not.
+    pub fn negated(&self) -> Literal {
+        match self {
+            Literal::Pos(atom) => Literal::Neg(atom.clone()),
+            Literal::Neg(atom) => Literal::Pos(atom.clone()),
+            Literal::Eq(a, b, span) => Literal::Neq(a.clone(), b.clone(), *span),
+            Literal::Neq(a, b, span) => Literal::Eq(a.clone(), b.clone(), *span),
+        }
+    }
+}
+
 impl fmt::Display for Literal {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -299,6 +311,18 @@ pub enum Effect {
     IncreaseCost(NumExpr, Span),
 }
 
+/// `(when CONDITION EFFECT)`: effects that happen only when the condition
+/// holds in the state the action is applied in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Conditional {
+    /// A conjunction, read in the state before the action.
+    pub condition: Vec<Literal>,
+    /// What then happens, with the action's other effects.
+    pub effects: Vec<Effect>,
+    /// The whole `when` form.
+    pub span: Span,
+}
+
 /// One outcome of a `(probabilistic ...)` form: its probability and what
 /// then happens (effects in an action, atoms in a problem's `:init`).
 #[derive(Debug, Clone, PartialEq)]
@@ -336,10 +360,17 @@ pub struct Action {
     pub name: Name,
     /// Its parameters (typed with `:typing`).
     pub params: Vec<Param>,
-    /// Conditions on the world state.
+    /// Conditions on the world state: the conjunction every application needs.
     pub precondition: Vec<Literal>,
+    /// The disjunctive rest of the precondition (`or`, `imply`, a negated `and`) in
+    /// disjunctive normal form, negation pushed onto atoms: besides `precondition`, one of
+    /// these conjunctions must hold. Empty when the precondition is a conjunction.
+    pub alternatives: Vec<Vec<Literal>>,
     /// What it changes.
     pub effects: Vec<Effect>,
+    /// `(when ...)` effects: what it changes besides when their conditions
+    /// hold. Empty when it has none.
+    pub conditional: Vec<Conditional>,
     /// The configuration goal that performs it, if any.
     pub configure: Option<Call>,
     /// `(probabilistic P1 E1 P2 E2 ...)` effects: each picks one of its
@@ -353,6 +384,63 @@ pub struct Action {
     pub span: Span,
     /// The name in the source.
     pub name_span: Span,
+}
+
+/// One way an action can apply, with what it then does: a disjunct of its
+/// precondition combined with one way each of its `when` conditions holds
+/// (all its literals) or fails (one of them false).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Variant {
+    /// The whole precondition of this variant, a conjunction.
+    pub precondition: Vec<Literal>,
+    /// The `when` effects that happen, by index into [`Action::conditional`].
+    pub conditional: Vec<usize>,
+}
+
+impl Action {
+    /// How many variants [`Action::variants`] lists.
+    pub fn variant_count(&self) -> usize {
+        self.conditional
+            .iter()
+            .fold(self.alternatives.len().max(1), |n, c| {
+                n.saturating_mul(1 + c.condition.len())
+            })
+    }
+
+    /// Every variant of the action: together they apply exactly where the
+    /// action does, and each does what the action does there. Operators of
+    /// a planner without disjunctions or conditional effects.
+    pub fn variants(&self) -> Vec<Variant> {
+        let no_alternative = [Vec::new()];
+        let disjuncts = if self.alternatives.is_empty() {
+            &no_alternative[..]
+        } else {
+            &self.alternatives[..]
+        };
+        let mut variants: Vec<Variant> = disjuncts
+            .iter()
+            .map(|disjunct| Variant {
+                precondition: self.precondition.iter().chain(disjunct).cloned().collect(),
+                conditional: Vec::new(),
+            })
+            .collect();
+        for (i, when) in self.conditional.iter().enumerate() {
+            let mut next = Vec::new();
+            for variant in variants {
+                let mut holds = variant.clone();
+                holds.precondition.extend(when.condition.iter().cloned());
+                holds.conditional.push(i);
+                next.push(holds);
+                for literal in &when.condition {
+                    let mut fails = variant.clone();
+                    fails.precondition.push(literal.negated());
+                    next.push(fails);
+                }
+            }
+            variants = next;
+        }
+        variants
+    }
 }
 
 /// A declared predicate or numeric function: `(at ?r - robot ?x - room)`.

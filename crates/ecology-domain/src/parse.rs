@@ -13,15 +13,13 @@ use crate::syntax::Sexp;
 pub const PROBABILITY_EPSILON: f64 = 1e-6;
 
 /// Requirements read as declarations only, as other PDDL readers take them (IPC domains declare
-/// `:adl` and use only STRIPS): the constructs they allow (`forall`, `when`, `or`, …) are still
-/// refused where they appear, with the construct named.
+/// `:adl` and use little of it): the constructs they allow beyond what is supported (`forall`,
+/// `exists`, …) are still refused where they appear, with the construct named.
 pub const DECLARED_ONLY_REQUIREMENTS: &[&str] = &[
     "adl",
     "quantified-preconditions",
     "existential-preconditions",
     "universal-preconditions",
-    "conditional-effects",
-    "disjunctive-preconditions",
 ];
 
 /// The requirements the language supports.
@@ -32,7 +30,23 @@ pub const SUPPORTED_REQUIREMENTS: &[&str] = &[
     "equality",
     "action-costs",
     "probabilistic-effects",
+    "disjunctive-preconditions",
+    "conditional-effects",
 ];
+
+/// The most disjuncts an action's precondition may have in disjunctive normal form: each
+/// becomes operators of its own when the action is grounded.
+pub const MAX_DISJUNCTS: usize = 64;
+
+/// A condition in disjunctive normal form: the conjunctions of literals one of which must hold.
+type Dnf = Vec<Vec<Literal>>;
+
+/// Whether a condition may be disjunctive (an action's precondition) or must be a conjunction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Disjunctions {
+    Read,
+    Refused,
+}
 
 /// What kind of atom a token is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -416,73 +430,211 @@ impl Parser {
                 .all(|t| self.symbol(t, "a type name").is_some())
     }
 
-    /// A condition: `()`, a literal, `(and ...)`, or a list of literals.
+    /// A condition that must be a conjunction: `()`, a literal, `(and ...)`, or a list of
+    /// literals. Negation is pushed onto atoms (`(not (or a b))` reads as `(not a) (not b)`);
+    /// what would make it a disjunction is refused.
     pub(crate) fn condition(&mut self, sexp: &Sexp) -> Vec<Literal> {
-        let mut out = Vec::new();
-        self.condition_into(sexp, &mut out);
+        let mut dnf = self.dnf(sexp, false, Disjunctions::Refused);
+        // Refusing every disjunction leaves exactly one conjunction.
+        dnf.pop().unwrap_or_default()
+    }
+
+    /// An action's precondition, which may be disjunctive (`or`, `imply`, a negated `and`):
+    /// the literals every disjunct of its disjunctive normal form shares, and what else each
+    /// disjunct needs (empty when one conjunction is all there is).
+    fn action_precondition(&mut self, sexp: &Sexp) -> (Vec<Literal>, Vec<Vec<Literal>>) {
+        let mut dnf = self.dnf(sexp, false, Disjunctions::Read);
+        if dnf.len() <= 1 {
+            return (dnf.pop().unwrap_or_default(), Vec::new());
+        }
+        // The same literal written in two places differs in its span alone.
+        let text = |d: &[Literal]| d.iter().map(ToString::to_string).collect::<Vec<_>>();
+        let texts: Vec<Vec<String>> = dnf.iter().map(|d| text(d)).collect();
+        let mut common_texts: Vec<&String> = Vec::new();
+        let mut common: Vec<Literal> = Vec::new();
+        for (literal, t) in dnf[0].iter().zip(&texts[0]) {
+            if !common_texts.contains(&t) && texts[1..].iter().all(|d| d.contains(t)) {
+                common_texts.push(t);
+                common.push(literal.clone());
+            }
+        }
+        for (disjunct, texts) in dnf.iter_mut().zip(&texts) {
+            let mut keep = texts.iter().map(|t| !common_texts.contains(&t));
+            disjunct.retain(|_| keep.next().unwrap_or(true));
+        }
+        if dnf.iter().any(Vec::is_empty) {
+            // One disjunct needs nothing beyond the shared literals: the disjunction always holds.
+            dnf.clear();
+        }
+        (common, dnf)
+    }
+
+    /// `sexp`, negated when `negated`, in disjunctive normal form: the conjunctions of literals
+    /// one of which must hold, with negation pushed onto atoms. A malformed or refused part is
+    /// reported and read as true, so that one pass finds every error.
+    fn dnf(&mut self, sexp: &Sexp, negated: bool, disjunctions: Disjunctions) -> Dnf {
+        let truth = vec![Vec::new()];
+        let Some(items) = sexp.list() else {
+            self.error(sexp.span, "expected a condition in parentheses");
+            return truth;
+        };
+        let Some(head) = items.first() else {
+            return truth;
+        };
+        // `and` joins its parts, `or` offers them; under `not` each is the other.
+        let (any, parts) = if head.list().is_some() {
+            // An implicit conjunction: `((peis ?p) (pc ?p cams ?c))`.
+            (negated, items)
+        } else {
+            match head.atom() {
+                Some("and") => (negated, &items[1..]),
+                Some("or") => (!negated, &items[1..]),
+                Some("not") => {
+                    let [_, inner] = items else {
+                        self.error(sexp.span, "`not` takes exactly one condition");
+                        return truth;
+                    };
+                    if inner.list().is_none() {
+                        // Reported as the atom it should be.
+                        self.atom(inner);
+                        return truth;
+                    }
+                    return self.dnf(inner, !negated, disjunctions);
+                }
+                Some("imply") => {
+                    let [_, premise, conclusion] = items else {
+                        self.error(sexp.span, "`imply` takes exactly two conditions");
+                        return truth;
+                    };
+                    // `(imply a b)` is `(or (not a) b)`; negated, `(and a (not b))`.
+                    let premise = self.dnf(premise, !negated, disjunctions);
+                    let conclusion = self.dnf(conclusion, negated, disjunctions);
+                    let parts = vec![premise, conclusion];
+                    return if negated {
+                        self.all_of(parts, sexp.span)
+                    } else {
+                        self.any_of(parts, sexp.span, head, negated, disjunctions)
+                    };
+                }
+                Some("=") => {
+                    let [_, a, b] = items else {
+                        self.error(sexp.span, "`=` takes exactly two arguments");
+                        return truth;
+                    };
+                    let (Some(a), Some(b)) = (self.term(a), self.term(b)) else {
+                        return truth;
+                    };
+                    let literal = if negated {
+                        Literal::Neq(a, b, sexp.span)
+                    } else {
+                        Literal::Eq(a, b, sexp.span)
+                    };
+                    return vec![vec![literal]];
+                }
+                _ if is_connective(head) => {
+                    self.unsupported(head, "in conditions");
+                    return truth;
+                }
+                _ => {
+                    let Some(atom) = self.atom(sexp) else {
+                        return truth;
+                    };
+                    let literal = if negated {
+                        Literal::Neg(atom)
+                    } else {
+                        Literal::Pos(atom)
+                    };
+                    return vec![vec![literal]];
+                }
+            }
+        };
+        let parts: Vec<Dnf> = parts
+            .iter()
+            .map(|part| self.dnf(part, negated, disjunctions))
+            .collect();
+        if any {
+            self.any_of(parts, sexp.span, head, negated, disjunctions)
+        } else {
+            self.all_of(parts, sexp.span)
+        }
+    }
+
+    /// The disjunction of `parts`, each in disjunctive normal form.
+    fn any_of(
+        &mut self,
+        parts: Vec<Dnf>,
+        span: Span,
+        head: &Sexp,
+        negated: bool,
+        disjunctions: Disjunctions,
+    ) -> Dnf {
+        let truth = vec![Vec::new()];
+        if parts.is_empty() {
+            self.error(span, "an empty disjunction can never hold");
+            return truth;
+        }
+        if parts.len() == 1 {
+            return parts.into_iter().flatten().collect();
+        }
+        if disjunctions == Disjunctions::Refused {
+            let name = head.atom().unwrap_or("and");
+            let under = if negated { " under `not`" } else { "" };
+            self.push(
+                Diagnostic::error(
+                    head.span,
+                    format!("`{name}`{under} is not supported here: it makes a disjunction"),
+                )
+                .with_note(
+                    "only an action's `:precondition` may be disjunctive; goals and the \
+                     conditions of functionalities and methods are conjunctions",
+                ),
+            );
+            return truth;
+        }
+        let disjuncts: usize = parts.iter().map(Vec::len).sum();
+        if disjuncts > MAX_DISJUNCTS {
+            self.too_many_disjuncts(span);
+            return truth;
+        }
+        parts.into_iter().flatten().collect()
+    }
+
+    /// The conjunction of `parts`, each in disjunctive normal form: every way to pick one
+    /// disjunct of each.
+    fn all_of(&mut self, parts: Vec<Dnf>, span: Span) -> Dnf {
+        let disjuncts = parts
+            .iter()
+            .fold(1usize, |n, part| n.saturating_mul(part.len()));
+        if disjuncts > MAX_DISJUNCTS {
+            self.too_many_disjuncts(span);
+            return vec![Vec::new()];
+        }
+        let mut out: Dnf = vec![Vec::new()];
+        for part in parts {
+            out = out
+                .iter()
+                .flat_map(|left| {
+                    part.iter().map(move |right| {
+                        let mut both = left.clone();
+                        both.extend(right.iter().cloned());
+                        both
+                    })
+                })
+                .collect();
+        }
         out
     }
 
-    fn condition_into(&mut self, sexp: &Sexp, out: &mut Vec<Literal>) {
-        let Some(items) = sexp.list() else {
-            self.error(sexp.span, "expected a condition in parentheses");
-            return;
-        };
-        let Some(head) = items.first() else {
-            return;
-        };
-        if head.list().is_some() {
-            // An implicit conjunction: `((peis ?p) (pc ?p cams ?c))`.
-            for item in items {
-                self.condition_into(item, out);
-            }
-            return;
-        }
-        match head.atom() {
-            Some("and") => {
-                for item in &items[1..] {
-                    self.condition_into(item, out);
-                }
-            }
-            Some("not") => {
-                let [_, inner] = items else {
-                    self.error(sexp.span, "`not` takes exactly one condition");
-                    return;
-                };
-                match inner.list() {
-                    Some([eq, a, b]) if eq.atom() == Some("=") => {
-                        if let (Some(a), Some(b)) = (self.term(a), self.term(b)) {
-                            out.push(Literal::Neq(a, b, sexp.span));
-                        }
-                    }
-                    Some([eq, ..]) if eq.atom() == Some("=") => {
-                        self.error(inner.span, "`=` takes exactly two arguments");
-                    }
-                    Some([head, ..]) if is_connective(head) => {
-                        self.unsupported(head, "under `not`: only atoms and `=` may be negated");
-                    }
-                    _ => {
-                        if let Some(atom) = self.atom(inner) {
-                            out.push(Literal::Neg(atom));
-                        }
-                    }
-                }
-            }
-            Some("=") => match items {
-                [_, a, b] => {
-                    if let (Some(a), Some(b)) = (self.term(a), self.term(b)) {
-                        out.push(Literal::Eq(a, b, sexp.span));
-                    }
-                }
-                _ => self.error(sexp.span, "`=` takes exactly two arguments"),
-            },
-            _ if is_connective(head) => self.unsupported(head, "in conditions"),
-            _ => {
-                if let Some(atom) = self.atom(sexp) {
-                    out.push(Literal::Pos(atom));
-                }
-            }
-        }
+    fn too_many_disjuncts(&mut self, span: Span) {
+        self.push(
+            Diagnostic::error(
+                span,
+                format!(
+                    "this condition has more than {MAX_DISJUNCTS} disjuncts in disjunctive normal form"
+                ),
+            )
+            .with_note("each disjunct becomes operators of its own; rewrite the action as several"),
+        );
     }
 
     fn unsupported(&mut self, head: &Sexp, context: &str) {
@@ -786,26 +938,49 @@ impl Parser {
             &what,
         );
         let params = self.optional(&fields, ":parameters", |p, sexp| p.params(sexp, true));
-        let precondition = self.optional(&fields, ":precondition", Self::condition);
+        let (precondition, alternatives) =
+            self.optional(&fields, ":precondition", Self::action_precondition);
         let mut effects = Vec::new();
         let mut chances = Vec::new();
+        let mut conditional = Vec::new();
         if let Some(sexp) = Self::field(&fields, ":effect") {
-            self.effect_into(sexp, &mut effects, Some(&mut chances));
+            self.effect_into(
+                sexp,
+                &mut effects,
+                Some(&mut chances),
+                Some(&mut conditional),
+            );
         }
         let configure = Self::field(&fields, ":configure")
             .and_then(|c| self.call(c, "a configuration goal like `(navigate ?r ?to)`"));
         let observe = self.optional(&fields, ":observe", Self::observe);
-        Some(Action {
+        let action = Action {
             name,
             params,
             precondition,
+            alternatives,
             effects,
+            conditional,
             configure,
             chances,
             observe,
             span: form.span,
             name_span: name_sexp.span,
-        })
+        };
+        if action.variant_count() > MAX_DISJUNCTS {
+            self.push(
+                Diagnostic::error(
+                    name_sexp.span,
+                    format!(
+                        "action `{}` has more than {MAX_DISJUNCTS} variants: the disjuncts of its \
+                         precondition times the ways each `when` condition holds or fails",
+                        action.name
+                    ),
+                )
+                .with_note("each becomes operators of its own; write the action as several"),
+            );
+        }
+        Some(action)
     }
 
     /// `:observe`: an atom, a list of atoms or `(and ...)` of atoms.
@@ -940,6 +1115,7 @@ impl Parser {
         sexp: &Sexp,
         out: &mut Vec<Effect>,
         mut chances: Option<&mut Vec<Probabilistic<Effect>>>,
+        mut conditional: Option<&mut Vec<Conditional>>,
     ) {
         let Some(items) = sexp.list() else {
             self.error(sexp.span, "expected an effect in parentheses");
@@ -950,21 +1126,55 @@ impl Parser {
         };
         if head.list().is_some() {
             for item in items {
-                self.effect_into(item, out, chances.as_deref_mut());
+                self.effect_into(
+                    item,
+                    out,
+                    chances.as_deref_mut(),
+                    conditional.as_deref_mut(),
+                );
             }
             return;
         }
         match head.atom() {
             Some("and") => {
                 for item in &items[1..] {
-                    self.effect_into(item, out, chances.as_deref_mut());
+                    self.effect_into(
+                        item,
+                        out,
+                        chances.as_deref_mut(),
+                        conditional.as_deref_mut(),
+                    );
                 }
+            }
+            Some("when") => {
+                let Some(conditional) = conditional else {
+                    self.error(head.span, "`when` is not supported inside `probabilistic`");
+                    return;
+                };
+                let [_, condition, effect] = items else {
+                    self.error(sexp.span, "`when` takes a condition and an effect");
+                    return;
+                };
+                let condition = self.condition(condition);
+                let (mut effects, mut chances, mut nested) = (Vec::new(), Vec::new(), Vec::new());
+                self.effect_into(effect, &mut effects, Some(&mut chances), Some(&mut nested));
+                if let Some(form) = chances.first() {
+                    self.error(form.span, "`probabilistic` is not supported inside `when`");
+                }
+                if let Some(inner) = nested.first() {
+                    self.error(inner.span, "`when` does not nest")
+                }
+                conditional.push(Conditional {
+                    condition,
+                    effects,
+                    span: sexp.span,
+                });
             }
             Some("probabilistic" | "oneof") => match chances {
                 Some(chances) => {
                     let form = self.probabilistic(sexp, items, |p, x| {
                         let mut effects = Vec::new();
-                        p.effect_into(x, &mut effects, None);
+                        p.effect_into(x, &mut effects, None, None);
                         effects
                     });
                     chances.extend(form);

@@ -428,12 +428,131 @@ fn unsupported_pddl_is_named() {
     // `:adl` is a declaration; what it allows is refused where it appears.
     assert_error(
         "(define (domain d) (:requirements :adl) (:predicates (p ?x) (q ?x))
-           (:action a :parameters (?x) :precondition (or (p ?x) (q ?x)) :effect (p ?x)))",
-        "`or` is not supported in conditions",
+           (:action a :parameters (?x) :precondition (exists (?y) (p ?y)) :effect (p ?x)))",
+        "`exists` is not supported in conditions",
     );
     assert_error(
-        "(define (domain d) (:action a :parameters (?x) :precondition (or (p ?x) (q ?x))))",
-        "`or` is not supported in conditions",
+        "(define (domain d) (:action a :parameters (?x) :precondition (forall (?y) (p ?y))))",
+        "`forall` is not supported in conditions",
+    );
+}
+
+/// Writes an action's precondition as the parser read it: the shared literals, then each
+/// disjunct of the rest.
+fn precondition_of(src: &str) -> String {
+    let domain = parse_domain(src.as_bytes()).expect("valid domain");
+    let action = &domain.actions[0];
+    let conjunction = |literals: &[Literal]| {
+        literals
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let mut out = conjunction(&action.precondition);
+    for disjunct in &action.alternatives {
+        out.push_str(&format!("\n| {}", conjunction(disjunct)));
+    }
+    out
+}
+
+fn action_with_precondition(precondition: &str) -> String {
+    format!(
+        "(define (domain d) (:requirements :adl)
+           (:predicates (p ?x) (q ?x) (r ?x) (s ?x))
+           (:action a :parameters (?x ?y) :precondition {precondition} :effect (p ?x)))"
+    )
+}
+
+#[test]
+fn disjunctive_preconditions_are_read_in_normal_form() {
+    let read = |precondition: &str| precondition_of(&action_with_precondition(precondition));
+    // A conjunction stays one.
+    assert_eq!(read("(and (p ?x) (not (q ?x)))"), "(p ?x) (not (q ?x))");
+    // Literals every disjunct shares are taken out of the disjunction.
+    assert_eq!(
+        read("(and (p ?x) (or (q ?x) (and (r ?x) (= ?x ?y))))"),
+        "(p ?x)\n| (q ?x)\n| (r ?x) (= ?x ?y)"
+    );
+    // Conjunctions of disjunctions multiply out.
+    assert_eq!(
+        read("(and (or (p ?x) (q ?x)) (or (r ?x) (s ?x)))"),
+        "\n| (p ?x) (r ?x)\n| (p ?x) (s ?x)\n| (q ?x) (r ?x)\n| (q ?x) (s ?x)"
+    );
+    // Negation is pushed onto atoms and equalities; `imply` is `or (not premise) conclusion`.
+    assert_eq!(
+        read("(not (or (p ?x) (= ?x ?y)))"),
+        "(not (p ?x)) (not (= ?x ?y))"
+    );
+    assert_eq!(
+        read("(not (and (p ?x) (not (q ?y))))"),
+        "\n| (not (p ?x))\n| (q ?y)"
+    );
+    assert_eq!(read("(imply (p ?x) (q ?x))"), "\n| (not (p ?x))\n| (q ?x)");
+    assert_eq!(read("(not (imply (p ?x) (q ?x)))"), "(p ?x) (not (q ?x))");
+    // A disjunct that needs nothing more makes the disjunction always true.
+    assert_eq!(read("(and (p ?x) (or (p ?x) (q ?x)))"), "(p ?x)");
+    assert_eq!(read("(or (p ?x))"), "(p ?x)");
+    // Variables in disjuncts are checked like any other.
+    assert_error(
+        &action_with_precondition("(or (p ?x) (q ?z))"),
+        "`?z` is not a parameter of action `a`",
+    );
+    assert_error(
+        &action_with_precondition("(or (p ?x) (q ?x ?y))"),
+        "wrong arity: `q` takes 1 argument, given 2",
+    );
+}
+
+#[test]
+fn disjunctions_are_bounded_and_only_in_action_preconditions() {
+    // Seven binary `or`s in a conjunction are 128 disjuncts, more than the limit of 64.
+    let many = format!("(and {})", "(or (p ?x) (q ?y)) ".repeat(7));
+    let src = action_with_precondition(&many);
+    assert_eq!(
+        messages(src.as_bytes()),
+        ["this condition has more than 64 disjuncts in disjunctive normal form"]
+    );
+    // Six are 64: at the limit, read.
+    let six = format!("(and {})", "(or (p ?x) (q ?y)) ".repeat(6));
+    let domain = parse_domain(action_with_precondition(&six).as_bytes()).expect("64 disjuncts");
+    assert_eq!(domain.actions[0].alternatives.len(), 64);
+    assert_error(
+        &action_with_precondition("(or)"),
+        "an empty disjunction can never hold",
+    );
+    assert_error(
+        &action_with_precondition("(imply (p ?x))"),
+        "`imply` takes exactly two conditions",
+    );
+    // Elsewhere conditions are conjunctions; negation is still pushed inward.
+    let goal = |goal: &str| {
+        parse_problem(format!("(define (problem p) (:domain d) (:goal {goal}))").as_bytes())
+            .map(|p| p.goal.iter().map(ToString::to_string).collect::<Vec<_>>())
+            .map_err(|d| d.0.into_iter().map(|d| d.message).collect::<Vec<_>>())
+    };
+    assert_eq!(
+        goal("(or (p a) (q a))"),
+        Err(vec![
+            "`or` is not supported here: it makes a disjunction".to_string()
+        ])
+    );
+    assert_eq!(
+        goal("(not (and (p a) (q a)))"),
+        Err(vec![
+            "`and` under `not` is not supported here: it makes a disjunction".to_string()
+        ])
+    );
+    assert_eq!(
+        goal("(not (or (p a) (q a)))"),
+        Ok(vec!["(not (p a))".to_string(), "(not (q a))".to_string()])
+    );
+    assert_error(
+        &with(
+            "(:functionality f :parameters (?p ?c) :component (?p ?c)
+               :precondition (or (pc ?p cam ?c) (pc ?p tr ?c)) :cost 1)",
+        ),
+        "`or` is not supported here: it makes a disjunction",
     );
 }
 
@@ -874,5 +993,96 @@ fn bad_information_declarations_are_reported() {
     assert_error(
         &with("(:information pos :format ((x number)) :hz 3)"),
         "`:hz`",
+    );
+}
+
+#[test]
+fn conditional_effects_are_read_with_their_variants() {
+    let src = "(define (domain d) (:requirements :adl :action-costs)
+       (:predicates (p ?x) (q ?x) (r ?x) (s ?x))
+       (:action a :parameters (?x ?y)
+         :precondition (or (p ?x) (p ?y))
+         :effect (and (s ?x)
+                      (when (and (q ?x) (not (= ?x ?y))) (and (r ?y) (not (q ?x))))
+                      (when (r ?x) (increase (total-cost) 2)))))";
+    let domain = parse_domain(src.as_bytes()).expect("valid");
+    let action = &domain.actions[0];
+    assert_eq!(action.effects.len(), 1);
+    assert_eq!(action.conditional.len(), 2);
+    assert_eq!(action.conditional[0].effects.len(), 2);
+    // Two disjuncts, times three ways for the first condition (holds, or one of its two
+    // literals fails), times two for the second.
+    assert_eq!(action.variant_count(), 12);
+    let variants: Vec<String> = action
+        .variants()
+        .iter()
+        .map(|v| {
+            let pre: Vec<String> = v.precondition.iter().map(ToString::to_string).collect();
+            format!("{} => {:?}", pre.join(" "), v.conditional)
+        })
+        .collect();
+    assert_eq!(variants.len(), 12);
+    assert_eq!(
+        variants[..6],
+        [
+            "(p ?x) (q ?x) (not (= ?x ?y)) (r ?x) => [0, 1]",
+            "(p ?x) (q ?x) (not (= ?x ?y)) (not (r ?x)) => [0]",
+            "(p ?x) (not (q ?x)) (r ?x) => [1]",
+            "(p ?x) (not (q ?x)) (not (r ?x)) => []",
+            "(p ?x) (= ?x ?y) (r ?x) => [1]",
+            "(p ?x) (= ?x ?y) (not (r ?x)) => []",
+        ]
+    );
+    // Variables and arities inside `when` are checked like any other.
+    assert_error(
+        &src.replace("(r ?y) (not", "(r ?z) (not"),
+        "variable `?z` is not a parameter of action `a`",
+    );
+    assert_error(
+        &src.replace("(when (r ?x)", "(when (r ?x ?y)"),
+        "wrong arity: `r` takes 1 argument, given 2",
+    );
+}
+
+#[test]
+fn conditional_effects_are_bounded_and_do_not_nest() {
+    let action = |effect: &str| {
+        format!(
+            "(define (domain d) (:requirements :adl :probabilistic-effects)
+               (:predicates (p ?x) (q ?x))
+               (:action a :parameters (?x) :precondition (p ?x) :effect {effect}))"
+        )
+    };
+    assert_error(
+        &action("(when (p ?x) (when (q ?x) (p ?x)))"),
+        "`when` does not nest",
+    );
+    assert_error(
+        &action("(when (p ?x) (probabilistic 0.5 (q ?x)))"),
+        "`probabilistic` is not supported inside `when`",
+    );
+    assert_error(
+        &action("(probabilistic 0.5 (when (p ?x) (q ?x)))"),
+        "`when` is not supported inside `probabilistic`",
+    );
+    assert_error(
+        &action("(when (p ?x))"),
+        "`when` takes a condition and an effect",
+    );
+    assert_error(
+        &action("(when (or (p ?x) (q ?x)) (q ?x))"),
+        "`or` is not supported here: it makes a disjunction",
+    );
+    // Six one-literal conditions are 64 variants; seven are too many.
+    let six = "(when (q ?x) (p ?x)) ".repeat(6);
+    let domain = parse_domain(action(&format!("(and {six})")).as_bytes()).expect("64 variants");
+    assert_eq!(domain.actions[0].variants().len(), 64);
+    let seven = "(when (q ?x) (p ?x)) ".repeat(7);
+    assert_eq!(
+        messages(action(&format!("(and {seven})")).as_bytes()),
+        [
+            "action `a` has more than 64 variants: the disjuncts of its precondition times the \
+          ways each `when` condition holds or fails"
+        ]
     );
 }

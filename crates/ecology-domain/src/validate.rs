@@ -662,9 +662,16 @@ impl Validator {
                 }
             }
         }
-        self.literal_vars(&a.precondition, &params, &what);
-        self.literal_arities(domain, &a.precondition, true);
-        for effect in &a.effects {
+        for literals in std::iter::once(&a.precondition).chain(&a.alternatives) {
+            self.literal_vars(literals, &params, &what);
+            self.literal_arities(domain, literals, true);
+        }
+        for when in &a.conditional {
+            self.literal_vars(&when.condition, &params, &what);
+            self.literal_arities(domain, &when.condition, true);
+        }
+        let conditional = a.conditional.iter().flat_map(|c| &c.effects);
+        for effect in a.effects.iter().chain(conditional) {
             match effect {
                 Effect::Add(atom) | Effect::Del(atom) => {
                     self.vars_declared(&atom.args, atom.span, &params, &what);

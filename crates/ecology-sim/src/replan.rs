@@ -189,9 +189,7 @@ impl Replan for WorldReplanner {
         let mut excluded = Vec::new();
         for action in failed {
             let call = parse_goal(action).map_err(|_| format!("`{action}` is not an action"))?;
-            if let Some(op) = task.find_operator(&call).map_err(|e| e.to_string())? {
-                excluded.push(op);
-            }
+            excluded.extend(task.find_operators(&call).map_err(|e| e.to_string())?);
         }
         let seen = observe(world);
         if task.is_uncertain() {
