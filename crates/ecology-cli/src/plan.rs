@@ -26,6 +26,11 @@ pub struct PlanArgs {
     /// Find a cheapest plan (A* with an admissible heuristic) instead of a fast one.
     #[arg(long)]
     pub optimal: bool,
+    /// Lazy search: a state's successors are evaluated only when taken from
+    /// the queue (faster where states have many successors, plans often
+    /// dearer); not with --optimal.
+    #[arg(long, conflicts_with = "optimal")]
+    pub lazy: bool,
     /// The heuristic: ff, add, max, lmcut or blind (default: ff, or lmcut with --optimal).
     #[arg(long, value_name = "NAME")]
     pub heuristic: Option<HeuristicKind>,
@@ -114,11 +119,21 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_BAD_INPUT);
     }
     let strategy = match (args.optimal, args.heuristic) {
-        (false, None) => Strategy::SATISFICING,
-        (false, Some(heuristic)) => Strategy::Greedy {
-            heuristic,
-            preferred: heuristic == HeuristicKind::Ff,
-        },
+        (false, heuristic) => {
+            let heuristic = heuristic.unwrap_or(HeuristicKind::Ff);
+            let preferred = heuristic == HeuristicKind::Ff;
+            if args.lazy {
+                Strategy::Lazy {
+                    heuristic,
+                    preferred,
+                }
+            } else {
+                Strategy::Greedy {
+                    heuristic,
+                    preferred,
+                }
+            }
+        }
         (true, None) => Strategy::OPTIMAL,
         (true, Some(heuristic)) if heuristic.is_admissible() => Strategy::AStar { heuristic },
         (true, Some(_)) => {

@@ -400,6 +400,11 @@ fn plan_json() {
     let fast = json(&plan(&["--json"]));
     assert_eq!(fast["optimal"], false);
     assert_eq!(fast["plan"], value["plan"]);
+    let lazy = json(&plan(&["--lazy", "--json"]));
+    assert_eq!(lazy["plan"], value["plan"]);
+    let refused = plan(&["--lazy", "--optimal"]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(stderr(&refused).contains("cannot be used with"), "{}", stderr(&refused));
 }
 
 #[test]
