@@ -968,33 +968,42 @@ const DOORS_PROBLEM: &str = "(define (problem p) (:domain doors) (:objects a b c
   (:init (at a) (door a b) (door b a) (door c b) (door c d) (door b e) (locked d) (key-in e))
   (:goal (at d)))";
 
+/// Checks that every strategy plans validly and that the optimal ones and
+/// the brute-force oracle cost `optimum`; the grounded task.
+fn check_optimum_with_oracle(domain: &Domain, problem: &Problem, optimum: u64) -> Task {
+    check_optimum(domain, problem, optimum);
+    let cheapest = oracle::cheapest(domain, problem, &[], 10_000);
+    assert!(
+        matches!(cheapest, Cheapest::Cost(c, _) if c == optimum),
+        "{cheapest:?}"
+    );
+    ground(domain, problem).expect("grounds")
+}
+
+/// Each operator of the action instance `text`, as `show` writes it.
+fn operators_of(task: &Task, text: &str, show: impl Fn(&crate::Operator) -> String) -> Vec<String> {
+    let call = parse_goal(text).expect("parses");
+    let ops = task.find_operators(&call).expect("an instance");
+    ops.iter().map(|&op| show(task.operator(op))).collect()
+}
+
 /// A disjunctive precondition grounds one operator per disjunct that can hold (operators
 /// alike in everything are built once), plans agree with the brute-force oracle, which
 /// reads the disjunction itself, and excluding an instance excludes all its operators.
 #[test]
 fn disjunctive_preconditions_ground_one_operator_per_disjunct() {
     let (domain, problem) = load(DOORS, DOORS_PROBLEM);
-    check_optimum(&domain, &problem, 6);
-    assert!(matches!(
-        oracle::cheapest(&domain, &problem, &[], 10_000),
-        Cheapest::Cost(6, _)
-    ));
-    let task = ground(&domain, &problem).expect("grounds");
+    let task = check_optimum_with_oracle(&domain, &problem, 6);
     let operators = |text: &str| -> Vec<String> {
-        let call = parse_goal(text).expect("parses");
-        let ops = task.find_operators(&call).expect("an instance");
-        ops.iter()
-            .map(|&op| {
-                let o = task.operator(op);
-                let mut pre: Vec<String> = o.pre.iter().map(|&a| task.atom_name(a)).collect();
-                pre.extend(
-                    o.pre_neg
-                        .iter()
-                        .map(|&a| format!("(not {})", task.atom_name(a))),
-                );
-                pre.join(" ")
-            })
-            .collect()
+        operators_of(&task, text, |o| {
+            let mut pre: Vec<String> = o.pre.iter().map(|&a| task.atom_name(a)).collect();
+            pre.extend(
+                o.pre_neg
+                    .iter()
+                    .map(|&a| format!("(not {})", task.atom_name(a))),
+            );
+            pre.join(" ")
+        })
     };
     // `door` both ways: the two disjuncts of the `or` give the same operators.
     assert_eq!(operators("(go a b)"), ["(at a)", "(at a) (has-key)"]);
@@ -1195,32 +1204,22 @@ const LAMP_PROBLEM: &str = "(define (problem p) (:domain lamp) (:objects a b c -
 #[test]
 fn conditional_effects_ground_one_operator_per_variant() {
     let (domain, problem) = load(LAMP, LAMP_PROBLEM);
-    check_optimum(&domain, &problem, 8);
-    assert!(matches!(
-        oracle::cheapest(&domain, &problem, &[], 10_000),
-        Cheapest::Cost(8, _)
-    ));
-    let task = ground(&domain, &problem).expect("grounds");
+    let task = check_optimum_with_oracle(&domain, &problem, 8);
     let operators = |text: &str| -> Vec<String> {
-        let call = parse_goal(text).expect("parses");
-        let ops = task.find_operators(&call).expect("an instance");
-        ops.iter()
-            .map(|&op| {
-                let o = task.operator(op);
-                let names = |atoms: &[crate::AtomId]| -> Vec<String> {
-                    let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
-                    names.sort();
-                    names
-                };
-                format!(
-                    "pre {:?} neg {:?} add {:?} cost {}",
-                    names(&o.pre),
-                    names(&o.pre_neg),
-                    names(&o.add),
-                    o.cost
-                )
-            })
-            .collect()
+        operators_of(&task, text, |o| {
+            let names = |atoms: &[crate::AtomId]| -> Vec<String> {
+                let mut names: Vec<String> = atoms.iter().map(|&a| task.atom_name(a)).collect();
+                names.sort();
+                names
+            };
+            format!(
+                "pre {:?} neg {:?} add {:?} cost {}",
+                names(&o.pre),
+                names(&o.pre_neg),
+                names(&o.add),
+                o.cost
+            )
+        })
     };
     // `dark` is static: into c every operator costs 6, into b 1; `has-lamp` splits each.
     assert_eq!(

@@ -404,7 +404,11 @@ fn plan_json() {
     assert_eq!(lazy["plan"], value["plan"]);
     let refused = plan(&["--lazy", "--optimal"]);
     assert_eq!(refused.status.code(), Some(2));
-    assert!(stderr(&refused).contains("cannot be used with"), "{}", stderr(&refused));
+    assert!(
+        stderr(&refused).contains("cannot be used with"),
+        "{}",
+        stderr(&refused)
+    );
 }
 
 #[test]
