@@ -102,6 +102,16 @@ fn main() -> ExitCode {
         println!("{PARSE_ONLY}: the arguments are valid");
         return ExitCode::from(EXIT_OK);
     }
+    if matches!(
+        cli.command,
+        Command::Check(_)
+            | Command::Configure(_)
+            | Command::Plan(_)
+            | Command::Generate(_)
+            | Command::Keys(_)
+    ) {
+        stop_quietly_on_a_closed_pipe();
+    }
     let result = match cli.command {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),
@@ -125,4 +135,17 @@ fn main() -> ExitCode {
             ExitCode::from(EXIT_BAD_INPUT)
         }
     }
+}
+
+/// Lets a command that only reads files and prints end as other Unix tools
+/// do when its reader goes away (`ecology plan … | head`): killed by
+/// SIGPIPE, silently, instead of a panic at the next `println!`. Only for
+/// commands without sockets: Rust ignores SIGPIPE so that a write to a
+/// closed socket is an error the networking code handles.
+#[allow(unsafe_code)]
+fn stop_quietly_on_a_closed_pipe() {
+    use nix::sys::signal::{SigHandler, Signal, signal};
+    // SAFETY: no other thread runs yet, and the default action installs no
+    // handler code.
+    let _ = unsafe { signal(Signal::SIGPIPE, SigHandler::SigDfl) };
 }

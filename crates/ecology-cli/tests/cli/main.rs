@@ -779,3 +779,36 @@ fn peis_says_which_peis_of_a_file_it_cannot_run() {
         "cannot be used with",
     );
 }
+
+#[test]
+fn a_plan_whose_reader_goes_away_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    // The reader closes its end before anything is printed, as `| head`
+    // does after a few lines: the first write meets a closed pipe.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ecology"))
+        .args([
+            "plan",
+            "--domain",
+            "domains/pddl/triangle-tire.pddl",
+            "--problem",
+            "domains/pddl/triangle-tire-8.pddl",
+            "--conditional",
+            "--horizon",
+            "96",
+        ])
+        .current_dir(root())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("starts");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("ends");
+    assert_eq!(
+        out.status.signal(),
+        Some(nix::sys::signal::Signal::SIGPIPE as i32),
+        "{:?}: {}",
+        out.status,
+        stderr(&out)
+    );
+    assert!(stderr(&out).is_empty(), "{}", stderr(&out));
+}
