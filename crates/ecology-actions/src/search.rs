@@ -134,8 +134,8 @@ pub(crate) struct Engine<'t> {
     registry: Registry,
     nodes: Vec<Node>,
     closed: Vec<bool>,
-    /// (priority, tie-break, node): the tie-break is h under A*, then the
-    /// older node first.
+    /// (priority, tie-break, node): the tie-break is h under A* and g under
+    /// greedy search, then the older node first.
     open: BinaryHeap<Reverse<(u64, u64, u32)>>,
     preferred_open: BinaryHeap<Reverse<(u64, u64, u32)>>,
     /// Lazy search: (parent's h, order of insertion, parent, operator).
@@ -233,7 +233,8 @@ impl<'t> Engine<'t> {
             Algorithm::AStar { weight } => {
                 Reverse((g.saturating_add(h.saturating_mul(weight)), h, id))
             }
-            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, 0, id)),
+            // Among states of equal h, the one reached more cheaply first.
+            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, g, id)),
         };
         if preferred {
             self.preferred_open.push(entry);
