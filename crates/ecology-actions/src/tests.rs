@@ -781,19 +781,27 @@ fn action_elimination_removes_a_detour() {
     );
 }
 
-/// Operators unreachable from the problem's start are left out per request:
-/// replanning from elsewhere still has them.
-#[test]
-fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
-    let (domain, problem) = load(
+/// Rooms `a`, `b`, `c`, `e`, a door from `a` to `b` and one from `c` to `e`
+/// (out of reach from `a`): from `a` to `goal`.
+fn rooms(goal: &str) -> (Domain, Problem) {
+    load(
         "(define (domain d) (:requirements :strips :typing) (:types room)
            (:predicates (at ?x - room) (door ?x ?y - room))
            (:action go :parameters (?x ?y - room)
              :precondition (and (at ?x) (door ?x ?y))
              :effect (and (at ?y) (not (at ?x)))))",
-        "(define (problem p) (:domain d) (:objects a b c e - room)
-           (:init (at a) (door a b) (door c e)) (:goal (at e)))",
-    );
+        &format!(
+            "(define (problem p) (:domain d) (:objects a b c e - room)
+               (:init (at a) (door a b) (door c e)) (:goal (at {goal})))"
+        ),
+    )
+}
+
+/// Operators unreachable from the problem's start are left out per request:
+/// replanning from elsewhere still has them.
+#[test]
+fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
+    let (domain, problem) = rooms("e");
     let task = ground(&domain, &problem).expect("grounds");
     for strategy in [Strategy::SATISFICING, Strategy::OPTIMAL] {
         let options = Options {
@@ -1131,15 +1139,7 @@ proptest! {
 /// which replanning needs), and so grounds within limits grounding everything exceeds.
 #[test]
 fn reachable_grounding_leaves_out_what_the_start_cannot_reach() {
-    let (domain, problem) = load(
-        "(define (domain d) (:requirements :strips :typing) (:types room)
-           (:predicates (at ?x - room) (door ?x ?y - room))
-           (:action go :parameters (?x ?y - room)
-             :precondition (and (at ?x) (door ?x ?y))
-             :effect (and (at ?y) (not (at ?x)))))",
-        "(define (problem p) (:domain d) (:objects a b c e - room)
-           (:init (at a) (door a b) (door c e)) (:goal (at b)))",
-    );
+    let (domain, problem) = rooms("b");
     let names =
         |task: &Task| -> Vec<String> { task.operators().iter().map(ToString::to_string).collect() };
     let all = ground(&domain, &problem).expect("grounds");

@@ -367,21 +367,29 @@ fn tireworld_one_to_eight_is_solved_surely_by_a_graph_far_smaller_than_its_tree(
     }
 }
 
+/// The search's outcome for `task` within `horizon` actions, and its plan
+/// (found, or the most probable below the threshold).
+#[track_caller]
+fn planned_within(task: &Task, horizon: u32) -> (crate::ConditionalOutcome, ConditionalPlan) {
+    let options = ConditionalOptions {
+        horizon,
+        ..ConditionalOptions::default()
+    };
+    let outcome = plan_conditional(&ConditionalRequest::new(task), &options, &NoClock);
+    let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
+        outcome.verdict.clone()
+    else {
+        panic!("{:?}", outcome.verdict);
+    };
+    (outcome, plan)
+}
+
 #[test]
 fn sharing_beliefs_across_depths_finds_the_exhaustive_optimum_at_every_horizon() {
     let inst = problems::tireworld(1).expect("generated");
     let task = ground(&inst.domain, &inst.problem).expect("ground");
     for horizon in 2..=12 {
-        let options = ConditionalOptions {
-            horizon,
-            ..ConditionalOptions::default()
-        };
-        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
-        let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
-            &outcome.verdict
-        else {
-            panic!("horizon {horizon}: {:?}", outcome.verdict);
-        };
+        let (outcome, plan) = planned_within(&task, horizon);
         let Exhaustive::Best { success, cost } =
             oracle_conditional::most_probable(&inst.domain, &inst.problem, horizon, 10_000_000)
         else {
@@ -394,7 +402,7 @@ fn sharing_beliefs_across_depths_finds_the_exhaustive_optimum_at_every_horizon()
             plan.expected_cost
         );
         assert!(plan.graph.depth() <= horizon as usize);
-        the_oracle_agrees(&inst.domain, &inst.problem, &task, plan);
+        the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
         // The sure plan is 10 actions deep on its longest branch: below
         // that the horizon cuts it, and nodes must count the actions left.
         assert_eq!(outcome.stats.shared, horizon >= 10, "horizon {horizon}");
@@ -455,16 +463,7 @@ fn random_problems_searched_with_shared_beliefs_agree_with_the_exhaustive_search
     for seed in 0..60 {
         let inst = problems::random_uncertain(seed).expect("generated");
         let task = ground(&inst.domain, &inst.problem).expect("ground");
-        let options = ConditionalOptions {
-            horizon,
-            ..ConditionalOptions::default()
-        };
-        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
-        let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
-            &outcome.verdict
-        else {
-            panic!("seed {seed}: {:?}", outcome.verdict);
-        };
+        let (outcome, plan) = planned_within(&task, horizon);
         if !outcome.stats.shared {
             continue;
         }
@@ -481,7 +480,7 @@ fn random_problems_searched_with_shared_beliefs_agree_with_the_exhaustive_search
             plan.success,
             plan.expected_cost
         );
-        the_oracle_agrees(&inst.domain, &inst.problem, &task, plan);
+        the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
     }
     assert!(
         shared >= 30 && checked >= 30,
