@@ -247,12 +247,20 @@ impl<'t> Engine<'t> {
         self.task.is_goal(&State::from_words(self.registry.get(0)))
     }
 
+    /// Whether to take the next node from the preferred queue (when it has
+    /// any): while boosted after progress, else every other time.
+    fn take_preferred(&mut self, has_preferred: bool) -> bool {
+        let yes = has_preferred && (self.boost > 0 || self.turn);
+        self.turn = !self.turn;
+        if yes {
+            self.boost = self.boost.saturating_sub(1);
+        }
+        yes
+    }
+
     fn pop(&mut self) -> Option<u32> {
         loop {
-            let use_preferred = !self.preferred_open.is_empty() && (self.boost > 0 || self.turn);
-            self.turn = !self.turn;
-            let entry = if use_preferred {
-                self.boost = self.boost.saturating_sub(1);
+            let entry = if self.take_preferred(!self.preferred_open.is_empty()) {
                 self.preferred_open.pop()
             } else {
                 self.open.pop()
@@ -281,10 +289,7 @@ impl<'t> Engine<'t> {
     /// nothing left).
     fn lazy_pop(&mut self, preferred: &mut Vec<OpId>) -> Result<u32, StepResult> {
         loop {
-            let use_preferred = !self.lazy_preferred.is_empty() && (self.boost > 0 || self.turn);
-            self.turn = !self.turn;
-            let entry = if use_preferred {
-                self.boost = self.boost.saturating_sub(1);
+            let entry = if self.take_preferred(!self.lazy_preferred.is_empty()) {
                 self.lazy_preferred.pop()
             } else {
                 self.lazy_open.pop()
