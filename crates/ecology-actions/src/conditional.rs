@@ -595,13 +595,14 @@ impl<'t> Engine<'t> {
     }
 
     /// The plan the best choices from `root` make (unexpanded nodes stop),
-    /// cut after `horizon` actions on every branch.
-    fn extract(&mut self, root: u32, horizon: u32) -> PlanGraph {
+    /// cut after `horizon` actions on every branch, and whether it needed
+    /// no cut (it fits in the horizon).
+    fn extract(&mut self, root: u32, horizon: u32) -> (PlanGraph, bool) {
         let heights = self.heights(root);
         let mut builder = GraphBuilder::default();
         let mut made = HashMap::new();
         let top = self.extract_at(root, horizon, &heights, &mut builder, &mut made);
-        builder.finish(top)
+        (builder.finish(top), heights[&root] <= horizon)
     }
 
     fn extract_at(
@@ -747,10 +748,17 @@ pub fn plan_conditional(
         return finish(&engine, (ConditionalVerdict::BelowThreshold(plan), true));
     }
     let belief = engine.belief(start);
+    let b = &engine.beliefs[belief as usize];
     let search = Search {
         options,
         clock,
         belief,
+        start: b
+            .probs
+            .iter()
+            .copied()
+            .zip(b.states.iter().cloned())
+            .collect(),
     };
     engine.stats.shared = true;
     if let Some(result) = search.run(&mut engine, UNBOUNDED) {
@@ -769,6 +777,9 @@ struct Search<'a> {
     options: &'a ConditionalOptions,
     clock: &'a dyn Clock,
     belief: u32,
+    /// That belief's states with their probabilities, which plans are
+    /// evaluated from.
+    start: Vec<(f64, State)>,
 }
 
 /// How one AO* run under the engine's lambda ended.
@@ -833,29 +844,17 @@ impl Search<'_> {
     }
 
     /// The best plan from `root`, cut at the horizon, with its probability
-    /// and expected cost.
-    fn plan_of(&self, engine: &mut Engine<'_>, root: u32) -> ConditionalPlan {
-        let graph = engine.extract(root, self.options.horizon);
-        let b = &engine.beliefs[self.belief as usize];
-        let normal: Vec<(f64, State)> = b
-            .probs
-            .iter()
-            .copied()
-            .zip(b.states.iter().cloned())
-            .collect();
+    /// and expected cost, and whether it fits in the horizon uncut.
+    fn plan_of(&self, engine: &mut Engine<'_>, root: u32) -> (ConditionalPlan, bool) {
+        let (graph, fits) = engine.extract(root, self.options.horizon);
         let (success, expected_cost) =
-            evaluate(engine.task, &normal, &graph).unwrap_or((0.0, f64::INFINITY));
-        ConditionalPlan {
+            evaluate(engine.task, &self.start, &graph).unwrap_or((0.0, f64::INFINITY));
+        let plan = ConditionalPlan {
             graph,
             success,
             expected_cost,
-        }
-    }
-
-    /// Whether the plan from `root` that the engine's search found fits in
-    /// the horizon.
-    fn fits(&self, engine: &mut Engine<'_>, root: u32) -> bool {
-        engine.heights(root)[&root] <= self.options.horizon
+        };
+        (plan, fits)
     }
 
     /// Searches with nodes of `depth` actions left: the verdict and whether
@@ -867,15 +866,15 @@ impl Search<'_> {
         match self.solve(engine, root) {
             Solved::Done => {}
             Solved::Budget => {
-                let best = self.plan_of(engine, root);
+                let (best, _) = self.plan_of(engine, root);
                 return Some((ConditionalVerdict::BudgetExceeded(Some(best)), false));
             }
             Solved::Cyclic => return None,
         }
-        if !self.fits(engine, root) {
+        let (most, fits) = self.plan_of(engine, root);
+        if !fits {
             return None;
         }
-        let most = self.plan_of(engine, root);
         let threshold = match self.options.min_probability {
             None if most.success > EPSILON => {
                 return Some((ConditionalVerdict::Found(most), true));
@@ -913,10 +912,10 @@ impl Search<'_> {
                 Solved::Budget => return Some((ConditionalVerdict::Found(high), false)),
                 Solved::Cyclic => return None,
             }
-            if !self.fits(engine, root) {
+            let (plan, fits) = self.plan_of(engine, root);
+            if !fits {
                 return None;
             }
-            let plan = self.plan_of(engine, root);
             let score = |p: &ConditionalPlan| lambda * p.success - p.expected_cost;
             let tol = EPSILON * (1.0 + lambda.abs() + high.expected_cost);
             if score(&plan) <= score(&high) + tol {

@@ -335,7 +335,7 @@ impl fmt::Display for Display<'_> {
 /// state or an observation has no branch. States are followed without the
 /// atoms that can no longer matter, and each (node, belief) once.
 pub fn evaluate(task: &Task, belief: &[(f64, State)], graph: &PlanGraph) -> Option<(f64, f64)> {
-    let reader = Reader {
+    let mut reader = Reader {
         task,
         graph,
         relevance: Relevance::new(task, &vec![false; task.operators().len()]),
@@ -363,7 +363,7 @@ type Key = (usize, Vec<(State, u64)>);
 
 impl Reader<'_> {
     fn evaluate_at(
-        &self,
+        &mut self,
         belief: &[(f64, State)],
         id: usize,
         memo: &mut HashMap<Key, Option<(f64, f64)>>,

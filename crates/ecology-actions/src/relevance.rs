@@ -17,8 +17,15 @@ pub(crate) struct Relevance {
     free: Vec<u32>,
     /// Each operator's positive preconditions.
     need: Vec<u32>,
-    /// The goal's atoms, positive and negative.
-    goal: Vec<AtomId>,
+    /// The goal's atoms, positive and negative, as a mask.
+    goal: State,
+    /// Reused by every call, which runs for every state the planner makes:
+    /// preconditions still unmet, atoms reached, atoms relevant, and atoms
+    /// to propagate.
+    left: Vec<u32>,
+    reached: State,
+    relevant: State,
+    queue: Vec<AtomId>,
 }
 
 impl Relevance {
@@ -40,25 +47,39 @@ impl Relevance {
                 readers[a.0 as usize].push(i as u32);
             }
         }
-        let mut goal = task.goal().to_vec();
-        goal.extend_from_slice(task.goal_neg());
+        let mut goal = State::empty(task.atom_count());
+        for &a in task.goal().iter().chain(task.goal_neg()) {
+            goal.set(a);
+        }
         Relevance {
             readers,
             free,
+            left: need.clone(),
             need,
+            reached: goal.clone(),
+            relevant: goal.clone(),
             goal,
+            queue: Vec::new(),
         }
     }
 
     /// Clears the atoms of `state` that cannot matter any more.
-    pub(crate) fn clear_irrelevant(&self, task: &Task, state: &mut State) {
-        let mut need = self.need.clone();
-        let mut reached = state.clone();
-        let mut relevant = State::empty(task.atom_count());
-        for &a in &self.goal {
-            relevant.set(a);
-        }
-        let mut queue: Vec<AtomId> = state.atoms().collect();
+    pub(crate) fn clear_irrelevant(&mut self, task: &Task, state: &mut State) {
+        let Relevance {
+            readers,
+            free,
+            need,
+            goal,
+            left,
+            reached,
+            relevant,
+            queue,
+        } = self;
+        left.clone_from(need);
+        reached.clone_from(state);
+        relevant.clone_from(goal);
+        queue.clear();
+        queue.extend(state.atoms());
         let mut fire = |op: u32, reached: &mut State, queue: &mut Vec<AtomId>| {
             let o = task.operator(OpId(op));
             for &a in o.pre.iter().chain(&o.pre_neg).chain(&o.observe) {
@@ -73,14 +94,14 @@ impl Relevance {
                 }
             }
         };
-        for &op in &self.free {
-            fire(op, &mut reached, &mut queue);
+        for &op in free.iter() {
+            fire(op, reached, queue);
         }
         while let Some(a) = queue.pop() {
-            for &op in &self.readers[a.0 as usize] {
-                need[op as usize] -= 1;
-                if need[op as usize] == 0 {
-                    fire(op, &mut reached, &mut queue);
+            for &op in &readers[a.0 as usize] {
+                left[op as usize] -= 1;
+                if left[op as usize] == 0 {
+                    fire(op, reached, queue);
                 }
             }
         }
