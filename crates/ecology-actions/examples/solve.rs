@@ -3,8 +3,8 @@
 //! a domain and problem file pair printing one line of results.
 //!
 //! ```text
-//! solve write DIR NAME...        # NAME: gripper-N, blocks-N, logistics-C-P
-//! solve run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]
+//! solve write DIR NAME...        # NAME: gripper-N, blocks-N, logistics-C-P, parking-CURBS-SEED
+//! solve run DOMAIN PROBLEM [--optimal] [--lazy] [--no-landmarks] [--timeout-s S] [--plan]
 //! ```
 //!
 //! `run` prints `status=found cost=N expanded=N generated=N evaluated=N
@@ -28,6 +28,7 @@ fn generate(name: &str) -> Result<Instance, String> {
         ["gripper", n] => problems::gripper(num(n)?),
         ["blocks", n] => problems::blocks(num(n)?, num(n)? as u64),
         ["logistics", c, p] => problems::logistics(num(c)?, num(p)?, num(c)? as u64),
+        ["parking", c, seed] => problems::parking(num(c)?, num(seed)? as u64),
         _ => return Err(format!("unknown problem `{name}`")),
     };
     inst.map_err(|e| e.to_string())
@@ -49,7 +50,10 @@ fn write(dir: &str, names: &[String]) -> Result<(), String> {
 fn run(args: &[String]) -> Result<(), String> {
     let start = Instant::now();
     let [domain_path, problem_path, rest @ ..] = args else {
-        return Err("run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]".into());
+        return Err(
+            "run DOMAIN PROBLEM [--optimal] [--lazy] [--no-landmarks] [--timeout-s S] [--plan]"
+                .into(),
+        );
     };
     let mut strategy = Strategy::SATISFICING;
     let mut timeout = None;
@@ -59,6 +63,36 @@ fn run(args: &[String]) -> Result<(), String> {
         match arg.as_str() {
             "--optimal" => strategy = Strategy::OPTIMAL,
             "--plan" => print_plan = true,
+            "--lazy" | "--no-landmarks" => {
+                let (heuristic, preferred, mut lazy, mut landmarks) = match strategy {
+                    Strategy::Greedy {
+                        heuristic,
+                        preferred,
+                        landmarks,
+                    } => (heuristic, preferred, false, landmarks),
+                    Strategy::Lazy {
+                        heuristic,
+                        preferred,
+                        landmarks,
+                    } => (heuristic, preferred, true, landmarks),
+                    _ => return Err(format!("{arg} is for greedy search")),
+                };
+                lazy |= arg == "--lazy";
+                landmarks &= arg != "--no-landmarks";
+                strategy = if lazy {
+                    Strategy::Lazy {
+                        heuristic,
+                        preferred,
+                        landmarks,
+                    }
+                } else {
+                    Strategy::Greedy {
+                        heuristic,
+                        preferred,
+                        landmarks,
+                    }
+                };
+            }
             "--weight" => {
                 let w = rest.next().ok_or("--weight needs a value")?;
                 let weight = w.parse().map_err(|e| format!("--weight: {e}"))?;
@@ -136,7 +170,7 @@ fn main() -> ExitCode {
         },
         Some((cmd, rest)) if cmd == "run" => run(rest),
         _ => Err(
-            "usage: solve write DIR NAME... | solve run DOMAIN PROBLEM [--optimal] [--timeout-s S] [--plan]"
+            "usage: solve write DIR NAME... | solve run DOMAIN PROBLEM [--optimal] [--lazy] [--no-landmarks] [--timeout-s S] [--plan]"
                 .into(),
         ),
     };

@@ -38,6 +38,7 @@
 pub mod conditional;
 mod heuristic;
 mod improve;
+mod landmarks;
 mod lmcut;
 pub mod oracle;
 pub mod oracle_conditional;
@@ -71,6 +72,7 @@ pub use task::{
 };
 pub use validate::{PlanError, validate};
 
+use landmarks::LandmarkCount;
 use search::{Algorithm, Engine, StepResult};
 
 pub use ecology_core::{Budget, Clock, NoClock, WallClock};
@@ -87,6 +89,9 @@ pub enum Strategy {
         heuristic: HeuristicKind,
         /// Whether to use preferred operators (only FF offers them).
         preferred: bool,
+        /// Whether the landmark count guides the search too, in turn with
+        /// the heuristic, each with its own queues (as in LAMA).
+        landmarks: bool,
     },
     /// Lazy greedy best-first search (LAMA's): a state's successors wait
     /// in the queue under its value and are evaluated only when taken, so
@@ -99,6 +104,9 @@ pub enum Strategy {
         heuristic: HeuristicKind,
         /// Whether to use preferred operators (only FF offers them).
         preferred: bool,
+        /// Whether the landmark count guides the search too, in turn with
+        /// the heuristic, each with its own queues (as in LAMA).
+        landmarks: bool,
     },
     /// A*: optimal when the heuristic is admissible.
     AStar {
@@ -117,10 +125,12 @@ pub enum Strategy {
 }
 
 impl Strategy {
-    /// Greedy best-first search with FF and preferred operators.
+    /// Greedy best-first search with FF and its preferred operators, in
+    /// turn with the landmark count (LAMA's pair of heuristics).
     pub const SATISFICING: Strategy = Strategy::Greedy {
         heuristic: HeuristicKind::Ff,
         preferred: true,
+        landmarks: true,
     };
     /// A* with LM-cut.
     pub const OPTIMAL: Strategy = Strategy::AStar {
@@ -374,30 +384,42 @@ impl<'t> Search<'t> {
                 *slot = true;
             }
         }
-        let (kind, algorithm, costs) = match strategy {
+        let (kind, algorithm, costs, landmarks) = match strategy {
             // Greedy search orders states by h alone: its heuristic counts
-            // zero-cost actions too.
+            // actions, whatever they cost.
             Strategy::Greedy {
                 heuristic,
                 preferred,
-            } => (heuristic, Algorithm::Greedy { preferred }, Costs::PlusOne),
+                landmarks,
+            } => (
+                heuristic,
+                Algorithm::Greedy { preferred },
+                Costs::One,
+                landmarks,
+            ),
             Strategy::Lazy {
                 heuristic,
                 preferred,
+                landmarks,
             } => (
                 heuristic,
                 Algorithm::LazyGreedy { preferred },
-                Costs::PlusOne,
+                Costs::One,
+                landmarks,
             ),
-            Strategy::AStar { heuristic } => {
-                (heuristic, Algorithm::AStar { weight: 1 }, Costs::Task)
-            }
+            Strategy::AStar { heuristic } => (
+                heuristic,
+                Algorithm::AStar { weight: 1 },
+                Costs::Task,
+                false,
+            ),
             Strategy::Weighted { heuristic, weight } => (
                 heuristic,
                 Algorithm::AStar {
                     weight: weight.max(1),
                 },
                 Costs::Task,
+                false,
             ),
         };
         let initial = task.fit(&request.initial);
@@ -406,7 +428,9 @@ impl<'t> Search<'t> {
         // explaining unreachable goals.
         let useless = task.useless_operators(&initial, &excluded);
         let heuristic = kind.build_costed(task, &useless, costs);
-        let engine = Engine::new(task, &initial, useless, heuristic, algorithm);
+        let landmarks = landmarks
+            .then(|| LandmarkCount::new(heuristic::Relaxed::new(task, &useless), &initial));
+        let engine = Engine::new(task, &initial, useless, heuristic, landmarks, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))
         } else if engine.initial_h.is_none() {

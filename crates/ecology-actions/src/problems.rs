@@ -17,6 +17,8 @@ pub const GRIPPER: &str = include_str!("../../../domains/pddl/gripper.pddl");
 pub const BLOCKS: &str = include_str!("../../../domains/pddl/blocks.pddl");
 /// The logistics domain's source (with action costs).
 pub const LOGISTICS: &str = include_str!("../../../domains/pddl/logistics.pddl");
+/// The parking domain's source (with action costs).
+pub const PARKING: &str = include_str!("../../../domains/pddl/parking.pddl");
 
 /// A generated problem, as text and parsed.
 #[derive(Debug, Clone)]
@@ -209,6 +211,94 @@ pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, 
     instance(
         format!("logistics-{cities}-{packages}"),
         LOGISTICS.to_string(),
+        p,
+        None,
+    )
+}
+
+/// A random arrangement of `cars` cars at `curbs` curbs: each car, in a
+/// random order, goes to a random free place (a free curb, or beside a car
+/// parked at a curb with no one beside it yet). For each car, where it is:
+/// `Ok(curb)` parked at a curb, `Err(car)` beside that car.
+fn arrangement(cars: usize, curbs: usize, rng: &mut Rng) -> Vec<Result<usize, usize>> {
+    let mut order: Vec<usize> = (0..cars).collect();
+    for i in (1..order.len()).rev() {
+        order.swap(i, rng.index(i + 1));
+    }
+    let mut place = vec![Ok(usize::MAX); cars];
+    let mut curb_taken = vec![false; curbs];
+    let mut beside_taken = vec![true; cars];
+    for car in order {
+        let free: Vec<Result<usize, usize>> = (0..curbs)
+            .filter(|&c| !curb_taken[c])
+            .map(Ok)
+            .chain((0..cars).filter(|&f| !beside_taken[f]).map(Err))
+            .collect();
+        let chosen = free[rng.index(free.len())];
+        match chosen {
+            Ok(c) => {
+                curb_taken[c] = true;
+                beside_taken[car] = false;
+            }
+            Err(front) => beside_taken[front] = true,
+        }
+        place[car] = chosen;
+    }
+    place
+}
+
+/// Parking with `curbs` curbs and `2 * (curbs - 1)` cars, as in the IPC's
+/// instances: a random arrangement to another, from `seed`.
+pub fn parking(curbs: usize, seed: u64) -> Result<Instance, GeneratorError> {
+    let mut rng = Rng::new(seed);
+    let cars = 2 * curbs.saturating_sub(1);
+    let initial = arrangement(cars, curbs, &mut rng);
+    let goal = arrangement(cars, curbs, &mut rng);
+    let mut p = String::new();
+    let _ = writeln!(
+        p,
+        "(define (problem parking-{curbs}-{seed}) (:domain parking)"
+    );
+    p.push_str("  (:objects");
+    for c in 0..cars {
+        let _ = write!(p, " car{c}");
+    }
+    p.push_str(" - car");
+    for c in 0..curbs {
+        let _ = write!(p, " curb{c}");
+    }
+    p.push_str(" - curb)\n  (:init (= (total-cost) 0)");
+    let mut clear = vec![true; cars];
+    let mut empty = vec![true; curbs];
+    for (car, place) in initial.iter().enumerate() {
+        match *place {
+            Ok(curb) => {
+                empty[curb] = false;
+                let _ = write!(p, " (at-curb car{car}) (at-curb-num car{car} curb{curb})");
+            }
+            Err(front) => {
+                clear[front] = false;
+                let _ = write!(p, " (behind-car car{car} car{front})");
+            }
+        }
+    }
+    for car in (0..cars).filter(|&c| clear[c]) {
+        let _ = write!(p, " (car-clear car{car})");
+    }
+    for curb in (0..curbs).filter(|&c| empty[c]) {
+        let _ = write!(p, " (curb-clear curb{curb})");
+    }
+    p.push_str(")\n  (:goal (and");
+    for (car, place) in goal.iter().enumerate() {
+        let _ = match *place {
+            Ok(curb) => write!(p, " (at-curb-num car{car} curb{curb})"),
+            Err(front) => write!(p, " (behind-car car{car} car{front})"),
+        };
+    }
+    p.push_str("))\n  (:metric minimize (total-cost)))\n");
+    instance(
+        format!("parking-{curbs}-{seed}"),
+        PARKING.to_string(),
         p,
         None,
     )

@@ -31,6 +31,10 @@ pub struct PlanArgs {
     /// dearer); not with --optimal.
     #[arg(long, conflicts_with = "optimal")]
     pub lazy: bool,
+    /// Greedy search guided by the heuristic alone, without the landmark
+    /// count beside it; not with --optimal.
+    #[arg(long, conflicts_with = "optimal")]
+    pub no_landmarks: bool,
     /// The heuristic: ff, add, max, lmcut or blind (default: ff, or lmcut with --optimal).
     #[arg(long, value_name = "NAME")]
     pub heuristic: Option<HeuristicKind>,
@@ -126,11 +130,13 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
                 Strategy::Lazy {
                     heuristic,
                     preferred,
+                    landmarks: !args.no_landmarks,
                 }
             } else {
                 Strategy::Greedy {
                     heuristic,
                     preferred,
+                    landmarks: !args.no_landmarks,
                 }
             }
         }

@@ -402,13 +402,17 @@ fn plan_json() {
     assert_eq!(fast["plan"], value["plan"]);
     let lazy = json(&plan(&["--lazy", "--json"]));
     assert_eq!(lazy["plan"], value["plan"]);
-    let refused = plan(&["--lazy", "--optimal"]);
-    assert_eq!(refused.status.code(), Some(2));
-    assert!(
-        stderr(&refused).contains("cannot be used with"),
-        "{}",
-        stderr(&refused)
-    );
+    let ff_alone = json(&plan(&["--no-landmarks", "--json"]));
+    assert_eq!(ff_alone["plan"], value["plan"]);
+    for flag in ["--lazy", "--no-landmarks"] {
+        let refused = plan(&[flag, "--optimal"]);
+        assert_eq!(refused.status.code(), Some(2));
+        assert!(
+            stderr(&refused).contains("cannot be used with"),
+            "{flag}: {}",
+            stderr(&refused)
+        );
+    }
 }
 
 #[test]

@@ -121,7 +121,7 @@ fn expand(text: &str, vars: &BTreeMap<String, String>) -> String {
 }
 
 /// What README says a command does: its exit code (`exit N`, else 0) and a cost it prints
-/// (a comment starting `N:` or `N,` is a cost).
+/// (a comment starting `N:` or `N,` is a cost: `cost N`, or a plan's `; cost = N`).
 fn expectation(comment: &str) -> (i32, Option<u64>) {
     let code = comment
         .split("exit ")
@@ -226,7 +226,8 @@ fn every_command_in_readme_runs_as_readme_says() {
         );
         if let (Some(cost), false) = (cost, long) {
             assert!(
-                stdout.contains(&format!("cost {cost}")),
+                stdout.contains(&format!("cost {cost}"))
+                    || stdout.contains(&format!("; cost = {cost}\n")),
                 "`{command}` should print cost {cost} ({page}: {comment:?}):\n{stdout}"
             );
         }
