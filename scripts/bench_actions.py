@@ -218,7 +218,8 @@ def main():
                       "| expanded: ours / FD | expanded/s: ours / FD |")
                 print("|---|---|---|---|---|---|---|---|---|")
             else:
-                print("Satisficing: ours (greedy best-first, FF, preferred operators) against "
+                print("Satisficing: ours (greedy best-first, FF with preferred operators and the "
+                      "landmark count in turn) against "
                       "Fast Downward `--alias lama-first`.")
                 print()
                 print("| problem | ours | FD | ours ÷ FD | cost: ours / FD | ours cost ÷ FD cost "
