@@ -104,12 +104,23 @@ pub fn gripper(balls: usize) -> Result<Instance, GeneratorError> {
     )
 }
 
+/// Writes `(:objects ...)`: for each `(prefix, count, type)`, the objects
+/// `prefix0` to `prefix{count - 1}` of that type.
+fn write_objects(p: &mut String, groups: &[(&str, usize, &str)]) {
+    p.push_str("  (:objects");
+    for &(prefix, count, kind) in groups {
+        for i in 0..count {
+            let _ = write!(p, " {prefix}{i}");
+        }
+        let _ = write!(p, " - {kind}");
+    }
+    p.push(')');
+}
+
 /// Random towers of `blocks` blocks, as `(below, above)` pairs and bottoms.
 fn towers(blocks: usize, rng: &mut Rng) -> Vec<Vec<usize>> {
     let mut order: Vec<usize> = (0..blocks).collect();
-    for i in (1..order.len()).rev() {
-        order.swap(i, rng.index(i + 1));
-    }
+    rng.shuffle(&mut order);
     let mut towers: Vec<Vec<usize>> = Vec::new();
     for b in order {
         match towers.last_mut() {
@@ -222,9 +233,7 @@ pub fn logistics(cities: usize, packages: usize, seed: u64) -> Result<Instance, 
 /// `Ok(curb)` parked at a curb, `Err(car)` beside that car.
 fn arrangement(cars: usize, curbs: usize, rng: &mut Rng) -> Vec<Result<usize, usize>> {
     let mut order: Vec<usize> = (0..cars).collect();
-    for i in (1..order.len()).rev() {
-        order.swap(i, rng.index(i + 1));
-    }
+    rng.shuffle(&mut order);
     let mut place = vec![Ok(usize::MAX); cars];
     let mut curb_taken = vec![false; curbs];
     let mut beside_taken = vec![true; cars];
@@ -259,15 +268,8 @@ pub fn parking(curbs: usize, seed: u64) -> Result<Instance, GeneratorError> {
         p,
         "(define (problem parking-{curbs}-{seed}) (:domain parking)"
     );
-    p.push_str("  (:objects");
-    for c in 0..cars {
-        let _ = write!(p, " car{c}");
-    }
-    p.push_str(" - car");
-    for c in 0..curbs {
-        let _ = write!(p, " curb{c}");
-    }
-    p.push_str(" - curb)\n  (:init (= (total-cost) 0)");
+    write_objects(&mut p, &[("car", cars, "car"), ("curb", curbs, "curb")]);
+    p.push_str("\n  (:init (= (total-cost) 0)");
     let mut clear = vec![true; cars];
     let mut empty = vec![true; curbs];
     for (car, place) in initial.iter().enumerate() {
@@ -384,15 +386,8 @@ pub fn random_small(seed: u64) -> Result<Instance, GeneratorError> {
     let t1 = 2;
     let mut p = String::new();
     let _ = writeln!(p, "(define (problem random-{seed}) (:domain random-{seed})");
-    p.push_str("  (:objects");
-    for i in 0..t0 {
-        let _ = write!(p, " o{i}");
-    }
-    p.push_str(" - t0");
-    for i in 0..t1 {
-        let _ = write!(p, " u{i}");
-    }
-    p.push_str(" - t1)\n  (:init");
+    write_objects(&mut p, &[("o", t0, "t0"), ("u", t1, "t1")]);
+    p.push_str("\n  (:init");
     let mut ground: Vec<String> = vec!["(flag)".to_string()];
     for i in 0..t0 {
         ground.push(format!("(p0 o{i})"));
