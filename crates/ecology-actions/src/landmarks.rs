@@ -15,7 +15,9 @@
 //!
 //! The count is path dependent: a landmark is *accepted* once some state
 //! on the path to the current one made it true, and each state keeps the
-//! set its path accepted. The estimate is the number of landmarks not yet
+//! set accepted on the path by which the search first reached it (Fast
+//! Downward's eager search also merges in the sets of later paths; ours
+//! keeps the first path's). The estimate is the number of landmarks not yet
 //! accepted, plus the accepted ones that are needed again: a goal that is
 //! false now, or a fact false now that is a precondition of every achiever
 //! of a landmark not yet accepted. Like LAMA's, it counts one per landmark
