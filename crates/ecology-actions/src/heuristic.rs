@@ -7,9 +7,7 @@
 //! preconditions are relaxed as faithfully as positive ones. Operators the
 //! caller excludes are not in the relaxation.
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
-
+use crate::queue::OrderedQueue;
 use crate::task::{OpId, State, Task};
 
 /// A cost-to-goal estimate for states of one task.
@@ -313,7 +311,8 @@ struct Exploration {
     op_cost: Vec<u64>,
     /// The precondition that made each operator fire last (its h-max argmax).
     last_pre: Vec<u32>,
-    heap: BinaryHeap<Reverse<(u64, u32)>>,
+    /// Pops as a binary heap of (cost, fact) would, faster.
+    queue: OrderedQueue,
     /// The relaxed task laid out flat for the hot loops: each operator's
     /// precondition count, effects and cost, each fact's consumers (in
     /// operator order, as in `relaxed`, so ties break the same way).
@@ -343,7 +342,7 @@ impl Exploration {
             unsatisfied: vec![0; ops],
             op_cost: vec![0; ops],
             last_pre: vec![u32::MAX; ops],
-            heap: BinaryHeap::new(),
+            queue: OrderedQueue::default(),
         }
     }
 
@@ -368,7 +367,7 @@ impl Exploration {
             unsatisfied,
             op_cost,
             last_pre,
-            heap,
+            queue,
             pre_count,
             add,
             base_cost,
@@ -378,33 +377,33 @@ impl Exploration {
         cost.fill(INF);
         supporter.fill(u32::MAX);
         last_pre.fill(u32::MAX);
-        heap.clear();
+        queue.clear();
         unsatisfied.copy_from_slice(pre_count);
         op_cost.fill(0);
         let costs: &[u64] = costs.unwrap_or(base_cost);
-        let mut fire = |i: usize, op_cost: u64, cost: &mut [u64], heap: &mut BinaryHeap<_>| {
+        let mut fire = |i: usize, op_cost: u64, cost: &mut [u64], queue: &mut OrderedQueue| {
             let value = op_cost.saturating_add(costs[i]);
             for &g in add.get(i) {
                 if value < cost[g as usize] {
                     cost[g as usize] = value;
                     supporter[g as usize] = i as u32;
-                    heap.push(Reverse((value, g)));
+                    queue.push(value, g);
                 }
             }
         };
         relaxed.state_facts(state, |f| {
             cost[f as usize] = 0;
-            heap.push(Reverse((0, f)));
+            queue.push(0, f);
         });
         for &i in no_pre.iter() {
-            fire(i as usize, 0, cost, heap);
+            fire(i as usize, 0, cost, queue);
         }
         let mut goals_left = relaxed.goal.len();
         loop {
             if goals_left == 0 && !full {
                 break;
             }
-            let Some(Reverse((c, f))) = heap.pop() else {
+            let Some((c, f)) = queue.pop() else {
                 break;
             };
             if c > cost[f as usize] {
@@ -422,7 +421,7 @@ impl Exploration {
                 unsatisfied[i] -= 1;
                 if unsatisfied[i] == 0 {
                     last_pre[i] = f;
-                    fire(i, op_cost[i], cost, heap);
+                    fire(i, op_cost[i], cost, queue);
                 }
             }
         }
