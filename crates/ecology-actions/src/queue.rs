@@ -39,15 +39,28 @@ impl Queue {
     /// The item of the smallest key, with its key.
     pub(crate) fn pop(&mut self) -> Option<(u64, u32)> {
         if self.in_buckets > 0 {
-            while self.buckets[self.current].is_empty() {
-                self.current += 1;
-            }
-            // Every bucket key is below every heap key.
-            let item = self.buckets[self.current].pop()?;
-            self.in_buckets -= 1;
-            return Some((self.current as u64, item));
+            self.advance();
+            return self.take();
         }
         self.heap.pop().map(|Reverse(entry)| entry)
+    }
+
+    /// Moves to the first bucket holding an item (there is one); whether
+    /// that is another bucket.
+    fn advance(&mut self) -> bool {
+        let from = self.current;
+        while self.buckets[self.current].is_empty() {
+            self.current += 1;
+        }
+        self.current != from
+    }
+
+    /// Takes an item of the current bucket: every bucket key is below every
+    /// heap key.
+    fn take(&mut self) -> Option<(u64, u32)> {
+        let item = self.buckets[self.current].pop()?;
+        self.in_buckets -= 1;
+        Some((self.current as u64, item))
     }
 
     pub(crate) fn clear(&mut self) {
@@ -71,70 +84,44 @@ impl Queue {
 /// the same choices as on a heap, faster.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct OrderedQueue {
-    /// Items by key, descending within the bucket being popped (so `pop`
-    /// takes the smallest from the back).
-    buckets: Vec<Vec<u32>>,
-    /// No bucket below this holds an item.
-    current: usize,
-    /// Whether `buckets[current]` is sorted.
+    /// The buckets, the one being popped sorted descending when `sorted`
+    /// (so its smallest item is taken from the back).
+    queue: Queue,
     sorted: bool,
-    /// Items in buckets.
-    in_buckets: usize,
-    heap: BinaryHeap<Reverse<(u64, u32)>>,
 }
 
 impl OrderedQueue {
     /// Pushes `item` under `key`, which must not be below the last key
     /// popped since the last `clear`.
     pub(crate) fn push(&mut self, key: u64, item: u32) {
-        if key >= BUCKETS {
-            self.heap.push(Reverse((key, item)));
-            return;
-        }
-        let k = key as usize;
-        if k >= self.buckets.len() {
-            self.buckets.resize_with(k + 1, Vec::new);
-        }
-        self.in_buckets += 1;
-        if k == self.current && self.sorted {
-            let bucket = &mut self.buckets[k];
+        let q = &mut self.queue;
+        debug_assert!(key >= q.current as u64, "a key below the last popped");
+        if self.sorted && key == q.current as u64 {
+            let bucket = &mut q.buckets[q.current];
             let at = bucket.partition_point(|&x| x > item);
             bucket.insert(at, item);
+            q.in_buckets += 1;
         } else {
-            debug_assert!(k >= self.current, "a key below the last popped");
-            self.buckets[k].push(item);
+            q.push(key, item);
         }
     }
 
     /// The smallest `(key, item)`.
     pub(crate) fn pop(&mut self) -> Option<(u64, u32)> {
-        if self.in_buckets > 0 {
-            while self.buckets[self.current].is_empty() {
-                self.current += 1;
-                self.sorted = false;
-            }
-            let bucket = &mut self.buckets[self.current];
-            if !self.sorted {
-                bucket.sort_unstable_by(|a, b| b.cmp(a));
-                self.sorted = true;
-            }
-            let item = bucket.pop()?;
-            self.in_buckets -= 1;
-            return Some((self.current as u64, item));
+        let q = &mut self.queue;
+        if q.in_buckets == 0 {
+            return q.heap.pop().map(|Reverse(entry)| entry);
         }
-        self.heap.pop().map(|Reverse(entry)| entry)
+        if q.advance() || !self.sorted {
+            q.buckets[q.current].sort_unstable_by(|a, b| b.cmp(a));
+            self.sorted = true;
+        }
+        q.take()
     }
 
     pub(crate) fn clear(&mut self) {
-        if self.in_buckets > 0 {
-            for b in &mut self.buckets[self.current..] {
-                b.clear();
-            }
-        }
-        self.in_buckets = 0;
-        self.current = 0;
+        self.queue.clear();
         self.sorted = false;
-        self.heap.clear();
     }
 }
 
