@@ -19,7 +19,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use ecology_actions::problems::{self, Instance};
-use ecology_actions::{Budget, Options, Request, Strategy, Verdict, WallClock};
+use ecology_actions::{Budget, HeuristicKind, Options, Request, Strategy, Verdict, WallClock};
 
 fn generate(name: &str) -> Result<Instance, String> {
     let parts: Vec<&str> = name.split('-').collect();
@@ -55,51 +55,19 @@ fn run(args: &[String]) -> Result<(), String> {
                 .into(),
         );
     };
-    let mut strategy = Strategy::SATISFICING;
+    let (mut optimal, mut lazy, mut landmarks, mut weight) = (false, false, true, None);
     let mut timeout = None;
     let mut print_plan = false;
     let mut rest = rest.iter();
     while let Some(arg) = rest.next() {
         match arg.as_str() {
-            "--optimal" => strategy = Strategy::OPTIMAL,
+            "--optimal" => optimal = true,
             "--plan" => print_plan = true,
-            "--lazy" | "--no-landmarks" => {
-                let (heuristic, preferred, mut lazy, mut landmarks) = match strategy {
-                    Strategy::Greedy {
-                        heuristic,
-                        preferred,
-                        landmarks,
-                    } => (heuristic, preferred, false, landmarks),
-                    Strategy::Lazy {
-                        heuristic,
-                        preferred,
-                        landmarks,
-                    } => (heuristic, preferred, true, landmarks),
-                    _ => return Err(format!("{arg} is for greedy search")),
-                };
-                lazy |= arg == "--lazy";
-                landmarks &= arg != "--no-landmarks";
-                strategy = if lazy {
-                    Strategy::Lazy {
-                        heuristic,
-                        preferred,
-                        landmarks,
-                    }
-                } else {
-                    Strategy::Greedy {
-                        heuristic,
-                        preferred,
-                        landmarks,
-                    }
-                };
-            }
+            "--lazy" => lazy = true,
+            "--no-landmarks" => landmarks = false,
             "--weight" => {
                 let w = rest.next().ok_or("--weight needs a value")?;
-                let weight = w.parse().map_err(|e| format!("--weight: {e}"))?;
-                strategy = Strategy::Weighted {
-                    heuristic: ecology_actions::HeuristicKind::Ff,
-                    weight,
-                };
+                weight = Some(w.parse().map_err(|e| format!("--weight: {e}"))?);
             }
             "--timeout-s" => {
                 let s = rest.next().ok_or("--timeout-s needs a value")?;
@@ -109,6 +77,14 @@ fn run(args: &[String]) -> Result<(), String> {
             other => return Err(format!("unknown argument `{other}`")),
         }
     }
+    let strategy = match (optimal, weight) {
+        (true, _) => Strategy::OPTIMAL,
+        (false, Some(weight)) => Strategy::Weighted {
+            heuristic: HeuristicKind::Ff,
+            weight,
+        },
+        (false, None) => Strategy::greedy(HeuristicKind::Ff, lazy, landmarks),
+    };
     let domain_text = std::fs::read(domain_path).map_err(|e| format!("{domain_path}: {e}"))?;
     let problem_text = std::fs::read(problem_path).map_err(|e| format!("{problem_path}: {e}"))?;
     let domain =

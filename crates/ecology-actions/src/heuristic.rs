@@ -232,6 +232,20 @@ impl Relaxed {
         }
     }
 
+    /// The atom of `fact` and whether the fact is that atom being true
+    /// (not its complement).
+    pub(crate) fn literal(&self, fact: u32) -> (crate::task::AtomId, bool) {
+        if (fact as usize) < self.atoms {
+            return (crate::task::AtomId(fact), true);
+        }
+        let &(atom, _) = self
+            .complemented
+            .iter()
+            .find(|&&(_, c)| c == fact)
+            .expect("a fact is an atom or a complement");
+        (crate::task::AtomId(atom), false)
+    }
+
     /// How many facts: atoms and complements.
     pub(crate) fn facts(&self) -> usize {
         self.facts

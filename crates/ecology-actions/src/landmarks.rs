@@ -25,7 +25,7 @@
 //! admissible: it guides greedy search alongside FF, not A*.
 
 use crate::heuristic::{Lists, Relaxed};
-use crate::task::State;
+use crate::task::{AtomId, State};
 
 const NONE: u32 = u32::MAX;
 
@@ -33,9 +33,8 @@ const NONE: u32 = u32::MAX;
 /// state the search has made a node: node `i`'s are `accepted[i]`.
 #[derive(Debug, Clone)]
 pub(crate) struct LandmarkCount {
-    relaxed: Relaxed,
-    /// The fact of each landmark.
-    fact: Vec<u32>,
+    /// Each landmark, as an atom that must hold (`true`) or not.
+    literal: Vec<(AtomId, bool)>,
     /// Whether each landmark is a goal fact.
     goal: Vec<bool>,
     /// For each landmark, the landmarks it is a precondition of every
@@ -44,8 +43,6 @@ pub(crate) struct LandmarkCount {
     /// Words per node in `accepted`.
     words: usize,
     accepted: Vec<u64>,
-    /// Scratch: the facts true in the state being evaluated.
-    truth: Vec<u64>,
 }
 
 fn bit(set: &[u64], i: u32) -> bool {
@@ -101,14 +98,16 @@ fn labels(relaxed: &Relaxed, initial: &[bool]) -> Vec<Option<Vec<u32>>> {
                 None => return,
             }
         }
+        union.sort_unstable();
+        union.dedup();
         for &p in add.get(o) {
             if initial[p as usize] {
                 continue;
             }
             let mut new = union.clone();
-            new.push(p);
-            new.sort_unstable();
-            new.dedup();
+            if let Err(at) = new.binary_search(&p) {
+                new.insert(at, p);
+            }
             let changed = match &label[p as usize] {
                 None => {
                     label[p as usize] = Some(new);
@@ -152,11 +151,11 @@ fn labels(relaxed: &Relaxed, initial: &[bool]) -> Vec<Option<Vec<u32>>> {
 
 impl LandmarkCount {
     /// The landmarks of `relaxed` from `initial`, the search's start.
-    pub(crate) fn new(relaxed: Relaxed, initial: &State) -> LandmarkCount {
+    pub(crate) fn new(relaxed: &Relaxed, initial: &State) -> LandmarkCount {
         let facts = relaxed.facts();
         let mut holds = vec![false; facts];
         relaxed.state_facts(initial, |f| holds[f as usize] = true);
-        let label = labels(&relaxed, &holds);
+        let label = labels(relaxed, &holds);
         let mut fact: Vec<u32> = Vec::new();
         if relaxed.goal().iter().all(|&g| label[g as usize].is_some()) {
             for &g in relaxed.goal() {
@@ -211,40 +210,18 @@ impl LandmarkCount {
                 }
             }
         }
-        let words = fact.len().div_ceil(64);
         LandmarkCount {
-            truth: vec![0; facts.div_ceil(64)],
-            relaxed,
+            literal: fact.iter().map(|&f| relaxed.literal(f)).collect(),
+            words: fact.len().div_ceil(64),
             goal,
             needed_by: Lists::from_lists(needed_by.iter().map(Vec::as_slice)),
-            words,
             accepted: Vec::new(),
-            fact,
         }
-    }
-
-    /// How many landmarks.
-    #[cfg(test)]
-    pub(crate) fn len(&self) -> usize {
-        self.fact.len()
-    }
-
-    /// The facts that are landmarks.
-    #[cfg(test)]
-    pub(crate) fn facts(&self) -> &[u32] {
-        &self.fact
-    }
-
-    fn load(&mut self, state: &State) {
-        self.truth.fill(0);
-        let truth = &mut self.truth;
-        self.relaxed.state_facts(state, |f| set_bit(truth, f));
     }
 
     /// Makes the next node, whose state is `state`, reached from node
     /// `parent` (`None`: the start), and returns its estimate.
     pub(crate) fn push(&mut self, parent: Option<u32>, state: &State) -> u64 {
-        self.load(state);
         let start = self.accepted.len();
         match parent {
             Some(p) => {
@@ -254,25 +231,23 @@ impl LandmarkCount {
             None => self.accepted.resize(start + self.words, 0),
         }
         let accepted = &mut self.accepted[start..];
-        for (i, &f) in self.fact.iter().enumerate() {
-            if bit(&self.truth, f) {
+        let true_now = |i: usize| {
+            let (atom, positive) = self.literal[i];
+            state.holds(atom) == positive
+        };
+        for i in 0..self.literal.len() {
+            if true_now(i) {
                 set_bit(accepted, i as u32);
             }
         }
         let mut h = 0;
-        for (i, &f) in self.fact.iter().enumerate() {
-            let i = i as u32;
-            let needed = if !bit(accepted, i) {
+        for i in 0..self.literal.len() {
+            let needed = if !bit(accepted, i as u32) {
                 true
-            } else if bit(&self.truth, f) {
+            } else if true_now(i) {
                 false
             } else {
-                self.goal[i as usize]
-                    || self
-                        .needed_by
-                        .get(i as usize)
-                        .iter()
-                        .any(|&p| !bit(accepted, p))
+                self.goal[i] || self.needed_by.get(i).iter().any(|&p| !bit(accepted, p))
             };
             h += u64::from(needed);
         }
@@ -289,8 +264,7 @@ mod tests {
 
     fn count(instance: &Instance) -> (crate::Task, LandmarkCount) {
         let task = ground(&instance.domain, &instance.problem).expect("grounds");
-        let relaxed = Relaxed::new(&task, &[]);
-        let count = LandmarkCount::new(relaxed, task.initial());
+        let count = LandmarkCount::new(&Relaxed::new(&task, &[]), task.initial());
         (task, count)
     }
 
@@ -302,23 +276,17 @@ mod tests {
         let Verdict::Found(found) = outcome.verdict else {
             return 0;
         };
-        let mut state = task.initial().clone();
-        let mut seen = vec![false; count.relaxed.facts()];
-        count
-            .relaxed
-            .state_facts(&state, |f| seen[f as usize] = true);
-        let mut h = count.push(None, &state);
+        let mut states = vec![task.initial().clone()];
+        let mut h = count.push(None, &states[0]);
         for (i, step) in found.steps.iter().enumerate() {
-            state = task.apply(&state, step.op);
-            count
-                .relaxed
-                .state_facts(&state, |f| seen[f as usize] = true);
-            h = count.push(Some(i as u32), &state);
+            let next = task.apply(&states[i], step.op);
+            h = count.push(Some(i as u32), &next);
+            states.push(next);
         }
-        for &f in count.facts() {
+        for &(atom, positive) in &count.literal {
             assert!(
-                seen[f as usize],
-                "{}: landmark fact {f} is never true on a plan",
+                states.iter().any(|s| s.holds(atom) == positive),
+                "{}: landmark {atom:?} (true: {positive}) never holds on a plan",
                 instance.name
             );
         }
@@ -327,7 +295,7 @@ mod tests {
             "{}: a goal state still counts landmarks",
             instance.name
         );
-        count.len()
+        count.literal.len()
     }
 
     #[test]
@@ -355,10 +323,9 @@ mod tests {
         // is true at the start. Goals and the robot's visit to room b are.
         let h = count.push(None, task.initial());
         assert_eq!(
-            h,
-            4,
+            h, 4,
             "3 balls to deliver and room b to reach: {:?}",
-            count.facts()
+            count.literal
         );
     }
 }

@@ -132,6 +132,26 @@ impl Strategy {
         preferred: true,
         landmarks: true,
     };
+    /// Greedy best-first search with `heuristic` (and its preferred
+    /// operators, if it is FF), eager or `lazy`, with the landmark count
+    /// in turn or not.
+    pub fn greedy(heuristic: HeuristicKind, lazy: bool, landmarks: bool) -> Strategy {
+        let preferred = heuristic == HeuristicKind::Ff;
+        if lazy {
+            Strategy::Lazy {
+                heuristic,
+                preferred,
+                landmarks,
+            }
+        } else {
+            Strategy::Greedy {
+                heuristic,
+                preferred,
+                landmarks,
+            }
+        }
+    }
+
     /// A* with LM-cut.
     pub const OPTIMAL: Strategy = Strategy::AStar {
         heuristic: HeuristicKind::LmCut,
@@ -429,7 +449,7 @@ impl<'t> Search<'t> {
         let useless = task.useless_operators(&initial, &excluded);
         let heuristic = kind.build_costed(task, &useless, costs);
         let landmarks = landmarks
-            .then(|| LandmarkCount::new(heuristic::Relaxed::new(task, &useless), &initial));
+            .then(|| LandmarkCount::new(&heuristic::Relaxed::new(task, &useless), &initial));
         let engine = Engine::new(task, &initial, useless, heuristic, landmarks, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))

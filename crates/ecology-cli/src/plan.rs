@@ -123,23 +123,11 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
         return Ok(EXIT_BAD_INPUT);
     }
     let strategy = match (args.optimal, args.heuristic) {
-        (false, heuristic) => {
-            let heuristic = heuristic.unwrap_or(HeuristicKind::Ff);
-            let preferred = heuristic == HeuristicKind::Ff;
-            if args.lazy {
-                Strategy::Lazy {
-                    heuristic,
-                    preferred,
-                    landmarks: !args.no_landmarks,
-                }
-            } else {
-                Strategy::Greedy {
-                    heuristic,
-                    preferred,
-                    landmarks: !args.no_landmarks,
-                }
-            }
-        }
+        (false, heuristic) => Strategy::greedy(
+            heuristic.unwrap_or(HeuristicKind::Ff),
+            args.lazy,
+            !args.no_landmarks,
+        ),
         (true, None) => Strategy::OPTIMAL,
         (true, Some(heuristic)) if heuristic.is_admissible() => Strategy::AStar { heuristic },
         (true, Some(_)) => {
