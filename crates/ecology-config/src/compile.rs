@@ -134,6 +134,22 @@ impl CInfo {
                 .collect(),
         }
     }
+
+    /// Grounded by a functionality instance's arguments, which bind its
+    /// schema's slots in order (as `ground` with each of them `Some`).
+    pub(crate) fn ground_args(&self, args: &[Sym]) -> GInfo {
+        GInfo {
+            name: self.name,
+            args: self
+                .args
+                .iter()
+                .map(|&t| match t {
+                    CTerm::Var(slot) => args.get(slot as usize).copied().unwrap_or(Sym(u32::MAX)),
+                    CTerm::Const(sym) => sym,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// What a subtask calls.

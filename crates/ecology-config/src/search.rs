@@ -485,14 +485,9 @@ impl<'a> Engine<'a> {
         crate::explain::describe(&self.ctx, &self.graph, item)
     }
 
-    /// The ground arguments of an item, as a binding of its schema's slots.
-    fn binding_of(&self, item: ItemId) -> Vec<Option<Sym>> {
-        self.graph
-            .item(item)
-            .args
-            .iter()
-            .map(|&a| Some(a))
-            .collect()
+    /// The ground arguments of an item, which bind its schema's slots in order.
+    fn args_of(&self, item: ItemId) -> &[Sym] {
+        &self.graph.item(item).args
     }
 
     pub(crate) fn callee_name(&self, callee: Callee) -> &str {
@@ -505,7 +500,7 @@ impl<'a> Engine<'a> {
 
     /// The label path of an instance, like `f0/f1/f2`.
     fn label(&self, partial: &Partial, mut inst: u32) -> String {
-        let mut parts = Vec::new();
+        let mut parts: Vec<&str> = Vec::new();
         while let Some((parent, k)) = partial.insts[inst as usize].parent {
             let p = &partial.insts[parent as usize];
             let label = p
@@ -516,7 +511,7 @@ impl<'a> Engine<'a> {
                 })
                 .map(|m| self.ctx.subtask_label(m, k))
                 .unwrap_or("?");
-            parts.push(label.to_string());
+            parts.push(label);
             inst = parent;
         }
         if parts.is_empty() {
@@ -602,10 +597,10 @@ impl<'a> Engine<'a> {
         self.check_wires(partial, &wires)?;
         self.check_inputs_connected(partial, &order, &wires)?;
         // Labels, once per functionality instance: channels name them again.
-        let labels: HashMap<u32, String> = order
-            .iter()
-            .map(|&at| (at, self.label(partial, at)))
-            .collect();
+        let mut labels: Vec<String> = vec![String::new(); partial.insts.len()];
+        for &at in &order {
+            labels[at as usize] = self.label(partial, at);
+        }
         // Cost: distinct components, plus distinct channels between PEIS.
         let (functionalities, components_cost) =
             self.functionality_instances(partial, &order, &labels);
@@ -713,16 +708,15 @@ impl<'a> Engine<'a> {
             };
             let pi = partial.insts[*producer as usize].item;
             let ci = partial.insts[*consumer as usize].item;
-            let p_args = self.binding_of(pi);
-            let c_args = self.binding_of(ci);
+            let (p_args, c_args) = (self.args_of(pi), self.args_of(ci));
             let out = c.funcs[pf.func as usize]
                 .outputs
                 .iter()
-                .find(|o| o.ground(&p_args) == *info);
+                .find(|o| o.ground_args(p_args) == *info);
             let input = c.funcs[cf.func as usize]
                 .inputs
                 .iter()
-                .find(|i| i.ground(&c_args) == *info);
+                .find(|i| i.ground_args(c_args) == *info);
             let Some(out) = out else {
                 return Err(format!(
                     "{} does not output {}",
@@ -767,9 +761,9 @@ impl<'a> Engine<'a> {
             let Some(f) = self.graph.func(item) else {
                 continue;
             };
-            let args = self.binding_of(item);
+            let args = self.args_of(item);
             for input in &c.funcs[f.func as usize].inputs {
-                let info = input.ground(&args);
+                let info = input.ground_args(args);
                 if !wires
                     .iter()
                     .any(|(k, i, _, _)| *k == (f.peis, f.component) && *i == info)
@@ -792,7 +786,7 @@ impl<'a> Engine<'a> {
         &self,
         partial: &Partial,
         order: &[u32],
-        labels: &HashMap<u32, String>,
+        labels: &[String],
     ) -> (Vec<FunctionalityInstance>, u64) {
         let c = &self.ctx.compiled;
         let mut cost: u64 = 0;
@@ -804,9 +798,9 @@ impl<'a> Engine<'a> {
             };
             cost = cost.saturating_add(f.cost);
             let schema = &c.funcs[f.func as usize];
-            let args = self.binding_of(item);
+            let args = self.args_of(item);
             functionalities.push(FunctionalityInstance {
-                label: labels.get(&at).cloned().unwrap_or_default(),
+                label: labels[at as usize].clone(),
                 name: self.callee_name(Callee::Func(f.func)).to_string(),
                 args: self
                     .graph
@@ -822,12 +816,12 @@ impl<'a> Engine<'a> {
                 inputs: schema
                     .inputs
                     .iter()
-                    .map(|i| self.info_text(&i.ground(&args)))
+                    .map(|i| self.info_text(&i.ground_args(args)))
                     .collect(),
                 outputs: schema
                     .outputs
                     .iter()
-                    .map(|o| self.info_text(&o.ground(&args)))
+                    .map(|o| self.info_text(&o.ground_args(args)))
                     .collect(),
                 postcondition: self
                     .ctx
@@ -844,13 +838,13 @@ impl<'a> Engine<'a> {
         partial: &Partial,
         wires: &[Wire],
         by_component: &HashMap<ComponentKey, u32>,
-        labels: &HashMap<u32, String>,
+        labels: &[String],
     ) -> (Vec<ChannelInstance>, u64) {
         let c = &self.ctx.compiled;
         let label_of = |k: ComponentKey| {
             by_component
                 .get(&k)
-                .and_then(|at| labels.get(at))
+                .and_then(|&at| labels.get(at as usize))
                 .cloned()
                 .unwrap_or_default()
         };

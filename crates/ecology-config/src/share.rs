@@ -197,6 +197,8 @@ impl Shared {
             item: engine.root,
             ..Task::default()
         });
+        // A buffer reused for every alternative.
+        let mut fed: Vec<bool> = Vec::new();
         let mut next = 0;
         while next < tasks.len() {
             let item = graph.item(tasks[next].item);
@@ -207,23 +209,24 @@ impl Shared {
                 if alt.lb == INFEASIBLE {
                     continue;
                 }
-                let funcs: Vec<usize> = (0..alt.children.len())
-                    .filter(|&k| graph.func(alt.children[k]).is_some())
-                    .collect();
-                let [sf] = funcs[..] else { return None };
+                let mut funcs =
+                    (0..alt.children.len()).filter(|&k| graph.func(alt.children[k]).is_some());
+                let (Some(sf), None) = (funcs.next(), funcs.next()) else {
+                    return None;
+                };
                 let f_item = alt.children[sf];
                 let f = graph.func(f_item)?;
                 let method = &c.methods[alt.method as usize];
-                let f_args: Vec<Option<Sym>> =
-                    graph.item(f_item).args.iter().map(|&s| Some(s)).collect();
+                let f_args = &graph.item(f_item).args;
                 let inputs: Vec<GInfo> = c.funcs[f.func as usize]
                     .inputs
                     .iter()
-                    .map(|i| i.ground(&f_args))
+                    .map(|i| i.ground_args(f_args))
                     .collect();
                 // Each task child feeds one distinct input of the functionality.
                 let mut needs: Vec<Option<ItemId>> = vec![None; inputs.len()];
-                let mut fed = vec![false; alt.children.len()];
+                fed.clear();
+                fed.resize(alt.children.len(), false);
                 for (from, to, info) in &method.channels {
                     let (from, to) = (*from as usize, *to as usize);
                     if to != sf || from == sf || fed[from] {
@@ -349,7 +352,7 @@ impl Shared {
                     let k = (n as u32 - cons.first_need) as usize;
                     let info = &cons.needs[k].0;
                     if !provides.contains(info)
-                        || !rate_ok(engine, cons.item, provs[*g as usize].item, info)
+                        || !rate_ok(engine, cons.item, k, provs[*g as usize].item, info)
                     {
                         continue;
                     }
@@ -606,19 +609,35 @@ impl Shared {
         sum
     }
 
-    /// The children of a state: (opt index, child state, added cost).
-    fn children(&self, state: &[u64], need: usize, out: &mut Vec<(u32, Vec<u64>, u64)>) {
+    /// The children of a state: (opt index, added cost) in `out`, and their
+    /// states back to back in `states`, `words` words each.
+    fn children(
+        &self,
+        state: &[u64],
+        need: usize,
+        out: &mut Vec<(u32, u64)>,
+        states: &mut Vec<u64>,
+    ) {
+        out.clear();
+        states.clear();
         for (o, opt) in self.needs[need].opts.iter().enumerate() {
             let p = opt.prov as usize;
-            let mut child = state.to_vec();
-            let (chosen, open) = child.split_at_mut(self.pwords);
-            set(open, need, false);
+            let (chosen, _) = state.split_at(self.pwords);
             let mut add = opt.wire;
+            if !bit(chosen, p)
+                && self.provs[p]
+                    .conflicts
+                    .iter()
+                    .any(|&q| bit(chosen, q as usize))
+            {
+                continue;
+            }
+            let at = states.len();
+            states.extend_from_slice(state);
+            let (chosen, open) = states[at..].split_at_mut(self.pwords);
+            set(open, need, false);
             if !bit(chosen, p) {
                 let prov = &self.provs[p];
-                if prov.conflicts.iter().any(|&q| bit(chosen, q as usize)) {
-                    continue;
-                }
                 set(chosen, p, true);
                 let first = prov.first_need as usize;
                 for n in first..first + prov.needs.len() {
@@ -626,7 +645,7 @@ impl Shared {
                 }
                 add = add.saturating_add(prov.cost);
             }
-            out.push((o as u32, child, add));
+            out.push((o as u32, add));
         }
     }
 
@@ -634,14 +653,14 @@ impl Shared {
         ones(&state[self.pwords..]).next()
     }
 
-    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: Vec<u64>) {
+    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: &[u64]) {
         let id = self.nodes.len() as u32;
         if self.count == 1 {
             let mut hasher = FxHasher::default();
             state.hash(&mut hasher);
             let key = hasher.finish();
             match self.seen.get(&key) {
-                Some(&old) if self.state(old) == &state[..] => {
+                Some(&old) if self.state(old) == state => {
                     if self.nodes[old as usize].g <= g {
                         return;
                     }
@@ -659,7 +678,7 @@ impl Shared {
             opt,
             g,
         });
-        self.states.extend_from_slice(&state);
+        self.states.extend_from_slice(state);
         self.open.push((Reverse(f), g, Reverse(id)));
         self.generated += 1;
     }
@@ -688,7 +707,7 @@ impl Shared {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
-        let mut kids = Vec::new();
+        let (mut kids, mut kid_states) = (Vec::new(), Vec::new());
         let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
             if steps == limit
@@ -699,20 +718,21 @@ impl Shared {
             steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
-            kids.clear();
-            self.children(&state, need, &mut kids);
+            self.children(&state, need, &mut kids, &mut kid_states);
+            let words = self.words;
             let best = kids
-                .drain(..)
-                .map(|(o, s, add)| {
-                    let h = self.h(&s);
-                    (g.saturating_add(add).saturating_add(h), o, s, add)
+                .iter()
+                .enumerate()
+                .map(|(k, &(o, add))| {
+                    let h = self.h(&kid_states[k * words..(k + 1) * words]);
+                    (g.saturating_add(add).saturating_add(h), o, k, add)
                 })
                 .filter(|k| k.0 < self.bound)
                 .min_by_key(|k| (k.0, k.1));
-            let Some((_, o, s, add)) = best else { return };
+            let Some((_, o, k, add)) = best else { return };
             choice[need] = o;
             g = g.saturating_add(add);
-            state = s;
+            state.copy_from_slice(&kid_states[k * words..(k + 1) * words]);
         }
         if g < self.bound {
             self.bound = g;
@@ -740,7 +760,7 @@ impl Shared {
             let state = self.root_state();
             let h = self.h(&state);
             if h != INFEASIBLE {
-                self.push(NONE, NONE, NONE, 0, h, state);
+                self.push(NONE, NONE, NONE, 0, h, &state);
                 if single {
                     // A first configuration at once: anytime.
                     self.dive(0, expansions.max(1), over);
@@ -748,7 +768,7 @@ impl Shared {
             }
             return self.finalize();
         }
-        let mut kids = Vec::new();
+        let (mut kids, mut kid_states) = (Vec::new(), Vec::new());
         for done in 0..expansions {
             let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
                 break;
@@ -783,11 +803,11 @@ impl Shared {
                 continue;
             };
             self.expanded += 1;
-            kids.clear();
-            self.children(&state, need, &mut kids);
-            for (o, s, add) in kids.drain(..) {
+            self.children(&state, need, &mut kids, &mut kid_states);
+            for (k, &(o, add)) in kids.iter().enumerate() {
+                let s = &kid_states[k * self.words..(k + 1) * self.words];
                 let cg = g.saturating_add(add);
-                let h = self.h(&s);
+                let h = self.h(s);
                 if h == INFEASIBLE {
                     continue;
                 }
@@ -887,40 +907,29 @@ impl Shared {
     }
 }
 
-/// Whether the consumer's input `info` is offered by the producer at a sufficient rate.
-fn rate_ok(engine: &Engine<'_>, consumer: ItemId, producer: ItemId, info: &GInfo) -> bool {
+/// Whether the consumer's input number `input`, of information `info`, is
+/// offered by the producer at a sufficient rate.
+fn rate_ok(
+    engine: &Engine<'_>,
+    consumer: ItemId,
+    input: usize,
+    producer: ItemId,
+    info: &GInfo,
+) -> bool {
     let c = &engine.ctx.compiled;
     let (Some(cf), Some(pf)) = (engine.graph.func(consumer), engine.graph.func(producer)) else {
         return false;
     };
-    let binding = |item: ItemId| -> Vec<Option<Sym>> {
-        engine
-            .graph
-            .item(item)
-            .args
-            .iter()
-            .map(|&a| Some(a))
-            .collect()
+    // Most inputs ask for no rate: then any output of that information will do.
+    let Some(need) = c.funcs[cf.func as usize].inputs[input].hz else {
+        return true;
     };
-    let (cb, pb) = (binding(consumer), binding(producer));
-    let Some(out) = c.funcs[pf.func as usize]
+    let args = &engine.graph.item(producer).args;
+    c.funcs[pf.func as usize]
         .outputs
         .iter()
-        .find(|o| o.ground(&pb) == *info)
-    else {
-        return false;
-    };
-    let Some(input) = c.funcs[cf.func as usize]
-        .inputs
-        .iter()
-        .find(|i| i.ground(&cb) == *info)
-    else {
-        return false;
-    };
-    match input.hz {
-        Some(need) => out.hz.is_some_and(|offered| offered >= need),
-        None => true,
-    }
+        .find(|o| o.ground_args(args) == *info)
+        .is_some_and(|out| out.hz.is_some_and(|offered| offered >= need))
 }
 
 /// Whether some provider could, through its inputs' possible feeders, feed itself.
