@@ -232,18 +232,21 @@ impl Relaxed {
         }
     }
 
-    /// The atom of `fact` and whether the fact is that atom being true
-    /// (not its complement).
-    pub(crate) fn literal(&self, fact: u32) -> (crate::task::AtomId, bool) {
-        if (fact as usize) < self.atoms {
-            return (crate::task::AtomId(fact), true);
+    /// For every fact in order, its atom and whether the fact is that atom
+    /// being true (not its complement).
+    pub(crate) fn literals(&self) -> Vec<(crate::task::AtomId, bool)> {
+        let mut out: Vec<_> = (0..self.facts as u32)
+            .map(|f| (crate::task::AtomId(f), true))
+            .collect();
+        for &(atom, c) in &self.complemented {
+            out[c as usize] = (crate::task::AtomId(atom), false);
         }
-        let &(atom, _) = self
-            .complemented
-            .iter()
-            .find(|&&(_, c)| c == fact)
-            .expect("a fact is an atom or a complement");
-        (crate::task::AtomId(atom), false)
+        out
+    }
+
+    /// Whether `fact` is a goal fact.
+    pub(crate) fn is_goal(&self, fact: u32) -> bool {
+        self.is_goal[fact as usize]
     }
 
     /// How many facts: atoms and complements.

@@ -24,6 +24,8 @@
 //! whatever the actions cost, offers no preferred operators, and is not
 //! admissible: it guides greedy search alongside FF, not A*.
 
+use std::collections::HashMap;
+
 use crate::heuristic::{Lists, Relaxed};
 use crate::task::{AtomId, State};
 
@@ -33,12 +35,15 @@ const NONE: u32 = u32::MAX;
 /// state the search has made a node: node `i`'s are `accepted[i]`.
 #[derive(Debug, Clone)]
 pub(crate) struct LandmarkCount {
-    /// Each landmark, as an atom that must hold (`true`) or not.
+    /// The landmarks' literals back to back: an atom that must hold
+    /// (`true`) or not. A landmark of several holds when one of them does.
     literal: Vec<(AtomId, bool)>,
+    /// Where each landmark's literals end in `literal`.
+    ends: Vec<u32>,
     /// Whether each landmark is a goal fact.
     goal: Vec<bool>,
     /// For each landmark, the landmarks it is a precondition of every
-    /// achiever of.
+    /// (first) achiever of.
     needed_by: Lists,
     /// Words per node in `accepted`.
     words: usize,
@@ -149,10 +154,68 @@ fn labels(relaxed: &Relaxed, initial: &[bool]) -> Vec<Option<Vec<u32>>> {
     label
 }
 
+/// How much work (operators and preconditions visited) the search for
+/// landmarks before landmarks may do in all: one restricted exploration per
+/// landmark, which on large tasks would take longer than the search.
+const BACKCHAIN_WORK: u64 = 30_000_000;
+
+/// The largest disjunctive landmark kept (Fast Downward's limit too).
+const MAX_DISJUNCTION: usize = 4;
+
+/// The landmarks being found: each a sorted set of facts, one of which
+/// every plan makes true; with the landmarks ordered before each.
+struct Found {
+    facts: Vec<Vec<u32>>,
+    before: Vec<Vec<u32>>,
+    /// The landmark that is the single fact `f`, or `NONE`.
+    simple: Vec<u32>,
+    disjunctive: HashMap<Vec<u32>, u32>,
+}
+
+impl Found {
+    /// The landmark of `facts`, added if new; whether it was new.
+    fn add(&mut self, facts: Vec<u32>) -> (u32, bool) {
+        let existing = match facts[..] {
+            [f] => Some(self.simple[f as usize]).filter(|&l| l != NONE),
+            _ => self.disjunctive.get(&facts).copied(),
+        };
+        if let Some(l) = existing {
+            return (l, false);
+        }
+        let l = self.facts.len() as u32;
+        match facts[..] {
+            [f] => self.simple[f as usize] = l,
+            _ => {
+                self.disjunctive.insert(facts.clone(), l);
+            }
+        }
+        self.facts.push(facts);
+        self.before.push(Vec::new());
+        (l, true)
+    }
+
+    fn order(&mut self, first: u32, then: u32) {
+        if first != then && !self.before[then as usize].contains(&first) {
+            self.before[then as usize].push(first);
+        }
+    }
+}
+
 impl LandmarkCount {
-    /// The landmarks of `relaxed` from `initial`, the search's start.
-    pub(crate) fn new(relaxed: &Relaxed, initial: &State) -> LandmarkCount {
+    /// The landmarks of `relaxed` from `initial`, the search's start;
+    /// `predicate` names each atom's predicate (disjunctive landmarks are
+    /// sets of facts of one predicate, all true or all false).
+    pub(crate) fn new(
+        relaxed: &Relaxed,
+        initial: &State,
+        predicate: &dyn Fn(AtomId) -> u32,
+    ) -> LandmarkCount {
         let facts = relaxed.facts();
+        let literal = relaxed.literals();
+        let class: Vec<u32> = literal
+            .iter()
+            .map(|&(atom, positive)| predicate(atom) * 2 + u32::from(!positive))
+            .collect();
         let mut holds = vec![false; facts];
         relaxed.state_facts(initial, |f| holds[f as usize] = true);
         let label = labels(relaxed, &holds);
@@ -164,15 +227,14 @@ impl LandmarkCount {
         }
         fact.sort_unstable();
         fact.dedup();
-        let mut index = vec![NONE; facts];
-        for (i, &f) in fact.iter().enumerate() {
-            index[f as usize] = i as u32;
-        }
-        let mut goal = vec![false; fact.len()];
-        for &g in relaxed.goal() {
-            if index[g as usize] != NONE {
-                goal[index[g as usize] as usize] = true;
-            }
+        let mut found = Found {
+            facts: Vec::new(),
+            before: Vec::new(),
+            simple: vec![NONE; facts],
+            disjunctive: Default::default(),
+        };
+        for &f in &fact {
+            found.add(vec![f]);
         }
         // Necessary orderings: a landmark false at the start needs every
         // precondition its reachable achievers share.
@@ -183,13 +245,13 @@ impl LandmarkCount {
                 continue;
             }
             for &p in add {
-                let l = index[p as usize];
+                let l = found.simple[p as usize];
                 if l == NONE || holds[p as usize] {
                     continue;
                 }
                 let mut mine: Vec<u32> = pre
                     .iter()
-                    .map(|&q| index[q as usize])
+                    .map(|&q| found.simple[q as usize])
                     .filter(|&q| q != NONE)
                     .collect();
                 mine.sort_unstable();
@@ -202,21 +264,54 @@ impl LandmarkCount {
                 }
             }
         }
-        let mut needed_by = vec![Vec::new(); fact.len()];
         for (p, before) in shared.iter().enumerate() {
             for &q in before.iter().flatten() {
-                if q as usize != p {
-                    needed_by[q as usize].push(p as u32);
-                }
+                found.order(q, p as u32);
             }
         }
+        backchain(relaxed, &holds, &class, &mut found);
+        let mut needed_by = vec![Vec::new(); found.facts.len()];
+        for (p, before) in found.before.iter().enumerate() {
+            for &q in before {
+                needed_by[q as usize].push(p as u32);
+            }
+        }
+        let literals: Vec<Vec<(AtomId, bool)>> = found
+            .facts
+            .iter()
+            .map(|set| set.iter().map(|&f| literal[f as usize]).collect())
+            .collect();
         LandmarkCount {
-            literal: fact.iter().map(|&f| relaxed.literal(f)).collect(),
-            words: fact.len().div_ceil(64),
-            goal,
+            words: found.facts.len().div_ceil(64),
+            goal: found
+                .facts
+                .iter()
+                .map(|set| matches!(set[..], [f] if relaxed.is_goal(f)))
+                .collect(),
+            literal: literals.iter().flatten().copied().collect(),
+            ends: literals
+                .iter()
+                .scan(0, |end, set| {
+                    *end += set.len() as u32;
+                    Some(*end)
+                })
+                .collect(),
             needed_by: Lists::from_lists(needed_by.iter().map(Vec::as_slice)),
             accepted: Vec::new(),
         }
+    }
+
+    /// How many landmarks (fact or disjunctive).
+    #[cfg(test)]
+    fn len(&self) -> usize {
+        self.ends.len()
+    }
+
+    /// The literals of landmark `i`: it holds when one of them does.
+    #[cfg(test)]
+    fn literals(&self, i: usize) -> &[(AtomId, bool)] {
+        let start = if i == 0 { 0 } else { self.ends[i - 1] as usize };
+        &self.literal[start..self.ends[i] as usize]
     }
 
     /// Makes the next node, whose state is `state`, reached from node
@@ -231,17 +326,20 @@ impl LandmarkCount {
             None => self.accepted.resize(start + self.words, 0),
         }
         let accepted = &mut self.accepted[start..];
+        let (literal, ends) = (&self.literal, &self.ends);
         let true_now = |i: usize| {
-            let (atom, positive) = self.literal[i];
-            state.holds(atom) == positive
+            let start = if i == 0 { 0 } else { ends[i - 1] as usize };
+            literal[start..ends[i] as usize]
+                .iter()
+                .any(|&(atom, positive)| state.holds(atom) == positive)
         };
-        for i in 0..self.literal.len() {
+        for i in 0..self.ends.len() {
             if true_now(i) {
                 set_bit(accepted, i as u32);
             }
         }
         let mut h = 0;
-        for i in 0..self.literal.len() {
+        for i in 0..self.ends.len() {
             let needed = if !bit(accepted, i as u32) {
                 true
             } else if true_now(i) {
@@ -255,6 +353,134 @@ impl LandmarkCount {
     }
 }
 
+/// Richter, Helmert and Westphal's search for landmarks before landmarks
+/// (2008), from the landmarks found so far. A plan first makes a landmark
+/// true by an operator whose preconditions could all be reached without
+/// it: a *first achiever*. Which operators can be is found by exploring the
+/// relaxation without the landmark's achievers. A fact every first achiever
+/// needs is a landmark before it (even one true at the start: once false
+/// again, it is needed again while the later landmark is not reached); and
+/// so is a set of facts of one predicate
+/// when every first achiever needs one of them (at most
+/// [`MAX_DISJUNCTION`], none true at the start or already a landmark alone):
+/// in gripper, each ball carried by one gripper or the other.
+fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found) {
+    let facts = relaxed.facts();
+    let pre = Lists::from_lists(relaxed.ops().map(|(pre, _, _)| pre));
+    let add = Lists::from_lists(relaxed.ops().map(|(_, add, _)| add));
+    let consumers = pre.inverse(facts);
+    let achievers = add.inverse(facts);
+    let mut work: u64 = 0;
+    let mut reached = vec![false; facts];
+    let mut missing = vec![0u32; pre.len()];
+    let mut excluded = vec![false; pre.len()];
+    let mut queue = Vec::new();
+    let mut next = 0;
+    while next < found.facts.len() && work < BACKCHAIN_WORK {
+        let l = next as u32;
+        next += 1;
+        let lm = found.facts[l as usize].clone();
+        if lm.iter().any(|&f| holds[f as usize]) {
+            continue;
+        }
+        // What the relaxation reaches without achieving the landmark.
+        for &f in &lm {
+            for &o in achievers.get(f as usize) {
+                excluded[o as usize] = true;
+            }
+        }
+        reached.copy_from_slice(holds);
+        queue.clear();
+        queue.extend((0..facts as u32).filter(|&f| holds[f as usize]));
+        for o in 0..pre.len() {
+            missing[o] = pre.get(o).len() as u32;
+            if missing[o] == 0 && !excluded[o] {
+                queue.extend(add.get(o).iter().copied().filter(|&p| !reached[p as usize]));
+                for &p in add.get(o) {
+                    reached[p as usize] = true;
+                }
+            }
+        }
+        work += pre.len() as u64;
+        while let Some(f) = queue.pop() {
+            for &o in consumers.get(f as usize) {
+                work += 1;
+                let o = o as usize;
+                missing[o] -= 1;
+                if missing[o] == 0 && !excluded[o] {
+                    for &p in add.get(o) {
+                        if !reached[p as usize] {
+                            reached[p as usize] = true;
+                            queue.push(p);
+                        }
+                    }
+                }
+            }
+        }
+        // Its first achievers, and what they need that is false at the start.
+        let mut first: Vec<u32> = lm
+            .iter()
+            .flat_map(|&f| achievers.get(f as usize).iter().copied())
+            .filter(|&o| pre.get(o as usize).iter().all(|&q| reached[q as usize]))
+            .collect();
+        first.sort_unstable();
+        first.dedup();
+        for &f in &lm {
+            for &o in achievers.get(f as usize) {
+                excluded[o as usize] = false;
+            }
+        }
+        if first.is_empty() {
+            continue;
+        }
+        let mut by_class: HashMap<u32, (Vec<u32>, usize)> = Default::default();
+        let mut common: Option<Vec<u32>> = None;
+        let mut meet = Vec::new();
+        for (k, &o) in first.iter().enumerate() {
+            let mut needs: Vec<u32> = pre.get(o as usize).to_vec();
+            needs.sort_unstable();
+            common = Some(match common {
+                None => needs.clone(),
+                Some(c) => {
+                    intersect(&c, &needs, &mut meet);
+                    std::mem::take(&mut meet)
+                }
+            });
+            for &q in needs.iter().filter(|&&q| !holds[q as usize]) {
+                let (set, users) = by_class.entry(class[q as usize]).or_default();
+                set.push(q);
+                // Counted once per achiever.
+                if *users == k {
+                    *users = k + 1;
+                }
+            }
+        }
+        let mut new = Vec::new();
+        for q in common.unwrap_or_default() {
+            new.push(vec![q]);
+        }
+        let mut classes: Vec<(u32, (Vec<u32>, usize))> = by_class.into_iter().collect();
+        classes.sort_unstable_by_key(|c| c.0);
+        for (_, (mut set, users)) in classes {
+            set.sort_unstable();
+            set.dedup();
+            if users == first.len()
+                && (2..=MAX_DISJUNCTION).contains(&set.len())
+                && set.iter().all(|&q| found.simple[q as usize] == NONE)
+            {
+                new.push(set);
+            }
+        }
+        for set in new {
+            if found.facts.len() >= 4 * facts + 64 {
+                return;
+            }
+            let (before, _) = found.add(set);
+            found.order(before, l);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -264,7 +490,9 @@ mod tests {
 
     fn count(instance: &Instance) -> (crate::Task, LandmarkCount) {
         let task = ground(&instance.domain, &instance.problem).expect("grounds");
-        let count = LandmarkCount::new(&Relaxed::new(&task, &[]), task.initial());
+        let count = LandmarkCount::new(&Relaxed::new(&task, &[]), task.initial(), &|atom| {
+            task.predicate_of(atom)
+        });
         (task, count)
     }
 
@@ -283,10 +511,13 @@ mod tests {
             h = count.push(Some(i as u32), &next);
             states.push(next);
         }
-        for &(atom, positive) in &count.literal {
+        for i in 0..count.len() {
+            let literals = count.literals(i);
             assert!(
-                states.iter().any(|s| s.holds(atom) == positive),
-                "{}: landmark {atom:?} (true: {positive}) never holds on a plan",
+                states.iter().any(|s| literals
+                    .iter()
+                    .any(|&(atom, positive)| s.holds(atom) == positive)),
+                "{}: landmark {literals:?} (one true) never holds on a plan",
                 instance.name
             );
         }
@@ -295,7 +526,7 @@ mod tests {
             "{}: a goal state still counts landmarks",
             instance.name
         );
-        count.literal.len()
+        count.len()
     }
 
     #[test]
@@ -315,17 +546,43 @@ mod tests {
     }
 
     #[test]
-    fn gripper_counts_each_ball_delivered_and_the_room_reached() {
+    fn gripper_counts_each_ball_carried_and_delivered_and_the_room_reached() {
         let instance = problems::gripper(3).expect("generates");
         let (task, mut count) = count(&instance);
-        // Each ball at room b is a goal; the robot in room b, and each ball
-        // carried by some gripper, are not single facts: (at-robby rooma)
-        // is true at the start. Goals and the robot's visit to room b are.
+        // Each ball at room b is a goal, and before it the ball carried by
+        // one gripper or the other: a disjunctive landmark, since no single
+        // fact is (label propagation alone finds only the goals and the
+        // robot's visit to room b, h = 4).
         let h = count.push(None, task.initial());
-        assert_eq!(
-            h, 4,
-            "3 balls to deliver and room b to reach: {:?}",
-            count.literal
+        assert_eq!(h, 7, "3 balls to carry and deliver, room b to reach");
+        let carried = (0..count.len())
+            .filter(|&i| count.literals(i).len() == 2)
+            .map(|i| {
+                let names: Vec<String> = count
+                    .literals(i)
+                    .iter()
+                    .map(|&(a, _)| task.atom_name(a))
+                    .collect();
+                names.join(" or ")
+            })
+            .collect::<Vec<_>>();
+        assert_eq!(carried.len(), 3, "{carried:?}");
+        assert!(
+            carried.iter().all(|d| d.matches("(carry ").count() == 2),
+            "{carried:?}"
         );
+        // Picking up a second ball while holding the first is progress.
+        let pick = |state: &State, call: &str| {
+            let call = ecology_domain::parse_goal(call).expect("parses");
+            let op = task
+                .find_operator(&call)
+                .expect("grounds")
+                .expect("an operator");
+            task.apply(state, op)
+        };
+        let one = pick(task.initial(), "(pick ball1 rooma left)");
+        let two = pick(&one, "(pick ball2 rooma right)");
+        assert_eq!(count.push(Some(0), &one), 6);
+        assert_eq!(count.push(Some(1), &two), 5);
     }
 }

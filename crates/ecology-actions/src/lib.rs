@@ -448,8 +448,13 @@ impl<'t> Search<'t> {
         // explaining unreachable goals.
         let useless = task.useless_operators(&initial, &excluded);
         let heuristic = kind.build_costed(task, &useless, costs);
-        let landmarks = landmarks
-            .then(|| LandmarkCount::new(&heuristic::Relaxed::new(task, &useless), &initial));
+        let landmarks = landmarks.then(|| {
+            LandmarkCount::new(
+                &heuristic::Relaxed::new(task, &useless),
+                &initial,
+                &|atom| task.predicate_of(atom),
+            )
+        });
         let engine = Engine::new(task, &initial, useless, heuristic, landmarks, algorithm);
         let result = if engine.initial_is_goal() {
             Some(StepResult::Solved(0))

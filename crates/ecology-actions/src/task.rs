@@ -558,6 +558,11 @@ impl Task {
         fitted
     }
 
+    /// The predicate of an atom, as an index among the task's predicates.
+    pub(crate) fn predicate_of(&self, atom: AtomId) -> u32 {
+        self.atoms[atom.index()][0]
+    }
+
     /// The atom written `(predicate args...)`, for people.
     pub fn atom_name(&self, atom: AtomId) -> String {
         let key = &self.atoms[atom.index()];
