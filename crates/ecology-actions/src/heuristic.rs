@@ -7,7 +7,7 @@
 //! preconditions are relaxed as faithfully as positive ones. Operators the
 //! caller excludes are not in the relaxation.
 
-use crate::queue::OrderedQueue;
+use crate::queue::Queue;
 use crate::task::{OpId, State, Task};
 
 /// A cost-to-goal estimate for states of one task.
@@ -329,7 +329,7 @@ struct Exploration {
     /// The precondition that made each operator fire last (its h-max argmax).
     last_pre: Vec<u32>,
     /// Pops as a binary heap of (cost, fact) would, faster.
-    queue: OrderedQueue,
+    queue: Queue,
     /// The relaxed task laid out flat for the hot loops: each operator's
     /// precondition count, effects and cost, each fact's consumers (in
     /// operator order, as in `relaxed`, so ties break the same way).
@@ -359,7 +359,7 @@ impl Exploration {
             unsatisfied: vec![0; ops],
             op_cost: vec![0; ops],
             last_pre: vec![u32::MAX; ops],
-            queue: OrderedQueue::default(),
+            queue: Queue::default(),
         }
     }
 
@@ -398,7 +398,7 @@ impl Exploration {
         unsatisfied.copy_from_slice(pre_count);
         op_cost.fill(0);
         let costs: &[u64] = costs.unwrap_or(base_cost);
-        let mut fire = |i: usize, op_cost: u64, cost: &mut [u64], queue: &mut OrderedQueue| {
+        let mut fire = |i: usize, op_cost: u64, cost: &mut [u64], queue: &mut Queue| {
             let value = op_cost.saturating_add(costs[i]);
             for &g in add.get(i) {
                 if value < cost[g as usize] {

@@ -1,26 +1,29 @@
 //! The landmark-count heuristic, LAMA's second heuristic (Richter and
 //! Westphal 2010), over landmarks found by label propagation in the delete
-//! relaxation (Zhu and Givan 2003).
+//! relaxation (Zhu and Givan 2003) and then by backchaining from each
+//! landmark (Richter, Helmert and Westphal 2008; see [`backchain`]).
 //!
 //! A *landmark* is a fact that every plan from the start makes true at
-//! some point. Each fact of the relaxation gets a label: the facts that
-//! every relaxed way of reaching it passes through. A fact true at the
+//! some point, or a set of facts one of which it makes true. Each fact of
+//! the relaxation gets a label: the facts that every relaxed way of
+//! reaching it passes through. A fact true at the
 //! start is its own label; an operator's label is the union of its
 //! preconditions' labels; a fact's label is itself plus the intersection
 //! of its achievers' labels. Labels start at "every fact" and only shrink,
 //! so the propagation reaches the same fixpoint in any order. The goal
-//! facts' labels together are the landmarks: a plan reaches the goal only
+//! facts' labels together are the first landmarks: a plan reaches the goal only
 //! through each of them, and every relaxed plan is a plan of the
 //! relaxation.
 //!
 //! The count is path dependent: a landmark is *accepted* once some state
 //! on the path to the current one made it true, and each state keeps the
 //! set accepted on the path by which the search first reached it (Fast
-//! Downward's eager search also merges in the sets of later paths; ours
-//! keeps the first path's). The estimate is the number of landmarks not yet
+//! Downward's eager search also intersects the sets of later paths; ours
+//! keeps the first path's: intersecting changed almost no plan on the IPC
+//! problems we tried). The estimate is the number of landmarks not yet
 //! accepted, plus the accepted ones that are needed again: a goal that is
-//! false now, or a fact false now that is a precondition of every achiever
-//! of a landmark not yet accepted. Like LAMA's, it counts one per landmark
+//! false now, or a landmark false now that every (first) achiever of a
+//! landmark not yet accepted needs. Like LAMA's, it counts one per landmark
 //! whatever the actions cost, offers no preferred operators, and is not
 //! admissible: it guides greedy search alongside FF, not A*.
 
@@ -169,29 +172,38 @@ struct Found {
     before: Vec<Vec<u32>>,
     /// The landmark that is the single fact `f`, or `NONE`.
     simple: Vec<u32>,
+    /// The disjunctive landmark fact `f` is in, or `NONE`.
+    within: Vec<u32>,
     disjunctive: HashMap<Vec<u32>, u32>,
 }
 
 impl Found {
-    /// The landmark of `facts`, added if new; whether it was new.
-    fn add(&mut self, facts: Vec<u32>) -> (u32, bool) {
+    /// The landmark of `facts`, added if new; `None` for a disjunction
+    /// overlapping another one (as Fast Downward, which keeps the first).
+    fn add(&mut self, facts: Vec<u32>) -> Option<u32> {
         let existing = match facts[..] {
             [f] => Some(self.simple[f as usize]).filter(|&l| l != NONE),
             _ => self.disjunctive.get(&facts).copied(),
         };
-        if let Some(l) = existing {
-            return (l, false);
+        if existing.is_some() {
+            return existing;
         }
         let l = self.facts.len() as u32;
         match facts[..] {
             [f] => self.simple[f as usize] = l,
             _ => {
+                if facts.iter().any(|&f| self.within[f as usize] != NONE) {
+                    return None;
+                }
+                for &f in &facts {
+                    self.within[f as usize] = l;
+                }
                 self.disjunctive.insert(facts.clone(), l);
             }
         }
         self.facts.push(facts);
         self.before.push(Vec::new());
-        (l, true)
+        Some(l)
     }
 
     fn order(&mut self, first: u32, then: u32) {
@@ -231,6 +243,7 @@ impl LandmarkCount {
             facts: Vec::new(),
             before: Vec::new(),
             simple: vec![NONE; facts],
+            within: vec![NONE; facts],
             disjunctive: Default::default(),
         };
         for &f in &fact {
@@ -475,8 +488,9 @@ fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found
             if found.facts.len() >= 4 * facts + 64 {
                 return;
             }
-            let (before, _) = found.add(set);
-            found.order(before, l);
+            if let Some(before) = found.add(set) {
+                found.order(before, l);
+            }
         }
     }
 }

@@ -1,8 +1,14 @@
-//! The priority queues of the relaxed explorations (LM-cut's `Queue`;
-//! h-max, h-add and FF's `OrderedQueue`): Dijkstra-like, so keys are small
-//! integers that mostly grow. Small keys go to buckets (no comparisons, no
-//! sifting); the rare large ones to a binary heap, so huge action costs
-//! cost time, not memory.
+//! The priority queue of the relaxed explorations (LM-cut, h-max, h-add
+//! and FF): Dijkstra-like, so keys are small integers that mostly grow.
+//! Small keys go to buckets (no comparisons, no sifting); the rare large
+//! ones to a binary heap, so huge action costs cost time, not memory.
+//!
+//! Within a bucket the item pushed last comes out first, as in Fast
+//! Downward's bucket queue. Which supporter h-add keeps for a fact, among
+//! those of equal cost, follows from that order, and so do FF's relaxed
+//! plans and preferred operators: with it, greedy search expands 208
+//! states on childsnack-opt14 pfile03-2 (Fast Downward's eager search:
+//! 209) where popping equal keys by ascending fact took 13,040.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -75,56 +81,6 @@ impl Queue {
     }
 }
 
-/// A min-queue of `(key, item)` that pops exactly as a binary heap of
-/// `(key, item)` does (equal keys by ascending item), for explorations that
-/// never push a key below the last one popped (h-add and h-max: an
-/// operator's value is at least its preconditions'). Small keys go to
-/// buckets, each sorted once when popping reaches it; an item pushed into
-/// the bucket being popped goes in its place. FF's exploration on it makes
-/// the same choices as on a heap, faster.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct OrderedQueue {
-    /// The buckets, the one being popped sorted descending when `sorted`
-    /// (so its smallest item is taken from the back).
-    queue: Queue,
-    sorted: bool,
-}
-
-impl OrderedQueue {
-    /// Pushes `item` under `key`, which must not be below the last key
-    /// popped since the last `clear`.
-    pub(crate) fn push(&mut self, key: u64, item: u32) {
-        let q = &mut self.queue;
-        debug_assert!(key >= q.current as u64, "a key below the last popped");
-        if self.sorted && key == q.current as u64 {
-            let bucket = &mut q.buckets[q.current];
-            let at = bucket.partition_point(|&x| x > item);
-            bucket.insert(at, item);
-            q.in_buckets += 1;
-        } else {
-            q.push(key, item);
-        }
-    }
-
-    /// The smallest `(key, item)`.
-    pub(crate) fn pop(&mut self) -> Option<(u64, u32)> {
-        let q = &mut self.queue;
-        if q.in_buckets == 0 {
-            return q.heap.pop().map(|Reverse(entry)| entry);
-        }
-        if q.advance() || !self.sorted {
-            q.buckets[q.current].sort_unstable_by(|a, b| b.cmp(a));
-            self.sorted = true;
-        }
-        q.take()
-    }
-
-    pub(crate) fn clear(&mut self) {
-        self.queue.clear();
-        self.sorted = false;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,40 +110,13 @@ mod tests {
     }
 
     #[test]
-    fn the_ordered_queue_pops_as_a_heap_does() {
-        let mut rng = ecology_core::Rng::new(7);
-        for round in 0..200 {
-            let mut ordered = OrderedQueue::default();
-            let mut heap = BinaryHeap::new();
-            // Keys never below the last popped: pushes at the last key
-            // (zero-cost operators) and above, some beyond the buckets.
-            let mut last = 0;
-            for _ in 0..rng.index(20) {
-                let key = rng.below(4);
-                let item = rng.below(50) as u32;
-                ordered.push(key, item);
-                heap.push(Reverse((key, item)));
-            }
-            for step in 0..300 {
-                if rng.chance(0.6) {
-                    let key = if rng.chance(0.05) {
-                        BUCKETS + rng.below(5)
-                    } else {
-                        last + rng.below(3)
-                    };
-                    let item = rng.below(50) as u32;
-                    ordered.push(key, item);
-                    heap.push(Reverse((key, item)));
-                } else {
-                    let expected = heap.pop().map(|Reverse(e)| e);
-                    assert_eq!(ordered.pop(), expected, "round {round}, step {step}");
-                    if let Some((key, _)) = expected {
-                        last = key;
-                    }
-                }
-            }
-            ordered.clear();
-            assert_eq!(ordered.pop(), None);
+    fn equal_keys_come_out_last_pushed_first() {
+        let mut q = Queue::default();
+        for item in [4, 9, 2] {
+            q.push(6, item);
         }
+        q.push(1, 7);
+        let popped: Vec<_> = std::iter::from_fn(|| q.pop()).collect();
+        assert_eq!(popped, vec![(1, 7), (6, 2), (6, 9), (6, 4)]);
     }
 }

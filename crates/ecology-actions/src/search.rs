@@ -327,13 +327,16 @@ impl<'t> Engine<'t> {
             Algorithm::AStar { weight } => {
                 Reverse((g.saturating_add(h.saturating_mul(weight)), h, id, 0))
             }
-            // Among states of equal h, the one reached more cheaply first.
-            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, g, id, 0)),
+            // Among states of equal h, the older first, as in Fast
+            // Downward's open lists. (Cheaper first made plateaus a
+            // breadth-first search: 860,000 expansions against 13,000 on
+            // childsnack-opt14 pfile03-2.)
+            Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, 0, id, 0)),
         };
         self.queues.push(0, preferred, entry);
         if self.landmarks.is_some() {
             let lm = self.landmark_h[id as usize];
-            self.queues.push(1, preferred, Reverse((lm, g, id, 0)));
+            self.queues.push(1, preferred, Reverse((lm, 0, id, 0)));
         }
     }
 
