@@ -328,9 +328,8 @@ impl<'t> Engine<'t> {
                 Reverse((g.saturating_add(h.saturating_mul(weight)), h, id, 0))
             }
             // Among states of equal h, the older first, as in Fast
-            // Downward's open lists. (Cheaper first made plateaus a
-            // breadth-first search: 860,000 expansions against 13,000 on
-            // childsnack-opt14 pfile03-2.)
+            // Downward's open lists (cheapest first kept greedy search far
+            // longer on some plateaus: childsnack-opt14 pfile03-2).
             Algorithm::Greedy { .. } | Algorithm::LazyGreedy { .. } => Reverse((h, 0, id, 0)),
         };
         self.queues.push(0, preferred, entry);

@@ -1007,9 +1007,9 @@ fn greedy_search_leaves_a_plateau_of_preferred_states_for_better_ones() {
 
 #[test]
 fn the_parking_file_is_the_generators() {
-    let instance = problems::parking(7, 1).expect("generates");
+    let instance = problems::parking(7, 2).expect("generates");
     assert_eq!(
-        include_str!("../../../domains/pddl/parking-7-1.pddl"),
+        include_str!("../../../domains/pddl/parking-7-2.pddl"),
         instance.problem_text
     );
 }
@@ -1022,7 +1022,8 @@ fn the_landmark_count_beside_ff_finds_cheaper_plans() {
         with += cost_and_expansions(&instance, Strategy::SATISFICING).0;
         without += cost_and_expansions(&instance, FF_ALONE).0;
     }
-    // 184 against 223 when written.
+    // 187 against 210 (184 against 223 when written, before landmarks
+    // were backchained and ties broken as Fast Downward does).
     assert!(
         with * 10 <= without * 9,
         "with landmarks {with}, with FF alone {without}"

@@ -1,5 +1,0 @@
-(define (problem parking-7-1) (:domain parking)
-  (:objects car0 car1 car2 car3 car4 car5 car6 car7 car8 car9 car10 car11 - car curb0 curb1 curb2 curb3 curb4 curb5 curb6 - curb)
-  (:init (= (total-cost) 0) (behind-car car0 car3) (behind-car car1 car10) (at-curb car2) (at-curb-num car2 curb3) (at-curb car3) (at-curb-num car3 curb1) (at-curb car4) (at-curb-num car4 curb2) (behind-car car5 car2) (at-curb car6) (at-curb-num car6 curb0) (behind-car car7 car6) (at-curb car8) (at-curb-num car8 curb5) (at-curb car9) (at-curb-num car9 curb6) (at-curb car10) (at-curb-num car10 curb4) (behind-car car11 car9) (car-clear car0) (car-clear car1) (car-clear car4) (car-clear car5) (car-clear car7) (car-clear car8) (car-clear car11))
-  (:goal (and (at-curb-num car0 curb5) (at-curb-num car1 curb4) (at-curb-num car2 curb2) (behind-car car3 car11) (behind-car car4 car5) (at-curb-num car5 curb6) (behind-car car6 car0) (at-curb-num car7 curb1) (at-curb-num car8 curb0) (behind-car car9 car1) (behind-car car10 car7) (at-curb-num car11 curb3)))
-  (:metric minimize (total-cost)))

@@ -1,0 +1,5 @@
+(define (problem parking-7-2) (:domain parking)
+  (:objects car0 car1 car2 car3 car4 car5 car6 car7 car8 car9 car10 car11 - car curb0 curb1 curb2 curb3 curb4 curb5 curb6 - curb)
+  (:init (= (total-cost) 0) (at-curb car0) (at-curb-num car0 curb6) (behind-car car1 car0) (at-curb car2) (at-curb-num car2 curb2) (behind-car car3 car8) (behind-car car4 car11) (behind-car car5 car7) (at-curb car6) (at-curb-num car6 curb5) (at-curb car7) (at-curb-num car7 curb0) (at-curb car8) (at-curb-num car8 curb3) (behind-car car9 car2) (behind-car car10 car6) (at-curb car11) (at-curb-num car11 curb1) (car-clear car1) (car-clear car3) (car-clear car4) (car-clear car5) (car-clear car9) (car-clear car10) (curb-clear curb4))
+  (:goal (and (at-curb-num car0 curb5) (behind-car car1 car9) (at-curb-num car2 curb4) (at-curb-num car3 curb3) (behind-car car4 car8) (behind-car car5 car0) (at-curb-num car6 curb0) (at-curb-num car7 curb2) (at-curb-num car8 curb6) (at-curb-num car9 curb1) (behind-car car10 car7) (behind-car car11 car3)))
+  (:metric minimize (total-cost)))
