@@ -6,14 +6,13 @@
 //! A *landmark* is a fact that every plan from the start makes true at
 //! some point, or a set of facts one of which it makes true. Each fact of
 //! the relaxation gets a label: the facts that every relaxed way of
-//! reaching it passes through. A fact true at the
-//! start is its own label; an operator's label is the union of its
-//! preconditions' labels; a fact's label is itself plus the intersection
-//! of its achievers' labels. Labels start at "every fact" and only shrink,
-//! so the propagation reaches the same fixpoint in any order. The goal
-//! facts' labels together are the first landmarks: a plan reaches the goal only
-//! through each of them, and every relaxed plan is a plan of the
-//! relaxation.
+//! reaching it passes through. A fact true at the start is its own label;
+//! an operator's label is the union of its preconditions' labels; a fact's
+//! label is itself plus the intersection of its achievers' labels. Labels
+//! start at "every fact" and only shrink, so the propagation reaches the
+//! same fixpoint in any order. The goal facts' labels together are the
+//! first landmarks: a plan reaches the goal only through each of them, and
+//! every relaxed plan is a plan of the relaxation.
 //!
 //! The count is path dependent: a landmark is *accepted* once some state
 //! on the path to the current one made it true, and each state keeps the
@@ -373,10 +372,10 @@ impl LandmarkCount {
 /// relaxation without the landmark's achievers. A fact every first achiever
 /// needs is a landmark before it (even one true at the start: once false
 /// again, it is needed again while the later landmark is not reached); and
-/// so is a set of facts of one predicate
-/// when every first achiever needs one of them (at most
-/// [`MAX_DISJUNCTION`], none true at the start or already a landmark alone):
-/// in gripper, each ball carried by one gripper or the other.
+/// so is a set of facts of one predicate when every first achiever needs
+/// one of them (at most [`MAX_DISJUNCTION`], none true at the start or
+/// already a landmark alone, none in another such set): in gripper, each
+/// ball carried by one gripper or the other.
 fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found) {
     let facts = relaxed.facts();
     let pre = Lists::from_lists(relaxed.ops().map(|(pre, _, _)| pre));
@@ -408,9 +407,11 @@ fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found
         for o in 0..pre.len() {
             missing[o] = pre.get(o).len() as u32;
             if missing[o] == 0 && !excluded[o] {
-                queue.extend(add.get(o).iter().copied().filter(|&p| !reached[p as usize]));
                 for &p in add.get(o) {
-                    reached[p as usize] = true;
+                    if !reached[p as usize] {
+                        reached[p as usize] = true;
+                        queue.push(p);
+                    }
                 }
             }
         }
@@ -430,7 +431,8 @@ fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found
                 }
             }
         }
-        // Its first achievers, and what they need that is false at the start.
+        // Its first achievers, the preconditions they share, and their
+        // preconditions false at the start by predicate.
         let mut first: Vec<u32> = lm
             .iter()
             .flat_map(|&f| achievers.get(f as usize).iter().copied())
@@ -462,7 +464,8 @@ fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found
             for &q in needs.iter().filter(|&&q| !holds[q as usize]) {
                 let (set, users) = by_class.entry(class[q as usize]).or_default();
                 set.push(q);
-                // Counted once per achiever.
+                // How many achievers from the first on need one of the
+                // class: all of them, if it reaches their number.
                 if *users == k {
                     *users = k + 1;
                 }
@@ -485,6 +488,8 @@ fn backchain(relaxed: &Relaxed, holds: &[bool], class: &[u32], found: &mut Found
             }
         }
         for set in new {
+            // A guard on memory: far more landmarks than facts would be
+            // mostly disjunctions, and each costs every search node a bit.
             if found.facts.len() >= 4 * facts + 64 {
                 return;
             }
