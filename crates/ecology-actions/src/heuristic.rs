@@ -270,15 +270,18 @@ impl Relaxed {
     }
 }
 
-/// Lists of `u32` stored flat: list `i` is `items[start[i]..start[i + 1]]`.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Lists {
+/// Lists stored flat: list `i` is `items[start[i]..start[i + 1]]`.
+#[derive(Debug, Clone)]
+pub(crate) struct Lists<T = u32> {
     pub(crate) start: Vec<u32>,
-    pub(crate) items: Vec<u32>,
+    pub(crate) items: Vec<T>,
 }
 
-impl Lists {
-    pub(crate) fn from_lists<'a>(lists: impl IntoIterator<Item = &'a [u32]>) -> Lists {
+impl<T: Copy> Lists<T> {
+    pub(crate) fn from_lists<'a>(lists: impl IntoIterator<Item = &'a [T]>) -> Lists<T>
+    where
+        T: 'a,
+    {
         let mut out = Lists {
             start: vec![0],
             items: Vec::new(),
@@ -290,6 +293,16 @@ impl Lists {
         out
     }
 
+    pub(crate) fn len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    pub(crate) fn get(&self, i: usize) -> &[T] {
+        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
+    }
+}
+
+impl Lists {
     /// The lists `i` appears in, for `i` in `0..n`: the reverse relation.
     pub(crate) fn inverse(&self, n: usize) -> Lists {
         let mut lists = vec![Vec::new(); n];
@@ -299,14 +312,6 @@ impl Lists {
             }
         }
         Lists::from_lists(lists.iter().map(Vec::as_slice))
-    }
-
-    pub(crate) fn len(&self) -> usize {
-        self.start.len() - 1
-    }
-
-    pub(crate) fn get(&self, i: usize) -> &[u32] {
-        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
     }
 }
 
@@ -328,7 +333,7 @@ struct Exploration {
     op_cost: Vec<u64>,
     /// The precondition that made each operator fire last (its h-max argmax).
     last_pre: Vec<u32>,
-    /// Pops as a binary heap of (cost, fact) would, faster.
+    /// Equal costs pop last pushed first, which decides the supporters.
     queue: Queue,
     /// The relaxed task laid out flat for the hot loops: each operator's
     /// precondition count, effects and cost, each fact's consumers (in

@@ -18,8 +18,8 @@
 //! on the path to the current one made it true, and each state keeps the
 //! set accepted on the path by which the search first reached it (Fast
 //! Downward's eager search also intersects the sets of later paths; ours
-//! keeps the first path's: intersecting changed almost no plan on the IPC
-//! problems we tried). The estimate is the number of landmarks not yet
+//! keeps the first path's: tried on twelve IPC problems, intersecting
+//! changed one plan, termes-opt18 p05's, from cost 420 to 422). The estimate is the number of landmarks not yet
 //! accepted, plus the accepted ones that are needed again: a goal that is
 //! false now, or a landmark false now that every (first) achiever of a
 //! landmark not yet accepted needs. Like LAMA's, it counts one per landmark
@@ -37,11 +37,9 @@ const NONE: u32 = u32::MAX;
 /// state the search has made a node: node `i`'s are `accepted[i]`.
 #[derive(Debug, Clone)]
 pub(crate) struct LandmarkCount {
-    /// The landmarks' literals back to back: an atom that must hold
-    /// (`true`) or not. A landmark of several holds when one of them does.
-    literal: Vec<(AtomId, bool)>,
-    /// Where each landmark's literals end in `literal`.
-    ends: Vec<u32>,
+    /// Each landmark's literals: an atom that must hold (`true`) or not.
+    /// A landmark of several holds when one of them does.
+    literals: Lists<(AtomId, bool)>,
     /// Whether each landmark is a goal fact.
     goal: Vec<bool>,
     /// For each landmark, the landmarks it is a precondition of every
@@ -300,30 +298,10 @@ impl LandmarkCount {
                 .iter()
                 .map(|set| matches!(set[..], [f] if relaxed.is_goal(f)))
                 .collect(),
-            literal: literals.iter().flatten().copied().collect(),
-            ends: literals
-                .iter()
-                .scan(0, |end, set| {
-                    *end += set.len() as u32;
-                    Some(*end)
-                })
-                .collect(),
+            literals: Lists::from_lists(literals.iter().map(Vec::as_slice)),
             needed_by: Lists::from_lists(needed_by.iter().map(Vec::as_slice)),
             accepted: Vec::new(),
         }
-    }
-
-    /// How many landmarks (fact or disjunctive).
-    #[cfg(test)]
-    fn len(&self) -> usize {
-        self.ends.len()
-    }
-
-    /// The literals of landmark `i`: it holds when one of them does.
-    #[cfg(test)]
-    fn literals(&self, i: usize) -> &[(AtomId, bool)] {
-        let start = if i == 0 { 0 } else { self.ends[i - 1] as usize };
-        &self.literal[start..self.ends[i] as usize]
     }
 
     /// Makes the next node, whose state is `state`, reached from node
@@ -338,20 +316,20 @@ impl LandmarkCount {
             None => self.accepted.resize(start + self.words, 0),
         }
         let accepted = &mut self.accepted[start..];
-        let (literal, ends) = (&self.literal, &self.ends);
+        let literals = &self.literals;
         let true_now = |i: usize| {
-            let start = if i == 0 { 0 } else { ends[i - 1] as usize };
-            literal[start..ends[i] as usize]
+            literals
+                .get(i)
                 .iter()
                 .any(|&(atom, positive)| state.holds(atom) == positive)
         };
-        for i in 0..self.ends.len() {
+        for i in 0..literals.len() {
             if true_now(i) {
                 set_bit(accepted, i as u32);
             }
         }
         let mut h = 0;
-        for i in 0..self.ends.len() {
+        for i in 0..literals.len() {
             let needed = if !bit(accepted, i as u32) {
                 true
             } else if true_now(i) {
@@ -530,8 +508,8 @@ mod tests {
             h = count.push(Some(i as u32), &next);
             states.push(next);
         }
-        for i in 0..count.len() {
-            let literals = count.literals(i);
+        for i in 0..count.literals.len() {
+            let literals = count.literals.get(i);
             assert!(
                 states.iter().any(|s| literals
                     .iter()
@@ -545,7 +523,7 @@ mod tests {
             "{}: a goal state still counts landmarks",
             instance.name
         );
-        count.len()
+        count.literals.len()
     }
 
     #[test]
@@ -574,11 +552,12 @@ mod tests {
         // robot's visit to room b, h = 4).
         let h = count.push(None, task.initial());
         assert_eq!(h, 7, "3 balls to carry and deliver, room b to reach");
-        let carried = (0..count.len())
-            .filter(|&i| count.literals(i).len() == 2)
+        let carried = (0..count.literals.len())
+            .filter(|&i| count.literals.get(i).len() == 2)
             .map(|i| {
                 let names: Vec<String> = count
-                    .literals(i)
+                    .literals
+                    .get(i)
                     .iter()
                     .map(|&(a, _)| task.atom_name(a))
                     .collect();

@@ -45,28 +45,15 @@ impl Queue {
     /// The item of the smallest key, with its key.
     pub(crate) fn pop(&mut self) -> Option<(u64, u32)> {
         if self.in_buckets > 0 {
-            self.advance();
-            return self.take();
+            while self.buckets[self.current].is_empty() {
+                self.current += 1;
+            }
+            // Every bucket key is below every heap key.
+            let item = self.buckets[self.current].pop()?;
+            self.in_buckets -= 1;
+            return Some((self.current as u64, item));
         }
         self.heap.pop().map(|Reverse(entry)| entry)
-    }
-
-    /// Moves to the first bucket holding an item (there is one); whether
-    /// that is another bucket.
-    fn advance(&mut self) -> bool {
-        let from = self.current;
-        while self.buckets[self.current].is_empty() {
-            self.current += 1;
-        }
-        self.current != from
-    }
-
-    /// Takes an item of the current bucket: every bucket key is below every
-    /// heap key.
-    fn take(&mut self) -> Option<(u64, u32)> {
-        let item = self.buckets[self.current].pop()?;
-        self.in_buckets -= 1;
-        Some((self.current as u64, item))
     }
 
     pub(crate) fn clear(&mut self) {

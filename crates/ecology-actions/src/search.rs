@@ -134,7 +134,7 @@ pub(crate) enum StepResult {
     Exhausted,
 }
 
-/// A queue entry, smallest first. Eager search: (h, g, node, 0); A*:
+/// A queue entry, smallest first. Eager search: (h, 0, node, 0); A*:
 /// (g + w h, h, node, 0); lazy search: (parent's h, order of insertion,
 /// parent, operator). Remaining ties go to the older node.
 type Entry = Reverse<(u64, u64, u32, u32)>;

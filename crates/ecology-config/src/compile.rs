@@ -125,27 +125,29 @@ impl GInfo {
 
 impl CInfo {
     pub(crate) fn ground(&self, binding: &[Option<Sym>]) -> GInfo {
-        GInfo {
-            name: self.name,
-            args: self
-                .args
-                .iter()
-                .map(|t| t.ground(binding).unwrap_or(Sym(u32::MAX)))
-                .collect(),
-        }
+        self.ground_by(|slot| binding[slot as usize])
     }
 
     /// Grounded by a functionality instance's arguments, which bind its
     /// schema's slots in order (as `ground` with each of them `Some`).
     pub(crate) fn ground_args(&self, args: &[Sym]) -> GInfo {
+        self.ground_by(|slot| args.get(slot as usize).copied())
+    }
+
+    /// Grounded with each slot's value from `slot`; unbound slots become a
+    /// symbol no name has.
+    fn ground_by(&self, slot: impl Fn(u16) -> Option<Sym>) -> GInfo {
         GInfo {
             name: self.name,
             args: self
                 .args
                 .iter()
-                .map(|&t| match t {
-                    CTerm::Var(slot) => args.get(slot as usize).copied().unwrap_or(Sym(u32::MAX)),
-                    CTerm::Const(sym) => sym,
+                .map(|&t| {
+                    match t {
+                        CTerm::Var(s) => slot(s),
+                        CTerm::Const(sym) => Some(sym),
+                    }
+                    .unwrap_or(Sym(u32::MAX))
                 })
                 .collect(),
         }

@@ -609,35 +609,19 @@ impl Shared {
         sum
     }
 
-    /// The children of a state: (opt index, added cost) in `out`, and their
-    /// states back to back in `states`, `words` words each.
-    fn children(
-        &self,
-        state: &[u64],
-        need: usize,
-        out: &mut Vec<(u32, u64)>,
-        states: &mut Vec<u64>,
-    ) {
-        out.clear();
-        states.clear();
+    /// The children of a state: (opt index, child state, added cost).
+    fn children(&self, state: &[u64], need: usize, out: &mut Vec<(u32, Vec<u64>, u64)>) {
         for (o, opt) in self.needs[need].opts.iter().enumerate() {
             let p = opt.prov as usize;
-            let (chosen, _) = state.split_at(self.pwords);
-            let mut add = opt.wire;
-            if !bit(chosen, p)
-                && self.provs[p]
-                    .conflicts
-                    .iter()
-                    .any(|&q| bit(chosen, q as usize))
-            {
-                continue;
-            }
-            let at = states.len();
-            states.extend_from_slice(state);
-            let (chosen, open) = states[at..].split_at_mut(self.pwords);
+            let mut child = state.to_vec();
+            let (chosen, open) = child.split_at_mut(self.pwords);
             set(open, need, false);
+            let mut add = opt.wire;
             if !bit(chosen, p) {
                 let prov = &self.provs[p];
+                if prov.conflicts.iter().any(|&q| bit(chosen, q as usize)) {
+                    continue;
+                }
                 set(chosen, p, true);
                 let first = prov.first_need as usize;
                 for n in first..first + prov.needs.len() {
@@ -645,7 +629,7 @@ impl Shared {
                 }
                 add = add.saturating_add(prov.cost);
             }
-            out.push((o as u32, add));
+            out.push((o as u32, child, add));
         }
     }
 
@@ -653,14 +637,14 @@ impl Shared {
         ones(&state[self.pwords..]).next()
     }
 
-    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: &[u64]) {
+    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: Vec<u64>) {
         let id = self.nodes.len() as u32;
         if self.count == 1 {
             let mut hasher = FxHasher::default();
             state.hash(&mut hasher);
             let key = hasher.finish();
             match self.seen.get(&key) {
-                Some(&old) if self.state(old) == state => {
+                Some(&old) if self.state(old) == &state[..] => {
                     if self.nodes[old as usize].g <= g {
                         return;
                     }
@@ -678,7 +662,7 @@ impl Shared {
             opt,
             g,
         });
-        self.states.extend_from_slice(state);
+        self.states.extend_from_slice(&state);
         self.open.push((Reverse(f), g, Reverse(id)));
         self.generated += 1;
     }
@@ -707,7 +691,7 @@ impl Shared {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
-        let (mut kids, mut kid_states) = (Vec::new(), Vec::new());
+        let mut kids = Vec::new();
         let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
             if steps == limit
@@ -718,21 +702,20 @@ impl Shared {
             steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
-            self.children(&state, need, &mut kids, &mut kid_states);
-            let words = self.words;
+            kids.clear();
+            self.children(&state, need, &mut kids);
             let best = kids
-                .iter()
-                .enumerate()
-                .map(|(k, &(o, add))| {
-                    let h = self.h(&kid_states[k * words..(k + 1) * words]);
-                    (g.saturating_add(add).saturating_add(h), o, k, add)
+                .drain(..)
+                .map(|(o, s, add)| {
+                    let h = self.h(&s);
+                    (g.saturating_add(add).saturating_add(h), o, s, add)
                 })
                 .filter(|k| k.0 < self.bound)
                 .min_by_key(|k| (k.0, k.1));
-            let Some((_, o, k, add)) = best else { return };
+            let Some((_, o, s, add)) = best else { return };
             choice[need] = o;
             g = g.saturating_add(add);
-            state.copy_from_slice(&kid_states[k * words..(k + 1) * words]);
+            state = s;
         }
         if g < self.bound {
             self.bound = g;
@@ -760,7 +743,7 @@ impl Shared {
             let state = self.root_state();
             let h = self.h(&state);
             if h != INFEASIBLE {
-                self.push(NONE, NONE, NONE, 0, h, &state);
+                self.push(NONE, NONE, NONE, 0, h, state);
                 if single {
                     // A first configuration at once: anytime.
                     self.dive(0, expansions.max(1), over);
@@ -768,7 +751,7 @@ impl Shared {
             }
             return self.finalize();
         }
-        let (mut kids, mut kid_states) = (Vec::new(), Vec::new());
+        let mut kids = Vec::new();
         for done in 0..expansions {
             let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
                 break;
@@ -803,11 +786,11 @@ impl Shared {
                 continue;
             };
             self.expanded += 1;
-            self.children(&state, need, &mut kids, &mut kid_states);
-            for (k, &(o, add)) in kids.iter().enumerate() {
-                let s = &kid_states[k * self.words..(k + 1) * self.words];
+            kids.clear();
+            self.children(&state, need, &mut kids);
+            for (o, s, add) in kids.drain(..) {
                 let cg = g.saturating_add(add);
-                let h = self.h(s);
+                let h = self.h(&s);
                 if h == INFEASIBLE {
                     continue;
                 }
