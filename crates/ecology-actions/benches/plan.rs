@@ -30,6 +30,7 @@ fn run(inst: &Instance, strategy: Strategy, cap: Duration) -> (String, Duration)
             max_expansions: None,
             max_time: Some(cap),
         },
+        improve: true,
     };
     let outcome: Outcome = ecology_actions::plan(&Request::new(&task), &options, &WallClock(start));
     let elapsed = start.elapsed();

@@ -51,11 +51,12 @@ fn run(args: &[String]) -> Result<(), String> {
     let start = Instant::now();
     let [domain_path, problem_path, rest @ ..] = args else {
         return Err(
-            "run DOMAIN PROBLEM [--optimal] [--lazy] [--no-landmarks] [--timeout-s S] [--plan]"
+            "run DOMAIN PROBLEM [--optimal] [--lazy] [--no-landmarks] [--no-improve] [--weight W] [--timeout-s S] [--plan]"
                 .into(),
         );
     };
     let (mut optimal, mut lazy, mut landmarks, mut weight) = (false, false, true, None);
+    let mut improve = true;
     let mut timeout = None;
     let mut print_plan = false;
     let mut rest = rest.iter();
@@ -65,6 +66,7 @@ fn run(args: &[String]) -> Result<(), String> {
             "--plan" => print_plan = true,
             "--lazy" => lazy = true,
             "--no-landmarks" => landmarks = false,
+            "--no-improve" => improve = false,
             "--weight" => {
                 let w = rest.next().ok_or("--weight needs a value")?;
                 weight = Some(w.parse().map_err(|e| format!("--weight: {e}"))?);
@@ -106,6 +108,7 @@ fn run(args: &[String]) -> Result<(), String> {
             max_expansions: None,
             max_time: timeout,
         },
+        improve: improve && !optimal,
     };
     let outcome = ecology_actions::plan(&Request::new(&task), &options, &WallClock(start));
     let ms = start.elapsed().as_secs_f64() * 1000.0;

@@ -63,10 +63,13 @@ impl HeuristicKind {
         costs: Costs,
     ) -> Box<dyn Heuristic + 't> {
         let mut relaxed = Relaxed::new(task, excluded);
-        if costs == Costs::One {
-            for o in &mut relaxed.ops {
-                o.cost = 1;
-            }
+        match costs {
+            Costs::Task => {}
+            Costs::One => relaxed.ops.iter_mut().for_each(|o| o.cost = 1),
+            Costs::PlusOne => relaxed
+                .ops
+                .iter_mut()
+                .for_each(|o| o.cost = o.cost.saturating_add(1)),
         }
         match self {
             HeuristicKind::Blind => Box::new(Blind),
@@ -115,6 +118,9 @@ pub(crate) enum Costs {
     /// (data-network-opt18 p04: 122,516 expansions counting each action's
     /// cost plus one, 12 counting actions).
     One,
+    /// Each its own plus one, as LAMA's improvement phase counts them:
+    /// guided by the costs, yet actions that cost nothing still count.
+    PlusOne,
 }
 
 /// A relaxed operator: preconditions and effects as facts.

@@ -216,6 +216,9 @@ pub(crate) struct Engine<'t> {
     pub(crate) generated: u64,
     pub(crate) evaluated: u64,
     pub(crate) initial_h: Option<u64>,
+    /// Paths that cost this much or more are pruned (eager search and A*):
+    /// the cost of a plan already found, which only a cheaper one beats.
+    pub(crate) bound: u64,
 }
 
 impl std::fmt::Debug for Engine<'_> {
@@ -263,6 +266,7 @@ impl<'t> Engine<'t> {
             generated: 0,
             evaluated: 0,
             initial_h: None,
+            bound: u64::MAX,
         };
         engine.registry.insert(&initial.words);
         let mut preferred = Vec::new();
@@ -469,9 +473,12 @@ impl<'t> Engine<'t> {
         let mut result = StepResult::Continue;
         for &op in &successors {
             self.generated += 1;
+            let new_g = g.saturating_add(self.task.operator(op).cost);
+            if new_g >= self.bound {
+                continue;
+            }
             self.scratch.words.copy_from_slice(self.registry.get(id));
             self.task.apply_in_place(&mut self.scratch, op);
-            let new_g = g.saturating_add(self.task.operator(op).cost);
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if is_new {
                 if self.make_node(id, op.0, new_g, &mut sink).is_none() {
@@ -509,6 +516,11 @@ impl<'t> Engine<'t> {
         }
         ops.reverse();
         ops
+    }
+
+    /// The heuristic, for another search.
+    pub(crate) fn into_heuristic(self) -> Box<dyn Heuristic + 't> {
+        self.heuristic
     }
 
     /// Whether the heuristic is admissible.

@@ -69,6 +69,7 @@ fn run(task: &Task, strategy: Strategy) -> Outcome {
     let options = Options {
         strategy,
         budget: Budget::default(),
+        ..Options::default()
     };
     plan(&Request::new(task), &options, &NoClock)
 }
@@ -85,16 +86,22 @@ fn solve(domain: &Domain, problem: &Problem, strategy: Strategy) -> Plan {
         Ok(plan.cost),
         "{strategy:?} returned an invalid plan:\n{plan}"
     );
-    assert_eq!(
-        outcome.optimal,
-        matches!(strategy, Strategy::AStar { .. })
-            && !matches!(
-                strategy,
-                Strategy::AStar {
-                    heuristic: HeuristicKind::Add | HeuristicKind::Ff
-                }
-            )
-    );
+    let admissible_astar = matches!(strategy, Strategy::AStar { .. })
+        && !matches!(
+            strategy,
+            Strategy::AStar {
+                heuristic: HeuristicKind::Add | HeuristicKind::Ff
+            }
+        );
+    if admissible_astar {
+        assert!(outcome.optimal, "{strategy:?} did not prove its plan");
+    } else if outcome.optimal {
+        // Proven by the improvement phase exhausting what is cheaper.
+        let Verdict::Found(cheapest) = run(&task, Strategy::OPTIMAL).verdict else {
+            panic!("A* found no plan");
+        };
+        assert_eq!(plan.cost, cheapest.cost, "{strategy:?} claims optimality");
+    }
     plan
 }
 
@@ -399,6 +406,7 @@ fn budgets_are_distinct_from_unsolvable() {
             max_expansions: Some(3),
             max_time: None,
         },
+        ..Options::default()
     };
     let outcome = plan(&Request::new(&task), &options, &NoClock);
     assert_eq!(outcome.verdict, Verdict::BudgetExceeded);
@@ -422,6 +430,7 @@ fn budgets_are_distinct_from_unsolvable() {
             max_expansions: None,
             max_time: Some(Duration::from_millis(2)),
         },
+        ..Options::default()
     };
     let outcome = plan(&Request::new(&task), &options, &Ticking(Cell::new(0)));
     assert_eq!(outcome.verdict, Verdict::BudgetExceeded);
@@ -703,6 +712,7 @@ fn check_lm_cut_on(task: &Task, states: &[crate::State]) -> Result<usize, String
                 heuristic: HeuristicKind::Max,
             },
             budget: Budget::default(),
+            ..Options::default()
         };
         let truth = match plan(
             &Request::replan(task, state.clone(), Vec::new()),
@@ -811,6 +821,7 @@ fn replanning_from_elsewhere_keeps_operators_unreachable_from_the_start() {
         let options = Options {
             strategy,
             budget: Budget::default(),
+            ..Options::default()
         };
         let from_start = plan(&Request::new(&task), &options, &NoClock);
         assert!(matches!(from_start.verdict, Verdict::Unsolvable(_)));
@@ -951,7 +962,12 @@ fn greedy_search_is_guided_across_actions_that_cost_nothing() {
         preferred: false,
         landmarks: false,
     };
-    let outcome = run(&task, greedy);
+    let options = Options {
+        strategy: greedy,
+        budget: Budget::default(),
+        improve: false,
+    };
+    let outcome = plan(&Request::new(&task), &options, &NoClock);
     let Verdict::Found(plan) = &outcome.verdict else {
         panic!("{outcome:?}");
     };
@@ -1094,6 +1110,7 @@ fn disjunctive_preconditions_ground_one_operator_per_disjunct() {
     let options = Options {
         strategy: Strategy::OPTIMAL,
         budget: Budget::default(),
+        ..Options::default()
     };
     let excluded = task
         .find_operators(&parse_goal("(go e b)").expect("parses"))
@@ -1321,4 +1338,97 @@ fn conditional_effects_ground_one_operator_per_variant() {
         Err("the goal does not hold at the end: (lit c)".to_string())
     );
     check_reachable_grounding(&domain, &problem).expect("agrees with grounding everything");
+}
+
+/// Options for the default greedy search, with or without the improvement
+/// phase, under `budget`.
+fn greedy_options(improve: bool, budget: Budget) -> Options {
+    Options {
+        strategy: Strategy::SATISFICING,
+        budget,
+        improve,
+    }
+}
+
+#[test]
+fn the_improvement_phase_finds_a_cheaper_plan_than_the_first() {
+    let inst = problems::parking(6, 1).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let cost = |improve| {
+        let outcome = plan(
+            &Request::new(&task),
+            &greedy_options(improve, Budget::default()),
+            &NoClock,
+        );
+        let Verdict::Found(found) = outcome.verdict else {
+            panic!("{outcome:?}");
+        };
+        assert_eq!(
+            validate(&inst.domain, &inst.problem, &found.calls()),
+            Ok(found.cost)
+        );
+        found.cost
+    };
+    let (first, improved) = (cost(false), cost(true));
+    assert!(improved < first, "{improved} against {first}");
+}
+
+#[test]
+fn the_improvement_phase_proves_a_plan_cheapest_only_when_it_is() {
+    let mut proven = 0;
+    for seed in 0..40 {
+        let inst = problems::random_small(seed).expect("generates");
+        let task = ground(&inst.domain, &inst.problem).expect("grounds");
+        let request = Request::new(&task);
+        let greedy = plan(&request, &greedy_options(true, Budget::default()), &NoClock);
+        let first = plan(
+            &request,
+            &greedy_options(false, Budget::default()),
+            &NoClock,
+        );
+        let optimal = plan(&request, &Options::optimal(), &NoClock);
+        match (&greedy.verdict, &first.verdict, &optimal.verdict) {
+            (Verdict::Found(found), Verdict::Found(first), Verdict::Found(cheapest)) => {
+                assert!(
+                    found.cost <= first.cost,
+                    "seed {seed}: costlier after improving"
+                );
+                if greedy.optimal {
+                    assert_eq!(found.cost, cheapest.cost, "seed {seed}: claimed cheapest");
+                    proven += 1;
+                }
+            }
+            (Verdict::Unsolvable(_), Verdict::Unsolvable(_), Verdict::Unsolvable(_)) => {}
+            other => panic!("seed {seed}: {other:?}"),
+        }
+    }
+    assert!(
+        proven > 0,
+        "no plan proven cheapest by the improvement phase"
+    );
+}
+
+/// An outside budget that ends during the improvement phase leaves the
+/// plan found, not "budget exceeded".
+#[test]
+fn a_budget_spent_while_improving_keeps_the_plan_found() {
+    let inst = problems::parking(6, 1).expect("generates");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let request = Request::new(&task);
+    let first = plan(
+        &request,
+        &greedy_options(false, Budget::default()),
+        &NoClock,
+    );
+    let Verdict::Found(first_plan) = &first.verdict else {
+        panic!("{first:?}");
+    };
+    let budget = Budget {
+        max_expansions: Some(first.stats.expanded + 1),
+        max_time: None,
+    };
+    let cut = plan(&request, &greedy_options(true, budget), &NoClock);
+    assert_eq!(cut.verdict, first.verdict, "{first_plan}");
+    assert_eq!(cut.stats.expanded, first.stats.expanded + 1);
+    assert!(!cut.optimal);
 }

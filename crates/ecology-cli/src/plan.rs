@@ -35,6 +35,10 @@ pub struct PlanArgs {
     /// count beside it; not with --optimal.
     #[arg(long, conflicts_with = "optimal")]
     pub no_landmarks: bool,
+    /// The first plan found, without the bounded search for a cheaper one
+    /// that follows it (weighted A*, as in LAMA); not with --optimal.
+    #[arg(long, conflicts_with = "optimal")]
+    pub no_improve: bool,
     /// The heuristic: ff, add, max, lmcut or blind (default: ff, or lmcut with --optimal).
     #[arg(long, value_name = "NAME")]
     pub heuristic: Option<HeuristicKind>,
@@ -141,6 +145,7 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
             max_expansions: args.max_nodes,
             max_time: args.max_millis.map(Duration::from_millis),
         },
+        improve: !args.optimal && !args.no_improve,
     };
     let request = Request::replan(&task, task.initial().clone(), excluded);
     let outcome = ecology_actions::plan(&request, &options, &clock);
