@@ -373,6 +373,18 @@ pub struct Stats {
     pub initial_h: Option<u64>,
     /// Time spent, by the caller's clock.
     pub micros: u64,
+    /// The first plan, when the improvement phase ran after it (see
+    /// [`Options::improve`]); the counts above include that phase.
+    pub first: Option<FirstPlan>,
+}
+
+/// The plan the first search found, before the improvement phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FirstPlan {
+    /// Its cost.
+    pub cost: u64,
+    /// The nodes expanded to find it.
+    pub expanded: u64,
 }
 
 /// The result of a search.
@@ -447,6 +459,8 @@ struct Improvement<'t> {
     /// The cheapest plan so far, and its cost.
     plan: Vec<OpId>,
     cost: u64,
+    /// The first search's plan.
+    first: FirstPlan,
     /// Counts of the searches before the engine's.
     done: Stats,
 }
@@ -607,6 +621,10 @@ impl<'t> Search<'t> {
             left: Improvement::budget(self.engine.evaluated),
             plan,
             cost,
+            first: FirstPlan {
+                cost,
+                expanded: self.engine.expanded,
+            },
             done: Stats::default(),
         });
     }
@@ -686,6 +704,7 @@ impl<'t> Search<'t> {
         let mut stats = engine_stats(&self.engine);
         if let Some(imp) = &mut self.improvement {
             stats = stats.plus(&imp.done).plus(&engine_stats(&imp.engine));
+            stats.first = Some(imp.first);
             if self.result.is_none() {
                 self.result = Some(Ended::Plan(std::mem::take(&mut imp.plan), false));
             }
@@ -726,12 +745,13 @@ fn engine_stats(engine: &Engine<'_>) -> Stats {
         states: engine.states() as u64,
         initial_h: engine.initial_h,
         micros: 0,
+        first: None,
     }
 }
 
 impl Stats {
-    /// The counts of two searches together (the first's `initial_h` and
-    /// `micros`).
+    /// The counts of two searches together (the first's `initial_h`,
+    /// `micros` and `first`).
     fn plus(&self, other: &Stats) -> Stats {
         Stats {
             expanded: self.expanded + other.expanded,
@@ -740,6 +760,7 @@ impl Stats {
             states: self.states + other.states,
             initial_h: self.initial_h,
             micros: self.micros,
+            first: self.first,
         }
     }
 }

@@ -202,8 +202,14 @@ fn print_plan(plan: &Plan, outcome: &Outcome) {
         }
     }
     println!("; cost = {}", plan.cost);
+    let first = outcome.stats.first.map_or(String::new(), |first| {
+        format!(
+            " (the first plan: cost {}, {} nodes)",
+            first.cost, first.expanded
+        )
+    });
     println!(
-        "; {}, {} nodes expanded, {} µs",
+        "; {}, {} nodes expanded, {} µs{first}",
         if outcome.optimal {
             "proven optimal"
         } else {
@@ -219,6 +225,7 @@ fn stats_json(stats: &Stats) -> Value {
         "expanded": stats.expanded,
         "generated": stats.generated,
         "micros": stats.micros,
+        "first": stats.first.map(|f| json!({"cost": f.cost, "expanded": f.expanded})),
     })
 }
 

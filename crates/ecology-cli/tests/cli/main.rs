@@ -402,8 +402,10 @@ fn plan_json() {
     let fast = json(&plan(&["--json"]));
     assert_eq!(fast["optimal"], true);
     assert_eq!(fast["plan"], value["plan"]);
+    assert_eq!(fast["stats"]["first"]["cost"], 4);
     let first = json(&plan(&["--no-improve", "--json"]));
     assert_eq!(first["optimal"], false);
+    assert!(first["stats"]["first"].is_null());
     assert_eq!(first["plan"], value["plan"]);
     assert!(first["stats"]["expanded"].as_u64() < fast["stats"]["expanded"].as_u64());
     let lazy = json(&plan(&["--lazy", "--json"]));
