@@ -168,8 +168,9 @@ pub struct Options {
     /// Whether a plan from a search that does not prove it cheapest (greedy
     /// search, weighted A*, A* with an inadmissible heuristic) is followed
     /// by a search for a cheaper one, as LAMA does: weighted A* with weights
-    /// 5, 3, 2 and 1 in turn, counting the task's costs, pruning every path
-    /// as dear as the best plan so far. Its effort is bounded in heuristic
+    /// 5, 3, 2 and 1 in turn, its heuristic counting the task's costs (each
+    /// plus one where some actions cost nothing), pruning every path as dear
+    /// as the best plan so far. Its effort is bounded in heuristic
     /// evaluations (2,000 plus a quarter of the first search's), so the plan
     /// does not depend on the clock; when it explores all that is left, the
     /// plan is proven cheapest. An outside budget that runs out during this phase
@@ -444,7 +445,8 @@ const IMPROVE_FLOOR: u64 = 2000;
 
 /// LAMA's improvement phase, bounded: after a first plan, weighted A*
 /// (with [`IMPROVE_WEIGHTS`] in turn, the heuristic counting the task's
-/// costs) prunes every path that costs as much as the cheapest plan so far.
+/// costs, each plus one where some cost nothing) prunes every path that
+/// costs as much as the cheapest plan so far.
 /// A search that finds a plan gives the next weight the new bound; one
 /// that exhausts what is left proves the plan cheapest. The phase ends
 /// after [`Improvement::budget`] heuristic evaluations, so a plan never
