@@ -219,6 +219,32 @@ pub(crate) struct Engine<'t> {
     /// Paths that cost this much or more are pruned (eager search and A*):
     /// the cost of a plan already found, which only a cheaper one beats.
     pub(crate) bound: u64,
+    /// The atoms some operator the search uses reads (positively or
+    /// negatively), or the goal names, as a mask of state words. Every state
+    /// is stored without the others: they can change nothing that follows,
+    /// so states that differ only in them are one state, as Fast Downward's
+    /// translator drops such variables (visitall's cells visited but not in
+    /// the goal: 102,747 expansions with them, 9,000 or so without, on
+    /// visitall-opt14 p-05-7).
+    relevant: Vec<u64>,
+}
+
+/// The mask of atoms that `task`'s operators other than the `excluded`
+/// ones read, or its goal names (see [`Engine::relevant`]).
+fn relevant_atoms(task: &Task, excluded: &[bool], words: usize) -> Vec<u64> {
+    let mut mask = State::from_words(&vec![0; words]);
+    for (i, o) in task.operators().iter().enumerate() {
+        if excluded.get(i).copied().unwrap_or(false) {
+            continue;
+        }
+        for &a in o.pre.iter().chain(&o.pre_neg).chain(&o.observe) {
+            mask.set(a);
+        }
+    }
+    for &a in task.goal().iter().chain(task.goal_neg()) {
+        mask.set(a);
+    }
+    mask.words
 }
 
 impl std::fmt::Debug for Engine<'_> {
@@ -241,6 +267,7 @@ impl<'t> Engine<'t> {
         landmarks: Option<LandmarkCount>,
         algorithm: Algorithm,
     ) -> Engine<'t> {
+        let relevant = relevant_atoms(task, &excluded, initial.words.len());
         let mut engine = Engine {
             task,
             excluded,
@@ -267,8 +294,11 @@ impl<'t> Engine<'t> {
             evaluated: 0,
             initial_h: None,
             bound: u64::MAX,
+            relevant,
         };
-        engine.registry.insert(&initial.words);
+        engine.scratch.words.copy_from_slice(&initial.words);
+        engine.forget_irrelevant();
+        engine.registry.insert(&engine.scratch.words);
         let mut preferred = Vec::new();
         let h = engine.make_node(NONE, NONE, 0, &mut preferred);
         engine.initial_h = h;
@@ -277,6 +307,13 @@ impl<'t> Engine<'t> {
             engine.push(0, 0, false);
         }
         engine
+    }
+
+    /// Clears the atoms of `scratch` that can change nothing that follows.
+    fn forget_irrelevant(&mut self) {
+        for (w, m) in self.scratch.words.iter_mut().zip(&self.relevant) {
+            *w &= m;
+        }
     }
 
     /// Makes `scratch`, just inserted in the registry, the next node, and
@@ -378,6 +415,7 @@ impl<'t> Engine<'t> {
                 .words
                 .copy_from_slice(self.registry.get(parent));
             self.task.apply_in_place(&mut self.scratch, OpId(op));
+            self.forget_irrelevant();
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if !is_new {
                 continue;
@@ -479,6 +517,7 @@ impl<'t> Engine<'t> {
             }
             self.scratch.words.copy_from_slice(self.registry.get(id));
             self.task.apply_in_place(&mut self.scratch, op);
+            self.forget_irrelevant();
             let (child, is_new) = self.registry.insert(&self.scratch.words);
             if is_new {
                 if self.make_node(id, op.0, new_g, &mut sink).is_none() {
