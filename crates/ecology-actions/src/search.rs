@@ -224,7 +224,7 @@ pub(crate) struct Engine<'t> {
     /// is stored without the others: they can change nothing that follows,
     /// so states that differ only in them are one state, as Fast Downward's
     /// translator drops such variables (visitall's cells visited but not in
-    /// the goal: 102,747 expansions with them, 9,000 or so without, on
+    /// the goal: 102,747 expansions of A* with them, 8,713 without, on
     /// visitall-opt14 p-05-7).
     relevant: Vec<u64>,
 }
