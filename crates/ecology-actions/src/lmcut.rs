@@ -87,6 +87,11 @@ pub(crate) struct LmCut {
     cut: Vec<u32>,
     /// The facts of the state being evaluated, for every round's cut search.
     state_facts: Vec<u32>,
+    /// Per fact, how many operators achieve it at no cost left: from the
+    /// task's costs (`base_zero_achievers`), counted up as cuts bring costs
+    /// to 0. A fact with none is on the border of the goal zone.
+    zero_achievers: Vec<u32>,
+    base_zero_achievers: Vec<u32>,
 }
 
 impl LmCut {
@@ -115,6 +120,14 @@ impl LmCut {
         let consumers = pre.inverse(facts + 2);
         let achievers = eff.inverse(facts + 2);
         let ops = base_cost.len();
+        let mut base_zero_achievers = vec![0; facts + 2];
+        for (op, &c) in base_cost.iter().enumerate() {
+            if c == 0 {
+                for &e in eff.get(op) {
+                    base_zero_achievers[e as usize] += 1;
+                }
+            }
+        }
         LmCut {
             relaxed,
             pre,
@@ -141,6 +154,8 @@ impl LmCut {
             stack: Vec::new(),
             cut: Vec::new(),
             state_facts: Vec::new(),
+            zero_achievers: base_zero_achievers.clone(),
+            base_zero_achievers,
         }
     }
 
@@ -166,6 +181,8 @@ impl LmCut {
             queue,
             start_fact,
             state_facts,
+            zero_achievers,
+            base_zero_achievers,
             ..
         } = self;
         fact_cost.fill(INF);
@@ -174,6 +191,7 @@ impl LmCut {
         supporter.fill(NONE);
         supported.head.fill(NONE);
         cost.copy_from_slice(base_cost);
+        zero_achievers.copy_from_slice(base_zero_achievers);
         for (slot, w) in unsatisfied.iter_mut().zip(pre.start.windows(2)) {
             *slot = w[1] - w[0];
         }
@@ -302,6 +320,7 @@ impl LmCut {
             supporter_cost,
             supported,
             fact_cost,
+            zero_achievers,
             zone,
             into_zone,
             stack,
@@ -322,11 +341,7 @@ impl LmCut {
                 }
                 let tied = pre.get(op).iter().copied().find(|&p| {
                     fact_cost[p as usize] == supporter_cost[op]
-                        && (zone[p as usize] == goal_mark
-                            || achievers
-                                .get(p as usize)
-                                .iter()
-                                .all(|&a| cost[a as usize] != 0))
+                        && (zone[p as usize] == goal_mark || zero_achievers[p as usize] == 0)
                 });
                 if let Some(p) = tied
                     && p != supporter[op]
@@ -434,7 +449,13 @@ impl Heuristic for LmCut {
             }
             total = total.saturating_add(m);
             for &op in &self.cut {
-                self.cost[op as usize] -= m;
+                let op = op as usize;
+                self.cost[op] -= m;
+                if self.cost[op] == 0 {
+                    for &e in self.eff.get(op) {
+                        self.zero_achievers[e as usize] += 1;
+                    }
+                }
             }
             self.incremental_exploration();
         }
