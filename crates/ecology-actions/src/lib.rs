@@ -284,7 +284,7 @@ impl Plan {
             })
             .collect();
         Plan {
-            cost: steps.iter().map(|s| s.cost).fold(0, u64::saturating_add),
+            cost: task.cost_of(ops),
             steps,
         }
     }
@@ -603,7 +603,7 @@ impl<'t> Search<'t> {
 
     /// After a first plan `ops`: the improvement phase, or the end.
     fn start_improving(&mut self, plan: Vec<OpId>) {
-        let cost = self.cost_of(&plan);
+        let cost = self.task.cost_of(&plan);
         if !self.improve || cost == 0 {
             self.result = Some(Ended::Plan(plan, cost == 0));
             return;
@@ -646,12 +646,6 @@ impl<'t> Search<'t> {
         engine
     }
 
-    fn cost_of(&self, ops: &[OpId]) -> u64 {
-        ops.iter()
-            .map(|&op| self.task.operator(op).cost)
-            .fold(0, u64::saturating_add)
-    }
-
     /// One expansion of the improvement phase.
     fn improve_step(&mut self) {
         let Some(mut imp) = self.improvement.take() else {
@@ -665,7 +659,7 @@ impl<'t> Search<'t> {
             StepResult::Solved(node) => {
                 let mut ops = imp.engine.path(node);
                 improve::eliminate_actions(self.task, &self.initial, &mut ops);
-                imp.cost = self.cost_of(&ops);
+                imp.cost = self.task.cost_of(&ops);
                 imp.plan = ops;
                 imp.weight += 1;
                 if imp.weight < IMPROVE_WEIGHTS.len() && imp.cost > 0 {

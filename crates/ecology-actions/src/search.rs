@@ -7,7 +7,7 @@ use std::collections::BinaryHeap;
 
 use crate::heuristic::Heuristic;
 use crate::landmarks::LandmarkCount;
-use crate::task::{OpId, State, Task};
+use crate::task::{AtomId, OpId, State, Task};
 
 /// States stored once, flat, with an open-addressing hash index of node
 /// ids: node `i` has state `i`. Per state: its words and at most two `u32`
@@ -225,13 +225,14 @@ pub(crate) struct Engine<'t> {
     /// so states that differ only in them are one state, as Fast Downward's
     /// translator drops such variables (visitall's cells visited but not in
     /// the goal: 102,747 expansions of A* with them, 8,713 without, on
-    /// visitall-opt14 p-05-7).
-    relevant: Vec<u64>,
+    /// visitall-opt14 p-05-7). `None` when every atom is read.
+    relevant: Option<Vec<u64>>,
 }
 
 /// The mask of atoms that `task`'s operators other than the `excluded`
-/// ones read, or its goal names (see [`Engine::relevant`]).
-fn relevant_atoms(task: &Task, excluded: &[bool], words: usize) -> Vec<u64> {
+/// ones read, or its goal names (see [`Engine::relevant`]); `None` when
+/// that is every atom, so that most tasks pay nothing per state.
+fn relevant_atoms(task: &Task, excluded: &[bool], words: usize) -> Option<Vec<u64>> {
     let mut mask = State::from_words(&vec![0; words]);
     for (i, o) in task.operators().iter().enumerate() {
         if excluded.get(i).copied().unwrap_or(false) {
@@ -244,7 +245,8 @@ fn relevant_atoms(task: &Task, excluded: &[bool], words: usize) -> Vec<u64> {
     for &a in task.goal().iter().chain(task.goal_neg()) {
         mask.set(a);
     }
-    mask.words
+    let all = (0..task.atom_count()).all(|a| mask.holds(AtomId(a as u32)));
+    (!all).then_some(mask.words)
 }
 
 impl std::fmt::Debug for Engine<'_> {
@@ -311,8 +313,10 @@ impl<'t> Engine<'t> {
 
     /// Clears the atoms of `scratch` that can change nothing that follows.
     fn forget_irrelevant(&mut self) {
-        for (w, m) in self.scratch.words.iter_mut().zip(&self.relevant) {
-            *w &= m;
+        if let Some(relevant) = &self.relevant {
+            for (w, m) in self.scratch.words.iter_mut().zip(relevant) {
+                *w &= m;
+            }
         }
     }
 

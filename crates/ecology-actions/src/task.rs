@@ -332,6 +332,13 @@ impl Task {
         &self.operators[op.index()]
     }
 
+    /// What the operators `ops` cost together.
+    pub fn cost_of(&self, ops: &[OpId]) -> u64 {
+        ops.iter()
+            .map(|&op| self.operator(op).cost)
+            .fold(0, u64::saturating_add)
+    }
+
     /// How many fluent atoms the state has.
     pub fn atom_count(&self) -> usize {
         self.atoms.len()
