@@ -10,7 +10,11 @@ with HiGHS (a 0-1 program from the same files) and with a best-first branch
 and bound with duplicate detection in pure Python (standard library only,
 what a user might write), and prints the times, the costs and the ratio to the
 fastest peer that proved optimality. All times exclude reading and parsing
-the files; ours includes compiling, grounding and search, clingo's includes
+the files. Ours includes compiling the state, grounding, search and
+assembling the configuration, with the domain compiled beforehand by a
+`Planner` (as the executive plans, and as the Python peer's reader turns the
+domain's signatures into its table untimed); a second column also times
+compiling the domain, as `ecology configure` does. Clingo's includes
 its grounding and solving, HiGHS's includes building the model, the branch
 and bound's its precomputation. All report the median of up to 25 runs
 while they take under half a second in all. Costs must agree wherever two
@@ -395,7 +399,8 @@ def ours(directory):
     fields = dict(kv.split("=") for kv in out.split())
     cost = None if fields["cost"] == "none" else int(fields["cost"])
     first = None if fields["first_micros"] == "none" else int(fields["first_micros"]) / 1e6
-    return int(fields["micros"]) / 1e6, cost, fields["status"] == "Proven", first
+    cold = int(fields["cold_micros"]) / 1e6
+    return int(fields["micros"]) / 1e6, cost, fields["status"] == "Proven", first, cold
 
 
 def human(seconds):
@@ -408,12 +413,14 @@ def human(seconds):
 
 def main():
     print(
-        "| point | seed | components | ours | first found | clingo | HiGHS | Python B&B "
-        "| cost: ours / clingo / HiGHS / B&B | fastest proven peer ÷ ours |"
+        "| point | seed | components | ours | ours, compiling the domain too | first found "
+        "| clingo | HiGHS | Python B&B "
+        "| cost: ours / clingo / HiGHS / B&B | fastest proven peer ÷ ours (compiling the domain too) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     failures = 0
     worst = None
+    worst_cold = None
     with tempfile.TemporaryDirectory() as tmp:
         for label, p, l, k, cpp, r, f in POINTS:
             if not ONLY.search(label):
@@ -424,7 +431,7 @@ def main():
                     [EXAMPLE, "export", d, str(p), str(l), str(k), str(cpp), str(r), str(f), str(seed)],
                     check=True,
                 )
-                t_ours, c_ours, p_ours, first = ours(d)
+                t_ours, c_ours, p_ours, first, t_cold = ours(d)
                 comps, chan, user = read_instance(d)
                 peers = [
                     median_run(clingo_once, asp_program(comps, chan, user)),
@@ -441,14 +448,17 @@ def main():
                 proven_times = [t for t, _, pr in peers if pr]
                 if proven_times and p_ours:
                     ratio = min(proven_times) / t_ours
+                    cold_ratio = min(proven_times) / t_cold
                     worst = ratio if worst is None else min(worst, ratio)
-                    ratio_text = f"{ratio:.1f}×" if ratio < 9.95 else f"{ratio:.0f}×"
+                    worst_cold = cold_ratio if worst_cold is None else min(worst_cold, cold_ratio)
+                    times = lambda r: f"{r:.1f}×" if r < 9.95 else f"{r:.0f}×"
+                    ratio_text = f"{times(ratio)} ({times(cold_ratio)})"
                 else:
                     fastest = min(t for t, _, _ in peers)
                     ratio_text = f"> {fastest / t_ours:.0f}× (no peer proved)"
                 timing = lambda t, proven: f"{human(t)}{'' if proven else ' (not proven)'}"
                 print(
-                    f"| {label} | {seed} | {len(comps) + 1} | {timing(t_ours, p_ours)} "
+                    f"| {label} | {seed} | {len(comps) + 1} | {timing(t_ours, p_ours)} | {human(t_cold)} "
                     f"| {'-' if first is None else human(first)} "
                     f"| {' | '.join(timing(t, pr) for t, _, pr in peers)} "
                     f"| {' / '.join([mark(c_ours, p_ours)] + [mark(c, pr) for _, c, pr in peers])}"
@@ -457,7 +467,8 @@ def main():
                 )
     print()
     print(f"`?`: not proven optimal within the budget of {TIMEOUT_S:.0f} s per solver and instance. "
-          f"Smallest ratio where a peer proved: {'-' if worst is None else f'{worst:.1f}×'}")
+          f"Smallest ratio where a peer proved: {'-' if worst is None else f'{worst:.1f}×'}; "
+          f"compiling the domain too: {'-' if worst_cold is None else f'{worst_cold:.1f}×'}")
     if failures:
         print(f"{failures} disagreements between proven optima", file=sys.stderr)
         sys.exit(1)

@@ -10,7 +10,7 @@ use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
 pub(crate) struct Sym(pub(crate) u32);
 
 /// The symbol table of one planning problem.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 pub(crate) struct Symbols {
     map: HashMap<Name, Sym>,
     names: Vec<Name>,
@@ -22,6 +22,11 @@ impl Symbols {
             map: HashMap::with_capacity_and_hasher(n, Default::default()),
             names: Vec::with_capacity(n),
         }
+    }
+
+    fn reserve(&mut self, n: usize) {
+        self.map.reserve(n);
+        self.names.reserve(n);
     }
 
     /// The symbol of `name`, shared with the domain and state it comes from.
@@ -132,6 +137,30 @@ impl CInfo {
     /// schema's slots in order (as `ground` with each of them `Some`).
     pub(crate) fn ground_args(&self, args: &[Sym]) -> GInfo {
         self.ground_by(|slot| args.get(slot as usize).copied())
+    }
+
+    /// Whether grounded by `binding` it is `info` (as `ground`, without
+    /// building it).
+    pub(crate) fn grounds_to(&self, binding: &[Option<Sym>], info: &GInfo) -> bool {
+        self.grounds_by_to(|slot| binding[slot as usize], info)
+    }
+
+    /// Whether grounded by a functionality instance's arguments it is `info`
+    /// (as `ground_args`, without building it).
+    pub(crate) fn grounds_args_to(&self, args: &[Sym], info: &GInfo) -> bool {
+        self.grounds_by_to(|slot| args.get(slot as usize).copied(), info)
+    }
+
+    fn grounds_by_to(&self, slot: impl Fn(u16) -> Option<Sym>, info: &GInfo) -> bool {
+        self.name == info.name
+            && self.args.len() == info.args.len()
+            && self.args.iter().zip(info.args.iter()).all(|(&t, &a)| {
+                let value = match t {
+                    CTerm::Var(s) => slot(s),
+                    CTerm::Const(sym) => Some(sym),
+                };
+                value.unwrap_or(Sym(u32::MAX)) == a
+            })
     }
 
     /// Grounded with each slot's value from `slot`; unbound slots become a
@@ -318,63 +347,69 @@ impl Candidates<'_> {
     }
 }
 
-/// The domain and state, compiled.
+/// The domain compiled: its schemas with variables as slots and its names
+/// interned. It depends on the domain alone, so a [`crate::Planner`] builds it
+/// once and every plan starts from it.
 #[derive(Debug)]
-pub(crate) struct Compiled {
-    pub(crate) syms: Symbols,
-    pub(crate) facts: Facts,
+pub(crate) struct Schema {
+    /// The domain's names; a plan's table is a copy with the state's after them.
+    domain_syms: Symbols,
     pub(crate) funcs: Vec<CFunc>,
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
     pub(crate) callee_by_name: HashMap<ecology_domain::Name, Callee>,
+    /// The predicates some precondition looks up: the state's facts of these
+    /// are indexed by argument.
+    indexed: HashSet<Sym>,
+}
+
+/// The domain and state, compiled.
+#[derive(Debug)]
+pub(crate) struct Compiled {
+    pub(crate) schema: std::sync::Arc<Schema>,
+    /// The domain's names, then the state's.
+    pub(crate) syms: Symbols,
+    pub(crate) facts: Facts,
     /// Reading the state was cut short by the caller's budget: facts are missing.
     pub(crate) cut: bool,
+}
+
+impl std::ops::Deref for Compiled {
+    type Target = Schema;
+
+    fn deref(&self) -> &Schema {
+        &self.schema
+    }
 }
 
 /// How many facts are interned or indexed between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;
 
+/// A schema's variables, numbered in order of first use. Schemas have a few
+/// variables, so a list beats a map.
 struct Slots<'a> {
-    map: HashMap<&'a str, u16>,
+    names: Vec<&'a str>,
 }
 
 impl<'a> Slots<'a> {
     fn new() -> Slots<'a> {
-        Slots {
-            map: HashMap::default(),
-        }
+        Slots { names: Vec::new() }
     }
 
     fn slot(&mut self, var: &'a str) -> u16 {
-        let next = self.map.len() as u16;
-        *self.map.entry(var).or_insert(next)
+        match self.names.iter().position(|&n| n == var) {
+            Some(at) => at as u16,
+            None => {
+                self.names.push(var);
+                (self.names.len() - 1) as u16
+            }
+        }
     }
 }
 
-impl Compiled {
-    /// Compiles the domain and the state, asking `over` every
-    /// [`FACTS_PER_CHECK`] facts whether the budget ran out; if it did, the
-    /// rest of the state is left out and `cut` is set (the schemas are always
-    /// compiled: the goal is checked against them whatever the budget).
-    pub(crate) fn new_until(
-        domain: &Domain,
-        state: &EcologyState,
-        over: &dyn Fn() -> bool,
-    ) -> Compiled {
-        let mut syms = Symbols::with_capacity(state.len() / 2 + 64);
-        let mut cut = false;
-        // Facts are interned first (their symbols come first), and indexed
-        // once the schemas say which predicates preconditions look up.
-        let mut preds = Vec::with_capacity(state.len());
-        let mut args = Vec::with_capacity(state.len() * 3);
-        for (k, fact) in state.facts().iter().enumerate() {
-            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
-                cut = true;
-                break;
-            }
-            preds.push(syms.intern(&fact.predicate));
-            args.extend(fact.args.iter().map(|a| syms.intern(a)));
-        }
+impl Schema {
+    /// Compiles the domain's schemas.
+    pub(crate) fn new(domain: &Domain) -> Schema {
         let mut callee_by_name = HashMap::default();
         for (i, f) in domain.functionalities.iter().enumerate() {
             callee_by_name.insert(f.name.clone(), Callee::Func(i as u32));
@@ -382,14 +417,13 @@ impl Compiled {
         for (i, t) in domain.tasks.iter().enumerate() {
             callee_by_name.insert(t.name.clone(), Callee::Task(i as u32));
         }
-        let mut compiled = Compiled {
-            syms,
-            facts: Facts::default(),
-            funcs: Vec::new(),
-            tasks: Vec::new(),
-            methods: Vec::new(),
+        let mut schema = Schema {
+            domain_syms: Symbols::with_capacity(64),
+            funcs: Vec::with_capacity(domain.functionalities.len()),
+            tasks: Vec::with_capacity(domain.tasks.len()),
+            methods: Vec::with_capacity(domain.methods.len()),
             callee_by_name,
-            cut,
+            indexed: HashSet::default(),
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -400,34 +434,34 @@ impl Compiled {
             let func = CFunc {
                 src,
                 component,
-                pre: compiled.lits(&f.precondition, &mut slots),
-                inputs: compiled.infos(&f.inputs, &mut slots),
-                outputs: compiled.infos(&f.outputs, &mut slots),
+                pre: schema.lits(&f.precondition, &mut slots),
+                inputs: schema.infos(&f.inputs, &mut slots),
+                outputs: schema.infos(&f.outputs, &mut slots),
                 cost: f.cost,
             };
-            compiled.funcs.push(func);
+            schema.funcs.push(func);
         }
         for src in 0..domain.tasks.len() {
-            compiled.tasks.push(CTask {
+            schema.tasks.push(CTask {
                 src,
                 methods: Vec::new(),
             });
         }
         for (src, m) in domain.methods.iter().enumerate() {
-            let Some(&Callee::Task(task)) = compiled.callee_by_name.get(&m.task.name) else {
+            let Some(&Callee::Task(task)) = schema.callee_by_name.get(&m.task.name) else {
                 continue;
             };
             let mut slots = Slots::new();
-            let task_args = compiled.terms(&m.task.args, &mut slots);
-            let pre = compiled.lits(&m.precondition, &mut slots);
+            let task_args = schema.terms(&m.task.args, &mut slots);
+            let pre = schema.lits(&m.precondition, &mut slots);
             let mut subtasks = Vec::new();
             for sub in &m.subtasks {
-                let Some(&callee) = compiled.callee_by_name.get(&sub.call.name) else {
+                let Some(&callee) = schema.callee_by_name.get(&sub.call.name) else {
                     continue;
                 };
                 subtasks.push(CSubtask {
                     callee,
-                    args: compiled.terms(&sub.call.args, &mut slots),
+                    args: schema.terms(&sub.call.args, &mut slots),
                 });
             }
             let label = |name: &str| {
@@ -439,20 +473,20 @@ impl Compiled {
             let mut channels = Vec::new();
             for c in &m.channels {
                 if let (Some(from), Some(to)) = (label(&c.from), label(&c.to)) {
-                    let info = compiled.info(&c.info, &mut slots);
+                    let info = schema.info(&c.info, &mut slots);
                     channels.push((from, to, info));
                 }
             }
             let mut inputs = Vec::new();
             for r in &m.inputs {
                 if let Some(at) = label(&r.label) {
-                    inputs.push((compiled.info(&r.info, &mut slots), at));
+                    inputs.push((schema.info(&r.info, &mut slots), at));
                 }
             }
             let mut outputs = Vec::new();
             for r in &m.outputs {
                 if let Some(at) = label(&r.label) {
-                    outputs.push((compiled.info(&r.info, &mut slots), at));
+                    outputs.push((schema.info(&r.info, &mut slots), at));
                 }
             }
             // Declared parameters that are never used still get slots, so that
@@ -460,12 +494,12 @@ impl Compiled {
             for p in &m.params {
                 slots.slot(&p.name);
             }
-            compiled.tasks[task as usize]
+            schema.tasks[task as usize]
                 .methods
-                .push(compiled.methods.len() as u32);
-            compiled.methods.push(CMethod {
+                .push(schema.methods.len() as u32);
+            schema.methods.push(CMethod {
                 src,
-                nvars: slots.map.len(),
+                nvars: slots.names.len(),
                 task_args,
                 pre,
                 subtasks,
@@ -474,26 +508,16 @@ impl Compiled {
                 outputs,
             });
         }
-        let schemas = compiled.funcs.iter().map(|f| &f.pre);
-        let pres = schemas.chain(compiled.methods.iter().map(|m| &m.pre));
+        let pres = schema.funcs.iter().map(|f| &f.pre);
+        let pres = pres.chain(schema.methods.iter().map(|m| &m.pre));
+        let mut indexed = HashSet::default();
         for lit in pres.flatten() {
             if let CLit::Pos(a) | CLit::Neg(a) = lit {
-                compiled.facts.indexed.insert(a.pred);
+                indexed.insert(a.pred);
             }
         }
-        compiled.facts.index.reserve(state.len());
-        let mut at = 0;
-        for (k, (pred, fact)) in preds.into_iter().zip(state.facts()).enumerate() {
-            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && !compiled.cut && over() {
-                compiled.cut = true;
-            }
-            if compiled.cut {
-                break;
-            }
-            compiled.facts.insert(pred, &args[at..at + fact.args.len()]);
-            at += fact.args.len();
-        }
-        compiled
+        schema.indexed = indexed;
+        schema
     }
 
     fn terms<'a>(&mut self, terms: &'a [Term], slots: &mut Slots<'a>) -> Vec<CTerm> {
@@ -501,7 +525,7 @@ impl Compiled {
             .iter()
             .map(|t| match t {
                 Term::Var(v) => CTerm::Var(slots.slot(v)),
-                Term::Const(c) => CTerm::Const(self.syms.intern(c)),
+                Term::Const(c) => CTerm::Const(self.domain_syms.intern(c)),
             })
             .collect()
     }
@@ -510,11 +534,11 @@ impl Compiled {
         lits.iter()
             .map(|l| match l {
                 Literal::Pos(a) => CLit::Pos(CAtom {
-                    pred: self.syms.intern(&a.predicate),
+                    pred: self.domain_syms.intern(&a.predicate),
                     args: self.terms(&a.args, slots),
                 }),
                 Literal::Neg(a) => CLit::Neg(CAtom {
-                    pred: self.syms.intern(&a.predicate),
+                    pred: self.domain_syms.intern(&a.predicate),
                     args: self.terms(&a.args, slots),
                 }),
                 Literal::Eq(a, b, _) => {
@@ -533,7 +557,7 @@ impl Compiled {
 
     fn info<'a>(&mut self, info: &'a Info, slots: &mut Slots<'a>) -> CInfo {
         CInfo {
-            name: self.syms.intern(&info.name),
+            name: self.domain_syms.intern(&info.name),
             args: self.terms(&info.args, slots),
             hz: info.hz,
         }
@@ -541,6 +565,43 @@ impl Compiled {
 
     fn infos<'a>(&mut self, infos: &'a [Info], slots: &mut Slots<'a>) -> Vec<CInfo> {
         infos.iter().map(|i| self.info(i, slots)).collect()
+    }
+}
+
+impl Compiled {
+    /// Compiles the state against `schema`, asking `over` every
+    /// [`FACTS_PER_CHECK`] facts whether the budget ran out; if it did, the
+    /// rest of the state is left out and `cut` is set.
+    pub(crate) fn new_until(
+        schema: std::sync::Arc<Schema>,
+        state: &EcologyState,
+        over: &dyn Fn() -> bool,
+    ) -> Compiled {
+        let mut syms = schema.domain_syms.clone();
+        syms.reserve(state.len() / 2);
+        let mut facts = Facts {
+            indexed: schema.indexed.clone(),
+            ..Facts::default()
+        };
+        facts.index.reserve(state.len());
+        let mut cut = false;
+        let mut args = Vec::with_capacity(8);
+        for (k, fact) in state.facts().iter().enumerate() {
+            if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
+                cut = true;
+                break;
+            }
+            let pred = syms.intern(&fact.predicate);
+            args.clear();
+            args.extend(fact.args.iter().map(|a| syms.intern(a)));
+            facts.insert(pred, &args);
+        }
+        Compiled {
+            schema,
+            syms,
+            facts,
+            cut,
+        }
     }
 
     /// Calls `found` with every extension of `binding` that satisfies `lits`.

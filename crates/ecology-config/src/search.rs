@@ -538,7 +538,7 @@ impl<'a> Engine<'a> {
             let found = method
                 .outputs
                 .iter()
-                .find(|(out, _)| out.ground(&alt.binding) == *info);
+                .find(|(out, _)| out.grounds_to(&alt.binding, info));
             match found {
                 Some((_, sub)) => inst = i.children[*sub as usize],
                 None => {
@@ -571,7 +571,7 @@ impl<'a> Engine<'a> {
         let method = &self.ctx.compiled.methods[alt.method as usize];
         let mut any = false;
         for (input, sub) in &method.inputs {
-            if input.ground(&alt.binding) == *info {
+            if input.grounds_to(&alt.binding, info) {
                 any = true;
                 self.consumers(partial, i.children[*sub as usize], info, out)?;
             }
@@ -712,11 +712,11 @@ impl<'a> Engine<'a> {
             let out = c.funcs[pf.func as usize]
                 .outputs
                 .iter()
-                .find(|o| o.ground_args(p_args) == *info);
+                .find(|o| o.grounds_args_to(p_args, info));
             let input = c.funcs[cf.func as usize]
                 .inputs
                 .iter()
-                .find(|i| i.ground_args(c_args) == *info);
+                .find(|i| i.grounds_args_to(c_args, info));
             let Some(out) = out else {
                 return Err(format!(
                     "{} does not output {}",
@@ -763,11 +763,10 @@ impl<'a> Engine<'a> {
             };
             let args = self.args_of(item);
             for input in &c.funcs[f.func as usize].inputs {
-                let info = input.ground_args(args);
-                if !wires
-                    .iter()
-                    .any(|(k, i, _, _)| *k == (f.peis, f.component) && *i == info)
-                {
+                if !wires.iter().any(|(k, i, _, _)| {
+                    *k == (f.peis, f.component) && input.grounds_args_to(args, i)
+                }) {
+                    let info = input.ground_args(args);
                     return Err(format!(
                         "input {} of {} ({}) is not connected",
                         self.info_text(&info),

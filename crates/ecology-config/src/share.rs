@@ -911,7 +911,7 @@ fn rate_ok(
     c.funcs[pf.func as usize]
         .outputs
         .iter()
-        .find(|o| o.ground_args(args) == *info)
+        .find(|o| o.grounds_args_to(args, info))
         .is_some_and(|out| out.hz.is_some_and(|offered| offered >= need))
 }
 

@@ -1079,3 +1079,88 @@ fn a_budget_cuts_a_long_list_short() {
     }
     assert!(shorter, "no budget cut the list of proven ones short");
 }
+
+/// A [`crate::Planner`] compiles its domain once; planning through it, with
+/// one state after another, gives what [`plan`] gives, and a request with
+/// another domain than the planner's is planned with that domain.
+#[test]
+fn a_planner_reused_across_states_plans_as_plan_does() {
+    let outcomes = |outcome: &Outcome| {
+        let costs: Vec<(u64, String)> = outcome
+            .configurations
+            .iter()
+            .map(|c| (c.cost, c.signature()))
+            .collect();
+        (
+            costs,
+            outcome.status,
+            outcome.explanation.as_ref().map(|e| e.to_string()),
+        )
+    };
+    let options = Options {
+        count: 3,
+        ..Options::default()
+    };
+    let shape = |seed| synthetic::Sharing {
+        peis: 3,
+        levels: 2,
+        types: 2,
+        per_level: 1,
+        needs: 1,
+        failed: 0.2,
+        rates: seed % 2 == 0,
+        seed,
+    };
+    let mut compared = 0;
+    for seed in 0..4 {
+        let instance = synthetic::sharing(shape(seed)).expect("generates");
+        let planner = crate::Planner::new(instance.domain.clone());
+        // One domain, many states: the instance's, and each without one of
+        // its facts (a component gone, a cost or a channel unknown).
+        let lines: Vec<&str> = instance.facts_text.lines().collect();
+        for drop in (0..=lines.len()).step_by(3) {
+            let text: Vec<&str> = lines
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != drop)
+                .map(|(_, l)| *l)
+                .collect();
+            let state = parse_facts(text.join("\n").as_bytes()).expect("parses");
+            // The planner's own domain, or an equal copy.
+            let domain = if drop % 2 == 0 {
+                planner.domain()
+            } else {
+                &instance.domain
+            };
+            let request = Request {
+                domain,
+                state: &state,
+                ..instance.request()
+            };
+            let reused = planner.plan(&request, &options, &NoClock).expect("valid");
+            let fresh = plan(&request, &options, &NoClock).expect("valid");
+            assert_eq!(
+                outcomes(&reused),
+                outcomes(&fresh),
+                "seed {seed}, without line {drop}"
+            );
+            compared += usize::from(!fresh.configurations.is_empty());
+        }
+    }
+    assert!(compared >= 12, "only {compared} states had a configuration");
+    let planner = crate::Planner::new(synthetic::sharing(shape(0)).expect("generates").domain);
+    // The PEIS-Home through the sharing domain's planner: planned as itself.
+    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
+    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses");
+    let goal = parse_goal("(navigate astrid bedroom)").expect("parses");
+    let request = Request {
+        domain: &domain,
+        state: &state,
+        goal: &goal,
+        exclusions: &[],
+    };
+    let through = planner.plan(&request, &options, &NoClock).expect("valid");
+    let direct = plan(&request, &options, &NoClock).expect("valid");
+    assert!(!direct.configurations.is_empty());
+    assert_eq!(outcomes(&through), outcomes(&direct));
+}

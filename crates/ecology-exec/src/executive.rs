@@ -349,7 +349,9 @@ impl PlannerClock for Since<'_> {
 #[derive(Debug)]
 pub struct Executive {
     stopwatch: Stopwatch,
-    domain: Domain,
+    /// The domain, compiled once for the configuration planner, which runs
+    /// for every action.
+    planner: ecology_config::Planner,
     world: EcologyState,
     /// The actions of this plan so far: those run, the one running, and
     /// those that follow before the next branching.
@@ -399,7 +401,7 @@ impl Executive {
         let plan = plan.into();
         Executive {
             stopwatch: Stopwatch(Box::new(NoClock)),
-            domain,
+            planner: ecology_config::Planner::new(domain),
             world,
             plan: plan.steps,
             branches: plan.branches,
@@ -448,12 +450,12 @@ impl Executive {
 
     /// What of the ecology the rest of the plan (every branch included) needs.
     pub fn interest(&self) -> Interest {
-        Interest::of_plan(&self.domain, &self.plan, &self.branches)
+        Interest::of_plan(self.planner.domain(), &self.plan, &self.branches)
     }
 
     /// What of the ecology [`Interest::of`] `plan` needs, in this executive's domain.
     pub fn interest_of(&self, plan: &Plan) -> Interest {
-        Interest::of(&self.domain, plan)
+        Interest::of(self.planner.domain(), plan)
     }
 
     /// What the executive took in from the ecology so far.
@@ -939,7 +941,7 @@ impl Executive {
             micros: micros(acquired.saturating_sub(before)),
         });
         let request = Request {
-            domain: &self.domain,
+            domain: self.planner.domain(),
             state: &state,
             goal: &goal,
             exclusions: &exclusions,
@@ -953,7 +955,7 @@ impl Executive {
             clock: &*self.stopwatch.0,
             start: acquired,
         };
-        let outcome = match ecology_config::plan(&request, &options, &since) {
+        let outcome = match self.planner.plan(&request, &options, &since) {
             Ok(outcome) => outcome,
             Err(err) => {
                 self.no_configuration(err.to_string(), out);
