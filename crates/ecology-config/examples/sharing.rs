@@ -105,10 +105,15 @@ fn main() {
                 runs.swap_remove(runs.len() / 2)
             };
             let planner = Planner::new(instance.domain.clone());
+            // The planner's own domain, as the executive passes it.
+            let prepared = ecology_config::Request {
+                domain: planner.domain(),
+                ..request
+            };
             let (total, outcome) = median(&|| {
                 let clock = WallClock::start();
                 let outcome = planner
-                    .plan(&request, &options, &clock)
+                    .plan(&prepared, &options, &clock)
                     .expect("valid goal");
                 (clock.elapsed(), outcome)
             });
