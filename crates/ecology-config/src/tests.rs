@@ -472,11 +472,18 @@ impl CostModel for SelfReliant {
     }
 }
 
+/// The PEIS-Home, its state, and the goal `(navigate astrid bedroom)`.
+fn navigate_home() -> (ecology_domain::Domain, EcologyState, ecology_domain::Call) {
+    (
+        parse_domain(PEIS_HOME.as_bytes()).expect("parses"),
+        parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses"),
+        parse_goal("(navigate astrid bedroom)").expect("parses"),
+    )
+}
+
 #[test]
 fn the_cost_model_is_pluggable() {
-    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
-    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses");
-    let goal = parse_goal("(navigate astrid bedroom)").expect("parses");
+    let (domain, state, goal) = navigate_home();
     let request = Request {
         domain: &domain,
         state: &state,
@@ -1150,9 +1157,7 @@ fn a_planner_reused_across_states_plans_as_plan_does() {
     assert!(compared >= 12, "only {compared} states had a configuration");
     let planner = crate::Planner::new(synthetic::sharing(shape(0)).expect("generates").domain);
     // The PEIS-Home through the sharing domain's planner: planned as itself.
-    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
-    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses");
-    let goal = parse_goal("(navigate astrid bedroom)").expect("parses");
+    let (domain, state, goal) = navigate_home();
     let request = Request {
         domain: &domain,
         state: &state,
