@@ -232,8 +232,8 @@ pub(crate) struct Engine<'t> {
 /// The mask of atoms that `task`'s operators other than the `excluded`
 /// ones read, or its goal names (see [`Engine::relevant`]); `None` when
 /// that is every atom, so that most tasks pay nothing per state.
-fn relevant_atoms(task: &Task, excluded: &[bool], words: usize) -> Option<Vec<u64>> {
-    let mut mask = State::from_words(&vec![0; words]);
+fn relevant_atoms(task: &Task, excluded: &[bool]) -> Option<Vec<u64>> {
+    let mut mask = State::empty(task.atom_count());
     for (i, o) in task.operators().iter().enumerate() {
         if excluded.get(i).copied().unwrap_or(false) {
             continue;
@@ -269,7 +269,7 @@ impl<'t> Engine<'t> {
         landmarks: Option<LandmarkCount>,
         algorithm: Algorithm,
     ) -> Engine<'t> {
-        let relevant = relevant_atoms(task, &excluded, initial.words.len());
+        let relevant = relevant_atoms(task, &excluded);
         let mut engine = Engine {
             task,
             excluded,

@@ -76,6 +76,16 @@ impl CTerm {
             CTerm::Const(sym) => Some(sym),
         }
     }
+
+    /// Its value with each slot's from `slot`; an unbound slot gives a
+    /// symbol no name has.
+    fn value_by(self, slot: &impl Fn(u16) -> Option<Sym>) -> Sym {
+        match self {
+            CTerm::Var(s) => slot(s),
+            CTerm::Const(sym) => Some(sym),
+        }
+        .unwrap_or(Sym(u32::MAX))
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -154,13 +164,11 @@ impl CInfo {
     fn grounds_by_to(&self, slot: impl Fn(u16) -> Option<Sym>, info: &GInfo) -> bool {
         self.name == info.name
             && self.args.len() == info.args.len()
-            && self.args.iter().zip(info.args.iter()).all(|(&t, &a)| {
-                let value = match t {
-                    CTerm::Var(s) => slot(s),
-                    CTerm::Const(sym) => Some(sym),
-                };
-                value.unwrap_or(Sym(u32::MAX)) == a
-            })
+            && self
+                .args
+                .iter()
+                .zip(info.args.iter())
+                .all(|(&t, &a)| t.value_by(&slot) == a)
     }
 
     /// Grounded with each slot's value from `slot`; unbound slots become a
@@ -168,17 +176,7 @@ impl CInfo {
     fn ground_by(&self, slot: impl Fn(u16) -> Option<Sym>) -> GInfo {
         GInfo {
             name: self.name,
-            args: self
-                .args
-                .iter()
-                .map(|&t| {
-                    match t {
-                        CTerm::Var(s) => slot(s),
-                        CTerm::Const(sym) => Some(sym),
-                    }
-                    .unwrap_or(Sym(u32::MAX))
-                })
-                .collect(),
+            args: self.args.iter().map(|&t| t.value_by(&slot)).collect(),
         }
     }
 }

@@ -651,9 +651,11 @@ impl Planner {
         &self.domain
     }
 
-    /// Whether `domain` is this planner's: the same one, or an equal one.
+    /// Whether `domain` is this planner's own ([`Planner::domain`]). An
+    /// equal copy is not recognised: telling would cost a comparison of
+    /// whole domains on every plan.
     fn prepared_for(&self, domain: &Domain) -> bool {
-        std::ptr::eq(domain, &self.domain) || *domain == self.domain
+        std::ptr::eq(domain, &self.domain)
     }
 
     /// Plans with the paper's cost model; see [`Planner::plan_with`].
@@ -666,9 +668,10 @@ impl Planner {
         plan_prepared(request, Some(self), &PaperCost, options, clock)
     }
 
-    /// As [`plan_with`], with the domain compiled already. A request with
-    /// another domain than [`Planner::domain`] (one not equal to it) is
-    /// planned as [`plan_with`] plans it, compiling that domain.
+    /// As [`plan_with`], with the domain compiled already: the request's
+    /// `domain` must be [`Planner::domain`] for that. A request with any
+    /// other domain (an equal copy too) is planned as [`plan_with`] plans
+    /// it, compiling that domain.
     pub fn plan_with<'a>(
         &self,
         request: &Request<'a>,

@@ -1133,7 +1133,7 @@ fn a_planner_reused_across_states_plans_as_plan_does() {
                 .map(|(_, l)| *l)
                 .collect();
             let state = parse_facts(text.join("\n").as_bytes()).expect("parses");
-            // The planner's own domain, or an equal copy.
+            // The planner's own domain, or an equal copy (compiled again).
             let domain = if drop % 2 == 0 {
                 planner.domain()
             } else {
