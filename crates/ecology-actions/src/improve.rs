@@ -4,6 +4,10 @@
 //! down again); removing such detours keeps the plan valid and never makes
 //! it costlier.
 
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, VecDeque};
+
+use crate::search::Registry;
 use crate::task::{OpId, State, Task};
 
 /// Removes from `ops`, first to last, each action whose removal (together
@@ -34,5 +38,140 @@ pub(crate) fn eliminate_actions(task: &Task, initial: &State, ops: &mut Vec<OpId
             task.apply_in_place(&mut before, ops[i]);
             i += 1;
         }
+    }
+}
+
+/// Plan neighbourhood graph search (Nakhost and Müller), one round: the
+/// states of a plan and, breadth first from them, the states around them,
+/// until `limit` are stored; then the cheapest path from the start to a
+/// goal through the transitions out of the states expanded. The plan's own
+/// transitions are among them, so that path never costs more than the plan.
+/// Detours that action elimination cannot remove (a truck driving two
+/// roads where one would do) are replaced here.
+#[derive(Debug)]
+pub(crate) struct Neighbourhood {
+    registry: Registry,
+    start: u32,
+    /// States to expand, in breadth-first order.
+    queue: VecDeque<u32>,
+    /// Transitions out of state `i`: `edges[out[i].0..out[i].1]`.
+    out: Vec<(u32, u32)>,
+    edges: Vec<(OpId, u32)>,
+    limit: usize,
+    scratch: State,
+    child: State,
+    ops: Vec<OpId>,
+    pub(crate) expanded: u64,
+    pub(crate) generated: u64,
+}
+
+impl Neighbourhood {
+    /// A round around `plan` from `initial`, to store at most `limit` states
+    /// (and always the plan's own).
+    pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: usize) -> Neighbourhood {
+        let mut registry = Registry::new(initial.words.len());
+        let mut scratch = initial.clone();
+        let mut queue = VecDeque::new();
+        let (start, _) = registry.insert(&scratch.words);
+        queue.push_back(start);
+        for &op in plan {
+            task.apply_in_place(&mut scratch, op);
+            let (id, new) = registry.insert(&scratch.words);
+            if new {
+                queue.push_back(id);
+            }
+        }
+        Neighbourhood {
+            registry,
+            start,
+            queue,
+            out: Vec::new(),
+            edges: Vec::new(),
+            limit: limit.max(plan.len() + 1),
+            child: initial.clone(),
+            scratch,
+            ops: Vec::new(),
+            expanded: 0,
+            generated: 0,
+        }
+    }
+
+    /// States stored.
+    pub(crate) fn states(&self) -> usize {
+        self.registry.len()
+    }
+
+    /// Expands the next state, without the operators `skip` marks; false
+    /// once the graph is complete.
+    pub(crate) fn expand(&mut self, task: &Task, skip: &[bool]) -> bool {
+        if self.registry.len() >= self.limit {
+            return false;
+        }
+        let Some(id) = self.queue.pop_front() else {
+            return false;
+        };
+        self.expanded += 1;
+        self.scratch.words.copy_from_slice(self.registry.get(id));
+        let ops = &mut self.ops;
+        ops.clear();
+        task.for_each_applicable(&self.scratch, |op| {
+            if !skip.get(op.index()).copied().unwrap_or(false) {
+                ops.push(op);
+            }
+        });
+        let first = self.edges.len() as u32;
+        for &op in &self.ops {
+            self.generated += 1;
+            self.child.words.copy_from_slice(&self.scratch.words);
+            task.apply_in_place(&mut self.child, op);
+            let (to, new) = self.registry.insert(&self.child.words);
+            if new {
+                self.queue.push_back(to);
+            }
+            self.edges.push((op, to));
+        }
+        if self.out.len() <= id as usize {
+            self.out.resize(id as usize + 1, (0, 0));
+        }
+        self.out[id as usize] = (first, self.edges.len() as u32);
+        true
+    }
+
+    /// The cheapest path from the start to a goal within the graph
+    /// (Dijkstra), if the graph has a goal.
+    pub(crate) fn cheapest(&mut self, task: &Task) -> Option<Vec<OpId>> {
+        let n = self.registry.len();
+        let mut dist = vec![u64::MAX; n];
+        let mut parent: Vec<(u32, OpId)> = vec![(u32::MAX, OpId(0)); n];
+        let mut heap = BinaryHeap::new();
+        dist[self.start as usize] = 0;
+        heap.push(Reverse((0u64, self.start)));
+        while let Some(Reverse((d, id))) = heap.pop() {
+            if d > dist[id as usize] {
+                continue;
+            }
+            self.scratch.words.copy_from_slice(self.registry.get(id));
+            if task.is_goal(&self.scratch) {
+                let mut path = Vec::new();
+                let mut at = id;
+                while at != self.start {
+                    let (p, op) = parent[at as usize];
+                    path.push(op);
+                    at = p;
+                }
+                path.reverse();
+                return Some(path);
+            }
+            let (from, to) = self.out.get(id as usize).copied().unwrap_or((0, 0));
+            for &(op, next) in &self.edges[from as usize..to as usize] {
+                let nd = d.saturating_add(task.operator(op).cost);
+                if nd < dist[next as usize] {
+                    dist[next as usize] = nd;
+                    parent[next as usize] = (id, op);
+                    heap.push(Reverse((nd, next)));
+                }
+            }
+        }
+        None
     }
 }

@@ -13,8 +13,8 @@ use crate::task::{AtomId, OpId, State, Task};
 /// ids: node `i` has state `i`. Per state: its words and at most two `u32`
 /// slots, nothing else (no stored hash, no chain links).
 #[derive(Debug, Default)]
-struct Registry {
-    words: usize,
+pub(crate) struct Registry {
+    pub(crate) words: usize,
     len: usize,
     data: Vec<u64>,
     /// Node ids by hash, linear probing, at most half full; `NONE` is empty.
@@ -31,7 +31,20 @@ fn hash_words(words: &[u64]) -> u64 {
 }
 
 impl Registry {
-    fn get(&self, id: u32) -> &[u64] {
+    /// An empty registry of states of `words` words.
+    pub(crate) fn new(words: usize) -> Registry {
+        Registry {
+            words,
+            ..Registry::default()
+        }
+    }
+
+    /// How many states are stored.
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    pub(crate) fn get(&self, id: u32) -> &[u64] {
         let start = id as usize * self.words;
         &self.data[start..start + self.words]
     }
@@ -57,7 +70,7 @@ impl Registry {
     }
 
     /// The node of `state`, inserting it as node `len` if new; `true` if new.
-    fn insert(&mut self, state: &[u64]) -> (u32, bool) {
+    pub(crate) fn insert(&mut self, state: &[u64]) -> (u32, bool) {
         if (self.len + 1) * 2 > self.slots.len() {
             self.grow();
         }
