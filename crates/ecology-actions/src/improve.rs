@@ -43,7 +43,7 @@ pub(crate) fn eliminate_actions(task: &Task, initial: &State, ops: &mut Vec<OpId
 
 /// Plan neighbourhood graph search (Nakhost and Müller), one round: the
 /// states of a plan and, breadth first from them, the states around them,
-/// until `limit` are stored; then the cheapest path from the start to a
+/// until `limit` transitions out of them are generated; then the cheapest path from the start to a
 /// goal through the transitions out of the states expanded. The plan's own
 /// transitions are among them, so that path never costs more than the plan.
 /// Detours that action elimination cannot remove (a truck driving two
@@ -57,7 +57,7 @@ pub(crate) struct Neighbourhood {
     /// Transitions out of state `i`: `edges[out[i].0..out[i].1]`.
     out: Vec<(u32, u32)>,
     edges: Vec<(OpId, u32)>,
-    limit: usize,
+    limit: u64,
     scratch: State,
     child: State,
     ops: Vec<OpId>,
@@ -66,9 +66,9 @@ pub(crate) struct Neighbourhood {
 }
 
 impl Neighbourhood {
-    /// A round around `plan` from `initial`, to store at most `limit` states
-    /// (and always the plan's own).
-    pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: usize) -> Neighbourhood {
+    /// A round around `plan` from `initial`, to generate at most `limit`
+    /// transitions (and always store the plan's own states).
+    pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: u64) -> Neighbourhood {
         let mut registry = Registry::new(initial.words.len());
         let mut scratch = initial.clone();
         let mut queue = VecDeque::new();
@@ -87,7 +87,7 @@ impl Neighbourhood {
             queue,
             out: Vec::new(),
             edges: Vec::new(),
-            limit: limit.max(plan.len() + 1),
+            limit,
             child: initial.clone(),
             scratch,
             ops: Vec::new(),
@@ -104,7 +104,7 @@ impl Neighbourhood {
     /// Expands the next state, without the operators `skip` marks; false
     /// once the graph is complete.
     pub(crate) fn expand(&mut self, task: &Task, skip: &[bool]) -> bool {
-        if self.registry.len() >= self.limit {
+        if self.generated >= self.limit {
             return false;
         }
         let Some(id) = self.queue.pop_front() else {

@@ -174,8 +174,11 @@ pub struct Options {
     /// as the best plan so far. Its effort is bounded in heuristic
     /// evaluations (2,000 plus a quarter of the first search's), so the plan
     /// does not depend on the clock; when it explores all that is left, the
-    /// plan is proven cheapest. An outside budget that runs out during this phase
-    /// leaves the best plan found.
+    /// plan is proven cheapest. Otherwise rounds of plan neighbourhood graph
+    /// search follow: the cheapest path through the states around the best
+    /// plan, as many transitions as one per 500 operators the evaluations
+    /// so far went over (20,000 to 20 million). An outside budget that runs out during this phase leaves
+    /// the best plan found.
     pub improve: bool,
 }
 
@@ -444,26 +447,27 @@ const IMPROVE_WEIGHTS: [u64; 4] = [5, 3, 2, 1];
 /// few milliseconds where each is cheap.
 const IMPROVE_FLOOR: u64 = 2000;
 
-/// The states a plan neighbourhood round may store per heuristic
-/// evaluation of the searches before it. Storing and expanding a state
-/// costs a small part of an evaluation (snake-opt18 p03: 2.3 µs against
-/// 60 µs), so the rounds take a fraction of the searches' time.
-const GRAPH_STATES_PER_EVALUATION: usize = 8;
+/// A plan neighbourhood round may generate one transition per this many
+/// operators the searches' heuristic evaluations went over (evaluations
+/// times the operators the searches use). An evaluation explores the
+/// relaxed task, its time growing with the operators; a transition (a
+/// state copied, an operator applied, the result looked up) costs about
+/// as much as going over a few hundred operators, so a round takes a
+/// fraction of the searches' time whatever the domain.
+const GRAPH_EVALUATED_OPERATORS: u64 = 500;
 
-/// The states a round may store however small the searches before it.
-const GRAPH_FLOOR: usize = 10_000;
+/// The transitions a round may generate however small the searches before it.
+const GRAPH_FLOOR: u64 = 20_000;
 
-/// The states a round may store at most, however large the searches
-/// before it: where evaluations are cheap (termes-opt18 p05: 14 µs), more
-/// would add more than half the searches' time.
-const GRAPH_MAX_STATES: usize = 1_000_000;
+/// The transitions a round may generate at most.
+const GRAPH_MAX: u64 = 20_000_000;
 
 /// The words of state a round may store at most: 256 MB.
-const GRAPH_MAX_WORDS: usize = 32 << 20;
+const GRAPH_MAX_WORDS: u64 = 32 << 20;
 
-/// How many rounds' worth of states the rounds may store together: a
-/// round that finds a cheaper plan starts another around it.
-const GRAPH_ROUNDS: usize = 2;
+/// How many rounds' worth of transitions the rounds may generate together:
+/// a round that finds a cheaper plan starts another around it.
+const GRAPH_ROUNDS: u64 = 2;
 
 /// LAMA's improvement phase, bounded: after a first plan, weighted A*
 /// (with [`IMPROVE_WEIGHTS`] in turn, the heuristic counting the task's
@@ -494,10 +498,10 @@ struct Improvement<'t> {
     /// The plan neighbourhood round under way, once the weighted searches
     /// are over.
     graph: Option<Neighbourhood>,
-    /// The states one round may store.
-    graph_limit: usize,
-    /// The states the rounds may still store, all together.
-    graph_left: usize,
+    /// The transitions one round may generate.
+    graph_limit: u64,
+    /// The transitions the rounds may still generate, all together.
+    graph_left: u64,
 }
 
 impl Improvement<'_> {
@@ -507,13 +511,13 @@ impl Improvement<'_> {
         IMPROVE_FLOOR + first / 4
     }
 
-    /// The states one neighbourhood round may store after searches that
-    /// made `evaluated` heuristic evaluations, states being `words` words.
-    fn graph_limit(evaluated: u64, words: usize) -> usize {
-        let by_work = (evaluated as usize).saturating_mul(GRAPH_STATES_PER_EVALUATION);
-        by_work
-            .clamp(GRAPH_FLOOR, GRAPH_MAX_STATES)
-            .min(GRAPH_MAX_WORDS / words.max(1))
+    /// The transitions one neighbourhood round may generate after searches
+    /// that made `evaluated` heuristic evaluations over `operators`
+    /// operators, states being `words` words.
+    fn graph_limit(evaluated: u64, operators: u64, words: usize) -> u64 {
+        (evaluated.saturating_mul(operators) / GRAPH_EVALUATED_OPERATORS)
+            .clamp(GRAPH_FLOOR, GRAPH_MAX)
+            .min(GRAPH_MAX_WORDS / words.max(1) as u64)
     }
 }
 
@@ -739,7 +743,8 @@ impl<'t> Search<'t> {
     /// the cheapest plan, its size set by the evaluations so far.
     fn start_graph(&self, imp: &mut Improvement<'t>) {
         let evaluated = self.engine.evaluated + imp.done.evaluated + imp.engine.evaluated;
-        imp.graph_limit = Improvement::graph_limit(evaluated, self.initial.words.len());
+        let operators = self.useless.iter().filter(|&&u| !u).count() as u64;
+        imp.graph_limit = Improvement::graph_limit(evaluated, operators, self.initial.words.len());
         imp.graph_left = imp.graph_limit.saturating_mul(GRAPH_ROUNDS);
         imp.graph = Some(Neighbourhood::new(
             self.task,
@@ -758,7 +763,7 @@ impl<'t> Search<'t> {
         if graph.expand(self.task, &self.useless) {
             return;
         }
-        imp.graph_left = imp.graph_left.saturating_sub(graph.states());
+        imp.graph_left = imp.graph_left.saturating_sub(graph.generated);
         imp.done = imp.done.plus(&Stats {
             expanded: graph.expanded,
             generated: graph.generated,
