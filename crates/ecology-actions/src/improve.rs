@@ -41,9 +41,17 @@ pub(crate) fn eliminate_actions(task: &Task, initial: &State, ops: &mut Vec<OpId
     }
 }
 
+/// The work of one transition of a neighbourhood round (a state copied,
+/// an operator applied, the result looked up), in operators looked at for
+/// successors: about what both cost on hiking-opt14.
+pub(crate) const TRANSITION_WORK: u64 = 32;
+
+/// The words of state a round stores at most: 256 MB.
+const MAX_WORDS: usize = 32 << 20;
+
 /// Plan neighbourhood graph search (Nakhost and Müller), one round: the
 /// states of a plan and, breadth first from them, the states around them,
-/// until `limit` transitions out of them are generated; then the cheapest path from the start to a
+/// until the work of finding their successors reaches a limit; then the cheapest path from the start to a
 /// goal through the transitions out of the states expanded. The plan's own
 /// transitions are among them, so that path never costs more than the plan.
 /// Detours that action elimination cannot remove (a truck driving two
@@ -58,6 +66,9 @@ pub(crate) struct Neighbourhood {
     out: Vec<(u32, u32)>,
     edges: Vec<(OpId, u32)>,
     limit: u64,
+    /// The work so far: operators looked at for successors, and
+    /// [`TRANSITION_WORK`] per transition.
+    pub(crate) work: u64,
     scratch: State,
     child: State,
     ops: Vec<OpId>,
@@ -66,8 +77,8 @@ pub(crate) struct Neighbourhood {
 }
 
 impl Neighbourhood {
-    /// A round around `plan` from `initial`, to generate at most `limit`
-    /// transitions (and always store the plan's own states).
+    /// A round around `plan` from `initial`, to do at most `limit` work
+    /// (see `work`), and store at most 256 MB of states, besides the plan's own.
     pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: u64) -> Neighbourhood {
         let mut registry = Registry::new(initial.words.len());
         let mut scratch = initial.clone();
@@ -88,6 +99,7 @@ impl Neighbourhood {
             out: Vec::new(),
             edges: Vec::new(),
             limit,
+            work: 0,
             child: initial.clone(),
             scratch,
             ops: Vec::new(),
@@ -104,7 +116,7 @@ impl Neighbourhood {
     /// Expands the next state, without the operators `skip` marks; false
     /// once the graph is complete.
     pub(crate) fn expand(&mut self, task: &Task, skip: &[bool]) -> bool {
-        if self.generated >= self.limit {
+        if self.work >= self.limit || self.registry.len() * self.registry.words >= MAX_WORDS {
             return false;
         }
         let Some(id) = self.queue.pop_front() else {
@@ -114,11 +126,12 @@ impl Neighbourhood {
         self.scratch.words.copy_from_slice(self.registry.get(id));
         let ops = &mut self.ops;
         ops.clear();
-        task.for_each_applicable(&self.scratch, |op| {
+        self.work += task.for_each_applicable_counted(&self.scratch, |op| {
             if !skip.get(op.index()).copied().unwrap_or(false) {
                 ops.push(op);
             }
         });
+        self.work += self.ops.len() as u64 * TRANSITION_WORK;
         let first = self.edges.len() as u32;
         for &op in &self.ops {
             self.generated += 1;

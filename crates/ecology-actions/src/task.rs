@@ -452,7 +452,18 @@ impl Task {
     }
 
     /// Calls `f` with every operator applicable in `state`.
-    pub fn for_each_applicable(&self, state: &State, mut f: impl FnMut(OpId)) {
+    pub fn for_each_applicable(&self, state: &State, f: impl FnMut(OpId)) {
+        self.for_each_applicable_counted(state, f);
+    }
+
+    /// Like [`Task::for_each_applicable`]; returns how many operators it
+    /// looked at, applicable or not: the work of finding the successors.
+    pub(crate) fn for_each_applicable_counted(
+        &self,
+        state: &State,
+        mut f: impl FnMut(OpId),
+    ) -> u64 {
+        let mut looked = self.no_pre.len() as u64;
         let check = |op: OpId, f: &mut dyn FnMut(OpId)| {
             let o = &self.operators[op.index()];
             if o.pre[1..].iter().all(|&a| state.holds(a))
@@ -462,7 +473,9 @@ impl Task {
             }
         };
         for atom in state.atoms() {
-            for &op in &self.by_first_pre[atom.index()] {
+            let ops = &self.by_first_pre[atom.index()];
+            looked += ops.len() as u64;
+            for &op in ops {
                 check(op, &mut f);
             }
         }
@@ -472,6 +485,7 @@ impl Task {
                 f(op);
             }
         }
+        looked
     }
 
     /// Operators no search from `initial` needs: the excluded ones, those

@@ -823,7 +823,7 @@ fn a_neighbourhood_round_replaces_a_detour_that_elimination_keeps() {
     assert_eq!(task.cost_of(&long), 20, "elimination keeps both drives");
     let skip = vec![false; task.operators().len()];
     let round = |plan: &[crate::OpId]| {
-        let mut graph = crate::improve::Neighbourhood::new(&task, start, plan, 100);
+        let mut graph = crate::improve::Neighbourhood::new(&task, start, plan, 10_000);
         while graph.expand(&task, &skip) {}
         graph
             .cheapest(&task)
@@ -837,7 +837,7 @@ fn a_neighbourhood_round_replaces_a_detour_that_elimination_keeps() {
     // Without the short roads' drives, the long way is all there is.
     let mut without = skip.clone();
     without[drive("a", "c").index()] = true;
-    let mut graph = crate::improve::Neighbourhood::new(&task, start, &long, 100);
+    let mut graph = crate::improve::Neighbourhood::new(&task, start, &long, 10_000);
     while graph.expand(&task, &without) {}
     assert_eq!(graph.cheapest(&task), Some(long));
 }
