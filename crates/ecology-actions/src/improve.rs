@@ -43,8 +43,12 @@ pub(crate) fn eliminate_actions(task: &Task, initial: &State, ops: &mut Vec<OpId
 
 /// The work of one transition of a neighbourhood round (a state copied,
 /// an operator applied, the result looked up), in operators looked at for
-/// successors: about what both cost on hiking-opt14.
-pub(crate) const TRANSITION_WORK: u64 = 32;
+/// successors.
+const TRANSITION_WORK: u64 = 16;
+
+/// The work of storing a new state, per word of state (kept, queued,
+/// expanded later: large states make the graph slow to grow).
+const STATE_WORD_WORK: u64 = 32;
 
 /// The words of state a round stores at most: 256 MB.
 const MAX_WORDS: usize = 32 << 20;
@@ -66,8 +70,9 @@ pub(crate) struct Neighbourhood {
     out: Vec<(u32, u32)>,
     edges: Vec<(OpId, u32)>,
     limit: u64,
-    /// The work so far: operators looked at for successors, and
-    /// [`TRANSITION_WORK`] per transition.
+    /// The work so far: operators looked at for successors,
+    /// [`TRANSITION_WORK`] per transition and [`STATE_WORD_WORK`] per word
+    /// of each new state.
     pub(crate) work: u64,
     scratch: State,
     child: State,
@@ -132,6 +137,7 @@ impl Neighbourhood {
             }
         });
         self.work += self.ops.len() as u64 * TRANSITION_WORK;
+        let state_work = self.registry.words as u64 * STATE_WORD_WORK;
         let first = self.edges.len() as u32;
         for &op in &self.ops {
             self.generated += 1;
@@ -140,6 +146,7 @@ impl Neighbourhood {
             let (to, new) = self.registry.insert(&self.child.words);
             if new {
                 self.queue.push_back(to);
+                self.work += state_work;
             }
             self.edges.push((op, to));
         }

@@ -174,11 +174,11 @@ pub struct Options {
     /// as the best plan so far. Its effort is bounded in heuristic
     /// evaluations (2,000 plus a quarter of the first search's), so the plan
     /// does not depend on the clock; when it explores all that is left, the
-    /// plan is proven cheapest. Otherwise rounds of plan neighbourhood graph
-    /// search follow: the cheapest path through the states around the best
-    /// plan, with half the searches' work (evaluations times operators
-    /// used) to find the states' successors. An outside budget that runs out during this phase leaves
-    /// the best plan found.
+    /// plan is proven cheapest. Otherwise plan neighbourhood graph search
+    /// follows: the cheapest path through the states around the best plan,
+    /// with half the searches' work (evaluations times operators used) to
+    /// find those states' successors. An outside budget that runs out
+    /// during this phase leaves the best plan found.
     pub improve: bool,
 }
 
@@ -451,11 +451,12 @@ const IMPROVE_FLOOR: u64 = 2000;
 /// searches' work before them. The searches' work is their heuristic
 /// evaluations times the operators they use (an evaluation explores the
 /// relaxed task, its time growing with the operators); the rounds' is the
-/// operators looked at for successors plus [`improve::TRANSITION_WORK`]
-/// per transition. Measured on eight IPC domains, a unit of the rounds'
-/// work took 1 to 8 ns and one of the searches' 4 to 22 ns, so the rounds
-/// add at most about half the searches' time, mostly much less
-/// (snake-opt18 p03: 0.7 s after 4.2 s; pegsol-opt11 p04: 22 ms after 182 ms).
+/// operators looked at for successors, plus some for each transition and
+/// each word of a new state (see [`Neighbourhood`]). Measured on nine IPC
+/// domains, a unit of the rounds' work took 1 to 3 ns and one of the
+/// searches' 4 to 22 ns, so the rounds add at most about a third of the
+/// searches' time, mostly much less (snake-opt18 p03: 0.6 s after 4.4 s;
+/// logistics98 prob04: 23 ms after 370 ms).
 const GRAPH_SHARE: u64 = 2;
 
 /// The work the rounds may do however small the searches before them
@@ -475,9 +476,9 @@ const GRAPH_ROUNDS: u64 = 1;
 /// that exhausts what is left proves the plan cheapest. The phase ends
 /// after [`Improvement::budget`] heuristic evaluations, so a plan never
 /// depends on the clock; only the outside budget can cut it shorter.
-/// Unless a search proved the plan cheapest, rounds of plan neighbourhood
-/// graph search ([`Neighbourhood`]) follow, each around the cheapest plan
-/// so far, while they find cheaper ones and their states allow.
+/// Unless a search proved the plan cheapest, plan neighbourhood graph
+/// search ([`Neighbourhood`]) follows around the cheapest plan so far,
+/// with a share of the searches' work (see [`GRAPH_SHARE`]).
 #[derive(Debug)]
 struct Improvement<'t> {
     engine: Engine<'t>,
