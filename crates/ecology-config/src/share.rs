@@ -121,7 +121,8 @@ pub(crate) struct Shared {
     provs: Vec<Prov>,
     needs: Vec<Need>,
     tasks: Vec<Task>,
-    prov_of_item: HashMap<ItemId, u32>,
+    /// The provider of each graph item, by item index (`NONE`: none).
+    prov_of_item: Vec<u32>,
     /// Channel costs between PEIS indices, row: producer.
     chan: Vec<u64>,
     npeis: usize,
@@ -186,13 +187,14 @@ impl Shared {
         if !matches!(graph.item(engine.root).kind, ItemKind::Task { .. }) {
             return None;
         }
-        let mut task_of_item: HashMap<ItemId, u32> = HashMap::default();
+        // By item index; `NONE`: not a task of the search, not a provider.
+        let mut task_of_item: Vec<u32> = vec![NONE; graph.items.len()];
         let mut tasks: Vec<Task> = Vec::new();
         let mut provs: Vec<Prov> = Vec::new();
-        let mut prov_of_item: HashMap<ItemId, u32> = HashMap::default();
+        let mut prov_of_item: Vec<u32> = vec![NONE; graph.items.len()];
         let mut peis_index: HashMap<Sym, u32> = HashMap::default();
         let mut peis_syms: Vec<Sym> = Vec::new();
-        task_of_item.insert(engine.root, 0);
+        task_of_item[engine.root.0 as usize] = 0;
         tasks.push(Task {
             item: engine.root,
             ..Task::default()
@@ -254,8 +256,8 @@ impl Shared {
                     .filter(|(_, sub)| *sub as usize == sf)
                     .map(|(o, _)| o.ground(&alt.binding))
                     .collect();
-                let p = match prov_of_item.get(&f_item) {
-                    Some(&p) => {
+                let p = match prov_of_item[f_item.0 as usize] {
+                    p if p != NONE => {
                         // One provider, one wiring of its inputs: the tree
                         // search's shared subtrees must agree, and so must these.
                         if provs[p as usize].needs != needs {
@@ -263,14 +265,14 @@ impl Shared {
                         }
                         p
                     }
-                    None => {
+                    _ => {
                         let peis = *peis_index.entry(f.peis).or_insert_with(|| {
                             peis_syms.push(f.peis);
                             peis_syms.len() as u32 - 1
                         });
                         for (_, t) in &needs {
-                            if !task_of_item.contains_key(t) {
-                                task_of_item.insert(*t, tasks.len() as u32);
+                            if task_of_item[t.0 as usize] == NONE {
+                                task_of_item[t.0 as usize] = tasks.len() as u32;
                                 tasks.push(Task {
                                     item: *t,
                                     ..Task::default()
@@ -287,7 +289,7 @@ impl Shared {
                             w: 0,
                             serves: Vec::new(),
                         });
-                        prov_of_item.insert(f_item, provs.len() as u32 - 1);
+                        prov_of_item[f_item.0 as usize] = provs.len() as u32 - 1;
                         provs.len() as u32 - 1
                     }
                 };
@@ -327,7 +329,7 @@ impl Shared {
             for (_, t) in &prov.needs {
                 needs.push(Need {
                     consumer: p as u32,
-                    task: task_of_item[t],
+                    task: task_of_item[t.0 as usize],
                     opts: Vec::new(),
                     min_wire: 0,
                 });
@@ -431,7 +433,7 @@ impl Shared {
                 let mut mine: Vec<u32> = provs[p as usize]
                     .needs
                     .iter()
-                    .map(|(_, t)| task_of_item[t])
+                    .map(|(_, t)| task_of_item[t.0 as usize])
                     .collect();
                 mine.sort_unstable();
                 common = Some(match common {
@@ -441,18 +443,24 @@ impl Shared {
             }
             task.common = common.unwrap_or_default();
         }
-        let mut by_component: HashMap<(Sym, Sym), Vec<u32>> = HashMap::default();
-        for (p, prov) in provs.iter().enumerate() {
-            if let Some(f) = graph.func(prov.item) {
-                by_component
-                    .entry((f.peis, f.component))
-                    .or_default()
-                    .push(p as u32);
+        // Providers on one component conflict: grouped by sorting.
+        let mut by_component: Vec<((Sym, Sym), u32)> = provs
+            .iter()
+            .enumerate()
+            .filter_map(|(p, prov)| {
+                graph
+                    .func(prov.item)
+                    .map(|f| ((f.peis, f.component), p as u32))
+            })
+            .collect();
+        by_component.sort_unstable();
+        for group in by_component.chunk_by(|a, b| a.0 == b.0) {
+            if group.len() < 2 {
+                continue;
             }
-        }
-        for group in by_component.values() {
-            for &p in group {
-                provs[p as usize].conflicts = group.iter().copied().filter(|&q| q != p).collect();
+            for &(_, p) in group {
+                provs[p as usize].conflicts =
+                    group.iter().map(|&(_, q)| q).filter(|&q| q != p).collect();
             }
         }
         let pwords = provs.len().div_ceil(64);
@@ -867,7 +875,9 @@ impl Shared {
                 let need = match consumer {
                     None => 0,
                     Some((item, info)) => {
-                        let p = &self.provs[*self.prov_of_item.get(&item)? as usize];
+                        let p = self
+                            .provs
+                            .get(*self.prov_of_item.get(item.0 as usize)? as usize)?;
                         let k = p.needs.iter().position(|(i, _)| i == info)?;
                         p.first_need as usize + k
                     }
