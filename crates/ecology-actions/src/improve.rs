@@ -50,16 +50,18 @@ const TRANSITION_WORK: u64 = 16;
 /// expanded later: large states make the graph slow to grow).
 const STATE_WORD_WORK: u64 = 32;
 
-/// The words of state a round stores at most: 256 MB.
+/// The words of state a round stores at most, 256 MB, and the
+/// transitions (8 bytes each).
 const MAX_WORDS: usize = 32 << 20;
 
 /// Plan neighbourhood graph search (Nakhost and Müller), one round: the
 /// states of a plan and, breadth first from them, the states around them,
-/// until the work of finding their successors reaches a limit; then the cheapest path from the start to a
-/// goal through the transitions out of the states expanded. The plan's own
-/// transitions are among them, so that path never costs more than the plan.
-/// Detours that action elimination cannot remove (a truck driving two
-/// roads where one would do) are replaced here.
+/// until the work of finding their successors reaches a limit; then the
+/// cheapest path from the start to a goal through the transitions out of
+/// the states expanded. The plan's own transitions are among them, so that
+/// path never costs more than the plan. Detours that action elimination
+/// cannot remove (a truck driving two roads where one would do) are
+/// replaced here.
 #[derive(Debug)]
 pub(crate) struct Neighbourhood {
     registry: Registry,
@@ -83,7 +85,8 @@ pub(crate) struct Neighbourhood {
 
 impl Neighbourhood {
     /// A round around `plan` from `initial`, to do at most `limit` work
-    /// (see `work`), and store at most 256 MB of states, besides the plan's own.
+    /// (see `work`), and store at most 256 MB of states and 256 MB of
+    /// transitions, besides the plan's own states.
     pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: u64) -> Neighbourhood {
         let mut registry = Registry::new(initial.words.len());
         let mut scratch = initial.clone();
@@ -121,7 +124,10 @@ impl Neighbourhood {
     /// Expands the next state, without the operators `skip` marks; false
     /// once the graph is complete.
     pub(crate) fn expand(&mut self, task: &Task, skip: &[bool]) -> bool {
-        if self.work >= self.limit || self.registry.len() * self.registry.words >= MAX_WORDS {
+        // At most 256 MB of states, and as much of transitions (8 bytes each).
+        let full =
+            self.registry.len() * self.registry.words >= MAX_WORDS || self.edges.len() >= MAX_WORDS;
+        if self.work >= self.limit || full {
             return false;
         }
         let Some(id) = self.queue.pop_front() else {
