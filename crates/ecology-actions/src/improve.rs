@@ -72,6 +72,9 @@ pub(crate) struct Neighbourhood {
     out: Vec<(u32, u32)>,
     edges: Vec<(OpId, u32)>,
     limit: u64,
+    /// The plan's states, the first expanded whatever the limit, so that
+    /// the plan's transitions are always in the graph.
+    plan_states: u64,
     /// The work so far: operators looked at for successors,
     /// [`TRANSITION_WORK`] per transition and [`STATE_WORD_WORK`] per word
     /// of each new state.
@@ -85,8 +88,8 @@ pub(crate) struct Neighbourhood {
 
 impl Neighbourhood {
     /// A round around `plan` from `initial`, to do at most `limit` work
-    /// (see `work`), and store at most 256 MB of states and 256 MB of
-    /// transitions, besides the plan's own states.
+    /// (see `work`) once the plan's own states are expanded, and store at
+    /// most 256 MB of states and 256 MB of transitions.
     pub(crate) fn new(task: &Task, initial: &State, plan: &[OpId], limit: u64) -> Neighbourhood {
         let mut registry = Registry::new(initial.words.len());
         let mut scratch = initial.clone();
@@ -103,6 +106,7 @@ impl Neighbourhood {
         Neighbourhood {
             registry,
             start,
+            plan_states: queue.len() as u64,
             queue,
             out: Vec::new(),
             edges: Vec::new(),
@@ -127,7 +131,7 @@ impl Neighbourhood {
         // At most 256 MB of states, and as much of transitions (8 bytes each).
         let full =
             self.registry.len() * self.registry.words >= MAX_WORDS || self.edges.len() >= MAX_WORDS;
-        if self.work >= self.limit || full {
+        if (self.work >= self.limit && self.expanded >= self.plan_states) || full {
             return false;
         }
         let Some(id) = self.queue.pop_front() else {

@@ -798,7 +798,8 @@ fn action_elimination_removes_a_detour() {
 /// A plan that drives the long way, a → b → d, where a → c → d costs a
 /// tenth: action elimination keeps it (neither drive can go), a plan
 /// neighbourhood round around it finds the short way, and a round around
-/// the short way finds nothing cheaper.
+/// the short way finds nothing cheaper. A round without work still holds
+/// the plan's own way.
 #[test]
 fn a_neighbourhood_round_replaces_a_detour_that_elimination_keeps() {
     let (domain, problem) = load(
@@ -834,6 +835,11 @@ fn a_neighbourhood_round_replaces_a_detour_that_elimination_keeps() {
     let plan = Plan::from_ops(&task, &short);
     assert_eq!(validate(&domain, &problem, &plan.calls()), Ok(2));
     assert_eq!(task.cost_of(&round(&short)), 2);
+    // With no work allowed, the plan's own states are still expanded: its
+    // way is in the graph (the short way is not, c is never expanded).
+    let mut graph = crate::improve::Neighbourhood::new(&task, start, &long, 0);
+    while graph.expand(&task, &skip) {}
+    assert_eq!(graph.cheapest(&task), Some(long.clone()));
     // Without the short roads' drives, the long way is all there is.
     let mut without = skip.clone();
     without[drive("a", "c").index()] = true;
