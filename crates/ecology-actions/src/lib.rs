@@ -452,8 +452,8 @@ const IMPROVE_FLOOR: u64 = 2000;
 /// evaluations times the operators they use (an evaluation explores the
 /// relaxed task, its time growing with the operators); the rounds' is the
 /// operators looked at for successors, plus some for each transition and
-/// each word of a new state (see [`Neighbourhood`]). Measured on nine IPC
-/// domains, a unit of the rounds' work took 1 to 3 ns and one of the
+/// each word of a new state (see [`Neighbourhood`]). Measured with timing
+/// added for the purpose (not kept) on nine IPC domains, a unit of the rounds' work took 1 to 3 ns and one of the
 /// searches' 4 to 22 ns, so the rounds add at most about a third of the
 /// searches' time, mostly much less (snake-opt18 p03: 0.6 s after 4.4 s;
 /// logistics98 prob04: 23 ms after 370 ms).
@@ -462,11 +462,6 @@ const GRAPH_SHARE: u64 = 2;
 /// The work the rounds may do however small the searches before them
 /// (about a millisecond).
 const GRAPH_FLOOR: u64 = 1_000_000;
-
-/// A round may do the rounds' work divided by this; one that ends with
-/// work left (it reached every state around the plan) and found a cheaper
-/// plan starts another around it, while at least half a round's work is left.
-const GRAPH_ROUNDS: u64 = 1;
 
 /// LAMA's improvement phase, bounded: after a first plan, weighted A*
 /// (with [`IMPROVE_WEIGHTS`] in turn, the heuristic counting the task's
@@ -497,9 +492,12 @@ struct Improvement<'t> {
     /// The plan neighbourhood round under way, once the weighted searches
     /// are over.
     graph: Option<Neighbourhood>,
-    /// The work one round may do.
-    graph_limit: u64,
-    /// The work the rounds may still do, all together.
+    /// The work the rounds may do, all together: the first may do it all;
+    /// one that ends with work left (it reached every state around the
+    /// plan) and found a cheaper plan starts another around it, while at
+    /// least half of it is left.
+    graph_work: u64,
+    /// The work the rounds may still do.
     graph_left: u64,
 }
 
@@ -671,7 +669,7 @@ impl<'t> Search<'t> {
             },
             done: Stats::default(),
             graph: None,
-            graph_limit: 0,
+            graph_work: 0,
             graph_left: 0,
         });
     }
@@ -735,19 +733,19 @@ impl<'t> Search<'t> {
         self.improvement = Some(imp);
     }
 
+    /// A neighbourhood round around `plan` that may do `work`.
+    fn round(&self, plan: &[OpId], work: u64) -> Neighbourhood {
+        Neighbourhood::new(self.task, &self.initial, plan, work)
+    }
+
     /// After the weighted searches: the first neighbourhood round around
     /// the cheapest plan, its size set by the evaluations so far.
     fn start_graph(&self, imp: &mut Improvement<'t>) {
         let evaluated = self.engine.evaluated + imp.done.evaluated + imp.engine.evaluated;
         let operators = self.useless.iter().filter(|&&u| !u).count() as u64;
-        imp.graph_left = Improvement::graph_work(evaluated, operators);
-        imp.graph_limit = imp.graph_left / GRAPH_ROUNDS;
-        imp.graph = Some(Neighbourhood::new(
-            self.task,
-            &self.initial,
-            &imp.plan,
-            imp.graph_limit,
-        ));
+        imp.graph_work = Improvement::graph_work(evaluated, operators);
+        imp.graph_left = imp.graph_work;
+        imp.graph = Some(self.round(&imp.plan, imp.graph_left));
     }
 
     /// One expansion of a neighbourhood round; at its end, the cheapest
@@ -760,12 +758,7 @@ impl<'t> Search<'t> {
             return;
         }
         imp.graph_left = imp.graph_left.saturating_sub(graph.work);
-        imp.done = imp.done.plus(&Stats {
-            expanded: graph.expanded,
-            generated: graph.generated,
-            states: graph.states() as u64,
-            ..Stats::default()
-        });
+        imp.done = imp.done.plus(&graph_stats(graph));
         let better = graph
             .cheapest(self.task)
             .filter(|ops| self.task.cost_of(ops) < imp.cost);
@@ -778,13 +771,8 @@ impl<'t> Search<'t> {
         imp.cost = self.task.cost_of(&ops);
         imp.plan = ops;
         // A round cut short by a lack of work is worth little.
-        if imp.graph_left >= imp.graph_limit / 2 {
-            imp.graph = Some(Neighbourhood::new(
-                self.task,
-                &self.initial,
-                &imp.plan,
-                imp.graph_limit.min(imp.graph_left),
-            ));
+        if imp.graph_left >= imp.graph_work / 2 {
+            imp.graph = Some(self.round(&imp.plan, imp.graph_left));
         } else {
             self.result = Some(Ended::Plan(std::mem::take(&mut imp.plan), false));
         }
@@ -808,9 +796,7 @@ impl<'t> Search<'t> {
         if let Some(imp) = &mut self.improvement {
             stats = stats.plus(&imp.done).plus(&engine_stats(&imp.engine));
             if let Some(graph) = &imp.graph {
-                stats.expanded += graph.expanded;
-                stats.generated += graph.generated;
-                stats.states += graph.states() as u64;
+                stats = stats.plus(&graph_stats(graph));
             }
             stats.first = Some(imp.first);
             if self.result.is_none() {
@@ -841,6 +827,16 @@ impl<'t> Search<'t> {
             optimal,
             stats,
         }
+    }
+}
+
+/// The counts of one neighbourhood round.
+fn graph_stats(graph: &Neighbourhood) -> Stats {
+    Stats {
+        expanded: graph.expanded,
+        generated: graph.generated,
+        states: graph.states() as u64,
+        ..Stats::default()
     }
 }
 
