@@ -317,11 +317,7 @@ fn dot(config: &Configuration, goal: &str) -> String {
         dot_escape(goal),
         config.cost
     ));
-    let mut peis: Vec<&str> = config
-        .functionalities
-        .iter()
-        .map(|f| f.peis.as_str())
-        .collect();
+    let mut peis: Vec<&str> = config.functionalities.iter().map(|f| &*f.peis).collect();
     peis.sort_unstable();
     peis.dedup();
     for (i, p) in peis.iter().enumerate() {
@@ -329,7 +325,7 @@ fn dot(config: &Configuration, goal: &str) -> String {
             "  subgraph cluster_{i} {{\n    label=\"{}\";\n",
             dot_escape(p)
         ));
-        for f in config.functionalities.iter().filter(|f| f.peis == *p) {
+        for f in config.functionalities.iter().filter(|f| &*f.peis == *p) {
             let state = match f.power {
                 Power::On => "on",
                 Power::Off => "off",
@@ -381,20 +377,25 @@ fn drawing(config: &Configuration, goal: &str, excluded: &[Exclusion]) -> Drawin
             Power::Off => ("off, switched on", Mark::SwitchedOn),
         };
         drawing.nodes.push(Node {
-            peis: f.peis.clone(),
-            component: f.component.clone(),
+            peis: f.peis.to_string(),
+            component: f.component.to_string(),
             label: f.call(),
             detail: format!("cost {} ({state})", f.cost),
             mark,
         });
     }
     for c in &config.channels {
-        let index = |label: &str| config.functionalities.iter().position(|f| f.label == label);
+        let index = |label: &str| {
+            config
+                .functionalities
+                .iter()
+                .position(|f| &*f.label == label)
+        };
         if let (Some(from), Some(to)) = (index(&c.from), index(&c.to)) {
             drawing.edges.push(Edge {
                 from,
                 to,
-                info: c.info.clone(),
+                info: c.info.to_string(),
             });
         }
     }

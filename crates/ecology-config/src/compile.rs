@@ -60,6 +60,11 @@ impl Symbols {
     pub(crate) fn name(&self, sym: Sym) -> &str {
         &self.names[sym.0 as usize]
     }
+
+    /// The name of `sym`, shared: cloning it copies no text.
+    pub(crate) fn shared(&self, sym: Sym) -> &Name {
+        &self.names[sym.0 as usize]
+    }
 }
 
 /// A term with variables as slots of the schema's binding.

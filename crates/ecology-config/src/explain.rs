@@ -104,11 +104,11 @@ pub(crate) fn explain_item(
                 Some(FuncProblem::PeisExcluded) => format!("PEIS {peis} is excluded"),
                 Some(FuncProblem::Precondition(i)) => {
                     let schema = &ctx.domain.functionalities[c.funcs[f.func as usize].src];
-                    let args: Vec<String> = graph
+                    let args: Vec<&str> = graph
                         .item(item)
                         .args
                         .iter()
-                        .map(|&a| c.syms.name(a).to_string())
+                        .map(|&a| c.syms.name(a))
                         .collect();
                     let lit = substitute_literal(&schema.precondition[i], &schema.params, &args);
                     let mut reason = format!("precondition {lit} does not hold");

@@ -12,7 +12,7 @@
 
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
-use ecology_domain::{ComponentCost, Domain, Literal, Param, Power, Term};
+use ecology_domain::{ComponentCost, Domain, Literal, Name, Param, Power, Term};
 
 use crate::compile::{Callee, Compiled, Sym};
 use crate::cost::CostModel;
@@ -143,6 +143,11 @@ impl<'a> Ctx<'a> {
     }
 
     pub(crate) fn callee_name(&self, callee: Callee) -> &'a str {
+        self.callee_shared_name(callee)
+    }
+
+    /// The functionality's or task's name, shared with the domain.
+    pub(crate) fn callee_shared_name(&self, callee: Callee) -> &'a Name {
         match callee {
             Callee::Func(f) => {
                 &self.domain.functionalities[self.compiled.funcs[f as usize].src].name
@@ -161,15 +166,15 @@ impl<'a> Ctx<'a> {
     }
 
     /// The functionality's postcondition with its parameters replaced by `args`.
-    pub(crate) fn ground_postcondition(&self, func: u32, args: &[Sym]) -> Vec<String> {
+    pub(crate) fn ground_postcondition(&self, func: u32, args: &[Sym]) -> Vec<Name> {
         let f = &self.domain.functionalities[self.compiled.funcs[func as usize].src];
-        let names: Vec<String> = args
-            .iter()
-            .map(|&a| self.compiled.syms.name(a).to_string())
-            .collect();
+        if f.postcondition.is_empty() {
+            return Vec::new();
+        }
+        let names: Vec<&str> = args.iter().map(|&a| self.compiled.syms.name(a)).collect();
         f.postcondition
             .iter()
-            .map(|lit| substitute_literal(lit, &f.params, &names))
+            .map(|lit| Name::from(substitute_literal(lit, &f.params, &names)))
             .collect()
     }
 
@@ -452,28 +457,42 @@ fn multiplicity(c: &Compiled, goal: Callee) -> Vec<u64> {
 }
 
 /// Renders a literal with parameters replaced by values (unknown variables stay).
-pub(crate) fn substitute_literal(lit: &Literal, params: &[Param], values: &[String]) -> String {
-    let sub = |t: &Term| match t {
-        Term::Var(v) => params
-            .iter()
-            .position(|p| p.name == *v)
-            .and_then(|i| values.get(i).cloned())
-            .unwrap_or_else(|| format!("?{v}")),
-        Term::Const(c) => c.to_string(),
+pub(crate) fn substitute_literal(lit: &Literal, params: &[Param], values: &[&str]) -> String {
+    let mut out = String::with_capacity(32);
+    let term = |out: &mut String, t: &Term| match t {
+        Term::Var(v) => match params.iter().position(|p| p.name == *v) {
+            Some(i) if i < values.len() => out.push_str(values[i]),
+            _ => {
+                out.push('?');
+                out.push_str(v);
+            }
+        },
+        Term::Const(c) => out.push_str(c),
     };
-    let call = |pred: &str, args: &[Term]| {
-        let mut out = format!("({pred}");
+    let call = |out: &mut String, pred: &str, args: &[Term]| {
+        out.push('(');
+        out.push_str(pred);
         for a in args {
             out.push(' ');
-            out.push_str(&sub(a));
+            term(out, a);
         }
         out.push(')');
-        out
     };
     match lit {
-        Literal::Pos(a) => call(&a.predicate, &a.args),
-        Literal::Neg(a) => format!("(not {})", call(&a.predicate, &a.args)),
-        Literal::Eq(a, b, _) => format!("(= {} {})", sub(a), sub(b)),
-        Literal::Neq(a, b, _) => format!("(not (= {} {}))", sub(a), sub(b)),
+        Literal::Pos(a) => call(&mut out, &a.predicate, &a.args),
+        Literal::Neg(a) => {
+            out.push_str("(not ");
+            call(&mut out, &a.predicate, &a.args);
+            out.push(')');
+        }
+        Literal::Eq(a, b, _) | Literal::Neq(a, b, _) => {
+            let neq = matches!(lit, Literal::Neq(..));
+            out.push_str(if neq { "(not (= " } else { "(= " });
+            term(&mut out, a);
+            out.push(' ');
+            term(&mut out, b);
+            out.push_str(if neq { "))" } else { ")" });
+        }
     }
+    out
 }

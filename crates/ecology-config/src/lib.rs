@@ -43,7 +43,7 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
-use ecology_domain::{Call, Domain, EcologyState, Power};
+use ecology_domain::{Call, Domain, EcologyState, Name, Power};
 
 pub use cost::{CostModel, PaperCost};
 /// The budget and the caller's clock live in `ecology-core`, shared with the action planner.
@@ -173,25 +173,25 @@ pub enum RequestError {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FunctionalityInstance {
     /// Where it sits in the decomposition, like `f0/f1/f2`.
-    pub label: String,
+    pub label: Name,
     /// The functionality's name.
-    pub name: String,
+    pub name: Name,
     /// Its ground arguments.
-    pub args: Vec<String>,
+    pub args: Vec<Name>,
     /// The PEIS it runs on.
-    pub peis: String,
+    pub peis: Name,
     /// The component that runs it.
-    pub component: String,
+    pub component: Name,
     /// Whether the component is running now (off means it must be started).
     pub power: Power,
     /// What it costs in this configuration.
     pub cost: u64,
     /// Its inputs, ground, like `(image hsm)`.
-    pub inputs: Vec<String>,
+    pub inputs: Vec<Name>,
     /// Its outputs, ground.
-    pub outputs: Vec<String>,
+    pub outputs: Vec<Name>,
     /// Its postcondition, ground; a component with one reports `done`.
-    pub postcondition: Vec<String>,
+    pub postcondition: Vec<Name>,
 }
 
 impl FunctionalityInstance {
@@ -211,22 +211,22 @@ impl FunctionalityInstance {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelInstance {
     /// The producer's label.
-    pub from: String,
+    pub from: Name,
     /// The consumer's label.
-    pub to: String,
+    pub to: Name,
     /// The information, like `(image hsm)`.
-    pub info: String,
+    pub info: Name,
     /// The kind of information alone, like `image`: the suffix of the
     /// producer's output tuple `C.out.image` and the consumer's input `C.mi-image`.
-    pub info_name: String,
+    pub info_name: Name,
     /// The producer's PEIS.
-    pub from_peis: String,
+    pub from_peis: Name,
     /// The producer's component.
-    pub from_component: String,
+    pub from_component: Name,
     /// The consumer's PEIS.
-    pub to_peis: String,
+    pub to_peis: Name,
     /// The consumer's component.
-    pub to_component: String,
+    pub to_component: Name,
     /// Whether it crosses between PEIS.
     pub remote: bool,
     /// What it costs.
@@ -251,7 +251,7 @@ impl Configuration {
     pub fn uses(&self, peis: &str, component: &str) -> bool {
         self.functionalities
             .iter()
-            .any(|f| f.peis == peis && f.component == component)
+            .any(|f| *f.peis == *peis && *f.component == *component)
     }
 
     /// A canonical text identifying the configuration regardless of labels.

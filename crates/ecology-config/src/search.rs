@@ -20,9 +20,10 @@ use std::collections::BinaryHeap;
 
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
-use crate::compile::{Callee, GInfo, Sym};
+use crate::compile::{CInfo, Callee, GInfo, Sym, Symbols};
 use crate::ground::{Ctx, Graph, INFEASIBLE, ItemId, ItemKind};
 use crate::{ChannelInstance, Configuration, FunctionalityInstance};
+use ecology_domain::Name;
 
 const NO_PARENT: u32 = u32::MAX;
 
@@ -489,11 +490,6 @@ impl<'a> Engine<'a> {
     fn args_of(&self, item: ItemId) -> &[Sym] {
         &self.graph.item(item).args
     }
-
-    pub(crate) fn callee_name(&self, callee: Callee) -> &str {
-        self.ctx.callee_name(callee)
-    }
-
     fn info_text(&self, info: &GInfo) -> String {
         info.text(&self.ctx.compiled.syms)
     }
@@ -596,16 +592,17 @@ impl<'a> Engine<'a> {
         let wires = self.wires(partial)?;
         self.check_wires(partial, &wires)?;
         self.check_inputs_connected(partial, &order, &wires)?;
-        // Labels, once per functionality instance: channels name them again.
-        let mut labels: Vec<String> = vec![String::new(); partial.insts.len()];
+        // Labels and information texts, built once: channels name them again.
+        let mut labels: Vec<Name> = vec![Name::from(""); partial.insts.len()];
         for &at in &order {
-            labels[at as usize] = self.label(partial, at);
+            labels[at as usize] = Name::from(self.label(partial, at));
         }
+        let mut texts = InfoTexts::default();
         // Cost: distinct components, plus distinct channels between PEIS.
         let (functionalities, components_cost) =
-            self.functionality_instances(partial, &order, &labels);
+            self.functionality_instances(partial, &order, &labels, &mut texts);
         let (channels, channels_cost) =
-            self.channel_instances(partial, &wires, &by_component, &labels);
+            self.channel_instances(partial, &wires, &by_component, &labels, &mut texts);
         Ok(Configuration {
             cost: components_cost.saturating_add(channels_cost),
             optimal: false,
@@ -785,11 +782,12 @@ impl<'a> Engine<'a> {
         &self,
         partial: &Partial,
         order: &[u32],
-        labels: &[String],
+        labels: &[Name],
+        texts: &mut InfoTexts,
     ) -> (Vec<FunctionalityInstance>, u64) {
         let c = &self.ctx.compiled;
         let mut cost: u64 = 0;
-        let mut functionalities = Vec::new();
+        let mut functionalities = Vec::with_capacity(order.len());
         for &at in order {
             let item = partial.insts[at as usize].item;
             let Some(f) = self.graph.func(item) else {
@@ -800,31 +798,23 @@ impl<'a> Engine<'a> {
             let args = self.args_of(item);
             functionalities.push(FunctionalityInstance {
                 label: labels[at as usize].clone(),
-                name: self.callee_name(Callee::Func(f.func)).to_string(),
-                args: self
-                    .graph
-                    .item(item)
-                    .args
-                    .iter()
-                    .map(|&a| c.syms.name(a).to_string())
-                    .collect(),
-                peis: c.syms.name(f.peis).to_string(),
-                component: c.syms.name(f.component).to_string(),
+                name: self.ctx.callee_shared_name(Callee::Func(f.func)).clone(),
+                args: args.iter().map(|&a| c.syms.shared(a).clone()).collect(),
+                peis: c.syms.shared(f.peis).clone(),
+                component: c.syms.shared(f.component).clone(),
                 power: f.power,
                 cost: f.cost,
                 inputs: schema
                     .inputs
                     .iter()
-                    .map(|i| self.info_text(&i.ground_args(args)))
+                    .map(|i| texts.of_schema(i, args, &c.syms))
                     .collect(),
                 outputs: schema
                     .outputs
                     .iter()
-                    .map(|o| self.info_text(&o.ground_args(args)))
+                    .map(|o| texts.of_schema(o, args, &c.syms))
                     .collect(),
-                postcondition: self
-                    .ctx
-                    .ground_postcondition(f.func, &self.graph.item(item).args),
+                postcondition: self.ctx.ground_postcondition(f.func, args),
             });
         }
         (functionalities, cost)
@@ -837,7 +827,8 @@ impl<'a> Engine<'a> {
         partial: &Partial,
         wires: &[Wire],
         by_component: &HashMap<ComponentKey, u32>,
-        labels: &[String],
+        labels: &[Name],
+        texts: &mut InfoTexts,
     ) -> (Vec<ChannelInstance>, u64) {
         let c = &self.ctx.compiled;
         let label_of = |k: ComponentKey| {
@@ -845,7 +836,7 @@ impl<'a> Engine<'a> {
                 .get(&k)
                 .and_then(|&at| labels.get(at as usize))
                 .cloned()
-                .unwrap_or_default()
+                .unwrap_or_else(|| Name::from(""))
         };
         let mut cost: u64 = 0;
         let mut channels = Vec::new();
@@ -867,16 +858,41 @@ impl<'a> Engine<'a> {
             channels.push(ChannelInstance {
                 from: label_of(pkey),
                 to: label_of(*ckey),
-                info: self.info_text(info),
-                info_name: c.syms.name(info.name).to_string(),
-                from_peis: c.syms.name(pkey.0).to_string(),
-                from_component: c.syms.name(pkey.1).to_string(),
-                to_peis: c.syms.name(ckey.0).to_string(),
-                to_component: c.syms.name(ckey.1).to_string(),
+                info: texts.of(info, &c.syms),
+                info_name: c.syms.shared(info.name).clone(),
+                from_peis: c.syms.shared(pkey.0).clone(),
+                from_component: c.syms.shared(pkey.1).clone(),
+                to_peis: c.syms.shared(ckey.0).clone(),
+                to_component: c.syms.shared(ckey.1).clone(),
                 remote,
                 cost: channel_cost,
             });
         }
         (channels, cost)
+    }
+}
+
+/// The texts of a configuration's information types, like `(image hsm)`,
+/// each built once: a producer's output, its consumer's input and their
+/// channel share one.
+#[derive(Default)]
+struct InfoTexts(Vec<(GInfo, Name)>);
+
+impl InfoTexts {
+    fn of(&mut self, info: &GInfo, syms: &Symbols) -> Name {
+        if let Some((_, text)) = self.0.iter().find(|(i, _)| i == info) {
+            return text.clone();
+        }
+        let text = Name::from(info.text(syms));
+        self.0.push((info.clone(), text.clone()));
+        text
+    }
+
+    /// The text of a schema's information grounded by an instance's arguments.
+    fn of_schema(&mut self, info: &CInfo, args: &[Sym], syms: &Symbols) -> Name {
+        match self.0.iter().find(|(i, _)| info.grounds_args_to(args, i)) {
+            Some((_, text)) => text.clone(),
+            None => self.of(&info.ground_args(args), syms),
+        }
     }
 }

@@ -183,7 +183,7 @@ fn invalid_component(config: &Configuration) -> Option<(String, String)> {
     functionalities
         .chain(producers)
         .find(|(p, c)| component_key(p, c).is_none())
-        .map(|(p, c)| (p.clone(), c.clone()))
+        .map(|(p, c)| (p.to_string(), c.to_string()))
 }
 
 /// The components of `config`'s functionalities that `keep` selects.
@@ -1234,7 +1234,9 @@ impl Executive {
         let into: Vec<&ecology_config::ChannelInstance> = config
             .channels
             .iter()
-            .filter(|c| c.to_peis == consumer.0.as_str() && c.to_component == consumer.1.as_str())
+            .filter(|c| {
+                &*c.to_peis == consumer.0.as_str() && &*c.to_component == consumer.1.as_str()
+            })
             .collect();
         let prefix = format!("{}.mi-", consumer.1);
         let named = |c: &ecology_config::ChannelInstance| {
@@ -1243,7 +1245,7 @@ impl Executive {
         };
         let channel = into.iter().find(|c| named(c)).or_else(|| {
             // `image` for one of two images: only when it names one channel.
-            let same: Vec<_> = into.iter().filter(|c| c.info_name == input).collect();
+            let same: Vec<_> = into.iter().filter(|c| &*c.info_name == input).collect();
             (same.len() == 1).then(|| same[0])
         });
         let Some(producer) = channel.and_then(|c| component_key(&c.from_peis, &c.from_component))
@@ -1270,7 +1272,7 @@ impl Executive {
         let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
             return;
         };
-        let lost = components_of(config, |f| f.peis == peis.as_str());
+        let lost = components_of(config, |f| &*f.peis == peis.as_str());
         if !lost.is_empty() {
             self.failure(lost, cause, out);
         }
@@ -1352,8 +1354,8 @@ impl Executive {
                     let starved = |key: &ComponentKey| {
                         config.is_some_and(|c| {
                             c.channels.iter().any(|ch| {
-                                ch.to_peis == key.0.as_str()
-                                    && ch.to_component == key.1.as_str()
+                                &*ch.to_peis == key.0.as_str()
+                                    && &*ch.to_component == key.1.as_str()
                                     && component_key(&ch.from_peis, &ch.from_component).is_some_and(
                                         |producer| producer != *key && pending.contains(&producer),
                                     )
