@@ -97,6 +97,20 @@ struct Task {
     wmin: u64,
 }
 
+/// The children of one state: (opt index, added cost), and their states
+/// back to back, reused from one expansion to the next.
+#[derive(Default)]
+struct Kids {
+    info: Vec<(u32, u64)>,
+    states: Vec<u64>,
+}
+
+impl Kids {
+    fn state(&self, k: usize, words: usize) -> &[u64] {
+        &self.states[k * words..(k + 1) * words]
+    }
+}
+
 /// Buffers of the bound, kept between calls.
 #[derive(Debug, Default)]
 struct Scratch {
@@ -617,17 +631,22 @@ impl Shared {
         sum
     }
 
-    /// The children of a state: (opt index, child state, added cost).
-    fn children(&self, state: &[u64], need: usize, out: &mut Vec<(u32, Vec<u64>, u64)>) {
+    /// The children of a state, into `kids`: (opt index, added cost), and
+    /// their states back to back.
+    fn children(&self, state: &[u64], need: usize, kids: &mut Kids) {
+        kids.info.clear();
+        kids.states.clear();
         for (o, opt) in self.needs[need].opts.iter().enumerate() {
             let p = opt.prov as usize;
-            let mut child = state.to_vec();
-            let (chosen, open) = child.split_at_mut(self.pwords);
+            let at = kids.states.len();
+            kids.states.extend_from_slice(state);
+            let (chosen, open) = kids.states[at..].split_at_mut(self.pwords);
             set(open, need, false);
             let mut add = opt.wire;
             if !bit(chosen, p) {
                 let prov = &self.provs[p];
                 if prov.conflicts.iter().any(|&q| bit(chosen, q as usize)) {
+                    kids.states.truncate(at);
                     continue;
                 }
                 set(chosen, p, true);
@@ -637,7 +656,7 @@ impl Shared {
                 }
                 add = add.saturating_add(prov.cost);
             }
-            out.push((o as u32, child, add));
+            kids.info.push((o as u32, add));
         }
     }
 
@@ -645,14 +664,14 @@ impl Shared {
         ones(&state[self.pwords..]).next()
     }
 
-    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: Vec<u64>) {
+    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: &[u64]) {
         let id = self.nodes.len() as u32;
         if self.count == 1 {
             let mut hasher = FxHasher::default();
             state.hash(&mut hasher);
             let key = hasher.finish();
             match self.seen.get(&key) {
-                Some(&old) if self.state(old) == &state[..] => {
+                Some(&old) if self.state(old) == state => {
                     if self.nodes[old as usize].g <= g {
                         return;
                     }
@@ -670,7 +689,7 @@ impl Shared {
             opt,
             g,
         });
-        self.states.extend_from_slice(&state);
+        self.states.extend_from_slice(state);
         self.open.push((Reverse(f), g, Reverse(id)));
         self.generated += 1;
     }
@@ -699,7 +718,7 @@ impl Shared {
         let mut state = self.state(from).to_vec();
         let mut g = self.nodes[from as usize].g;
         let mut choice = self.choices(from);
-        let mut kids = Vec::new();
+        let mut kids = Kids::default();
         let mut steps = 0;
         while let Some(need) = self.first_open(&state) {
             if steps == limit
@@ -710,20 +729,19 @@ impl Shared {
             steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
-            kids.clear();
             self.children(&state, need, &mut kids);
-            let best = kids
-                .drain(..)
-                .map(|(o, s, add)| {
-                    let h = self.h(&s);
-                    (g.saturating_add(add).saturating_add(h), o, s, add)
+            let best = (0..kids.info.len())
+                .map(|k| {
+                    let (o, add) = kids.info[k];
+                    let h = self.h(kids.state(k, self.words));
+                    (g.saturating_add(add).saturating_add(h), o, k)
                 })
                 .filter(|k| k.0 < self.bound)
                 .min_by_key(|k| (k.0, k.1));
-            let Some((_, o, s, add)) = best else { return };
+            let Some((_, o, k)) = best else { return };
             choice[need] = o;
-            g = g.saturating_add(add);
-            state = s;
+            g = g.saturating_add(kids.info[k].1);
+            state.copy_from_slice(kids.state(k, self.words));
         }
         if g < self.bound {
             self.bound = g;
@@ -751,7 +769,7 @@ impl Shared {
             let state = self.root_state();
             let h = self.h(&state);
             if h != INFEASIBLE {
-                self.push(NONE, NONE, NONE, 0, h, state);
+                self.push(NONE, NONE, NONE, 0, h, &state);
                 if single {
                     // A first configuration at once: anytime.
                     self.dive(0, expansions.max(1), over);
@@ -759,7 +777,8 @@ impl Shared {
             }
             return self.finalize();
         }
-        let mut kids = Vec::new();
+        let mut kids = Kids::default();
+        let mut state = Vec::with_capacity(self.words);
         for done in 0..expansions {
             let Some((Reverse(f), _, Reverse(id))) = self.open.pop() else {
                 break;
@@ -768,7 +787,8 @@ impl Shared {
                 self.open.clear();
                 break;
             }
-            let state = self.state(id).to_vec();
+            state.clear();
+            state.extend_from_slice(self.state(id));
             if single {
                 let mut hasher = FxHasher::default();
                 state.hash(&mut hasher);
@@ -794,11 +814,11 @@ impl Shared {
                 continue;
             };
             self.expanded += 1;
-            kids.clear();
             self.children(&state, need, &mut kids);
-            for (o, s, add) in kids.drain(..) {
+            for (k, &(o, add)) in kids.info.iter().enumerate() {
+                let s = kids.state(k, self.words);
                 let cg = g.saturating_add(add);
-                let h = self.h(&s);
+                let h = self.h(s);
                 if h == INFEASIBLE {
                     continue;
                 }
