@@ -589,14 +589,24 @@ impl Compiled {
         facts.index.reserve(state.len());
         let mut cut = false;
         let mut args = Vec::with_capacity(8);
+        // A state's reader shares one `Name` among all uses of a name, so
+        // most names are found by their address, without hashing the text.
+        // The state outlives this map, so an address names one text.
+        let mut by_address: HashMap<usize, Sym> =
+            HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
+        let mut intern = |syms: &mut Symbols, name: &Name| {
+            *by_address
+                .entry(Name::as_ptr(name) as *const u8 as usize)
+                .or_insert_with(|| syms.intern(name))
+        };
         for (k, fact) in state.facts().iter().enumerate() {
             if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
                 cut = true;
                 break;
             }
-            let pred = syms.intern(&fact.predicate);
+            let pred = intern(&mut syms, &fact.predicate);
             args.clear();
-            args.extend(fact.args.iter().map(|a| syms.intern(a)));
+            args.extend(fact.args.iter().map(|a| intern(&mut syms, a)));
             facts.insert(pred, &args);
         }
         Compiled {

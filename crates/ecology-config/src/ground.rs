@@ -10,7 +10,10 @@
 //! used k times is paid once, and k never exceeds that count); when no schema
 //! can occur twice, the bound is exact for conflict-free configurations.
 
-use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
+use std::hash::{Hash, Hasher};
+
+use hashbrown::HashTable;
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
 use ecology_domain::{ComponentCost, Domain, Literal, Name, Param, Power, Term};
 
@@ -233,12 +236,22 @@ impl<'a> Ctx<'a> {
     }
 }
 
+/// The hash under which an instance of `callee` on `args` is memoized.
+fn memo_hash(callee: Callee, args: &[Sym]) -> u64 {
+    let mut hasher = FxHasher::default();
+    callee.hash(&mut hasher);
+    args.hash(&mut hasher);
+    hasher.finish()
+}
+
 /// The grounded AND-OR graph, grown on demand and memoized.
 #[derive(Debug, Default)]
 pub(crate) struct Graph {
     pub(crate) items: Vec<Item>,
-    /// Instances by callee, then arguments (looked up without allocating).
-    memo: HashMap<Callee, HashMap<Box<[Sym]>, ItemId>>,
+    /// Instances by callee and arguments, hashed by those (see
+    /// [`memo_hash`]): found without allocating a key, stored without a
+    /// second copy of the arguments.
+    memo: HashTable<ItemId>,
     /// Alternatives created, for statistics.
     pub(crate) alternatives: u64,
     /// Grounding was cut short by the caller's budget: the graph is unusable.
@@ -278,7 +291,12 @@ impl Graph {
         depth: usize,
         over: &dyn Fn() -> bool,
     ) -> ItemId {
-        if let Some(&id) = self.memo.get(&callee).and_then(|m| m.get(args)) {
+        let hash = memo_hash(callee, args);
+        let items = &self.items;
+        if let Some(&id) = self.memo.find(hash, |&id| {
+            let item = &items[id.0 as usize];
+            item.callee == callee && *item.args == *args
+        }) {
             return id;
         }
         if self.items.len() % 256 == 255 && !self.cut && over() {
@@ -307,7 +325,11 @@ impl Graph {
             kind,
             lb,
         });
-        self.memo.entry(callee).or_default().insert(args.into(), id);
+        let items = &self.items;
+        self.memo.insert_unique(hash, id, |&id| {
+            let item = &items[id.0 as usize];
+            memo_hash(item.callee, &item.args)
+        });
         id
     }
 
