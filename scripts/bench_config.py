@@ -16,7 +16,7 @@ assembling the configuration, with the domain compiled beforehand by a
 domain's signatures into its table untimed); a second column also times
 compiling the domain, as `ecology configure` does. Clingo's includes
 its grounding and solving, HiGHS's includes building the model, the branch
-and bound's its precomputation. All report the median of up to 25 runs
+and bound's its precomputation. All report the median of up to 1,000 runs
 while they take under half a second in all. Costs must agree wherever two
 prove optimality; the script fails otherwise.
 """
@@ -130,12 +130,13 @@ wire(C,T,N) :- feed(C,T,D), comp(C,P,_,_), comp(D,Q,_,_), P != Q, chan(Q,P,N).
 
 
 def median_run(once, *args):
-    """(seconds, cost, proven) of `once(*args)`: the median of up to 25 runs
-    while they take under half a second in all, as for our planner (a lone
-    run mostly measures cold caches, in an interpreter as in a binary)."""
+    """(seconds, cost, proven) of `once(*args)`: the median of up to 1,000
+    runs while they take under half a second in all, as for our planner (a
+    lone run, or the first few dozen, mostly measure cold caches, in an
+    interpreter as in a binary)."""
     runs = []
     began = time.perf_counter()
-    while len(runs) < 25 and (not runs or time.perf_counter() - began < 0.5):
+    while len(runs) < 1000 and (not runs or time.perf_counter() - began < 0.5):
         runs.append(once(*args))
     runs.sort(key=lambda r: r[0])
     return runs[len(runs) // 2]

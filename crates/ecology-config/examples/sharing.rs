@@ -9,7 +9,7 @@
 //! [`Planner`] whose domain was compiled beforehand, as the executive's is
 //! (compiling the state, grounding, search, assembling the configuration),
 //! and `cold_micros` that of [`plan`], which compiles the domain too; each
-//! the median of up to 25 runs while they take under half a second in all. `… -- run P L K CPP R F SEED
+//! the median of up to 1,000 runs while they take under half a second in all. `… -- run P L K CPP R F SEED
 //! [MAX_MILLIS]` generates and plans without files.
 
 use std::time::{Duration, Instant};
@@ -91,12 +91,13 @@ fn main() {
                 },
             };
             let generated = start.elapsed();
-            // Up to 25 runs while they take under half a second in all; the
-            // median is reported (a lone run mostly measures cold caches).
+            // Up to 1,000 runs while they take under half a second in all;
+            // the median is reported (a lone run, or the first few dozen of
+            // a fresh process, mostly measure cold caches).
             let median = |once: &dyn Fn() -> (Duration, Outcome)| {
                 let mut runs = Vec::new();
                 let began = Instant::now();
-                while runs.len() < 25
+                while runs.len() < 1000
                     && (runs.is_empty() || began.elapsed() < Duration::from_millis(500))
                 {
                     runs.push(once());
