@@ -106,7 +106,9 @@ impl<'a> Ctx<'a> {
     ) -> Ctx<'a> {
         let mut costs = HashMap::default();
         if let Some(cost) = compiled.syms.get("cost") {
-            for fact in compiled.facts.of(cost).iter() {
+            let facts = compiled.facts.of(cost);
+            costs.reserve(facts.len());
+            for fact in facts.iter() {
                 if let [p, c, amount, power] = fact[..] {
                     let amount = compiled.syms.name(amount).parse::<u64>();
                     let power = match compiled.syms.name(power) {

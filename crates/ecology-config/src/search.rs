@@ -78,20 +78,26 @@ struct Inst {
 struct Partial {
     insts: Vec<Inst>,
     stack: Vec<u32>,
-    used: HashMap<ComponentKey, ItemId>,
+    /// The functionality instance each component runs, kept for the tree
+    /// search's clash checks; `None` when only assembling (which checks
+    /// components itself).
+    used: Option<HashMap<ComponentKey, ItemId>>,
 }
 
 impl Partial {
-    /// A partial configuration holding only the goal's occurrence, `root`.
-    fn rooted(root: ItemId) -> Partial {
-        let mut partial = Partial::default();
-        partial.insts.push(Inst {
-            item: root,
-            parent: None,
-            alt: None,
-            children: Vec::new(),
-        });
-        partial
+    /// A partial configuration holding only the goal's occurrence, `root`,
+    /// that keeps track of the components in use when `tracked`.
+    fn rooted(root: ItemId, tracked: bool) -> Partial {
+        Partial {
+            insts: vec![Inst {
+                item: root,
+                parent: None,
+                alt: None,
+                children: Vec::new(),
+            }],
+            stack: Vec::new(),
+            used: tracked.then(HashMap::default),
+        }
     }
 }
 
@@ -330,7 +336,7 @@ impl<'a> Engine<'a> {
     ) -> Result<Configuration, Inadmissible> {
         /// Guards against a sharing pattern that unfolds into a huge tree.
         const MAX_INSTANCES: usize = 1 << 20;
-        let mut partial = Partial::rooted(self.root);
+        let mut partial = Partial::rooted(self.root, false);
         partial.stack.push(0);
         while let Some(top) = partial.stack.pop() {
             if partial.insts.len() > MAX_INSTANCES {
@@ -374,10 +380,12 @@ impl<'a> Engine<'a> {
     }
 
     fn replay(&self, id: u32) -> Partial {
-        let mut partial = Partial::rooted(self.root);
+        let mut partial = Partial::rooted(self.root, true);
         match self.graph.func(self.root) {
             Some(f) => {
-                partial.used.insert((f.peis, f.component), self.root);
+                if let Some(used) = &mut partial.used {
+                    used.insert((f.peis, f.component), self.root);
+                }
             }
             None => partial.stack.push(0),
         }
@@ -409,7 +417,9 @@ impl<'a> Engine<'a> {
             partial.insts[top as usize].children.push(at);
             match self.graph.func(child) {
                 Some(f) => {
-                    partial.used.entry((f.peis, f.component)).or_insert(child);
+                    if let Some(used) = &mut partial.used {
+                        used.entry((f.peis, f.component)).or_insert(child);
+                    }
                 }
                 None => tasks.push(at),
             }
@@ -440,7 +450,10 @@ impl<'a> Engine<'a> {
             for &child in alt.children.iter() {
                 match self.graph.func(child) {
                     Some(f) => {
-                        if let Some(&other) = partial.used.get(&(f.peis, f.component))
+                        if let Some(&other) = partial
+                            .used
+                            .as_ref()
+                            .and_then(|used| used.get(&(f.peis, f.component)))
                             && other != child
                         {
                             // The component already runs another functionality.
@@ -624,8 +637,9 @@ impl<'a> Engine<'a> {
         partial: &Partial,
     ) -> Result<(HashMap<ComponentKey, u32>, Vec<u32>), Inadmissible> {
         let c = &self.ctx.compiled;
-        let mut by_component: HashMap<ComponentKey, u32> = HashMap::default();
-        let mut order: Vec<u32> = Vec::new();
+        let mut by_component: HashMap<ComponentKey, u32> =
+            HashMap::with_capacity_and_hasher(partial.insts.len(), Default::default());
+        let mut order: Vec<u32> = Vec::with_capacity(partial.insts.len());
         for (at, inst) in partial.insts.iter().enumerate() {
             let Some(f) = self.graph.func(inst.item) else {
                 continue;
@@ -839,8 +853,9 @@ impl<'a> Engine<'a> {
                 .unwrap_or_else(|| Name::from(""))
         };
         let mut cost: u64 = 0;
-        let mut channels = Vec::new();
-        let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> = HashSet::default();
+        let mut channels = Vec::with_capacity(wires.len());
+        let mut seen: HashSet<(ComponentKey, ComponentKey, GInfo)> =
+            HashSet::with_capacity_and_hasher(wires.len(), Default::default());
         for (ckey, info, producer, _) in wires {
             let Some(pkey) = self.component_at(partial, *producer) else {
                 continue;
