@@ -1,7 +1,10 @@
 //! The compiled problem: interned symbols, indexed facts, and schemas whose
 //! variables are slots, so that grounding and search work on integers.
 
-use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
+use std::hash::{Hash, Hasher};
+
+use hashbrown::HashTable;
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
 use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
 
@@ -9,47 +12,62 @@ use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub(crate) struct Sym(pub(crate) u32);
 
-/// The symbol table of one planning problem.
+/// The symbol table of one planning problem: each name stored once, found
+/// through a table of symbols hashed by their names' text.
 #[derive(Debug, Default, Clone)]
 pub(crate) struct Symbols {
-    map: HashMap<Name, Sym>,
+    table: HashTable<Sym>,
     names: Vec<Name>,
+}
+
+fn text_hash(name: &str) -> u64 {
+    let mut hasher = FxHasher::default();
+    name.hash(&mut hasher);
+    hasher.finish()
 }
 
 impl Symbols {
     fn with_capacity(n: usize) -> Symbols {
         Symbols {
-            map: HashMap::with_capacity_and_hasher(n, Default::default()),
+            table: HashTable::with_capacity(n),
             names: Vec::with_capacity(n),
         }
     }
 
     fn reserve(&mut self, n: usize) {
-        self.map.reserve(n);
+        let names = &self.names;
+        self.table.reserve(n, |&s| text_hash(&names[s.0 as usize]));
         self.names.reserve(n);
     }
 
     /// The symbol of `name`, shared with the domain and state it comes from.
     pub(crate) fn intern(&mut self, name: &Name) -> Sym {
-        if let Some(&sym) = self.map.get(&**name) {
+        let hash = text_hash(name);
+        let names = &self.names;
+        if let Some(&sym) = self.table.find(hash, |&s| *names[s.0 as usize] == **name) {
             return sym;
         }
         let sym = Sym(self.names.len() as u32);
         self.names.push(name.clone());
-        self.map.insert(name.clone(), sym);
+        let names = &self.names;
+        self.table
+            .insert_unique(hash, sym, |&s| text_hash(&names[s.0 as usize]));
         sym
     }
 
     /// The symbol of a name given as text.
     pub(crate) fn intern_str(&mut self, name: &str) -> Sym {
-        match self.map.get(name) {
-            Some(&sym) => sym,
+        match self.get(name) {
+            Some(sym) => sym,
             None => self.intern(&Name::from(name)),
         }
     }
 
     pub(crate) fn get(&self, name: &str) -> Option<Sym> {
-        self.map.get(name).copied()
+        let names = &self.names;
+        self.table
+            .find(text_hash(name), |&s| &*names[s.0 as usize] == name)
+            .copied()
     }
 
     /// How many names are interned.
