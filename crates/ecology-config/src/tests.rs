@@ -1171,3 +1171,54 @@ fn a_planner_reused_across_states_plans_as_plan_does() {
     assert!(!direct.configurations.is_empty());
     assert_eq!(outcomes(&through), outcomes(&direct));
 }
+
+/// The planner interns a state's names by address first: a reader shares one
+/// `Name` per distinct name, a state built fact by fact does not. Both must
+/// plan alike, and names equal in text must be one symbol either way.
+#[test]
+fn a_state_plans_alike_whether_its_names_are_shared_or_not() {
+    let (domain, shared, goal) = navigate_home();
+    let copied: EcologyState = shared
+        .facts()
+        .iter()
+        .map(|f| {
+            let args: Vec<&str> = f.args.iter().map(|a| &**a).collect();
+            ecology_domain::Fact::new(&f.predicate, &args)
+        })
+        .collect();
+    let astrid = |state: &EcologyState| -> Vec<Name> {
+        state
+            .facts()
+            .iter()
+            .flat_map(|f| f.args.iter())
+            .filter(|a| &***a == "astrid")
+            .cloned()
+            .collect()
+    };
+    // The two states differ in exactly what the planner's shortcut relies on.
+    let (a, b) = (astrid(&shared), astrid(&copied));
+    assert!(a.len() > 1 && a.len() == b.len());
+    assert!(a.windows(2).all(|w| std::sync::Arc::ptr_eq(&w[0], &w[1])));
+    assert!(b.windows(2).all(|w| !std::sync::Arc::ptr_eq(&w[0], &w[1])));
+    let outcome = |state: &EcologyState| {
+        let request = Request {
+            domain: &domain,
+            state,
+            goal: &goal,
+            exclusions: &[],
+        };
+        let options = Options {
+            count: 3,
+            ..Options::default()
+        };
+        let out = plan(&request, &options, &NoClock).expect("valid");
+        out.configurations
+            .iter()
+            .map(|c| (c.cost, c.signature()))
+            .collect::<Vec<_>>()
+    };
+    let (a, b) = (outcome(&shared), outcome(&copied));
+    assert_eq!(a.len(), 3);
+    assert_eq!(a[0].0, 80, "the paper's cheapest configuration");
+    assert_eq!(a, b);
+}
