@@ -453,10 +453,11 @@ const IMPROVE_FLOOR: u64 = 2000;
 /// relaxed task, its time growing with the operators); the rounds' is the
 /// operators looked at for successors, plus some for each transition and
 /// each word of a new state (see [`Neighbourhood`]). Measured with timing
-/// added for the purpose (not kept) on nine IPC domains, a unit of the rounds' work took 1 to 3 ns and one of the
-/// searches' 4 to 22 ns, so the rounds add at most about a third of the
-/// searches' time, mostly much less (snake-opt18 p03: 0.6 s after 4.4 s;
-/// logistics98 prob04: 23 ms after 370 ms).
+/// added for the purpose (not kept) on nine IPC domains, a unit of the
+/// rounds' work took 1 to 3 ns and one of the searches' 4 to 22 ns, so the
+/// rounds add at most about a third of the searches' time, mostly much less
+/// (snake-opt18 p03: 0.6 s after 4.4 s; logistics98 prob04: 23 ms after
+/// 370 ms).
 const GRAPH_SHARE: u64 = 2;
 
 /// The work the rounds may do however small the searches before them

@@ -147,12 +147,8 @@ impl<'a> Ctx<'a> {
         }
     }
 
-    pub(crate) fn callee_name(&self, callee: Callee) -> &'a str {
-        self.callee_shared_name(callee)
-    }
-
     /// The functionality's or task's name, shared with the domain.
-    pub(crate) fn callee_shared_name(&self, callee: Callee) -> &'a Name {
+    pub(crate) fn callee_name(&self, callee: Callee) -> &'a Name {
         match callee {
             Callee::Func(f) => {
                 &self.domain.functionalities[self.compiled.funcs[f as usize].src].name

@@ -812,7 +812,7 @@ impl<'a> Engine<'a> {
             let args = self.args_of(item);
             functionalities.push(FunctionalityInstance {
                 label: labels[at as usize].clone(),
-                name: self.ctx.callee_shared_name(Callee::Func(f.func)).clone(),
+                name: self.ctx.callee_name(Callee::Func(f.func)).clone(),
                 args: args.iter().map(|&a| c.syms.shared(a).clone()).collect(),
                 peis: c.syms.shared(f.peis).clone(),
                 component: c.syms.shared(f.component).clone(),
@@ -895,19 +895,24 @@ struct InfoTexts(Vec<(GInfo, Name)>);
 
 impl InfoTexts {
     fn of(&mut self, info: &GInfo, syms: &Symbols) -> Name {
-        if let Some((_, text)) = self.0.iter().find(|(i, _)| i == info) {
-            return text.clone();
+        match self.0.iter().find(|(i, _)| i == info) {
+            Some((_, text)) => text.clone(),
+            None => self.add(info.clone(), syms),
         }
-        let text = Name::from(info.text(syms));
-        self.0.push((info.clone(), text.clone()));
-        text
     }
 
     /// The text of a schema's information grounded by an instance's arguments.
     fn of_schema(&mut self, info: &CInfo, args: &[Sym], syms: &Symbols) -> Name {
         match self.0.iter().find(|(i, _)| info.grounds_args_to(args, i)) {
             Some((_, text)) => text.clone(),
-            None => self.of(&info.ground_args(args), syms),
+            None => self.add(info.ground_args(args), syms),
         }
+    }
+
+    /// Builds the text of `info`, not yet known, and keeps it.
+    fn add(&mut self, info: GInfo, syms: &Symbols) -> Name {
+        let text = Name::from(info.text(syms));
+        self.0.push((info, text.clone()));
+        text
     }
 }
