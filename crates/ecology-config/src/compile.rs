@@ -13,9 +13,15 @@ use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
 pub(crate) struct Sym(pub(crate) u32);
 
 /// The symbol table of one planning problem: each name stored once, found
-/// through a table of symbols hashed by their names' text.
+/// through a table of symbols hashed by their names' text. A plan's table
+/// shares the domain's (whose symbols come first) and holds only the state's
+/// new names, so starting a plan copies nothing.
 #[derive(Debug, Default, Clone)]
 pub(crate) struct Symbols {
+    /// The domain's table, when this is a plan's.
+    base: Option<std::sync::Arc<Symbols>>,
+    /// How many names `base` has: this table's first symbol.
+    offset: u32,
     table: HashTable<Sym>,
     names: Vec<Name>,
 }
@@ -31,27 +37,47 @@ impl Symbols {
         Symbols {
             table: HashTable::with_capacity(n),
             names: Vec::with_capacity(n),
+            ..Symbols::default()
         }
     }
 
-    fn reserve(&mut self, n: usize) {
-        let names = &self.names;
-        self.table.reserve(n, |&s| text_hash(&names[s.0 as usize]));
-        self.names.reserve(n);
+    /// A plan's table over the domain's, with room for `n` more names.
+    fn over(base: std::sync::Arc<Symbols>, n: usize) -> Symbols {
+        Symbols {
+            offset: base.len() as u32,
+            base: Some(base),
+            table: HashTable::with_capacity(n),
+            names: Vec::with_capacity(n),
+        }
+    }
+
+    /// The symbol of a name with hash `hash`, in this table's own names.
+    fn find_own(&self, hash: u64, name: &str) -> Option<Sym> {
+        let (names, offset) = (&self.names, self.offset);
+        self.table
+            .find(hash, |&s| &*names[(s.0 - offset) as usize] == name)
+            .copied()
+    }
+
+    fn find(&self, hash: u64, name: &str) -> Option<Sym> {
+        match &self.base {
+            Some(base) => base.find_own(hash, name),
+            None => None,
+        }
+        .or_else(|| self.find_own(hash, name))
     }
 
     /// The symbol of `name`, shared with the domain and state it comes from.
     pub(crate) fn intern(&mut self, name: &Name) -> Sym {
         let hash = text_hash(name);
-        let names = &self.names;
-        if let Some(&sym) = self.table.find(hash, |&s| *names[s.0 as usize] == **name) {
+        if let Some(sym) = self.find(hash, name) {
             return sym;
         }
-        let sym = Sym(self.names.len() as u32);
+        let sym = Sym(self.offset + self.names.len() as u32);
         self.names.push(name.clone());
-        let names = &self.names;
+        let (names, offset) = (&self.names, self.offset);
         self.table
-            .insert_unique(hash, sym, |&s| text_hash(&names[s.0 as usize]));
+            .insert_unique(hash, sym, |&s| text_hash(&names[(s.0 - offset) as usize]));
         sym
     }
 
@@ -64,24 +90,24 @@ impl Symbols {
     }
 
     pub(crate) fn get(&self, name: &str) -> Option<Sym> {
-        let names = &self.names;
-        self.table
-            .find(text_hash(name), |&s| &*names[s.0 as usize] == name)
-            .copied()
+        self.find(text_hash(name), name)
     }
 
     /// How many names are interned.
     pub(crate) fn len(&self) -> usize {
-        self.names.len()
+        self.offset as usize + self.names.len()
     }
 
     pub(crate) fn name(&self, sym: Sym) -> &str {
-        &self.names[sym.0 as usize]
+        self.shared(sym)
     }
 
     /// The name of `sym`, shared: cloning it copies no text.
     pub(crate) fn shared(&self, sym: Sym) -> &Name {
-        &self.names[sym.0 as usize]
+        match &self.base {
+            Some(base) if sym.0 < self.offset => &base.names[sym.0 as usize],
+            _ => &self.names[(sym.0 - self.offset) as usize],
+        }
     }
 }
 
@@ -373,8 +399,8 @@ impl Candidates<'_> {
 /// once and every plan starts from it.
 #[derive(Debug)]
 pub(crate) struct Schema {
-    /// The domain's names; a plan's table is a copy with the state's after them.
-    domain_syms: Symbols,
+    /// The domain's names; a plan's table adds the state's after them.
+    domain_syms: std::sync::Arc<Symbols>,
     pub(crate) funcs: Vec<CFunc>,
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
@@ -382,6 +408,9 @@ pub(crate) struct Schema {
     /// The predicates some precondition looks up: the state's facts of these
     /// are indexed by argument.
     indexed: HashSet<Sym>,
+    /// By task: how often each functionality schema can occur in one
+    /// decomposition of it, computed the first time a goal asks.
+    multiplicity: Vec<std::sync::OnceLock<std::sync::Arc<[u64]>>>,
 }
 
 /// The domain and state, compiled.
@@ -429,6 +458,17 @@ impl<'a> Slots<'a> {
 }
 
 impl Schema {
+    /// For each functionality schema, the most times it can occur in one
+    /// decomposition of `goal`; a task's are computed once and kept.
+    pub(crate) fn multiplicity(&self, goal: Callee) -> std::sync::Arc<[u64]> {
+        match goal {
+            Callee::Task(t) => self.multiplicity[t as usize]
+                .get_or_init(|| crate::ground::multiplicity(self, goal).into())
+                .clone(),
+            Callee::Func(_) => crate::ground::multiplicity(self, goal).into(),
+        }
+    }
+
     /// Compiles the domain's schemas.
     pub(crate) fn new(domain: &Domain) -> Schema {
         let mut callee_by_name = HashMap::default();
@@ -439,12 +479,15 @@ impl Schema {
             callee_by_name.insert(t.name.clone(), Callee::Task(i as u32));
         }
         let mut schema = Schema {
-            domain_syms: Symbols::with_capacity(64),
+            domain_syms: std::sync::Arc::new(Symbols::with_capacity(64)),
             funcs: Vec::with_capacity(domain.functionalities.len()),
             tasks: Vec::with_capacity(domain.tasks.len()),
             methods: Vec::with_capacity(domain.methods.len()),
             callee_by_name,
             indexed: HashSet::default(),
+            multiplicity: (0..domain.tasks.len())
+                .map(|_| std::sync::OnceLock::new())
+                .collect(),
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -546,7 +589,9 @@ impl Schema {
             .iter()
             .map(|t| match t {
                 Term::Var(v) => CTerm::Var(slots.slot(v)),
-                Term::Const(c) => CTerm::Const(self.domain_syms.intern(c)),
+                Term::Const(c) => {
+                    CTerm::Const(std::sync::Arc::make_mut(&mut self.domain_syms).intern(c))
+                }
             })
             .collect()
     }
@@ -555,11 +600,11 @@ impl Schema {
         lits.iter()
             .map(|l| match l {
                 Literal::Pos(a) => CLit::Pos(CAtom {
-                    pred: self.domain_syms.intern(&a.predicate),
+                    pred: std::sync::Arc::make_mut(&mut self.domain_syms).intern(&a.predicate),
                     args: self.terms(&a.args, slots),
                 }),
                 Literal::Neg(a) => CLit::Neg(CAtom {
-                    pred: self.domain_syms.intern(&a.predicate),
+                    pred: std::sync::Arc::make_mut(&mut self.domain_syms).intern(&a.predicate),
                     args: self.terms(&a.args, slots),
                 }),
                 Literal::Eq(a, b, _) => {
@@ -578,7 +623,7 @@ impl Schema {
 
     fn info<'a>(&mut self, info: &'a Info, slots: &mut Slots<'a>) -> CInfo {
         CInfo {
-            name: self.domain_syms.intern(&info.name),
+            name: std::sync::Arc::make_mut(&mut self.domain_syms).intern(&info.name),
             args: self.terms(&info.args, slots),
             hz: info.hz,
         }
@@ -598,8 +643,7 @@ impl Compiled {
         state: &EcologyState,
         over: &dyn Fn() -> bool,
     ) -> Compiled {
-        let mut syms = schema.domain_syms.clone();
-        syms.reserve(state.len() / 2);
+        let mut syms = Symbols::over(schema.domain_syms.clone(), state.len() / 2);
         let mut facts = Facts {
             indexed: schema.indexed.clone(),
             ..Facts::default()

@@ -17,7 +17,7 @@ use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
 use ecology_domain::{ComponentCost, Domain, Literal, Name, Param, Power, Term};
 
-use crate::compile::{Callee, Compiled, Sym};
+use crate::compile::{Callee, Compiled, Schema, Sym};
 use crate::cost::CostModel;
 
 /// "Cannot be provided."
@@ -93,7 +93,7 @@ pub(crate) struct Ctx<'a> {
     /// The state's `channel-cost` facts, (from, to) → cost; the first one counts.
     pub(crate) channels: HashMap<(Sym, Sym), u64>,
     /// How often each functionality schema can occur in one configuration.
-    pub(crate) multiplicity: Vec<u64>,
+    pub(crate) multiplicity: std::sync::Arc<[u64]>,
 }
 
 impl<'a> Ctx<'a> {
@@ -135,7 +135,7 @@ impl<'a> Ctx<'a> {
                 }
             }
         }
-        let multiplicity = multiplicity(&compiled, goal);
+        let multiplicity = compiled.schema.multiplicity(goal);
         Ctx {
             domain,
             compiled,
@@ -430,10 +430,10 @@ pub(crate) fn bind_task_args(
 
 /// For each functionality schema, the most times it can occur in one
 /// decomposition of `goal` (computed on schemas, so it holds for every binding).
-fn multiplicity(c: &Compiled, goal: Callee) -> Vec<u64> {
+pub(crate) fn multiplicity(c: &Schema, goal: Callee) -> Vec<u64> {
     /// Fills `memo[t]` with task `t`'s counts (left empty past `MAX_DEPTH`,
     /// which counts as none).
-    fn occ(c: &Compiled, t: usize, memo: &mut [Option<Vec<u64>>], depth: usize) {
+    fn occ(c: &Schema, t: usize, memo: &mut [Option<Vec<u64>>], depth: usize) {
         if memo[t].is_some() || depth >= MAX_DEPTH {
             return;
         }

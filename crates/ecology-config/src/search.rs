@@ -70,7 +70,16 @@ struct Inst {
     /// The parent instance and this instance's subtask index in the parent's method.
     parent: Option<(u32, u16)>,
     alt: Option<u32>,
-    children: Vec<u32>,
+    /// Its children are the instances from here on, one per subtask of its
+    /// alternative: they are added together.
+    first_child: u32,
+}
+
+impl Inst {
+    /// The instance of subtask `k`.
+    fn child(&self, k: u16) -> u32 {
+        self.first_child + k as u32
+    }
 }
 
 /// A partial configuration, replayed from a node's path.
@@ -93,7 +102,7 @@ impl Partial {
                 item: root,
                 parent: None,
                 alt: None,
-                children: Vec::new(),
+                first_child: 0,
             }],
             stack: Vec::new(),
             used: tracked.then(HashMap::default),
@@ -355,7 +364,7 @@ impl<'a> Engine<'a> {
                         method.channels.iter().find(|(from, _, _)| *from == k).map(
                             |(_, to, info)| {
                                 (
-                                    partial.insts[p.children[*to as usize] as usize].item,
+                                    partial.insts[p.child(*to) as usize].item,
                                     info.ground(&alt.binding),
                                 )
                             },
@@ -404,28 +413,33 @@ impl<'a> Engine<'a> {
             return;
         };
         let alt_data = &alts[alt as usize];
+        let first = partial.insts.len() as u32;
         partial.insts[top as usize].alt = Some(alt);
-        let mut tasks = Vec::new();
+        partial.insts[top as usize].first_child = first;
         for (k, &child) in alt_data.children.iter().enumerate() {
-            let at = partial.insts.len() as u32;
             partial.insts.push(Inst {
                 item: child,
                 parent: Some((top, k as u16)),
                 alt: None,
-                children: Vec::new(),
+                first_child: 0,
             });
-            partial.insts[top as usize].children.push(at);
-            match self.graph.func(child) {
-                Some(f) => {
-                    if let Some(used) = &mut partial.used {
-                        used.entry((f.peis, f.component)).or_insert(child);
-                    }
-                }
-                None => tasks.push(at),
+            if let Some(f) = self.graph.func(child)
+                && let Some(used) = &mut partial.used
+            {
+                used.entry((f.peis, f.component)).or_insert(child);
             }
         }
-        // The first subtask ends on top of the stack.
-        partial.stack.extend(tasks.into_iter().rev());
+        // The subtasks, the first ending on top of the stack.
+        let graph = &self.graph;
+        partial.stack.extend(
+            (first..first + alt_data.children.len() as u32)
+                .rev()
+                .filter(|&at| {
+                    graph
+                        .func(alt_data.children[(at - first) as usize])
+                        .is_none()
+                }),
+        );
     }
 
     fn children(&mut self, id: u32, partial: &Partial) -> Vec<Node> {
@@ -508,8 +522,22 @@ impl<'a> Engine<'a> {
     }
 
     /// The label path of an instance, like `f0/f1/f2`.
-    fn label(&self, partial: &Partial, mut inst: u32) -> String {
-        let mut parts: Vec<&str> = Vec::new();
+    fn label(&self, partial: &Partial, inst: u32) -> String {
+        let mut text = String::new();
+        self.label_into(partial, inst, &mut Vec::new(), &mut text);
+        text
+    }
+
+    /// Writes the label path of an instance into `text`, using `parts`.
+    fn label_into(
+        &self,
+        partial: &Partial,
+        mut inst: u32,
+        parts: &mut Vec<&'a str>,
+        text: &mut String,
+    ) {
+        parts.clear();
+        text.clear();
         while let Some((parent, k)) = partial.insts[inst as usize].parent {
             let p = &partial.insts[parent as usize];
             let label = p
@@ -524,10 +552,14 @@ impl<'a> Engine<'a> {
             inst = parent;
         }
         if parts.is_empty() {
-            return "goal".to_string();
+            text.push_str("goal");
         }
-        parts.reverse();
-        parts.join("/")
+        for (i, part) in parts.iter().rev().enumerate() {
+            if i > 0 {
+                text.push('/');
+            }
+            text.push_str(part);
+        }
     }
 
     /// The functionality instance providing `info` out of instance `inst`.
@@ -549,7 +581,7 @@ impl<'a> Engine<'a> {
                 .iter()
                 .find(|(out, _)| out.grounds_to(&alt.binding, info));
             match found {
-                Some((_, sub)) => inst = i.children[*sub as usize],
+                Some((_, sub)) => inst = i.child(*sub),
                 None => {
                     return Err(format!(
                         "{} ({}) does not provide {} with method {}",
@@ -582,7 +614,7 @@ impl<'a> Engine<'a> {
         for (input, sub) in &method.inputs {
             if input.grounds_to(&alt.binding, info) {
                 any = true;
-                self.consumers(partial, i.children[*sub as usize], info, out)?;
+                self.consumers(partial, i.child(*sub), info, out)?;
             }
         }
         if any {
@@ -606,9 +638,11 @@ impl<'a> Engine<'a> {
         self.check_wires(partial, &wires)?;
         self.check_inputs_connected(partial, &order, &wires)?;
         // Labels and information texts, built once: channels name them again.
-        let mut labels: Vec<Name> = vec![Name::from(""); partial.insts.len()];
+        let mut labels: Vec<Option<Name>> = vec![None; partial.insts.len()];
+        let (mut parts, mut text) = (Vec::new(), String::new());
         for &at in &order {
-            labels[at as usize] = Name::from(self.label(partial, at));
+            self.label_into(partial, at, &mut parts, &mut text);
+            labels[at as usize] = Some(Name::from(text.as_str()));
         }
         let mut texts = InfoTexts::default();
         // Cost: distinct components, plus distinct channels between PEIS.
@@ -680,9 +714,9 @@ impl<'a> Engine<'a> {
             let method = &c.methods[alt.method as usize];
             for (from, to, info) in &method.channels {
                 let info = info.ground(&alt.binding);
-                let producer = self.producer(partial, inst.children[*from as usize], &info)?;
+                let producer = self.producer(partial, inst.child(*from), &info)?;
                 let mut consumers = Vec::new();
-                self.consumers(partial, inst.children[*to as usize], &info, &mut consumers)?;
+                self.consumers(partial, inst.child(*to), &info, &mut consumers)?;
                 for consumer in consumers {
                     let (Some(_), Some(ckey)) = (key(producer), key(consumer)) else {
                         continue;
@@ -796,7 +830,7 @@ impl<'a> Engine<'a> {
         &self,
         partial: &Partial,
         order: &[u32],
-        labels: &[Name],
+        labels: &[Option<Name>],
         texts: &mut InfoTexts,
     ) -> (Vec<FunctionalityInstance>, u64) {
         let c = &self.ctx.compiled;
@@ -811,7 +845,9 @@ impl<'a> Engine<'a> {
             let schema = &c.funcs[f.func as usize];
             let args = self.args_of(item);
             functionalities.push(FunctionalityInstance {
-                label: labels[at as usize].clone(),
+                label: labels[at as usize]
+                    .clone()
+                    .unwrap_or_else(|| Name::from("")),
                 name: self.ctx.callee_name(Callee::Func(f.func)).clone(),
                 args: args.iter().map(|&a| c.syms.shared(a).clone()).collect(),
                 peis: c.syms.shared(f.peis).clone(),
@@ -841,15 +877,14 @@ impl<'a> Engine<'a> {
         partial: &Partial,
         wires: &[Wire],
         by_component: &HashMap<ComponentKey, u32>,
-        labels: &[Name],
+        labels: &[Option<Name>],
         texts: &mut InfoTexts,
     ) -> (Vec<ChannelInstance>, u64) {
         let c = &self.ctx.compiled;
         let label_of = |k: ComponentKey| {
             by_component
                 .get(&k)
-                .and_then(|&at| labels.get(at as usize))
-                .cloned()
+                .and_then(|&at| labels.get(at as usize)?.clone())
                 .unwrap_or_else(|| Name::from(""))
         };
         let mut cost: u64 = 0;

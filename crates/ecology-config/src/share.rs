@@ -72,8 +72,8 @@ struct Prov {
     conflicts: Vec<u32>,
     /// Its cost plus the cheapest channel into each input.
     w: u64,
-    /// The tasks it can provide (task indices).
-    serves: Vec<u32>,
+    /// The tasks it can provide: a range of `Shared::serves`.
+    serves: (u32, u32),
 }
 
 #[derive(Debug)]
@@ -81,15 +81,17 @@ struct Need {
     /// The consuming provider; `NONE` for the goal itself.
     consumer: u32,
     task: u32,
-    opts: Vec<Opt>,
+    /// Its options: a range of `Shared::opts`.
+    opts: (u32, u32),
     min_wire: u64,
 }
 
 #[derive(Debug, Default)]
 struct Task {
     item: ItemId,
-    /// Feasible alternatives: (alternative, provider, infos provided).
-    alts: Vec<(u32, u32, Vec<GInfo>)>,
+    /// Feasible alternatives: (alternative, provider, and the range of the
+    /// information it provides in `Shared::new`'s list).
+    alts: Vec<(u32, u32, u32, u32)>,
     provs: Vec<u32>,
     /// Tasks that every provider of this one needs.
     common: Vec<u32>,
@@ -111,14 +113,24 @@ impl Kids {
     }
 }
 
-/// Buffers of the bound, kept between calls.
+/// Buffers of the bound, kept between calls. Its lists are threaded through
+/// arrays (a head per task, a link per provider or need), so building them
+/// allocates nothing.
 #[derive(Debug, Default)]
 struct Scratch {
-    serving: Vec<Vec<u32>>,
-    waiting: Vec<Vec<u32>>,
+    /// Per task: a chosen provider serving it (`NONE`: none); when every
+    /// provider serves one task, the head of the list of them all.
+    serving: Vec<u32>,
+    /// Per provider: the next chosen provider serving the same task.
+    next_prov: Vec<u32>,
+    /// Per task: the head of the list of its open needs (`NONE`: none).
+    waiting: Vec<u32>,
+    /// Per need: the next open need of the same task.
+    next_need: Vec<u32>,
     landmark: Vec<bool>,
     work: Vec<usize>,
-    a: Vec<u64>,
+    /// One task's open needs, each with its cheapest chosen feeder.
+    a: Vec<(u32, u64)>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -133,7 +145,11 @@ struct Node {
 #[derive(Debug)]
 pub(crate) struct Shared {
     provs: Vec<Prov>,
+    /// The tasks each provider serves, by provider, back to back.
+    serves: Vec<u32>,
     needs: Vec<Need>,
+    /// The needs' options, by need, back to back.
+    opts: Vec<Opt>,
     tasks: Vec<Task>,
     /// The provider of each graph item, by item index (`NONE`: none).
     prov_of_item: Vec<u32>,
@@ -213,8 +229,12 @@ impl Shared {
             item: engine.root,
             ..Task::default()
         });
-        // A buffer reused for every alternative.
+        // Buffers reused for every alternative.
         let mut fed: Vec<bool> = Vec::new();
+        let mut inputs: Vec<GInfo> = Vec::new();
+        let mut fed_by: Vec<Option<ItemId>> = Vec::new();
+        // What each alternative's provider provides, back to back.
+        let mut provided: Vec<GInfo> = Vec::new();
         let mut next = 0;
         while next < tasks.len() {
             let item = graph.item(tasks[next].item);
@@ -234,13 +254,16 @@ impl Shared {
                 let f = graph.func(f_item)?;
                 let method = &c.methods[alt.method as usize];
                 let f_args = &graph.item(f_item).args;
-                let inputs: Vec<GInfo> = c.funcs[f.func as usize]
-                    .inputs
-                    .iter()
-                    .map(|i| i.ground_args(f_args))
-                    .collect();
+                inputs.clear();
+                inputs.extend(
+                    c.funcs[f.func as usize]
+                        .inputs
+                        .iter()
+                        .map(|i| i.ground_args(f_args)),
+                );
                 // Each task child feeds one distinct input of the functionality.
-                let mut needs: Vec<Option<ItemId>> = vec![None; inputs.len()];
+                fed_by.clear();
+                fed_by.resize(inputs.len(), None);
                 fed.clear();
                 fed.resize(alt.children.len(), false);
                 for (from, to, info) in &method.channels {
@@ -251,30 +274,33 @@ impl Shared {
                     fed[from] = true;
                     let info = info.ground(&alt.binding);
                     let k = inputs.iter().position(|i| *i == info)?;
-                    if needs[k].is_some() {
+                    if fed_by[k].is_some() {
                         return None;
                     }
-                    needs[k] = Some(alt.children[from]);
+                    fed_by[k] = Some(alt.children[from]);
                 }
-                if (0..alt.children.len()).any(|k| k != sf && !fed[k]) {
+                if (0..alt.children.len()).any(|k| k != sf && !fed[k]) || fed_by.contains(&None) {
                     return None;
                 }
-                let needs: Vec<(GInfo, ItemId)> = inputs
-                    .into_iter()
-                    .zip(needs)
-                    .map(|(i, t)| t.map(|t| (i, t)))
-                    .collect::<Option<_>>()?;
-                let provides: Vec<GInfo> = method
-                    .outputs
-                    .iter()
-                    .filter(|(_, sub)| *sub as usize == sf)
-                    .map(|(o, _)| o.ground(&alt.binding))
-                    .collect();
+                let first_provided = provided.len() as u32;
+                provided.extend(
+                    method
+                        .outputs
+                        .iter()
+                        .filter(|(_, sub)| *sub as usize == sf)
+                        .map(|(o, _)| o.ground(&alt.binding)),
+                );
                 let p = match prov_of_item[f_item.0 as usize] {
                     p if p != NONE => {
                         // One provider, one wiring of its inputs: the tree
                         // search's shared subtrees must agree, and so must these.
-                        if provs[p as usize].needs != needs {
+                        let same = provs[p as usize].needs.len() == inputs.len()
+                            && provs[p as usize]
+                                .needs
+                                .iter()
+                                .zip(inputs.iter().zip(&fed_by))
+                                .all(|((i, t), (j, u))| i == j && Some(*t) == *u);
+                        if !same {
                             return None;
                         }
                         p
@@ -284,6 +310,11 @@ impl Shared {
                             peis_syms.push(f.peis);
                             peis_syms.len() as u32 - 1
                         });
+                        let needs: Vec<(GInfo, ItemId)> = inputs
+                            .drain(..)
+                            .zip(&fed_by)
+                            .filter_map(|(i, t)| t.map(|t| (i, t)))
+                            .collect();
                         for (_, t) in &needs {
                             if task_of_item[t.0 as usize] == NONE {
                                 task_of_item[t.0 as usize] = tasks.len() as u32;
@@ -301,13 +332,15 @@ impl Shared {
                             needs,
                             conflicts: Vec::new(),
                             w: 0,
-                            serves: Vec::new(),
+                            serves: (0, 0),
                         });
                         prov_of_item[f_item.0 as usize] = provs.len() as u32 - 1;
                         provs.len() as u32 - 1
                     }
                 };
-                tasks[next].alts.push((a as u32, p, provides));
+                tasks[next]
+                    .alts
+                    .push((a as u32, p, first_provided, provided.len() as u32));
             }
             next += 1;
         }
@@ -335,7 +368,7 @@ impl Shared {
         let mut needs = vec![Need {
             consumer: NONE,
             task: 0,
-            opts: Vec::new(),
+            opts: (0, 0),
             min_wire: 0,
         }];
         for (p, prov) in provs.iter_mut().enumerate() {
@@ -344,11 +377,12 @@ impl Shared {
                 needs.push(Need {
                     consumer: p as u32,
                     task: task_of_item[t.0 as usize],
-                    opts: Vec::new(),
+                    opts: (0, 0),
                     min_wire: 0,
                 });
             }
         }
+        let mut opts: Vec<Opt> = Vec::with_capacity(needs.len() * 2);
         for n in 0..needs.len() {
             if n % 256 == 255 && over() {
                 *cut = true;
@@ -356,9 +390,10 @@ impl Shared {
             }
             let task = &tasks[needs[n].task as usize];
             let consumer = needs[n].consumer;
-            let mut opts: Vec<Opt> = Vec::new();
-            for (alt, g, provides) in &task.alts {
-                if opts.iter().any(|o| o.prov == *g) {
+            let first = opts.len();
+            for &(alt, g, from, to) in &task.alts {
+                let provides = &provided[from as usize..to as usize];
+                if opts[first..].iter().any(|o| o.prov == g) {
                     continue;
                 }
                 let wire = if consumer == NONE {
@@ -368,20 +403,20 @@ impl Shared {
                     let k = (n as u32 - cons.first_need) as usize;
                     let info = &cons.needs[k].0;
                     if !provides.contains(info)
-                        || !rate_ok(engine, cons.item, k, provs[*g as usize].item, info)
+                        || !rate_ok(engine, cons.item, k, provs[g as usize].item, info)
                     {
                         continue;
                     }
-                    let (a, b) = (provs[*g as usize].peis as usize, cons.peis as usize);
+                    let (a, b) = (provs[g as usize].peis as usize, cons.peis as usize);
                     if a == b { 0 } else { chan[a * npeis + b] }
                 };
                 opts.push(Opt {
-                    alt: *alt,
-                    prov: *g,
+                    alt,
+                    prov: g,
                     wire,
                 });
             }
-            needs[n].opts = opts;
+            needs[n].opts = (first as u32, opts.len() as u32);
         }
         // Drop providers with an input nothing can feed, until none is left.
         let mut dead = vec![false; provs.len()];
@@ -392,13 +427,21 @@ impl Shared {
                     continue;
                 }
                 let first = prov.first_need as usize;
-                if (first..first + prov.needs.len()).any(|n| needs[n].opts.is_empty()) {
+                if (first..first + prov.needs.len()).any(|n| needs[n].opts.0 == needs[n].opts.1) {
                     dead[p] = true;
                     changed = true;
                 }
             }
             for need in &mut needs {
-                need.opts.retain(|o| !dead[o.prov as usize]);
+                let (from, to) = need.opts;
+                let mut kept = from;
+                for o in from..to {
+                    if !dead[opts[o as usize].prov as usize] {
+                        opts[kept as usize] = opts[o as usize];
+                        kept += 1;
+                    }
+                }
+                need.opts.1 = kept;
             }
             if !changed {
                 break;
@@ -406,12 +449,13 @@ impl Shared {
         }
         // Providers that could feed each other in a cycle: not a tree
         // configuration, so leave the domain to the tree search.
-        if has_cycle(&provs, &needs) {
+        if has_cycle(&provs, &needs, &opts) {
             return None;
         }
         for need in &mut needs {
-            need.min_wire = need.opts.iter().map(|o| o.wire).min().unwrap_or(INFEASIBLE);
-            need.opts.sort_by_key(|o| o.wire);
+            let mine = &mut opts[need.opts.0 as usize..need.opts.1 as usize];
+            mine.sort_by_key(|o| o.wire);
+            need.min_wire = mine.first().map_or(INFEASIBLE, |o| o.wire);
         }
         for p in 0..provs.len() {
             let first = provs[p].first_need as usize;
@@ -420,7 +464,7 @@ impl Shared {
                 .fold(provs[p].cost, u64::saturating_add);
             provs[p].w = if dead[p] { INFEASIBLE } else { w };
         }
-        for (t, task) in tasks.iter_mut().enumerate() {
+        for task in &mut tasks {
             let mut ps: Vec<u32> = task
                 .alts
                 .iter()
@@ -429,9 +473,6 @@ impl Shared {
                 .collect();
             ps.sort_unstable();
             ps.dedup();
-            for &p in &ps {
-                provs[p as usize].serves.push(t as u32);
-            }
             ps.sort_by_key(|&p| provs[p as usize].w);
             task.wmin = ps
                 .iter()
@@ -440,22 +481,47 @@ impl Shared {
                 .unwrap_or(INFEASIBLE);
             task.provs = ps;
         }
-        let additive = provs.iter().all(|p| p.serves.len() <= 1);
-        for task in &mut tasks {
-            let mut common: Option<Vec<u32>> = None;
+        // The tasks each provider serves, by provider, back to back.
+        let mut serves_from = vec![0u32; provs.len() + 1];
+        for task in &tasks {
             for &p in &task.provs {
-                let mut mine: Vec<u32> = provs[p as usize]
-                    .needs
-                    .iter()
-                    .map(|(_, t)| task_of_item[t.0 as usize])
-                    .collect();
-                mine.sort_unstable();
-                common = Some(match common {
-                    None => mine,
-                    Some(c) => c.into_iter().filter(|x| mine.contains(x)).collect(),
-                });
+                serves_from[p as usize + 1] += 1;
             }
-            task.common = common.unwrap_or_default();
+        }
+        for p in 0..provs.len() {
+            serves_from[p + 1] += serves_from[p];
+        }
+        let mut serves = vec![0u32; serves_from[provs.len()] as usize];
+        let mut fill = serves_from.clone();
+        for (t, task) in tasks.iter().enumerate() {
+            for &p in &task.provs {
+                serves[fill[p as usize] as usize] = t as u32;
+                fill[p as usize] += 1;
+            }
+        }
+        for (p, prov) in provs.iter_mut().enumerate() {
+            prov.serves = (serves_from[p], serves_from[p + 1]);
+        }
+        let additive = provs.iter().all(|p| p.serves.1 - p.serves.0 <= 1);
+        let (mut mine, mut common): (Vec<u32>, Vec<u32>) = Default::default();
+        for task in &mut tasks {
+            common.clear();
+            for (k, &p) in task.provs.iter().enumerate() {
+                mine.clear();
+                mine.extend(
+                    provs[p as usize]
+                        .needs
+                        .iter()
+                        .map(|(_, t)| task_of_item[t.0 as usize]),
+                );
+                if k == 0 {
+                    mine.sort_unstable();
+                    common.extend_from_slice(&mine);
+                } else {
+                    common.retain(|x| mine.contains(x));
+                }
+            }
+            task.common = common.to_vec();
         }
         // Providers on one component conflict: grouped by sorting.
         let mut by_component: Vec<((Sym, Sym), u32)> = provs
@@ -481,7 +547,9 @@ impl Shared {
         let words = pwords + needs.len().div_ceil(64);
         Some(Shared {
             provs,
+            serves,
             needs,
+            opts,
             tasks,
             prov_of_item,
             chan,
@@ -504,6 +572,12 @@ impl Shared {
         })
     }
 
+    /// The options of need `n`.
+    fn opts_of(&self, n: usize) -> &[Opt] {
+        let (from, to) = self.needs[n].opts;
+        &self.opts[from as usize..to as usize]
+    }
+
     fn wire(&self, from: u32, to: u32) -> u64 {
         let (a, b) = (
             self.provs[from as usize].peis as usize,
@@ -524,22 +598,27 @@ impl Shared {
         let mut scratch = self.scratch.borrow_mut();
         let Scratch {
             serving,
+            next_prov,
             waiting,
+            next_need,
             landmark,
             work,
             a,
         } = &mut *scratch;
-        for v in serving.iter_mut().chain(waiting.iter_mut()) {
-            v.clear();
-        }
-        serving.resize_with(nt, Vec::new);
-        waiting.resize_with(nt, Vec::new);
+        serving.clear();
+        serving.resize(nt, NONE);
+        waiting.clear();
+        waiting.resize(nt, NONE);
         landmark.clear();
         landmark.resize(nt, false);
+        next_prov.resize(self.provs.len(), NONE);
+        next_need.resize(self.needs.len(), NONE);
         work.clear();
         for p in ones(chosen) {
-            for &t in &self.provs[p].serves {
-                serving[t as usize].push(p as u32);
+            let (from, to) = self.provs[p].serves;
+            for &t in &self.serves[from as usize..to as usize] {
+                next_prov[p] = serving[t as usize];
+                serving[t as usize] = p as u32;
             }
         }
         let mut sum: u64 = 0;
@@ -549,19 +628,19 @@ impl Shared {
                 return INFEASIBLE;
             }
             let t = need.task as usize;
-            if !self.additive {
-                sum = sum.saturating_add(need.min_wire);
-                landmark[t] |= serving[t].is_empty();
+            landmark[t] |= serving[t] == NONE;
+            if self.additive {
+                next_need[n] = waiting[t];
+                waiting[t] = n as u32;
             } else {
-                landmark[t] |= serving[t].is_empty();
-                waiting[t].push(n as u32);
+                sum = sum.saturating_add(need.min_wire);
             }
         }
         work.extend((0..nt).filter(|&t| landmark[t]));
         while let Some(t) = work.pop() {
             for &u in &self.tasks[t].common {
                 let u = u as usize;
-                if serving[u].is_empty() && !landmark[u] {
+                if serving[u] == NONE && !landmark[u] {
                     landmark[u] = true;
                     work.push(u);
                 }
@@ -580,8 +659,7 @@ impl Shared {
         };
         for t in 0..nt {
             let task = &self.tasks[t];
-            let waiting = &waiting[t];
-            if waiting.is_empty() {
+            if waiting[t] == NONE {
                 if landmark[t] {
                     sum = sum.saturating_add(task.wmin);
                 }
@@ -592,18 +670,21 @@ impl Shared {
             // then each need costs its cheaper of a chosen feeder and `F`,
             // unless a second new provider (at least `wmin`) joins in.
             a.clear();
-            a.extend(waiting.iter().map(|&n| {
-                serving[t]
-                    .iter()
-                    .map(|&g| into(g, n))
-                    .min()
-                    .unwrap_or(INFEASIBLE)
-            }));
-            let all_chosen = a.iter().fold(0u64, |s, &x| s.saturating_add(x));
-            let cheapest: u64 = waiting
+            let mut n = waiting[t];
+            while n != NONE {
+                let mut cheapest = INFEASIBLE;
+                let mut g = serving[t];
+                while g != NONE {
+                    cheapest = cheapest.min(into(g, n));
+                    g = next_prov[g as usize];
+                }
+                a.push((n, cheapest));
+                n = next_need[n as usize];
+            }
+            let all_chosen = a.iter().fold(0u64, |s, &(_, x)| s.saturating_add(x));
+            let cheapest: u64 = a
                 .iter()
-                .zip(a.iter())
-                .map(|(&n, &a)| a.min(self.needs[n as usize].min_wire))
+                .map(|&(n, a)| a.min(self.needs[n as usize].min_wire))
                 .sum();
             let second = task.wmin.saturating_add(cheapest);
             // Providers come cheapest `w` first: stop once `w` alone is no better.
@@ -616,10 +697,9 @@ impl Shared {
                 if bit(chosen, f as usize) {
                     continue;
                 }
-                let alone = waiting
+                let alone = a
                     .iter()
-                    .zip(a.iter())
-                    .fold(0u64, |s, (&n, &a)| s.saturating_add(a.min(into(f, n))));
+                    .fold(0u64, |s, &(n, a)| s.saturating_add(a.min(into(f, n))));
                 with_new = with_new.min(prov.w.saturating_add(alone.min(second)));
             }
             let best = all_chosen.min(with_new);
@@ -636,7 +716,7 @@ impl Shared {
     fn children(&self, state: &[u64], need: usize, kids: &mut Kids) {
         kids.info.clear();
         kids.states.clear();
-        for (o, opt) in self.needs[need].opts.iter().enumerate() {
+        for (o, opt) in self.opts_of(need).iter().enumerate() {
             let p = opt.prov as usize;
             let at = kids.states.len();
             kids.states.extend_from_slice(state);
@@ -903,7 +983,7 @@ impl Shared {
                     }
                 };
                 let o = *choice.get(need)?;
-                self.needs[need].opts.get(o as usize).map(|o| o.alt)
+                self.opts_of(need).get(o as usize).map(|o| o.alt)
             };
             match engine.assemble_with(&chooser) {
                 Ok(mut config) => {
@@ -946,37 +1026,45 @@ fn rate_ok(
 }
 
 /// Whether some provider could, through its inputs' possible feeders, feed itself.
-fn has_cycle(provs: &[Prov], needs: &[Need]) -> bool {
-    let succ: Vec<Vec<usize>> = provs
-        .iter()
-        .map(|p| {
-            let first = p.first_need as usize;
-            let mut out: Vec<usize> = (first..first + p.needs.len())
-                .flat_map(|n| needs[n].opts.iter().map(|o| o.prov as usize))
-                .collect();
-            out.sort_unstable();
-            out.dedup();
-            out
-        })
-        .collect();
+fn has_cycle(provs: &[Prov], needs: &[Need], opts: &[Opt]) -> bool {
+    let opts_of = |need: &Need| &opts[need.opts.0 as usize..need.opts.1 as usize];
+    // A provider's successors: the providers of each of its needs' options,
+    // walked as (need, option) positions.
+    let succ = |p: usize, n: usize, o: usize| -> Option<(usize, usize, usize)> {
+        let prov = &provs[p];
+        let (mut n, mut o) = (n, o);
+        while n < prov.needs.len() {
+            let need = &needs[prov.first_need as usize + n];
+            if let Some(opt) = opts_of(need).get(o) {
+                return Some((opt.prov as usize, n, o + 1));
+            }
+            (n, o) = (n + 1, 0);
+        }
+        None
+    };
     // 0 unvisited, 1 on the stack, 2 done.
     let mut mark = vec![0u8; provs.len()];
+    let mut stack: Vec<(usize, usize, usize)> = Vec::new();
     for start in 0..provs.len() {
         if mark[start] != 0 {
             continue;
         }
-        let mut stack: Vec<(usize, usize)> = vec![(start, 0)];
+        stack.push((start, 0, 0));
         mark[start] = 1;
         while let Some(top) = stack.last_mut() {
-            let (p, at) = *top;
-            top.1 += 1;
-            match succ[p].get(at) {
-                Some(&q) if mark[q] == 1 => return true,
-                Some(&q) if mark[q] == 0 => {
-                    mark[q] = 1;
-                    stack.push((q, 0));
+            let (p, n, o) = *top;
+            match succ(p, n, o) {
+                Some((q, n, o)) => {
+                    (top.1, top.2) = (n, o);
+                    match mark[q] {
+                        1 => return true,
+                        0 => {
+                            mark[q] = 1;
+                            stack.push((q, 0, 0));
+                        }
+                        _ => {}
+                    }
                 }
-                Some(_) => {}
                 None => {
                     mark[p] = 2;
                     stack.pop();
