@@ -5,6 +5,11 @@
 //! functionality instance, the excluded component or PEIS or the false
 //! precondition. When every decomposition exists but none is admissible, the
 //! search's rejection reasons are reported instead.
+//!
+//! A task instance that several bindings need is explained once, where it
+//! first appears; later it says "see above". Otherwise the tree would repeat
+//! a shared subtree under each binding, level after level, and grow
+//! exponentially with the depth of the domain.
 
 use std::fmt;
 
@@ -85,11 +90,13 @@ pub(crate) fn describe(ctx: &Ctx<'_>, graph: &Graph, item: ItemId) -> String {
 }
 
 /// Explains why `item` cannot be provided (its lower bound is infinite).
-pub(crate) fn explain_item(
+/// `explained` marks, by item index, the task instances already explained.
+fn explain_item(
     ctx: &Ctx<'_>,
     graph: &Graph,
     item: ItemId,
     depth: usize,
+    explained: &mut [bool],
 ) -> Explanation {
     let subject = describe(ctx, graph, item);
     let c = &ctx.compiled;
@@ -125,6 +132,9 @@ pub(crate) fn explain_item(
             let methods = &c.tasks[*task as usize].methods;
             if methods.is_empty() {
                 return Explanation::leaf(subject, "no method decomposes this task");
+            }
+            if std::mem::replace(&mut explained[item.0 as usize], true) {
+                return Explanation::leaf(subject, "no method applies (see above)");
             }
             let mut causes = Vec::new();
             for &m in methods {
@@ -191,7 +201,7 @@ pub(crate) fn explain_item(
                         },
                     };
                     let causes_below = if depth < MAX_DEPTH {
-                        vec![explain_item(ctx, graph, child, depth + 1)]
+                        vec![explain_item(ctx, graph, child, depth + 1, explained)]
                     } else {
                         Vec::new()
                     };
@@ -378,7 +388,8 @@ pub(crate) fn explain(
     rejections: &[(String, u64)],
 ) -> Explanation {
     if graph.item(root).lb == INFEASIBLE {
-        let mut e = explain_item(ctx, graph, root, 0);
+        let mut explained = vec![false; graph.items.len()];
+        let mut e = explain_item(ctx, graph, root, 0, &mut explained);
         e.subject = format!("no configuration for {}", e.subject);
         return e;
     }

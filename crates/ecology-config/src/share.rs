@@ -410,11 +410,7 @@ impl Shared {
                     let (a, b) = (provs[g as usize].peis as usize, cons.peis as usize);
                     if a == b { 0 } else { chan[a * npeis + b] }
                 };
-                opts.push(Opt {
-                    alt,
-                    prov: g,
-                    wire,
-                });
+                opts.push(Opt { alt, prov: g, wire });
             }
             needs[n].opts = (first as u32, opts.len() as u32);
         }

@@ -251,6 +251,65 @@ fn no_position_source_left_is_explained() {
     .assert_eq(&explanation.to_string());
 }
 
+/// A chain of `depth` tasks, each decomposed by any of `width` components
+/// and needing the next task, whose last level has no provider.
+fn chain(depth: usize, width: usize) -> (String, String) {
+    let mut domain = String::from("(define (domain chain)\n");
+    let mut facts = String::new();
+    for i in 0..=depth {
+        let (pre, input) = if i < depth {
+            (format!("(sig ?p ?c s{i})"), format!("(t{})", i + 1))
+        } else {
+            ("(never ?p ?c)".to_string(), String::new())
+        };
+        domain.push_str(&format!(
+            "(:functionality f{i} :parameters (?p ?c) :component (?p ?c) :precondition {pre} \
+             :input ({input}) :output ((t{i})) :cost 1)\n(:task g{i} :parameters () :output ((t{i})))\n"
+        ));
+        let (subtasks, channels) = if i < depth {
+            (
+                format!(" (s1 (g{}))", i + 1),
+                format!(" :channels ((s1 s0 (t{})))", i + 1),
+            )
+        } else {
+            (String::new(), String::new())
+        };
+        domain.push_str(&format!(
+            "(:method m{i} :parameters (?p ?c) :task (g{i}) :precondition (sig ?p ?c s{i}) \
+             :subtasks ((s0 (f{i} ?p ?c)){subtasks}){channels} :outputs (((t{i}) s0)))\n"
+        ));
+        for k in 0..width {
+            facts.push_str(&format!("(sig p{k} c{i} s{i})\n"));
+        }
+    }
+    domain.push(')');
+    (domain, facts)
+}
+
+// A task that several bindings need is explained once: repeating it under
+// each binding made the tree grow as width^depth (ten levels of three
+// components printed 531,441 lines).
+#[test]
+fn a_shared_failure_is_explained_once() {
+    let (domain, facts) = chain(10, 3);
+    let outcome = run(&domain, &facts, "(g0)", &[], 1);
+    assert!(outcome.configurations.is_empty());
+    let text = explained(
+        outcome,
+        "(f10 p0 c10): precondition (never p0 c10) does not hold",
+    );
+    assert!(text.lines().count() < 100, "{} lines", text.lines().count());
+    assert_eq!(
+        text.matches("(g5): no method applies").count(),
+        3,
+        "once in full, twice pointing above: {text}"
+    );
+    assert_eq!(
+        text.matches("(g5): no method applies (see above)").count(),
+        2
+    );
+}
+
 #[test]
 fn excluding_a_peis_excludes_its_components() {
     let outcome = home("(navigate astrid bedroom)", &["hsm"]);
