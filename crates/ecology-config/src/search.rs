@@ -338,19 +338,20 @@ impl<'a> Engine<'a> {
 
     /// Assembles the decomposition in which every task occurrence takes the
     /// alternative `choose` names for the functionality and input it feeds
-    /// (`None`: the goal), unfolding shared providers into repeated subtrees.
+    /// (`None`: the goal). A task occurrence whose task instance and
+    /// alternative were assembled before shares that subtree rather than
+    /// repeating it: a provider feeding two consumers is wired once, and
+    /// providers shared level after level do not unfold into a tree that
+    /// doubles with each level.
     pub(crate) fn assemble_with(
         &self,
         choose: &Chooser<'_>,
     ) -> Result<Configuration, Inadmissible> {
-        /// Guards against a sharing pattern that unfolds into a huge tree.
-        const MAX_INSTANCES: usize = 1 << 20;
         let mut partial = Partial::rooted(self.root, false);
         partial.stack.push(0);
+        // The occurrence each (task instance, alternative) was first assembled at.
+        let mut assembled: HashMap<(ItemId, u32), u32> = HashMap::default();
         while let Some(top) = partial.stack.pop() {
-            if partial.insts.len() > MAX_INSTANCES {
-                return Err("the configuration unfolds into too large a decomposition".into());
-            }
             let consumer =
                 match partial.insts[top as usize].parent {
                     None => None,
@@ -373,7 +374,17 @@ impl<'a> Engine<'a> {
                 };
             let alt = choose(consumer.as_ref().map(|(item, info)| (*item, info)))
                 .ok_or_else(|| "a task occurrence has no chosen alternative".to_string())?;
-            self.apply(&mut partial, top, alt);
+            match assembled.entry((partial.insts[top as usize].item, alt)) {
+                std::collections::hash_map::Entry::Occupied(first) => {
+                    let first_child = partial.insts[*first.get() as usize].first_child;
+                    let inst = &mut partial.insts[top as usize];
+                    (inst.alt, inst.first_child) = (Some(alt), first_child);
+                }
+                std::collections::hash_map::Entry::Vacant(slot) => {
+                    slot.insert(top);
+                    self.apply(&mut partial, top, alt);
+                }
+            }
         }
         self.assemble(&partial)
     }

@@ -310,6 +310,54 @@ fn a_shared_failure_is_explained_once() {
     );
 }
 
+// One provider per level feeds both tasks of the level above, so the
+// decomposition doubles with each level: 24 levels would unfold into 16
+// million task occurrences. Assembly shares a subtree it has built, and the
+// configuration has one instance per level (before, it was refused as "too
+// large a decomposition").
+#[test]
+fn providers_shared_level_after_level_assemble_once() {
+    let depth = 24;
+    let mut domain = String::from("(define (domain diamond)\n");
+    let mut facts = String::new();
+    for i in 0..=depth {
+        let (input, subtasks, channels) = if i < depth {
+            let j = i + 1;
+            (
+                format!("(a{j}) (b{j})"),
+                format!(" (s1 (ga{j})) (s2 (gb{j}))"),
+                format!(" :channels ((s1 s0 (a{j})) (s2 s0 (b{j})))"),
+            )
+        } else {
+            Default::default()
+        };
+        domain.push_str(&format!(
+            "(:functionality h{i} :parameters (?p ?c) :component (?p ?c) \
+             :precondition (sig ?p ?c s{i}) :input ({input}) :output ((a{i}) (b{i})) :cost 1)\n"
+        ));
+        for x in ["a", "b"] {
+            domain.push_str(&format!(
+                "(:task g{x}{i} :parameters () :output (({x}{i})))\n\
+                 (:method g{x}{i}-by-h :parameters (?p ?c) :task (g{x}{i}) \
+                 :precondition (sig ?p ?c s{i}) :subtasks ((s0 (h{i} ?p ?c)){subtasks}){channels} \
+                 :outputs ((({x}{i}) s0)))\n"
+            ));
+        }
+        facts.push_str(&format!("(sig robot c{i} s{i})\n"));
+    }
+    domain.push(')');
+    let outcome = run(&domain, &facts, "(ga0)", &[], 1);
+    assert_eq!(outcome.status, Status::Proven);
+    let best = outcome.configurations.first().expect("a configuration");
+    assert_eq!(best.functionalities.len(), depth + 1);
+    assert_eq!(best.channels.len(), 2 * depth);
+    assert_eq!(
+        best.cost,
+        depth as u64 + 1,
+        "one component per level, local channels"
+    );
+}
+
 #[test]
 fn excluding_a_peis_excludes_its_components() {
     let outcome = home("(navigate astrid bedroom)", &["hsm"]);
