@@ -789,6 +789,15 @@ impl<'t> Search<'t> {
             })
     }
 
+    /// Where the search stands.
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            expanded: self.expanded(),
+            states: self.engine.states() as u64,
+            best: self.improvement.as_ref().map(|imp| imp.cost),
+        }
+    }
+
     /// Ends the search; before [`Progress::Done`] the verdict is
     /// [`Verdict::BudgetExceeded`], unless a plan was found already: the
     /// improvement phase cut short leaves the cheapest found so far.
@@ -873,8 +882,32 @@ impl Stats {
 /// How many expansions [`plan`] runs between two readings of the clock.
 pub const TIME_CHECK_EXPANSIONS: u64 = 64;
 
+/// Where a running search stands; [`plan_observed`] reports it between
+/// steps, so that a long search can show its progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Snapshot {
+    /// Nodes expanded so far, by every search of the plan.
+    pub expanded: u64,
+    /// States stored by the first search.
+    pub states: u64,
+    /// The cost of the cheapest plan so far, once the search that finds a
+    /// first plan is followed by searches for a cheaper one.
+    pub best: Option<u64>,
+}
+
 /// Plans for `request`, stopping when the budget runs out.
 pub fn plan(request: &Request<'_>, options: &Options, clock: &dyn Clock) -> Outcome {
+    plan_observed(request, options, clock, &mut |_| {})
+}
+
+/// As [`plan`], calling `observe` between steps of the search (every
+/// [`TIME_CHECK_EXPANSIONS`] expansions) with where it stands.
+pub fn plan_observed(
+    request: &Request<'_>,
+    options: &Options,
+    clock: &dyn Clock,
+    observe: &mut dyn FnMut(Snapshot),
+) -> Outcome {
     const SLICE: u64 = TIME_CHECK_EXPANSIONS;
     let mut search = Search::new(request, options.strategy, options.improve);
     loop {
@@ -895,5 +928,6 @@ pub fn plan(request: &Request<'_>, options: &Options, clock: &dyn Clock) -> Outc
         if search.step(slice) == Progress::Done {
             return search.finish(clock.elapsed());
         }
+        observe(search.snapshot());
     }
 }

@@ -5,14 +5,15 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ecology_config::{
-    Budget, Clock, Configuration, Exclusion, Explanation, Options, Outcome, Request, Status,
-    WallClock,
+    Budget, Clock, Configuration, Exclusion, Explanation, Options, Outcome, PaperCost, Request,
+    Snapshot, Status, WallClock,
 };
 use ecology_domain::Power;
 use ecology_view::{Drawing, Edge, Mark, Node};
 use serde_json::{Value, json};
 
 use crate::input::{self, Reported};
+use crate::progress::ProgressLine;
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 
 /// Arguments of `ecology check`.
@@ -137,7 +138,12 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
             max_time: args.max_millis.map(Duration::from_millis),
         },
     };
-    let outcome = match ecology_config::plan(&request, &options, &clock) {
+    let mut line = ProgressLine::new(!args.json);
+    let mut observe = |s: Snapshot| line.update(clock.elapsed(), || searching(&s));
+    let planned =
+        ecology_config::plan_observed(&request, &PaperCost, &options, &clock, &mut observe);
+    line.clear();
+    let outcome = match planned {
         Ok(outcome) => outcome,
         Err(err) => {
             eprint!("{}", goal_error(&args.goal, &goal, &err));
@@ -176,6 +182,22 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     }
     exit_now((domain, state, outcome));
     Ok(EXIT_OK)
+}
+
+/// What the progress line says of a running search.
+fn searching(s: &Snapshot) -> String {
+    let best = match s.best {
+        Some(cost) => format!("the best so far costs {cost}"),
+        None => "no configuration yet".to_string(),
+    };
+    let bound = match s.lower_bound {
+        Some(bound) => format!(", none costs less than {bound}"),
+        None => String::new(),
+    };
+    format!(
+        "{} nodes expanded; {best}{bound} (--max-millis bounds the search)",
+        s.expanded
+    )
 }
 
 /// The budget ran out while reading the input: nothing planned, no bound.

@@ -21,6 +21,7 @@ mod peis;
 mod plan;
 mod plan_conditional;
 mod processes;
+mod progress;
 mod router;
 mod sweep;
 mod task;

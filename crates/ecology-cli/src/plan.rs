@@ -6,13 +6,15 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ecology_actions::{
-    Budget, HeuristicKind, OpId, Options, Outcome, Plan, Request, Stats, Strategy, Verdict,
+    Budget, HeuristicKind, OpId, Options, Outcome, Plan, Request, Snapshot, Stats, Strategy,
+    Verdict,
 };
 use serde_json::{Value, json};
 
 use crate::input;
+use crate::progress::ProgressLine;
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
-use ecology_config::WallClock;
+use ecology_config::{Clock, WallClock};
 
 /// Arguments of `ecology plan`.
 #[derive(Debug, Args)]
@@ -148,7 +150,10 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
         improve: !args.optimal && !args.no_improve,
     };
     let request = Request::replan(&task, task.initial().clone(), excluded);
-    let outcome = ecology_actions::plan(&request, &options, &clock);
+    let mut line = ProgressLine::new(!args.json);
+    let mut observe = |s: Snapshot| line.update(clock.elapsed(), || searching(&s));
+    let outcome = ecology_actions::plan_observed(&request, &options, &clock, &mut observe);
+    line.clear();
     match &outcome.verdict {
         Verdict::Found(plan) => {
             if args.json {
@@ -186,6 +191,18 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
             Ok(EXIT_NO_SOLUTION)
         }
     }
+}
+
+/// What the progress line says of a running search.
+fn searching(s: &Snapshot) -> String {
+    let best = match s.best {
+        Some(cost) => format!("the best plan so far costs {cost}"),
+        None => "no plan yet".to_string(),
+    };
+    format!(
+        "{} nodes expanded, {} states stored; {best} (--max-millis bounds the search)",
+        s.expanded, s.states
+    )
 }
 
 fn print_plan(plan: &Plan, outcome: &Outcome) {

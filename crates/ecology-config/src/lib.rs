@@ -377,6 +377,18 @@ pub struct Outcome {
     pub stats: Stats,
 }
 
+/// Where a running search stands; [`plan_observed`] reports it between
+/// steps, so that a long search can show its progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Snapshot {
+    /// Search nodes expanded so far.
+    pub expanded: u64,
+    /// The cost of the cheapest configuration found so far.
+    pub best: Option<u64>,
+    /// No configuration not yet accepted costs less than this.
+    pub lower_bound: Option<u64>,
+}
+
 /// A search that can be run in steps under an outside budget.
 pub struct Search<'a> {
     engine: Engine<'a>,
@@ -505,6 +517,23 @@ impl<'a> Search<'a> {
         self.engine.graph.cut
     }
 
+    /// Where the search stands.
+    pub fn snapshot(&self) -> Snapshot {
+        let (best, lower_bound) = match &self.shared {
+            Some(shared) => (shared.best(), shared.lower_bound()),
+            None => {
+                let engine = &self.engine;
+                let best = engine.accepted.first().or(engine.incumbent.as_ref());
+                (best.map(|c| c.cost), engine.lower_bound())
+            }
+        };
+        Snapshot {
+            expanded: self.expanded(),
+            best,
+            lower_bound,
+        }
+    }
+
     /// Whether a configuration has been found (not necessarily the best).
     pub fn found(&self) -> bool {
         match &self.shared {
@@ -606,7 +635,20 @@ pub fn plan_with<'a>(
     options: &Options,
     clock: &dyn Clock,
 ) -> Result<Outcome, RequestError> {
-    plan_prepared(request, None, cost_model, options, clock)
+    plan_prepared(request, None, cost_model, options, clock, &mut |_| {})
+}
+
+/// As [`plan_with`], calling `observe` between steps of the search (every
+/// few dozen expansions) with where it stands: a caller can show the
+/// progress of a long search.
+pub fn plan_observed<'a>(
+    request: &Request<'a>,
+    cost_model: &'a dyn CostModel,
+    options: &Options,
+    clock: &dyn Clock,
+    observe: &mut dyn FnMut(Snapshot),
+) -> Result<Outcome, RequestError> {
+    plan_prepared(request, None, cost_model, options, clock, observe)
 }
 
 /// A domain compiled once, to plan with it again and again: the executive
@@ -665,7 +707,7 @@ impl Planner {
         options: &Options,
         clock: &dyn Clock,
     ) -> Result<Outcome, RequestError> {
-        plan_prepared(request, Some(self), &PaperCost, options, clock)
+        plan_prepared(request, Some(self), &PaperCost, options, clock, &mut |_| {})
     }
 
     /// As [`plan_with`], with the domain compiled already: the request's
@@ -679,7 +721,7 @@ impl Planner {
         options: &Options,
         clock: &dyn Clock,
     ) -> Result<Outcome, RequestError> {
-        plan_prepared(request, Some(self), cost_model, options, clock)
+        plan_prepared(request, Some(self), cost_model, options, clock, &mut |_| {})
     }
 }
 
@@ -689,6 +731,7 @@ fn plan_prepared<'a>(
     cost_model: &'a dyn CostModel,
     options: &Options,
     clock: &dyn Clock,
+    observe: &mut dyn FnMut(Snapshot),
 ) -> Result<Outcome, RequestError> {
     const SLICE: u64 = 64;
     let over_time = || {
@@ -733,6 +776,7 @@ fn plan_prepared<'a>(
         if first.is_none() && search.found() {
             first = Some(clock.elapsed());
         }
+        observe(search.snapshot());
         if progress == Progress::Done {
             return Ok(finish(search, true, first));
         }

@@ -926,6 +926,14 @@ impl Shared {
         self.done()
     }
 
+    /// The cost of the cheapest configuration found so far.
+    pub(crate) fn best(&self) -> Option<u64> {
+        match self.accepted.first() {
+            Some((g, _)) => Some(*g),
+            None => self.incumbent.as_ref().map(|(g, _)| *g),
+        }
+    }
+
     /// Whether a configuration has been found.
     pub(crate) fn found(&self) -> bool {
         !self.accepted.is_empty() || self.incumbent.is_some()

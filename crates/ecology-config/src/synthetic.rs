@@ -72,6 +72,61 @@ fn finish(
     })
 }
 
+/// A diamond of `depth` levels on one robot: at each level one component
+/// provides both information types that the level above needs, so the
+/// decomposition of the goal `(ga0)` doubles with each level while its
+/// configuration has one component per level. With `side`, each method also
+/// runs a functionality of its own on a second component, so the domain is
+/// not of provider shape and the decomposition tree search plans it (slowly:
+/// it searches the unfolded tree).
+pub fn diamond(depth: usize, side: bool) -> Result<Instance, GeneratorError> {
+    let mut domain = String::from("(define (domain diamond)\n");
+    let mut facts = String::new();
+    let mut components = Vec::new();
+    for i in 0..=depth {
+        let (input, mut subtasks, channels) = if i < depth {
+            let j = i + 1;
+            (
+                format!("(a{j}) (b{j})"),
+                format!(" (s1 (ga{j})) (s2 (gb{j}))"),
+                format!(" :channels ((s1 s0 (a{j})) (s2 s0 (b{j})))"),
+            )
+        } else {
+            Default::default()
+        };
+        let mut pre = format!("(sig ?p ?c s{i})");
+        let _ = writeln!(
+            domain,
+            "(:functionality h{i} :parameters (?p ?c) :component (?p ?c) \
+             :precondition {pre} :input ({input}) :output ((a{i}) (b{i})) :cost 1)"
+        );
+        let _ = writeln!(facts, "(sig robot c{i} s{i})");
+        components.push(("robot".to_string(), format!("c{i}")));
+        if side {
+            let _ = writeln!(
+                domain,
+                "(:functionality k{i} :parameters (?p ?e) :component (?p ?e) \
+                 :precondition (mon ?p ?e s{i}) :input () :output () :cost 1)"
+            );
+            let _ = writeln!(facts, "(mon robot e{i} s{i})");
+            components.push(("robot".to_string(), format!("e{i}")));
+            let _ = write!(subtasks, " (s3 (k{i} ?p ?e))");
+            pre = format!("(and {pre} (mon ?p ?e s{i}))");
+        }
+        for x in ["a", "b"] {
+            let _ = writeln!(
+                domain,
+                "(:task g{x}{i} :parameters () :output (({x}{i})))\n\
+                 (:method g{x}{i}-by-h :parameters (?p ?c ?e) :task (g{x}{i}) \
+                 :precondition {pre} :subtasks ((s0 (h{i} ?p ?c)){subtasks}){channels} \
+                 :outputs ((({x}{i}) s0)))"
+            );
+        }
+    }
+    domain.push(')');
+    finish(domain, facts, "(ga0)".to_string(), components)
+}
+
 /// A small random ecology for testing against the brute-force oracle: one to
 /// three PEIS, a handful of component types and functionalities, three layers
 /// of tasks with one to three methods each, random channels, rates, sharing

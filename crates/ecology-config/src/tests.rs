@@ -13,7 +13,7 @@ use crate::oracle::{self, Limit};
 use crate::synthetic::{self, Shape};
 use crate::{
     Budget, Clock, Configuration, CostModel, Exclusion, NoClock, Options, Outcome, PaperCost,
-    Request, Status, plan, plan_with,
+    Request, Snapshot, Status, plan, plan_observed, plan_with,
 };
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
@@ -310,43 +310,14 @@ fn a_shared_failure_is_explained_once() {
     );
 }
 
-// One provider per level feeds both tasks of the level above, so the
-// decomposition doubles with each level: 24 levels would unfold into 16
-// million task occurrences. Assembly shares a subtree it has built, and the
-// configuration has one instance per level (before, it was refused as "too
-// large a decomposition").
+// 24 levels would unfold into 16 million task occurrences. Assembly shares a
+// subtree it has built, and the configuration has one instance per level
+// (before, it was refused as "too large a decomposition").
 #[test]
 fn providers_shared_level_after_level_assemble_once() {
     let depth = 24;
-    let mut domain = String::from("(define (domain diamond)\n");
-    let mut facts = String::new();
-    for i in 0..=depth {
-        let (input, subtasks, channels) = if i < depth {
-            let j = i + 1;
-            (
-                format!("(a{j}) (b{j})"),
-                format!(" (s1 (ga{j})) (s2 (gb{j}))"),
-                format!(" :channels ((s1 s0 (a{j})) (s2 s0 (b{j})))"),
-            )
-        } else {
-            Default::default()
-        };
-        domain.push_str(&format!(
-            "(:functionality h{i} :parameters (?p ?c) :component (?p ?c) \
-             :precondition (sig ?p ?c s{i}) :input ({input}) :output ((a{i}) (b{i})) :cost 1)\n"
-        ));
-        for x in ["a", "b"] {
-            domain.push_str(&format!(
-                "(:task g{x}{i} :parameters () :output (({x}{i})))\n\
-                 (:method g{x}{i}-by-h :parameters (?p ?c) :task (g{x}{i}) \
-                 :precondition (sig ?p ?c s{i}) :subtasks ((s0 (h{i} ?p ?c)){subtasks}){channels} \
-                 :outputs ((({x}{i}) s0)))\n"
-            ));
-        }
-        facts.push_str(&format!("(sig robot c{i} s{i})\n"));
-    }
-    domain.push(')');
-    let outcome = run(&domain, &facts, "(ga0)", &[], 1);
+    let instance = synthetic::diamond(depth, false).expect("generates");
+    let outcome = plan(&instance.request(), &Options::default(), &NoClock).expect("valid");
     assert_eq!(outcome.status, Status::Proven);
     let best = outcome.configurations.first().expect("a configuration");
     assert_eq!(best.functionalities.len(), depth + 1);
@@ -356,6 +327,50 @@ fn providers_shared_level_after_level_assemble_once() {
         depth as u64 + 1,
         "one component per level, local channels"
     );
+}
+
+/// The snapshots `plan_observed` reports for a search, and its outcome.
+fn observed(request: &Request<'_>) -> (Vec<Snapshot>, Outcome) {
+    let mut seen = Vec::new();
+    let outcome = plan_observed(
+        request,
+        &PaperCost,
+        &Options::default(),
+        &NoClock,
+        &mut |s| seen.push(s),
+    )
+    .expect("valid goal");
+    (seen, outcome)
+}
+
+// Both searches report where they stand while they run: nodes expanded only
+// grow, the best found is never below the optimum and the bound never above.
+#[test]
+fn a_running_search_reports_where_it_stands() {
+    let sharing = synthetic::sharing(synthetic::Sharing::base(32, 1)).expect("generates");
+    let diamond = synthetic::diamond(8, true).expect("generates");
+    for (request, anytime) in [(sharing.request(), true), (diamond.request(), false)] {
+        let (seen, outcome) = observed(&request);
+        let optimum = outcome.configurations[0].cost;
+        assert!(seen.len() >= 3, "{} snapshots", seen.len());
+        assert!(seen.windows(2).all(|w| w[0].expanded <= w[1].expanded));
+        assert_eq!(
+            seen.last().map(|s| s.expanded),
+            Some(outcome.stats.expanded)
+        );
+        assert!(seen.iter().all(|s| s.best.is_none_or(|b| b >= optimum)));
+        assert!(
+            seen.iter()
+                .all(|s| s.lower_bound.is_none_or(|b| b <= optimum))
+        );
+        assert_eq!(seen.last().and_then(|s| s.best), Some(optimum));
+        // The provider search's first dive finds a configuration before the
+        // search proves it: both ends show while it runs.
+        let bracketed = seen
+            .iter()
+            .any(|s| s.best.is_some() && s.lower_bound.is_some());
+        assert!(bracketed || !anytime, "{seen:?}");
+    }
 }
 
 #[test]

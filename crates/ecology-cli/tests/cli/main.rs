@@ -283,6 +283,104 @@ fn configure_stops_when_the_budget_is_spent_while_reading() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Runs `ecology ARGS` in `dir` on a pseudo-terminal (`script` copies what it
+/// writes to stdout); `None` when there is no `script`.
+fn on_a_terminal(dir: &std::path::Path, args: &[&str]) -> Option<Output> {
+    Command::new("script").arg("--version").output().ok()?;
+    let command = std::iter::once(env!("CARGO_BIN_EXE_ecology"))
+        .chain(args.iter().copied())
+        .map(|a| format!("'{a}'"))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let out = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .current_dir(dir)
+        .output()
+        .expect("runs script");
+    Some(out)
+}
+
+/// Checks that a search of `args` (bounded to 2.6 s) drew progress lines
+/// saying `progress` after one and two seconds on a terminal, erased them
+/// before its `answer`, and drew none piped (in 1.3 s).
+fn shows_progress(test: &str, dir: &std::path::Path, args: &[&str], progress: &str, answer: &str) {
+    let Some(out) = on_a_terminal(dir, &[args, &["--max-millis", "2600"]].concat()) else {
+        eprintln!("skipped {test}: no `script` to run a terminal");
+        return;
+    };
+    let text = stdout(&out);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    let lines: Vec<&str> = text.split("\r\x1b[K").collect();
+    for second in ["1", "2"] {
+        assert!(
+            lines
+                .iter()
+                .any(|l| l.starts_with(&format!("  … {second} s: ")) && l.contains(progress)),
+            "{text:?}"
+        );
+    }
+    // Erased before the answer, which stands on a line of its own.
+    assert!(
+        lines.last().is_some_and(|l| l.starts_with(answer)),
+        "{text:?}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+        .args(args)
+        .args(["--max-millis", "1300"])
+        .current_dir(dir)
+        .output()
+        .expect("runs");
+    exits(&out, 1, answer);
+    assert!(!stderr(&out).contains(progress), "{}", stderr(&out));
+}
+
+// On a terminal, a search that runs past a second says how it is going, once
+// a second, on one line of stderr that it erases at the end; piped, it says
+// nothing of the kind.
+#[test]
+fn a_long_search_shows_its_progress_on_a_terminal() {
+    let dir = std::env::temp_dir().join(format!("ecology-cli-progress-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    // A diamond the configuration tree search takes minutes over.
+    let config = ecology_config::synthetic::diamond(16, true).expect("generates");
+    std::fs::write(dir.join("domain.eco"), &config.domain_text).expect("write");
+    std::fs::write(dir.join("state.facts"), &config.facts_text).expect("write");
+    shows_progress(
+        "a_long_search_shows_its_progress_on_a_terminal",
+        &dir,
+        &[
+            "configure",
+            "--domain",
+            "domain.eco",
+            "--state",
+            "state.facts",
+            "--goal",
+            "(ga0)",
+        ],
+        "nodes expanded; no configuration yet, none costs less than",
+        "no configuration found for (ga0) within the budget",
+    );
+    // Sixteen blocks, searched blind for a cheapest plan.
+    let blocks = ecology_actions::problems::blocks(16, 1).expect("generates");
+    std::fs::write(dir.join("domain.pddl"), &blocks.domain_text).expect("write");
+    std::fs::write(dir.join("problem.pddl"), &blocks.problem_text).expect("write");
+    let plan = [
+        "plan",
+        "--domain",
+        "domain.pddl",
+        "--problem",
+        "problem.pddl",
+    ];
+    shows_progress(
+        "a_long_search_shows_its_progress_on_a_terminal",
+        &dir,
+        &[&plan[..], &["--optimal", "--heuristic", "blind"]].concat(),
+        "states stored; no plan yet",
+        "no plan found within the budget",
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn check_reports_diagnostics_and_exits_2() {
     let out = ecology(&[
