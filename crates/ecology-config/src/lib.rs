@@ -448,6 +448,7 @@ impl<'a> Search<'a> {
         let cut = compiled.cut || over();
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
         let mut engine = Engine::new(ctx, callee, &args, cut, &|| over());
+        engine.share_repeats = options.count <= 1;
         let shared = if engine.graph.cut || over() {
             engine.graph.cut = true;
             None

@@ -91,6 +91,9 @@ struct Partial {
     /// search's clash checks; `None` when only assembling (which checks
     /// components itself).
     used: Option<HashMap<ComponentKey, ItemId>>,
+    /// The occurrence where each (task instance, alternative) was first
+    /// applied: a later occurrence may share its subtree (see `Engine::apply`).
+    applied: HashMap<(ItemId, u32), u32>,
 }
 
 impl Partial {
@@ -106,6 +109,7 @@ impl Partial {
             }],
             stack: Vec::new(),
             used: tracked.then(HashMap::default),
+            applied: HashMap::default(),
         }
     }
 }
@@ -134,6 +138,10 @@ pub(crate) struct Engine<'a> {
     /// Distinct reasons complete decompositions were rejected, with counts.
     pub(crate) rejections: Vec<(Inadmissible, u64)>,
     pub(crate) incumbent: Option<Configuration>,
+    /// Whether repeated task occurrences may share subtrees (see
+    /// `Engine::shares`): when looking for the cheapest configuration only,
+    /// so that a list of several keeps every admissible one.
+    pub(crate) share_repeats: bool,
 }
 
 impl<'a> Engine<'a> {
@@ -165,6 +173,7 @@ impl<'a> Engine<'a> {
             generated: 0,
             rejections: Vec::new(),
             incumbent: None,
+            share_repeats: false,
         };
         let lb = engine.graph.item(root).lb;
         if lb != INFEASIBLE && !engine.graph.cut {
@@ -349,8 +358,6 @@ impl<'a> Engine<'a> {
     ) -> Result<Configuration, Inadmissible> {
         let mut partial = Partial::rooted(self.root, false);
         partial.stack.push(0);
-        // The occurrence each (task instance, alternative) was first assembled at.
-        let mut assembled: HashMap<(ItemId, u32), u32> = HashMap::default();
         while let Some(top) = partial.stack.pop() {
             let consumer =
                 match partial.insts[top as usize].parent {
@@ -374,17 +381,9 @@ impl<'a> Engine<'a> {
                 };
             let alt = choose(consumer.as_ref().map(|(item, info)| (*item, info)))
                 .ok_or_else(|| "a task occurrence has no chosen alternative".to_string())?;
-            match assembled.entry((partial.insts[top as usize].item, alt)) {
-                std::collections::hash_map::Entry::Occupied(first) => {
-                    let first_child = partial.insts[*first.get() as usize].first_child;
-                    let inst = &mut partial.insts[top as usize];
-                    (inst.alt, inst.first_child) = (Some(alt), first_child);
-                }
-                std::collections::hash_map::Entry::Vacant(slot) => {
-                    slot.insert(top);
-                    self.apply(&mut partial, top, alt);
-                }
-            }
+            // The provider search chose per input it feeds: one alternative
+            // chosen twice is one provider serving two consumers.
+            self.apply(&mut partial, top, alt, true);
         }
         self.assemble(&partial)
     }
@@ -413,16 +412,60 @@ impl<'a> Engine<'a> {
             let Some(top) = partial.stack.pop() else {
                 break;
             };
-            self.apply(&mut partial, top, alt);
+            let share = self.shares(partial.insts[top as usize].item, alt);
+            self.apply(&mut partial, top, alt, share);
         }
         partial
     }
 
-    fn apply(&self, partial: &mut Partial, top: u32, alt: u32) {
+    /// Whether a repeated occurrence of task instance `item` with alternative
+    /// `alt` shares the subtree of its first occurrence in the tree search:
+    /// only when looking for the cheapest configuration, and only when each
+    /// output of the alternative comes from one of its own functionality
+    /// instances. Then that instance feeds the consumers of both occurrences
+    /// (a component runs one instance), each of its inputs has one producer,
+    /// and so on down: a second subtree could only add instances that feed
+    /// nothing else, at a cost. Sharing keeps the tree search from searching
+    /// a shared provider's inputs again at each occurrence, which doubles
+    /// with each level where providers are shared.
+    fn shares(&self, item: ItemId, alt: u32) -> bool {
+        if !self.share_repeats {
+            return false;
+        }
+        let ItemKind::Task { alts, .. } = &self.graph.item(item).kind else {
+            return false;
+        };
+        let alt = &alts[alt as usize];
+        let method = &self.ctx.compiled.methods[alt.method as usize];
+        method.outputs.iter().all(|(_, sub)| {
+            alt.children
+                .get(*sub as usize)
+                .is_some_and(|&child| self.graph.func(child).is_some())
+        })
+    }
+
+    /// Applies alternative `alt` to the task occurrence `top`: its subtasks
+    /// join the partial configuration and its open tasks the stack. With
+    /// `share`, an occurrence of a (task instance, alternative) applied
+    /// before shares that subtree instead: its children are the first
+    /// occurrence's, and nothing is left open.
+    fn apply(&self, partial: &mut Partial, top: u32, alt: u32, share: bool) {
         let item = partial.insts[top as usize].item;
         let ItemKind::Task { alts, .. } = &self.graph.item(item).kind else {
             return;
         };
+        match partial.applied.get(&(item, alt)) {
+            Some(&first) if share => {
+                let first_child = partial.insts[first as usize].first_child;
+                let inst = &mut partial.insts[top as usize];
+                (inst.alt, inst.first_child) = (Some(alt), first_child);
+                return;
+            }
+            Some(_) => {}
+            None => {
+                partial.applied.insert((item, alt), top);
+            }
+        }
         let alt_data = &alts[alt as usize];
         let first = partial.insts.len() as u32;
         partial.insts[top as usize].alt = Some(alt);
@@ -465,8 +508,26 @@ impl<'a> Engine<'a> {
         let pending = partial.stack.len() - 1;
         let mut out = Vec::new();
         let mut clashes = Vec::new();
+        let item_id = partial.insts[top as usize].item;
         'alts: for (a, alt) in alts.iter().enumerate() {
             if alt.lb == INFEASIBLE {
+                continue;
+            }
+            if partial.applied.contains_key(&(item_id, a as u32)) && self.shares(item_id, a as u32)
+            {
+                // Shares a subtree already counted: nothing new to pay or open.
+                out.push(Node {
+                    parent: id,
+                    alt: a as u32,
+                    g: node.g,
+                    h: node.h - item.lb,
+                    depth: node.depth + 1,
+                    state: if pending == 0 {
+                        NodeState::Complete
+                    } else {
+                        NodeState::Open
+                    },
+                });
                 continue;
             }
             let mut g = node.g;

@@ -77,8 +77,9 @@ fn finish(
 /// decomposition of the goal `(ga0)` doubles with each level while its
 /// configuration has one component per level. With `side`, each method also
 /// runs a functionality of its own on a second component, so the domain is
-/// not of provider shape and the decomposition tree search plans it (slowly:
-/// it searches the unfolded tree).
+/// not of provider shape and the decomposition tree search plans it; listing
+/// its configurations searches every occurrence of a shared provider again,
+/// which doubles with each level.
 pub fn diamond(depth: usize, side: bool) -> Result<Instance, GeneratorError> {
     let mut domain = String::from("(define (domain diamond)\n");
     let mut facts = String::new();
