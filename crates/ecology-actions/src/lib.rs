@@ -795,6 +795,7 @@ impl<'t> Search<'t> {
             expanded: self.expanded(),
             states: self.engine.states() as u64,
             best: self.improvement.as_ref().map(|imp| imp.cost),
+            lower_bound: self.optimal_search.then_some(self.engine.floor),
         }
     }
 
@@ -893,6 +894,9 @@ pub struct Snapshot {
     /// The cost of the cheapest plan so far, once the search that finds a
     /// first plan is followed by searches for a cheaper one.
     pub best: Option<u64>,
+    /// Looking for a cheapest plan (A* with an admissible heuristic): no
+    /// plan costs less than this.
+    pub lower_bound: Option<u64>,
 }
 
 /// Plans for `request`, stopping when the budget runs out.

@@ -232,6 +232,10 @@ pub(crate) struct Engine<'t> {
     /// Paths that cost this much or more are pruned (eager search and A*):
     /// the cost of a plan already found, which only a cheaper one beats.
     pub(crate) bound: u64,
+    /// A* without weight: the largest `g + h` taken from the queue so far.
+    /// With an admissible heuristic no plan costs less (the cheapest plan
+    /// always has a node waiting whose `g + h` is at most its cost).
+    pub(crate) floor: u64,
     /// The atoms some operator the search uses reads (positively or
     /// negatively), or the goal names, as a mask of state words. Every state
     /// is stored without the others: they can change nothing that follows,
@@ -309,6 +313,7 @@ impl<'t> Engine<'t> {
             evaluated: 0,
             initial_h: None,
             bound: u64::MAX,
+            floor: 0,
             relevant,
         };
         engine.scratch.words.copy_from_slice(&initial.words);
@@ -413,6 +418,9 @@ impl<'t> Engine<'t> {
                 && node.g.saturating_add(node.h.saturating_mul(weight)) != priority
             {
                 continue;
+            }
+            if self.algorithm.weight() == Some(1) {
+                self.floor = self.floor.max(priority);
             }
             return Some(id);
         }

@@ -11,7 +11,7 @@ use crate::oracle::{self, Cheapest};
 use crate::problems::{self, Instance};
 use crate::{
     Budget, Clock, HeuristicKind, NoClock, Options, Outcome, Plan, PlanError, Request, Strategy,
-    Task, Unsolvable, Verdict, ground, plan, validate,
+    Task, Unsolvable, Verdict, ground, plan, plan_observed, validate,
 };
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
@@ -171,6 +171,44 @@ fn classic_problems_have_their_known_optimal_costs() {
         match oracle::cheapest(&domain, &problem, &[], 200_000) {
             Cheapest::Cost(cost, _) => assert_eq!(cost, optimum, "the oracle disagrees"),
             other => panic!("oracle: {other:?}"),
+        }
+    }
+}
+
+// A running search reports where it stands: nodes only grow; looking for a
+// cheapest plan, a lower bound that only rises and never passes the optimum;
+// looking for a plan and then a cheaper one, the best so far, never below it.
+#[test]
+fn a_running_search_reports_where_it_stands() {
+    let inst = problems::gripper(6).expect("generates");
+    let optimum = inst.optimal_cost.expect("known");
+    let task = ground(&inst.domain, &inst.problem).expect("grounds");
+    let request = Request::new(&task);
+    let blind = Options {
+        strategy: Strategy::AStar {
+            heuristic: HeuristicKind::Blind,
+        },
+        ..Options::optimal()
+    };
+    for (options, optimal) in [(blind, true), (Options::default(), false)] {
+        let mut seen = Vec::new();
+        let outcome = plan_observed(&request, &options, &NoClock, &mut |s| seen.push(s));
+        let Verdict::Found(found) = &outcome.verdict else {
+            panic!("no plan: {outcome:?}");
+        };
+        assert!(seen.len() >= 3, "{} snapshots", seen.len());
+        assert!(seen.windows(2).all(|w| w[0].expanded <= w[1].expanded));
+        assert!(seen.iter().all(|s| s.best.is_none_or(|b| b >= found.cost)));
+        let bounds: Vec<u64> = seen.iter().filter_map(|s| s.lower_bound).collect();
+        if optimal {
+            assert_eq!(found.cost, optimum);
+            assert_eq!(bounds.len(), seen.len());
+            assert!(bounds.windows(2).all(|w| w[0] <= w[1]), "{bounds:?}");
+            assert!(bounds.iter().all(|&b| b <= optimum), "{bounds:?}");
+            assert!(bounds.last() > bounds.first(), "{bounds:?}");
+        } else {
+            assert!(bounds.is_empty(), "{bounds:?}");
+            assert!(seen.iter().any(|s| s.best.is_some()), "{seen:?}");
         }
     }
 }

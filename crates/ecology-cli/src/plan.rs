@@ -199,8 +199,12 @@ fn searching(s: &Snapshot) -> String {
         Some(cost) => format!("the best plan so far costs {cost}"),
         None => "no plan yet".to_string(),
     };
+    let bound = match s.lower_bound {
+        Some(bound) => format!(", none costs less than {bound}"),
+        None => String::new(),
+    };
     format!(
-        "{} nodes expanded, {} states stored; {best} (--max-millis bounds the search)",
+        "{} nodes expanded, {} states stored; {best}{bound} (--max-millis bounds the search)",
         s.expanded, s.states
     )
 }
