@@ -399,6 +399,9 @@ pub struct Outcome {
     pub verdict: Verdict,
     /// Whether the plan is proven cheapest (A* with an admissible heuristic).
     pub optimal: bool,
+    /// When a search for a cheapest plan ran out of budget: no plan costs
+    /// less than this.
+    pub lower_bound: Option<u64>,
     /// Counts.
     pub stats: Stats,
 }
@@ -833,9 +836,12 @@ impl<'t> Search<'t> {
                 (Verdict::Unsolvable(why), false)
             }
         };
+        let lower_bound = (self.optimal_search && matches!(verdict, Verdict::BudgetExceeded))
+            .then_some(self.engine.floor);
         Outcome {
             verdict,
             optimal,
+            lower_bound,
             stats,
         }
     }

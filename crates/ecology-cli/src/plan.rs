@@ -175,15 +175,18 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
             Ok(EXIT_NO_SOLUTION)
         }
         Verdict::BudgetExceeded => {
+            let bound = outcome
+                .lower_bound
+                .map_or(String::new(), |b| format!("; none costs less than {b}"));
             let reason = format!(
-                "no plan found within the budget ({} nodes expanded in {} ms); the problem may still be solvable",
+                "no plan found within the budget ({} nodes expanded in {} ms{bound}); the problem may still be solvable",
                 outcome.stats.expanded,
                 outcome.stats.micros / 1000
             );
             if args.json {
                 println!(
                     "{}",
-                    json!({"error": "budget exceeded", "reason": reason, "stats": stats_json(&outcome.stats)})
+                    json!({"error": "budget exceeded", "reason": reason, "lower_bound": outcome.lower_bound, "stats": stats_json(&outcome.stats)})
                 );
             } else {
                 eprintln!("{reason}");

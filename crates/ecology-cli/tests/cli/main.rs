@@ -573,6 +573,38 @@ fn plan_without_a_plan_exits_1_with_a_reason() {
     let value = json(&out);
     assert_eq!(value["error"], "budget exceeded");
     assert_eq!(value["stats"]["expanded"], 5);
+    // Cut short, a search for a cheapest plan says what no plan undercuts:
+    // with LM-cut, at least the start's estimate; never above the optimum, 8.
+    let out = ecology(&[
+        "plan",
+        "--domain",
+        "domains/pddl/blocks.pddl",
+        "--problem",
+        "domains/pddl/blocks-reverse-4.pddl",
+        "--optimal",
+        "--max-nodes",
+        "2",
+    ]);
+    exits(&out, 1, "none costs less than");
+    let bound: u64 = stderr(&out)
+        .split("none costs less than ")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .and_then(|n| n.parse().ok())
+        .expect("a bound");
+    assert!((1..=8).contains(&bound), "{}", stderr(&out));
+    let value = json(&ecology(&[
+        "plan",
+        "--domain",
+        "domains/pddl/blocks.pddl",
+        "--problem",
+        "domains/pddl/blocks-reverse-4.pddl",
+        "--optimal",
+        "--max-nodes",
+        "2",
+        "--json",
+    ]));
+    assert_eq!(value["lower_bound"], bound, "{value}");
 }
 
 #[test]
