@@ -39,10 +39,10 @@ pub struct ConfigureArgs {
     /// A failed component (PEIS:COMPONENT) or PEIS (PEIS) not to use; repeatable.
     #[arg(long, value_name = "PEIS:COMPONENT")]
     pub exclude: Vec<Exclusion>,
-    /// List every admissible configuration, cheapest first.
+    /// List the admissible configurations, cheapest first (the 1,000 cheapest unless --limit says otherwise).
     #[arg(long)]
     pub all: bool,
-    /// With --all, list at most this many.
+    /// With --all, list at most this many [default: 1000].
     #[arg(long, requires = "all")]
     pub limit: Option<usize>,
     /// Stop after expanding this many search nodes (the result is then not proven).
@@ -97,6 +97,11 @@ pub fn check(args: &CheckArgs) -> anyhow::Result<u8> {
     Ok(code)
 }
 
+/// How many configurations `--all` lists without `--limit`: small ecologies
+/// have a handful, but the count grows exponentially with the ecology (33
+/// components already have more than the memory of this machine holds).
+const ALL_LIMIT: usize = 1000;
+
 /// `ecology configure ...`
 pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     let clock = WallClock(Instant::now());
@@ -129,7 +134,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
     };
     let options = Options {
         count: if args.all {
-            args.limit.unwrap_or(usize::MAX)
+            args.limit.unwrap_or(ALL_LIMIT)
         } else {
             1
         },
@@ -166,6 +171,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
         let value = if args.all {
             json!({
                 "configurations": outcome.configurations.iter().map(|c| config_json(c, &outcome)).collect::<Vec<_>>(),
+                "limit": args.limit.unwrap_or(ALL_LIMIT),
                 "lower_bound": outcome.lower_bound,
                 "stats": stats_json(&outcome),
             })
@@ -263,6 +269,9 @@ fn print_human(args: &ConfigureArgs, outcome: &Outcome) {
         if i + 1 < n {
             println!();
         }
+    }
+    if args.all && args.limit.is_none() && n == ALL_LIMIT {
+        println!("  (the {ALL_LIMIT} cheapest; there may be more: --limit N lists up to N)");
     }
     if outcome.status == Status::BudgetExceeded {
         let bound = outcome.lower_bound.map_or(String::new(), |b| {

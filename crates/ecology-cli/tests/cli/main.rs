@@ -120,6 +120,52 @@ fn configure_all_lists_three() {
     assert_eq!(costs, [80, 170]);
 }
 
+// An ecology of 33 components has more admissible configurations than memory
+// holds: `--all` lists the 1,000 cheapest unless told otherwise, and says so.
+#[test]
+fn configure_all_lists_a_thousand_unless_told() {
+    let instance =
+        ecology_config::synthetic::sharing(ecology_config::synthetic::Sharing::base(8, 1))
+            .expect("generates");
+    let dir = std::env::temp_dir().join(format!("ecology-cli-all-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    std::fs::write(dir.join("domain.eco"), &instance.domain_text).expect("write");
+    std::fs::write(dir.join("state.facts"), &instance.facts_text).expect("write");
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "configure",
+            "--domain",
+            "domain.eco",
+            "--state",
+            "state.facts",
+        ];
+        args.extend(["--goal", &instance.goal_text, "--all"]);
+        args.extend_from_slice(extra);
+        Command::new(env!("CARGO_BIN_EXE_ecology"))
+            .args(&args)
+            .current_dir(&dir)
+            .output()
+            .expect("runs")
+    };
+    let out = run(&[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    assert_eq!(text.matches("total cost").count(), 1000);
+    assert!(text.contains("configuration 1000 of 1000 for (serve):"));
+    assert!(text.contains("(the 1000 cheapest; there may be more: --limit N lists up to N)"));
+    let v = json(&run(&["--limit", "1500", "--json"]));
+    assert_eq!(v["limit"], 1500, "{v}");
+    let costs: Vec<u64> = v["configurations"]
+        .as_array()
+        .expect("an array")
+        .iter()
+        .map(|c| c["cost"].as_u64().expect("a cost"))
+        .collect();
+    assert_eq!(costs.len(), 1500);
+    assert!(costs.windows(2).all(|w| w[0] <= w[1]), "cheapest first");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn configure_json() {
     let out = configure(&["--json"]);
