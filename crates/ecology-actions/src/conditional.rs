@@ -687,6 +687,28 @@ pub fn plan_conditional(
     options: &ConditionalOptions,
     clock: &dyn Clock,
 ) -> ConditionalOutcome {
+    plan_conditional_observed(request, options, clock, &mut |_| {})
+}
+
+/// Where a running conditional search stands; [`plan_conditional_observed`]
+/// reports it between batches of expansions, so that a long search can show
+/// its progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConditionalSnapshot {
+    /// Belief nodes expanded so far.
+    pub expanded: u64,
+    /// Distinct beliefs met so far.
+    pub beliefs: u64,
+}
+
+/// As [`plan_conditional`], calling `observe` between batches of
+/// expansions with where the search stands.
+pub fn plan_conditional_observed(
+    request: &ConditionalRequest<'_>,
+    options: &ConditionalOptions,
+    clock: &dyn Clock,
+    observe: &mut dyn FnMut(ConditionalSnapshot),
+) -> ConditionalOutcome {
     let task = request.task;
     let (det, origin) = task.determinized();
     let mut det_excluded = vec![false; det.operators().len()];
@@ -752,6 +774,7 @@ pub fn plan_conditional(
     let search = Search {
         options,
         clock,
+        observe: std::cell::RefCell::new(observe),
         belief,
         start: b
             .probs
@@ -776,6 +799,8 @@ pub fn plan_conditional(
 struct Search<'a> {
     options: &'a ConditionalOptions,
     clock: &'a dyn Clock,
+    /// Told where the search stands between batches of expansions.
+    observe: std::cell::RefCell<&'a mut dyn FnMut(ConditionalSnapshot)>,
     belief: u32,
     /// That belief's states with their probabilities, which plans are
     /// evaluated from.
@@ -829,6 +854,10 @@ impl Search<'_> {
                 return Solved::Cyclic;
             }
             for chunk in tips.chunks(EXPANSIONS_PER_CHECK) {
+                (self.observe.borrow_mut())(ConditionalSnapshot {
+                    expanded: engine.stats.expanded,
+                    beliefs: engine.beliefs.len() as u64,
+                });
                 if self.over(engine) {
                     return Solved::Budget;
                 }

@@ -62,7 +62,8 @@ use ecology_domain::{Call, Name};
 
 pub use conditional::{
     ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
-    ConditionalVerdict, PlanGraph, PlanNode, plan_conditional,
+    ConditionalSnapshot, ConditionalVerdict, PlanGraph, PlanNode, plan_conditional,
+    plan_conditional_observed,
 };
 use heuristic::Costs;
 pub use heuristic::{Heuristic, HeuristicKind};

@@ -6,7 +6,7 @@ use crate::conditional::{EPSILON, PlanGraph, PlanNode};
 use crate::oracle_conditional::{self, Exhaustive};
 use crate::{
     ConditionalOptions, ConditionalPlan, ConditionalRequest, ConditionalVerdict, NoClock, Options,
-    Request, Task, Verdict, ground, plan, plan_conditional, problems,
+    Request, Task, Verdict, ground, plan, plan_conditional, plan_conditional_observed, problems,
 };
 use ecology_domain::{Domain, Problem};
 
@@ -365,6 +365,37 @@ fn tireworld_one_to_eight_is_solved_surely_by_a_graph_far_smaller_than_its_tree(
             the_oracle_agrees(&inst.domain, &inst.problem, &task, plan);
         }
     }
+}
+
+// A running conditional search reports where it stands between batches of
+// expansions: counts that only grow, up to the outcome's.
+#[test]
+fn a_running_conditional_search_reports_where_it_stands() {
+    let inst = problems::tireworld(6).expect("generated");
+    let task = ground(&inst.domain, &inst.problem).expect("ground");
+    let options = ConditionalOptions {
+        horizon: 72,
+        heuristic: crate::HeuristicKind::Blind,
+        ..ConditionalOptions::default()
+    };
+    let mut seen = Vec::new();
+    let outcome = plan_conditional_observed(
+        &ConditionalRequest::new(&task),
+        &options,
+        &NoClock,
+        &mut |s| seen.push(s),
+    );
+    assert!(matches!(outcome.verdict, ConditionalVerdict::Found(_)));
+    assert!(seen.len() >= 3, "{} snapshots", seen.len());
+    assert!(
+        seen.windows(2)
+            .all(|w| w[0].expanded <= w[1].expanded && w[0].beliefs <= w[1].beliefs)
+    );
+    assert!(
+        seen.first()
+            .is_some_and(|s| s.expanded < outcome.stats.expanded)
+    );
+    assert!(seen.iter().all(|s| s.expanded <= outcome.stats.expanded));
 }
 
 /// The search's outcome for `task` within `horizon` actions, and its plan

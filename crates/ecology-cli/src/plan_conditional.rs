@@ -7,13 +7,14 @@ use std::time::Duration;
 use ecology_actions::conditional::{self, Branch, round};
 use ecology_actions::{
     Budget, ConditionalOptions, ConditionalOutcome, ConditionalPlan, ConditionalRequest,
-    ConditionalVerdict, HeuristicKind, OpId, PlanGraph, PlanNode, Task,
+    ConditionalSnapshot, ConditionalVerdict, HeuristicKind, OpId, PlanGraph, PlanNode, Task,
 };
 use serde_json::{Value, json};
 
 use crate::plan::PlanArgs;
+use crate::progress::ProgressLine;
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
-use ecology_config::WallClock;
+use ecology_config::{Clock, WallClock};
 
 /// Plans `task` conditionally as `args` say; returns the exit code.
 pub fn run(
@@ -49,7 +50,18 @@ pub fn run(
         excluded,
         ..ConditionalRequest::new(task)
     };
-    let outcome = ecology_actions::plan_conditional(&request, &options, clock);
+    let mut line = ProgressLine::new(!args.json);
+    let mut observe = |s: ConditionalSnapshot| {
+        line.update(clock.elapsed(), || {
+            format!(
+                "{} beliefs expanded, {} distinct (--max-millis bounds the search)",
+                s.expanded, s.beliefs
+            )
+        })
+    };
+    let outcome =
+        ecology_actions::plan_conditional_observed(&request, &options, clock, &mut observe);
+    line.clear();
     let threshold = args.min_probability;
     match &outcome.verdict {
         ConditionalVerdict::Found(plan) => {
