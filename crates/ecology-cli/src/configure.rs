@@ -13,7 +13,7 @@ use ecology_view::{Drawing, Edge, Mark, Node};
 use serde_json::{Value, json};
 
 use crate::input::{self, Reported};
-use crate::progress::ProgressLine;
+use crate::progress::{ProgressLine, standing};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 
 /// Arguments of `ecology check`.
@@ -192,17 +192,10 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
 
 /// What the progress line says of a running search.
 fn searching(s: &Snapshot) -> String {
-    let best = match s.best {
-        Some(cost) => format!("the best so far costs {cost}"),
-        None => "no configuration yet".to_string(),
-    };
-    let bound = match s.lower_bound {
-        Some(bound) => format!(", none costs less than {bound}"),
-        None => String::new(),
-    };
     format!(
-        "{} nodes expanded; {best}{bound} (--max-millis bounds the search)",
-        s.expanded
+        "{} nodes expanded; {} (--max-millis bounds the search)",
+        s.expanded,
+        standing("configuration", s.best, s.lower_bound)
     )
 }
 

@@ -12,7 +12,7 @@ use ecology_actions::{
 use serde_json::{Value, json};
 
 use crate::input;
-use crate::progress::ProgressLine;
+use crate::progress::{ProgressLine, standing};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 use ecology_config::{Clock, WallClock};
 
@@ -198,17 +198,11 @@ pub fn plan(args: &PlanArgs) -> anyhow::Result<u8> {
 
 /// What the progress line says of a running search.
 fn searching(s: &Snapshot) -> String {
-    let best = match s.best {
-        Some(cost) => format!("the best plan so far costs {cost}"),
-        None => "no plan yet".to_string(),
-    };
-    let bound = match s.lower_bound {
-        Some(bound) => format!(", none costs less than {bound}"),
-        None => String::new(),
-    };
     format!(
-        "{} nodes expanded, {} states stored; {best}{bound} (--max-millis bounds the search)",
-        s.expanded, s.states
+        "{} nodes expanded, {} states stored; {} (--max-millis bounds the search)",
+        s.expanded,
+        s.states,
+        standing("plan", s.best, s.lower_bound)
     )
 }
 

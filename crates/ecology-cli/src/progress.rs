@@ -48,6 +48,19 @@ impl ProgressLine {
     }
 }
 
+/// How a search for the cheapest `noun` stands, for its progress line: the
+/// cheapest found so far and the cost below which none exists, when known.
+pub fn standing(noun: &str, best: Option<u64>, lower_bound: Option<u64>) -> String {
+    let best = match best {
+        Some(cost) => format!("the best {noun} so far costs {cost}"),
+        None => format!("no {noun} yet"),
+    };
+    match lower_bound {
+        Some(bound) => format!("{best}, none costs less than {bound}"),
+        None => best,
+    }
+}
+
 impl Drop for ProgressLine {
     fn drop(&mut self) {
         self.clear();

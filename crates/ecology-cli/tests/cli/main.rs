@@ -125,13 +125,7 @@ fn configure_all_lists_three() {
 // cheapest unless told otherwise, and says so.
 #[test]
 fn configure_all_lists_a_thousand_unless_told() {
-    let instance =
-        ecology_config::synthetic::sharing(ecology_config::synthetic::Sharing::base(8, 1))
-            .expect("generates");
-    let dir = std::env::temp_dir().join(format!("ecology-cli-all-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    std::fs::write(dir.join("domain.eco"), &instance.domain_text).expect("write");
-    std::fs::write(dir.join("state.facts"), &instance.facts_text).expect("write");
+    let (dir, goal) = sharing_instance("all", 8);
     let run = |extra: &[&str]| {
         let mut args = vec![
             "configure",
@@ -140,7 +134,7 @@ fn configure_all_lists_a_thousand_unless_told() {
             "--state",
             "state.facts",
         ];
-        args.extend(["--goal", &instance.goal_text, "--all"]);
+        args.extend(["--goal", &goal, "--all"]);
         args.extend_from_slice(extra);
         Command::new(env!("CARGO_BIN_EXE_ecology"))
             .args(&args)
@@ -275,11 +269,11 @@ fn configure_under_a_budget_is_flagged() {
     assert_eq!(v["optimal"], true, "{v}");
 }
 
-/// A shared-provider ecology of 96 PEIS (about 9,500 facts) written to a
-/// fresh directory: domain, state and goal for `ecology configure`.
-fn large_instance(name: &str) -> (PathBuf, String) {
+/// A shared-provider ecology of `peis` PEIS (96: about 9,500 facts) written
+/// to a fresh directory: domain, state and goal for `ecology configure`.
+fn sharing_instance(name: &str, peis: usize) -> (PathBuf, String) {
     let instance =
-        ecology_config::synthetic::sharing(ecology_config::synthetic::Sharing::base(96, 1))
+        ecology_config::synthetic::sharing(ecology_config::synthetic::Sharing::base(peis, 1))
             .expect("generates");
     let dir = std::env::temp_dir().join(format!("ecology-cli-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -290,7 +284,7 @@ fn large_instance(name: &str) -> (PathBuf, String) {
 
 #[test]
 fn configure_stops_when_the_budget_is_spent_while_reading() {
-    let (dir, goal) = large_instance("reading");
+    let (dir, goal) = sharing_instance("reading", 96);
     let run = |extra: &[&str]| {
         let domain = dir.join("domain.eco");
         let state = dir.join("state.facts");
@@ -603,35 +597,24 @@ fn plan_without_a_plan_exits_1_with_a_reason() {
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(json(&out)["error"], "unsolvable");
 
-    let out = ecology(&[
-        "plan",
-        "--domain",
-        "domains/pddl/blocks.pddl",
-        "--problem",
-        "domains/pddl/blocks-reverse-4.pddl",
-        "--optimal",
-        "--heuristic",
-        "blind",
-        "--max-nodes",
-        "5",
-        "--json",
-    ]);
+    let blocks = |extra: &[&str]| {
+        let mut args = vec!["plan", "--domain", "domains/pddl/blocks.pddl"];
+        args.extend([
+            "--problem",
+            "domains/pddl/blocks-reverse-4.pddl",
+            "--optimal",
+        ]);
+        args.extend_from_slice(extra);
+        ecology(&args)
+    };
+    let out = blocks(&["--heuristic", "blind", "--max-nodes", "5", "--json"]);
     assert_eq!(out.status.code(), Some(1));
     let value = json(&out);
     assert_eq!(value["error"], "budget exceeded");
     assert_eq!(value["stats"]["expanded"], 5);
     // Cut short, a search for a cheapest plan says what no plan undercuts:
     // with LM-cut, at least the start's estimate; never above the optimum, 8.
-    let out = ecology(&[
-        "plan",
-        "--domain",
-        "domains/pddl/blocks.pddl",
-        "--problem",
-        "domains/pddl/blocks-reverse-4.pddl",
-        "--optimal",
-        "--max-nodes",
-        "2",
-    ]);
+    let out = blocks(&["--max-nodes", "2"]);
     exits(&out, 1, "none costs less than");
     let bound: u64 = stderr(&out)
         .split("none costs less than ")
@@ -640,17 +623,7 @@ fn plan_without_a_plan_exits_1_with_a_reason() {
         .and_then(|n| n.parse().ok())
         .expect("a bound");
     assert!((1..=8).contains(&bound), "{}", stderr(&out));
-    let value = json(&ecology(&[
-        "plan",
-        "--domain",
-        "domains/pddl/blocks.pddl",
-        "--problem",
-        "domains/pddl/blocks-reverse-4.pddl",
-        "--optimal",
-        "--max-nodes",
-        "2",
-        "--json",
-    ]));
+    let value = json(&blocks(&["--max-nodes", "2", "--json"]));
     assert_eq!(value["lower_bound"], bound, "{value}");
 }
 
