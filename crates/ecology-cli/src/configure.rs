@@ -241,8 +241,12 @@ fn print_none(args: &ConfigureArgs, outcome: &Outcome) {
     match &outcome.explanation {
         Some(e) => eprint!("{e}"),
         None if budget => eprintln!(
-            "no configuration found for {} within the budget ({} nodes expanded)",
-            args.goal, outcome.stats.expanded
+            "no configuration found for {} within the budget ({} nodes expanded{})",
+            args.goal,
+            outcome.stats.expanded,
+            outcome
+                .lower_bound
+                .map_or(String::new(), |b| format!("; none costs less than {b}"))
         ),
         None => eprintln!("no configuration for {}", args.goal),
     }

@@ -315,6 +315,12 @@ fn configure_stops_when_the_budget_is_spent_while_reading() {
     assert_eq!(v["error"], "budget exceeded", "{v}");
     assert_eq!(v["phase"], "planning", "{v}");
     let bound = v["lower_bound"].as_u64().expect("a bound");
+    let out = run(&["--max-nodes", "0"]);
+    exits(
+        &out,
+        1,
+        &format!("within the budget (0 nodes expanded; none costs less than {bound})"),
+    );
     // Unlimited: proven, and no cheaper than the bound.
     let out = run(&["--json"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
