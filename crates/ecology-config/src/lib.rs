@@ -520,27 +520,31 @@ impl<'a> Search<'a> {
 
     /// Where the search stands.
     pub fn snapshot(&self) -> Snapshot {
-        let (best, lower_bound) = match &self.shared {
-            Some(shared) => (shared.best(), shared.lower_bound()),
+        Snapshot {
+            expanded: self.expanded(),
+            best: self.best(),
+            lower_bound: match &self.shared {
+                Some(shared) => shared.lower_bound(),
+                None => self.engine.lower_bound(),
+            },
+        }
+    }
+
+    /// The cost of the cheapest configuration found so far.
+    fn best(&self) -> Option<u64> {
+        match &self.shared {
+            Some(shared) => shared.best(),
             None => {
                 let engine = &self.engine;
                 let best = engine.accepted.first().or(engine.incumbent.as_ref());
-                (best.map(|c| c.cost), engine.lower_bound())
+                best.map(|c| c.cost)
             }
-        };
-        Snapshot {
-            expanded: self.expanded(),
-            best,
-            lower_bound,
         }
     }
 
     /// Whether a configuration has been found (not necessarily the best).
     pub fn found(&self) -> bool {
-        match &self.shared {
-            Some(shared) => shared.found(),
-            None => !self.engine.accepted.is_empty() || self.engine.incumbent.is_some(),
-        }
+        self.best().is_some()
     }
 
     /// Ends the search. With `complete` false (the budget ran out), returns

@@ -17,6 +17,7 @@
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
+use std::collections::hash_map::Entry;
 
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
@@ -91,8 +92,9 @@ struct Partial {
     /// search's clash checks; `None` when only assembling (which checks
     /// components itself).
     used: Option<HashMap<ComponentKey, ItemId>>,
-    /// The occurrence where each (task instance, alternative) was first
-    /// applied: a later occurrence may share its subtree (see `Engine::apply`).
+    /// The occurrence where each (task instance, alternative) that may
+    /// share was first applied: a later one shares its subtree (see
+    /// `Engine::apply`).
     applied: HashMap<(ItemId, u32), u32>,
 }
 
@@ -454,16 +456,19 @@ impl<'a> Engine<'a> {
         let ItemKind::Task { alts, .. } = &self.graph.item(item).kind else {
             return;
         };
-        match partial.applied.get(&(item, alt)) {
-            Some(&first) if share => {
-                let first_child = partial.insts[first as usize].first_child;
-                let inst = &mut partial.insts[top as usize];
-                (inst.alt, inst.first_child) = (Some(alt), first_child);
-                return;
-            }
-            Some(_) => {}
-            None => {
-                partial.applied.insert((item, alt), top);
+        // Whether an occurrence shares depends on its (task instance,
+        // alternative) alone: only those that share are kept track of.
+        if share {
+            match partial.applied.entry((item, alt)) {
+                Entry::Occupied(first) => {
+                    let first_child = partial.insts[*first.get() as usize].first_child;
+                    let inst = &mut partial.insts[top as usize];
+                    (inst.alt, inst.first_child) = (Some(alt), first_child);
+                    return;
+                }
+                Entry::Vacant(slot) => {
+                    slot.insert(top);
+                }
             }
         }
         let alt_data = &alts[alt as usize];
@@ -513,7 +518,7 @@ impl<'a> Engine<'a> {
             if alt.lb == INFEASIBLE {
                 continue;
             }
-            if partial.applied.contains_key(&(item_id, a as u32)) && self.shares(item_id, a as u32)
+            if self.shares(item_id, a as u32) && partial.applied.contains_key(&(item_id, a as u32))
             {
                 // Shares a subtree already counted: nothing new to pay or open.
                 out.push(Node {

@@ -934,11 +934,6 @@ impl Shared {
         }
     }
 
-    /// Whether a configuration has been found.
-    pub(crate) fn found(&self) -> bool {
-        !self.accepted.is_empty() || self.incumbent.is_some()
-    }
-
     /// No configuration not yet accepted costs less than this.
     pub(crate) fn lower_bound(&self) -> Option<u64> {
         if !self.started {

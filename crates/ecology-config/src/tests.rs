@@ -384,7 +384,7 @@ fn a_running_search_reports_where_it_stands() {
 // from a functionality of its own, is searched once: the cheapest
 // configuration of 16 levels of shared providers (each method also running a
 // functionality of its own, so the tree search plans it) takes under a
-// hundred nodes, where searching every occurrence took minutes. Listing
+// hundred nodes, where searching every occurrence ran past a minute. Listing
 // configurations searches every occurrence still, and finds the same one.
 #[test]
 fn the_tree_search_shares_a_repeated_provider() {

@@ -388,7 +388,7 @@ fn shows_progress(test: &str, dir: &std::path::Path, args: &[&str], progress: &s
 fn a_long_search_shows_its_progress_on_a_terminal() {
     let dir = std::env::temp_dir().join(format!("ecology-cli-progress-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
-    // A diamond whose configurations the tree search takes minutes to list
+    // A diamond whose configurations the tree search takes over a minute to list
     // (it searches every occurrence of a shared provider again).
     let config = ecology_config::synthetic::diamond(16, true).expect("generates");
     std::fs::write(dir.join("domain.eco"), &config.domain_text).expect("write");
