@@ -1008,6 +1008,12 @@ mod on_the_tuple_space {
         async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
             self.inner.subscribe_presence().await
         }
+        async fn subscribe_presence_of(
+            &self,
+            peis: PeisId,
+        ) -> Result<PresenceSubscription, TupleError> {
+            self.inner.subscribe_presence_of(peis).await
+        }
     }
 
     // The paper, Section VIII, steps 1-5 and 7 without the failure.

@@ -17,19 +17,23 @@
 //! is the remote setter) and watches that PEIS's presence: once it has been
 //! gone for [`HostOptions::release_after`] (after its lease, if it vanished),
 //! the host puts back what it asked for, `reqState` `off` and empty `params`,
-//! as that PEIS would have on ending its task. So a partition, a lost router
+//! as that PEIS would have on ending its task. It watches the presence of
+//! those PEIS alone, not of every PEIS, and one that is not seen present
+//! within that time after asking (it left before the host could watch it)
+//! is released too. So a partition, a lost router
 //! or a killed executive never leaves a component running for a task nobody
 //! runs any more.
 
 use std::collections::BTreeMap;
 use std::future::Future;
 use std::sync::Arc;
+use std::task::Poll;
 use std::time::Duration;
 
 use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, ComponentId, Key, PeisId, PresenceEvent, Timestamp, TupleError, TupleEvent,
-    TuplePattern, TupleSpace, Value,
+    Clock, ComponentId, Key, PeisId, PresenceEvent, PresenceSubscription, Timestamp, TupleError,
+    TupleEvent, TuplePattern, TupleSpace, Value,
 };
 use tokio::task::{AbortHandle, JoinSet};
 
@@ -186,8 +190,11 @@ pub async fn run_host_with<S: TupleSpace>(
         .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
     let mut requests = space.subscribe(requests_pattern).await?;
     let mut params = space.subscribe(params_pattern).await?;
-    let mut presence = space.subscribe_presence().await?;
-    // Each PEIS whose presence ended, and when what it asked for is put back unless it returns.
+    // The presence of each PEIS that asked for something, and no other: with N PEIS, a host that
+    // heard every join and leave would make the ecology's start cost N² events.
+    let mut watched: BTreeMap<PeisId, PresenceSubscription> = BTreeMap::new();
+    // Each PEIS whose presence ended, or that has not been seen since it asked, and when what it
+    // asked for is put back unless it is seen.
     let mut gone: BTreeMap<PeisId, Timestamp> = BTreeMap::new();
     let mut tasks: JoinSet<Outcome> = JoinSet::new();
     tokio::pin!(shutdown);
@@ -210,6 +217,7 @@ pub async fn run_host_with<S: TupleSpace>(
             event = requests.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::ReqState)) = ComponentField::parse(&t.key) else { continue };
+                watch(&space, &clock, &options, t.creator.as_ref(), &mut watched, &mut gone).await?;
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
                 let asked = t.text().unwrap_or("");
                 state.on_for = t.creator.clone().filter(|_| asked == "on");
@@ -242,6 +250,7 @@ pub async fn run_host_with<S: TupleSpace>(
             event = params.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::Params)) = ComponentField::parse(&t.key) else { continue };
+                watch(&space, &clock, &options, t.creator.as_ref(), &mut watched, &mut gone).await?;
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
                 let had_params = state.params.is_some();
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
@@ -278,7 +287,7 @@ pub async fn run_host_with<S: TupleSpace>(
                     space.set(field(&c, ComponentField::Status)?, Value::text("error")).await?;
                 }
             }
-            Some(event) = presence.next() => match event {
+            event = next_presence(&mut watched) => match event {
                 PresenceEvent::Joined(p) => {
                     gone.remove(&p);
                 }
@@ -291,6 +300,7 @@ pub async fn run_host_with<S: TupleSpace>(
                 let due: Vec<PeisId> = gone.iter().filter(|(_, at)| **at <= now).map(|(p, _)| p.clone()).collect();
                 for peis in due {
                     gone.remove(&peis);
+                    watched.remove(&peis);
                     release(&space, &states, &peis, &options).await?;
                 }
                 let ready: Vec<String> = states
@@ -350,6 +360,44 @@ async fn release<S: TupleSpace>(
         }
     }
     Ok(())
+}
+
+/// Starts watching the presence of `creator`, the PEIS that asked for something, unless it is
+/// watched already. Until it is seen present it counts as gone, so one that left before it could
+/// be watched is released too.
+async fn watch<S: TupleSpace>(
+    space: &S,
+    clock: &Arc<dyn Clock>,
+    options: &HostOptions,
+    creator: Option<&PeisId>,
+    watched: &mut BTreeMap<PeisId, PresenceSubscription>,
+    gone: &mut BTreeMap<PeisId, Timestamp>,
+) -> Result<(), HostError> {
+    let Some(creator) = creator else {
+        return Ok(());
+    };
+    if watched.contains_key(creator) {
+        return Ok(());
+    }
+    let presence = space.subscribe_presence_of(creator.clone()).await?;
+    watched.insert(creator.clone(), presence);
+    gone.entry(creator.clone())
+        .or_insert(clock.now().saturating_add(options.release_after));
+    Ok(())
+}
+
+/// The next presence event of a watched PEIS; pending while there is none.
+fn next_presence(
+    watched: &mut BTreeMap<PeisId, PresenceSubscription>,
+) -> impl Future<Output = PresenceEvent> + '_ {
+    std::future::poll_fn(move |cx| {
+        for presence in watched.values_mut() {
+            if let Poll::Ready(Some(event)) = presence.poll_event(cx) {
+                return Poll::Ready(event);
+            }
+        }
+        Poll::Pending
+    })
 }
 
 /// (Re)starts component `c`'s body if it is on and has params.

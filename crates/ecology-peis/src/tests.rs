@@ -434,6 +434,44 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     f.stop().await;
 }
 
+/// A PEIS that asked for something and left before the host could watch its presence is not
+/// seen present, and what it asked for is put back `release_after` after the host saw the request.
+#[tokio::test(start_paused = true)]
+async fn a_host_puts_back_what_a_peis_gone_before_it_was_watched_asked_for() {
+    let f = start(vec![spec("l1", false, echo())]).await;
+    let robot = PeisId::new("robot").expect("name");
+    let executive = f
+        .space
+        .join(
+            PeisId::new("executive").expect("name"),
+            PeisOptions::default(),
+        )
+        .expect("joins");
+    let asked_at = f.clock.now();
+    for (k, v) in [
+        ("l1.params", "(laser robot l1)"),
+        ("components.l1.reqState", "on"),
+    ] {
+        executive
+            .set_remote(robot.clone(), key(k), Value::text(v))
+            .await
+            .expect("asks");
+    }
+    // Gone before the host has run once since the requests.
+    executive.leave();
+    let off = f
+        .wait_for("components.l1.reqState", "off", Duration::from_millis(2500))
+        .await;
+    assert_eq!(off.creator, None, "the host wrote it itself");
+    let after = off.ts_write.saturating_duration_since(asked_at);
+    assert!(
+        after >= HostOptions::default().release_after,
+        "released {after:?} after the request, before the grace ran out"
+    );
+    assert_eq!(f.get("l1.params").await.as_deref(), Some(""));
+    f.stop().await;
+}
+
 /// A body that finished (`done`) leaves its component `done` until its params are cleared, which
 /// leaves it `idle` as when a running body is stopped.
 #[tokio::test(start_paused = true)]

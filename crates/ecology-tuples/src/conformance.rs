@@ -60,7 +60,7 @@ macro_rules! conformance_tests {
         $crate::conformance_tests!(@tests $make;
             last_value_per_key, order_per_key, wildcard_subscriptions, late_subscriber_gets_current_values,
             meta_tuple_refollows_pointer, remote_set_is_applied_by_owner, non_owner_cannot_publish,
-            expiry_removes_tuples, presence_join_and_leave, vanished_peis_left_within_lease,
+            expiry_removes_tuples, presence_join_and_leave, presence_of_one_peis, vanished_peis_left_within_lease,
             a_rejoining_peis_starts_a_later_epoch);
     };
     (@tests $make:expr; $($name:ident),*) => {
@@ -638,6 +638,45 @@ pub async fn presence_join_and_leave<H: Harness>(h: &mut H) {
     assert_eq!(
         next_presence(&mut presence, p).await,
         PresenceEvent::Joined(peis("newcomer"))
+    );
+}
+
+/// A subscription to one PEIS's presence sees that PEIS join and leave, and nobody else; made
+/// while it is present, it starts with its `Joined`.
+pub async fn presence_of_one_peis<H: Harness>(h: &mut H) {
+    let watcher = h.join("watcher", PeisOptions::default()).await;
+    let p = h.patience();
+    let mut early = watcher
+        .subscribe_presence_of(peis("target"))
+        .await
+        .expect("subscribe");
+    let bystander = h.join("bystander", PeisOptions::default()).await;
+    let target = h.join("target", PeisOptions::default()).await;
+    // The bystander joined first: had its join reached this subscription, it would come first.
+    assert_eq!(
+        next_presence(&mut early, p).await,
+        PresenceEvent::Joined(peis("target"))
+    );
+    let mut late = watcher
+        .subscribe_presence_of(peis("target"))
+        .await
+        .expect("subscribe");
+    assert_eq!(
+        next_presence(&mut late, p).await,
+        PresenceEvent::Joined(peis("target"))
+    );
+    h.leave(bystander).await;
+    h.leave(target).await;
+    for sub in [&mut early, &mut late] {
+        assert_eq!(
+            next_presence(sub, p).await,
+            PresenceEvent::Left(peis("target"))
+        );
+    }
+    let _again = h.join("target", PeisOptions::default()).await;
+    assert_eq!(
+        next_presence(&mut early, p).await,
+        PresenceEvent::Joined(peis("target"))
     );
 }
 

@@ -44,6 +44,9 @@ struct State {
     peers: BTreeMap<PeisId, Peer>,
     subscribers: Subscribers,
     presence: Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>,
+    /// Subscriptions to one PEIS's presence, by that PEIS: a PEIS host watches only those who
+    /// asked it for something, so with N PEIS a join reaches a few subscribers, not N.
+    presence_of: HashMap<PeisId, Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>>,
     next_subscriber: u64,
 }
 
@@ -292,6 +295,13 @@ impl State {
     fn broadcast_presence(&mut self, event: &PresenceEvent) {
         self.presence
             .retain(|(_, tx)| tx.send(event.clone()).is_ok());
+        let (PresenceEvent::Joined(peis) | PresenceEvent::Left(peis)) = event;
+        if let Some(list) = self.presence_of.get_mut(peis) {
+            list.retain(|(_, tx)| tx.send(event.clone()).is_ok());
+            if list.is_empty() {
+                self.presence_of.remove(peis);
+            }
+        }
     }
 
     /// The peer entry of a live handle: present, same incarnation, not vanished.
@@ -354,17 +364,32 @@ impl Drop for Membership {
 struct SubscriberGuard {
     shared: Weak<Shared>,
     id: u64,
-    presence: bool,
+    kind: Watched,
+}
+
+/// What a subscription watches.
+#[derive(Debug)]
+enum Watched {
+    Tuples,
+    Presence,
+    PresenceOf(PeisId),
 }
 
 impl Drop for SubscriberGuard {
     fn drop(&mut self) {
         if let Some(shared) = self.shared.upgrade() {
             let mut state = shared.lock();
-            if self.presence {
-                state.presence.retain(|(id, _)| *id != self.id);
-            } else {
-                state.subscribers.remove(self.id);
+            match &self.kind {
+                Watched::Tuples => state.subscribers.remove(self.id),
+                Watched::Presence => state.presence.retain(|(id, _)| *id != self.id),
+                Watched::PresenceOf(peis) => {
+                    if let Some(list) = state.presence_of.get_mut(peis) {
+                        list.retain(|(id, _)| *id != self.id);
+                        if list.is_empty() {
+                            state.presence_of.remove(peis);
+                        }
+                    }
+                }
             }
         }
     }
@@ -496,7 +521,7 @@ impl TupleSpace for InProcessPeis {
         let guard = SubscriberGuard {
             shared: Arc::downgrade(&self.shared),
             id,
-            presence: false,
+            kind: Watched::Tuples,
         };
         Ok(Subscription::from_channel(rx, guard))
     }
@@ -568,7 +593,32 @@ impl TupleSpace for InProcessPeis {
         let guard = SubscriberGuard {
             shared: Arc::downgrade(&self.shared),
             id,
-            presence: true,
+            kind: Watched::Presence,
+        };
+        Ok(PresenceSubscription::from_channel(rx, guard))
+    }
+
+    async fn subscribe_presence_of(
+        &self,
+        peis: PeisId,
+    ) -> Result<PresenceSubscription, TupleError> {
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        let (tx, rx) = mpsc::unbounded_channel();
+        if state.peers.contains_key(&peis) {
+            let _ = tx.send(PresenceEvent::Joined(peis.clone()));
+        }
+        let id = state.next_subscriber;
+        state.next_subscriber += 1;
+        state
+            .presence_of
+            .entry(peis.clone())
+            .or_default()
+            .push((id, tx));
+        let guard = SubscriberGuard {
+            shared: Arc::downgrade(&self.shared),
+            id,
+            kind: Watched::PresenceOf(peis),
         };
         Ok(PresenceSubscription::from_channel(rx, guard))
     }

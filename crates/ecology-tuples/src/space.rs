@@ -63,6 +63,15 @@ pub trait TupleSpace: Clone + Send + Sync + 'static {
         &self,
     ) -> impl Future<Output = Result<PresenceSubscription, TupleError>> + Send;
 
+    /// Subscribes to the presence of one PEIS, `peis`: `Joined` if it is present now, then its
+    /// joins and leaves. No event says that it is absent now: a watcher that needs to know gives
+    /// it a deadline to be seen by. Costs the ecology only what that PEIS does, where
+    /// [`TupleSpace::subscribe_presence`] hears every join and leave of every PEIS.
+    fn subscribe_presence_of(
+        &self,
+        peis: PeisId,
+    ) -> impl Future<Output = Result<PresenceSubscription, TupleError>> + Send;
+
     /// Sets this PEIS's tuple `key` to the meta-tuple value `(meta OWNER KEY)` pointing at `target`.
     fn set_meta(
         &self,

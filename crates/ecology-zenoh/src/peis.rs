@@ -899,30 +899,41 @@ impl TupleSpace for ZenohPeis {
     }
 
     async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
-        let core = &self.inner.core;
-        let (tx, rx) = mpsc::unbounded_channel();
-        let presence = Arc::new(Mutex::new(Presence {
-            present: BTreeSet::new(),
-            events: tx,
-        }));
-        let live = presence.clone();
-        let subscriber = core
-            .session
-            .liveliness()
-            .declare_subscriber(wire::ALL_ALIVE)
-            .history(true)
-            .callback(move |sample| {
-                if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
-                    lock(&live).observe(id, sample.kind() == SampleKind::Put);
-                }
-            })
-            .await
-            .map_err(transport("subscribe to presence"))?;
-        // Tokens already known are delivered as history; asking once more covers a token whose link
-        // forms while the subscriber is being declared. `Presence` drops repeats.
-        reconcile_presence(core, &presence).await?;
-        Ok(PresenceSubscription::from_channel(rx, subscriber))
+        subscribe_alive(&self.inner.core, wire::ALL_ALIVE).await
     }
+
+    async fn subscribe_presence_of(
+        &self,
+        peis: PeisId,
+    ) -> Result<PresenceSubscription, TupleError> {
+        subscribe_alive(&self.inner.core, &wire::alive_key_expr(&peis)).await
+    }
+}
+
+/// A presence subscription to the liveliness tokens matching `key_expr`: every PEIS's, or one's.
+async fn subscribe_alive(core: &Core, key_expr: &str) -> Result<PresenceSubscription, TupleError> {
+    let (tx, rx) = mpsc::unbounded_channel();
+    let presence = Arc::new(Mutex::new(Presence {
+        present: BTreeSet::new(),
+        events: tx,
+    }));
+    let live = presence.clone();
+    let subscriber = core
+        .session
+        .liveliness()
+        .declare_subscriber(key_expr)
+        .history(true)
+        .callback(move |sample| {
+            if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
+                lock(&live).observe(id, sample.kind() == SampleKind::Put);
+            }
+        })
+        .await
+        .map_err(transport("subscribe to presence"))?;
+    // Tokens already known are delivered as history; asking once more covers a token whose link
+    // forms while the subscriber is being declared. `Presence` drops repeats.
+    reconcile_presence(core, key_expr, &presence).await?;
+    Ok(PresenceSubscription::from_channel(rx, subscriber))
 }
 
 /// Who a presence subscription has reported present; turns token samples into join and leave events once each.
@@ -944,9 +955,13 @@ impl Presence {
     }
 }
 
-/// Asks for every liveliness token and reports PEIS not yet seen as joined.
-async fn reconcile_presence(core: &Core, presence: &Mutex<Presence>) -> Result<(), TupleError> {
-    let alive = alive_peis(core).await?;
+/// Asks for the liveliness tokens matching `key_expr` and reports PEIS not yet seen as joined.
+async fn reconcile_presence(
+    core: &Core,
+    key_expr: &str,
+    presence: &Mutex<Presence>,
+) -> Result<(), TupleError> {
+    let alive = alive_matching(core, key_expr).await?;
     // Only joins are reconciled: a reply missing from a slow query must not read as a PEIS lost;
     // departures arrive as token deletions (or when the transport lease runs out).
     let mut presence = lock(presence);
