@@ -50,6 +50,13 @@ async fn start(components: Vec<ComponentSpec<InProcessPeis>>) -> Fixture {
 const STEP: Duration = Duration::from_millis(10);
 
 impl Fixture {
+    /// Joins PEIS `name` to the fixture's ecology.
+    fn join(&self, name: &str) -> InProcessPeis {
+        self.space
+            .join(PeisId::new(name).expect("name"), PeisOptions::default())
+            .expect("joins")
+    }
+
     /// Lets virtual time pass a `STEP` at a time until robot's `k` reads `want`, failing once
     /// `within` of virtual time has passed; returns that tuple. The tests run on tokio's paused
     /// clock (`start_paused`), which moves on (ending the step's sleep) only when no task can run:
@@ -320,13 +327,7 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     ])
     .await;
     let robot = PeisId::new("robot").expect("name");
-    let executive = f
-        .space
-        .join(
-            PeisId::new("executive").expect("name"),
-            PeisOptions::default(),
-        )
-        .expect("joins");
+    let executive = f.join("executive");
     for c in ["l1", "l2"] {
         let params = executive
             .set_remote(
@@ -395,13 +396,7 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
     assert_eq!(f.get("l3.status").await.as_deref(), Some("running"));
 
     // A PEIS that leaves and comes back within the grace keeps what it asked for.
-    let executive = f
-        .space
-        .join(
-            PeisId::new("executive").expect("name"),
-            PeisOptions::default(),
-        )
-        .expect("joins again");
+    let executive = f.join("executive");
     executive
         .set_remote(
             robot.clone(),
@@ -414,13 +409,7 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
         .await;
     executive.leave();
     f.clock.advance(Duration::from_millis(500));
-    let _back = f
-        .space
-        .join(
-            PeisId::new("executive").expect("name"),
-            PeisOptions::default(),
-        )
-        .expect("back");
+    let _back = f.join("executive");
     let mut passed = Duration::ZERO;
     while passed < Duration::from_secs(3) {
         tokio::time::sleep(STEP).await;
@@ -440,13 +429,7 @@ async fn a_host_puts_back_what_a_gone_peis_asked_for() {
 async fn a_host_puts_back_what_a_peis_gone_before_it_was_watched_asked_for() {
     let f = start(vec![spec("l1", false, echo())]).await;
     let robot = PeisId::new("robot").expect("name");
-    let executive = f
-        .space
-        .join(
-            PeisId::new("executive").expect("name"),
-            PeisOptions::default(),
-        )
-        .expect("joins");
+    let executive = f.join("executive");
     let asked_at = f.clock.now();
     for (k, v) in [
         ("l1.params", "(laser robot l1)"),
