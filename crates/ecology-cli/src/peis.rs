@@ -11,6 +11,7 @@ use std::time::Duration;
 use clap::Args;
 use ecology_sim::{PeisDef, Scenario, WORLD};
 use ecology_tuples::{KeyPattern, OwnerPattern, PeisId, SystemClock, TuplePattern, TupleSpace};
+use futures_util::StreamExt;
 
 use crate::network::{self, JoinFailure, NetArgs};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
@@ -55,6 +56,10 @@ pub struct WorldArgs {
     pub net: NetArgs,
 }
 
+/// How many PEIS of one process open their Zenoh sessions at once: a thousand handshakes at once
+/// on a small machine outlast the connect timeout, and some PEIS would not join.
+const JOINING_AT_ONCE: usize = 32;
+
 fn say(line: &str) {
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "{line}");
@@ -93,23 +98,52 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
         // Installed before any readiness line, so that no signal is lost.
         let stop = network::stop_signal();
         let (stopping, stopped) = tokio::sync::watch::channel(None::<&'static str>);
-        // Every PEIS joins at once: each join waits for the mesh to settle.
-        let joined = futures_util::future::join_all(
-            ids.iter().map(|id| network::join(id.clone(), &args.net)),
-        )
-        .await;
+        tokio::pin!(stop);
+        // Up to JOINING_AT_ONCE PEIS join at a time (each join waits for the mesh to settle, so
+        // not one after the other), in the file's order; a long join says how far it is.
+        let total = ids.len();
+        let mut joining = futures_util::stream::iter(ids)
+            .map(|id| network::join(id, &args.net))
+            .buffered(JOINING_AT_ONCE);
         let mut spaces = Vec::new();
         let mut failure = None;
-        for joined in joined {
-            match joined {
-                Ok(space) => spaces.push(space),
-                Err(e) => failure = failure.or(Some(e)),
+        let mut interrupted = None;
+        // Each second of a long join says how far it is.
+        let mut progress = tokio::time::interval_at(
+            tokio::time::Instant::now() + Duration::from_secs(1),
+            Duration::from_secs(1),
+        );
+        loop {
+            tokio::select! {
+                which = &mut stop => {
+                    interrupted = Some(which);
+                    break;
+                }
+                joined = joining.next() => match joined {
+                    Some(Ok(space)) => spaces.push(space),
+                    Some(Err(e)) => {
+                        failure = Some(e);
+                        break;
+                    }
+                    None => break,
+                },
+                _ = progress.tick() => say(&format!("… {} of {total} PEIS joined", spaces.len())),
             }
         }
-        if let Some(failure) = failure {
+        drop(joining);
+        if failure.is_some() || interrupted.is_some() {
             // Those that joined leave again: nothing is left behind for a PEIS that did not start.
+            let joined = spaces.len();
             futures_util::future::join_all(spaces.into_iter().map(|s| s.close())).await;
-            return Ok(join_failed(failure));
+            if let Some(failure) = failure {
+                return Ok(join_failed(failure));
+            }
+            if let Some(which) = interrupted {
+                say(&format!(
+                    "{which} while joining: {joined} of {total} PEIS had joined, and left again"
+                ));
+            }
+            return Ok(EXIT_OK);
         }
         let mut hosts = tokio::task::JoinSet::new();
         for (def, space) in chosen.into_iter().zip(spaces) {
@@ -150,7 +184,6 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             say(&format!("{} PEIS ready", hosts.len()));
         }
         let mut code = EXIT_OK;
-        tokio::pin!(stop);
         let mut signalled = false;
         loop {
             tokio::select! {

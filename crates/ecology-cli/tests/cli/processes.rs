@@ -539,6 +539,37 @@ fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
     assert_eq!(off, 2, "{transcript}");
 }
 
+/// A process of several PEIS that cannot join yet (nothing listens where it connects) says each
+/// second how many have joined, and stops at once when told to, leaving nothing behind.
+#[test]
+fn a_peis_process_stopped_while_joining_exits_at_once() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("joining", &[TO_BEDROOM], Variant::Paper);
+    let scenario = fixture.scenario();
+    let nobody = free_endpoint();
+    let mut hosts = Proc::start(
+        "hosts",
+        &["peis", &scenario, "--all", "--connect", &nobody, "--client"],
+    );
+    let progress = hosts.wait_for("progress", |l| l.starts_with("… "));
+    assert!(
+        progress.text.starts_with("… 0 of ") && progress.text.ends_with(" PEIS joined"),
+        "{progress:?}"
+    );
+    hosts.signal(Signal::SIGTERM);
+    let asked = Instant::now();
+    let (code, lines) = hosts.finish();
+    let took = asked.elapsed();
+    assert_eq!(code, Some(0), "{lines:?}");
+    assert!(took < Duration::from_secs(1), "took {took:?} to stop");
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.text.starts_with("SIGTERM while joining: 0 of ")),
+        "{lines:?}"
+    );
+}
+
 #[test]
 fn the_papers_experiment_as_separate_processes() {
     let _one = one_at_a_time();
