@@ -6,11 +6,13 @@
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use clap::Args;
 use ecology_sim::{PeisDef, Scenario, WORLD};
 use ecology_tuples::{KeyPattern, OwnerPattern, PeisId, SystemClock, TuplePattern, TupleSpace};
+use ecology_zenoh::ZenohPeis;
 use futures_util::StreamExt;
 
 use crate::network::{self, JoinFailure, NetArgs};
@@ -60,6 +62,35 @@ pub struct WorldArgs {
 /// on a small machine outlast the connect timeout, and some PEIS would not join.
 const JOINING_AT_ONCE: usize = 32;
 
+/// How often one PEIS of a process of several tries to join when its session cannot be opened
+/// while another PEIS of the process has joined through the same endpoints (so they can be
+/// reached, and the failure was the moment's: a router busy with hundreds of handshakes).
+const JOIN_ATTEMPTS: u32 = 3;
+
+/// Joins the ecology as `id`, trying again as [`JOIN_ATTEMPTS`] says.
+async fn join_retrying(
+    id: PeisId,
+    net: &NetArgs,
+    joined_any: &AtomicBool,
+) -> Result<ZenohPeis, JoinFailure> {
+    let mut attempt = 1;
+    loop {
+        match network::join(id.clone(), net).await {
+            Ok(space) => {
+                joined_any.store(true, Ordering::Relaxed);
+                return Ok(space);
+            }
+            Err(JoinFailure::Other(e))
+                if attempt < JOIN_ATTEMPTS && joined_any.load(Ordering::Relaxed) =>
+            {
+                say(&format!("{id}: could not join ({e:#}); trying again"));
+                attempt += 1;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
 fn say(line: &str) {
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "{line}");
@@ -102,8 +133,9 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
         // Up to JOINING_AT_ONCE PEIS join at a time (each join waits for the mesh to settle, so
         // not one after the other), in the file's order; a long join says how far it is.
         let total = ids.len();
+        let joined_any = AtomicBool::new(false);
         let mut joining = futures_util::stream::iter(ids)
-            .map(|id| network::join(id, &args.net))
+            .map(|id| join_retrying(id, &args.net, &joined_any))
             .buffered(JOINING_AT_ONCE);
         let mut spaces = Vec::new();
         let mut failure = None;
