@@ -132,12 +132,9 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
         goal: &goal,
         exclusions: &args.exclude,
     };
+    let limit = args.limit.unwrap_or(ALL_LIMIT);
     let options = Options {
-        count: if args.all {
-            args.limit.unwrap_or(ALL_LIMIT)
-        } else {
-            1
-        },
+        count: if args.all { limit } else { 1 },
         budget: Budget {
             max_expansions: args.max_nodes,
             max_time: args.max_millis.map(Duration::from_millis),
@@ -171,7 +168,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
         let value = if args.all {
             json!({
                 "configurations": outcome.configurations.iter().map(|c| config_json(c, &outcome)).collect::<Vec<_>>(),
-                "limit": args.limit.unwrap_or(ALL_LIMIT),
+                "limit": limit,
                 "lower_bound": outcome.lower_bound,
                 "stats": stats_json(&outcome),
             })

@@ -131,51 +131,44 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
         let (stopping, stopped) = tokio::sync::watch::channel(None::<&'static str>);
         tokio::pin!(stop);
         // Up to JOINING_AT_ONCE PEIS join at a time (each join waits for the mesh to settle, so
-        // not one after the other), in the file's order; a long join says how far it is.
+        // not one after the other), in the file's order.
         let total = ids.len();
         let joined_any = AtomicBool::new(false);
         let mut joining = futures_util::stream::iter(ids)
             .map(|id| join_retrying(id, &args.net, &joined_any))
             .buffered(JOINING_AT_ONCE);
         let mut spaces = Vec::new();
-        let mut failure = None;
-        let mut interrupted = None;
         // Each second of a long join says how far it is.
         let mut progress = tokio::time::interval_at(
             tokio::time::Instant::now() + Duration::from_secs(1),
             Duration::from_secs(1),
         );
-        loop {
+        // Why joining ended before every PEIS joined: a signal, or a PEIS that could not join.
+        let cut_short = loop {
             tokio::select! {
-                which = &mut stop => {
-                    interrupted = Some(which);
-                    break;
-                }
+                which = &mut stop => break Some(Ok(which)),
                 joined = joining.next() => match joined {
                     Some(Ok(space)) => spaces.push(space),
-                    Some(Err(e)) => {
-                        failure = Some(e);
-                        break;
-                    }
-                    None => break,
+                    Some(Err(failure)) => break Some(Err(failure)),
+                    None => break None,
                 },
                 _ = progress.tick() => say(&format!("… {} of {total} PEIS joined", spaces.len())),
             }
-        }
+        };
         drop(joining);
-        if failure.is_some() || interrupted.is_some() {
+        if let Some(why) = cut_short {
             // Those that joined leave again: nothing is left behind for a PEIS that did not start.
             let joined = spaces.len();
             futures_util::future::join_all(spaces.into_iter().map(|s| s.close())).await;
-            if let Some(failure) = failure {
-                return Ok(join_failed(failure));
-            }
-            if let Some(which) = interrupted {
-                say(&format!(
-                    "{which} while joining: {joined} of {total} PEIS had joined, and left again"
-                ));
-            }
-            return Ok(EXIT_OK);
+            return Ok(match why {
+                Ok(which) => {
+                    say(&format!(
+                        "{which} while joining: {joined} of {total} PEIS had joined, and left again"
+                    ));
+                    EXIT_OK
+                }
+                Err(failure) => join_failed(failure),
+            });
         }
         let mut hosts = tokio::task::JoinSet::new();
         for (def, space) in chosen.into_iter().zip(spaces) {

@@ -447,8 +447,7 @@ impl<'a> Search<'a> {
         let excluded = excluded(&mut compiled, request.exclusions);
         let cut = compiled.cut || over();
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
-        let mut engine = Engine::new(ctx, callee, &args, cut, &|| over());
-        engine.share_repeats = options.count <= 1;
+        let mut engine = Engine::new(ctx, callee, &args, cut, options.count <= 1, &|| over());
         let shared = if engine.graph.cut || over() {
             engine.graph.cut = true;
             None

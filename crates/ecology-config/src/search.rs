@@ -143,18 +143,20 @@ pub(crate) struct Engine<'a> {
     /// Whether repeated task occurrences may share subtrees (see
     /// `Engine::shares`): when looking for the cheapest configuration only,
     /// so that a list of several keeps every admissible one.
-    pub(crate) share_repeats: bool,
+    share_repeats: bool,
 }
 
 impl<'a> Engine<'a> {
     /// Grounds the goal, asking `over` now and then whether the budget ran
     /// out (then `graph.cut` is set and the engine must not be searched;
-    /// `cut` says it already has).
+    /// `cut` says it already has). `share_repeats`: looking for the cheapest
+    /// configuration only (see `Engine::shares`).
     pub(crate) fn new(
         ctx: Ctx<'a>,
         goal: Callee,
         args: &[Sym],
         cut: bool,
+        share_repeats: bool,
         over: &dyn Fn() -> bool,
     ) -> Engine<'a> {
         // Already cut (while reading the state): only the goal's item, empty.
@@ -175,7 +177,7 @@ impl<'a> Engine<'a> {
             generated: 0,
             rejections: Vec::new(),
             incumbent: None,
-            share_repeats: false,
+            share_repeats,
         };
         let lb = engine.graph.item(root).lb;
         if lb != INFEASIBLE && !engine.graph.cut {
