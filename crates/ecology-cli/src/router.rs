@@ -16,6 +16,11 @@ pub struct RouterArgs {
     /// The router's name in the roster, with --keys (a member with the router role).
     #[arg(long, default_value = "router", value_name = "NAME")]
     pub name: String,
+    /// How many sessions (PEIS, other routers) it holds at once; past that, a PEIS that connects
+    /// is refused until one leaves.
+    #[arg(long, value_name = "N", default_value_t = ecology_zenoh::DEFAULT_MAX_SESSIONS as u32,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_sessions: u32,
     #[command(flatten)]
     pub net: NetArgs,
 }
@@ -31,6 +36,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
         connect: args.net.connect.clone(),
         multicast_scouting: args.net.multicast,
         zenoh_config: args.net.zenoh_config.clone(),
+        max_sessions: args.max_sessions as usize,
         ..RouterOptions::default()
     };
     if let Some(lease) = args.net.lease {
@@ -53,6 +59,12 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
                 let mut out = std::io::stdout().lock();
                 let _ = writeln!(out, "router ready: zenoh id {zid}; {describe}");
                 let _ = out.flush();
+            },
+            |max| {
+                eprintln!(
+                    "warning: the router holds {max} sessions, the most it takes (--max-sessions): \
+                     a PEIS that connects now is refused until one leaves"
+                );
             },
             async {
                 let which = stop.await;

@@ -15,7 +15,7 @@ pub mod wire;
 
 pub use config::{Mode, Security, ZenohOptions};
 pub use peis::ZenohPeis;
-pub use router::{RouterOptions, run_router};
+pub use router::{DEFAULT_MAX_SESSIONS, RouterOptions, run_router};
 
 use ecology_tuples::TupleError;
 

@@ -58,6 +58,10 @@ struct Core {
     expiry_changed: Notify,
     malformed: Arc<AtomicU64>,
     query_timeout: Duration,
+    /// Whether a PEIS can be seen present before it can be asked (peers, which link through
+    /// gossip): then one that answers nothing is asked again. Through a router, a PEIS declares
+    /// its queryables before its token, so its first answer is all it has.
+    answers_lag_presence: bool,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
     route_hints: Arc<RouteHints>,
 }
@@ -243,6 +247,7 @@ impl ZenohPeis {
             expiry_changed: Notify::new(),
             malformed: Arc::new(AtomicU64::new(0)),
             query_timeout: options.query_timeout,
+            answers_lag_presence: options.mode == Mode::Peer,
             token: Mutex::new(Some(token)),
             route_hints: Arc::new(RouteHints {
                 requested: Mutex::new(HashSet::new()),
@@ -297,6 +302,15 @@ impl ZenohPeis {
 
 /// Every tuple matching `pattern`, asked of the PEIS that own them.
 async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
+    Ok(query_tuples_answered(core, pattern).await?.0)
+}
+
+/// [`query_tuples`], and whether every PEIS asked answered in full: false when an answer came
+/// back as an error, as a query that timed out does.
+async fn query_tuples_answered(
+    core: &Core,
+    pattern: &TuplePattern,
+) -> Result<(Vec<Tuple>, bool), TupleError> {
     let replies = core
         .session
         .get(wire::pattern_key_expr(pattern))
@@ -306,46 +320,74 @@ async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>,
         .map_err(transport("get"))?;
     let mut tuples = Vec::new();
     let mut recent = Recent::default();
+    let mut answered = true;
     while let Ok(reply) = replies.recv_async().await {
-        if let Ok(sample) = reply.result() {
-            match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
-                Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => tuples.push(t),
-                Ok(_) => {}
-                Err(_) => {
-                    core.malformed.fetch_add(1, Ordering::Relaxed);
-                }
+        let Ok(sample) = reply.result() else {
+            answered = false;
+            continue;
+        };
+        match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
+            Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => tuples.push(t),
+            Ok(_) => {}
+            Err(_) => {
+                core.malformed.fetch_add(1, Ordering::Relaxed);
             }
         }
     }
     tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
     tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
-    Ok(tuples)
+    Ok((tuples, answered))
 }
 
-/// The declared Zenoh publisher of each tuple this PEIS has published and not removed.
+/// How each tuple this PEIS has published and not removed goes out: its first value by a plain
+/// put, every later one through a declared Zenoh publisher.
 ///
-/// A declared publisher resolves its key expression and its route once; a put on a plain key
-/// expression string validates the string and computes the route again every time.
+/// A declared publisher resolves its key expression and its route once, and a publisher nobody
+/// subscribes to sends nothing (Zenoh's writer-side filtering); a put on a plain key expression
+/// string validates the string and has its route computed again every time. But each publisher
+/// declares an interest to the router, and a router checks every subscriber declared after it
+/// against every interest of every client: a thousand PEIS in one ecology, each with a publisher for
+/// every tuple it had ever written (most of them written once, as a component's type and cost
+/// are), cost their router about as much work again after they joined as all the rest. So only a
+/// tuple written again gets a publisher.
 #[derive(Default)]
-struct Publishers(HashMap<Key, Publisher<'static>>);
+struct Publishers(HashMap<Key, Option<Publisher<'static>>>);
+
+/// The way the next value of one tuple goes out.
+enum Route<'a> {
+    /// The tuple's own publisher.
+    Declared(&'a Publisher<'static>),
+    /// A plain put on this key expression: the tuple's first value.
+    First(KeyExpr<'static>),
+}
 
 impl Publishers {
-    fn get_or_declare(
+    fn route(
         &mut self,
         session: &zenoh::Session,
         owner: &PeisId,
         key: &Key,
-    ) -> Result<&Publisher<'static>, TupleError> {
+    ) -> Result<Route<'_>, TupleError> {
         use std::collections::hash_map::Entry;
+        let key_expr =
+            || KeyExpr::try_from(wire::tuple_key_expr(owner, key)).map_err(transport("put"));
         match self.0.entry(key.clone()) {
-            Entry::Occupied(e) => Ok(e.into_mut()),
+            Entry::Occupied(e) => {
+                let slot = e.into_mut();
+                if slot.is_none() {
+                    let publisher = session
+                        .declare_publisher(key_expr()?)
+                        .congestion_control(CongestionControl::Block)
+                        .wait()
+                        .map_err(transport("put"))?;
+                    *slot = Some(publisher);
+                }
+                Ok(Route::Declared(slot.as_ref().expect("declared above")))
+            }
             Entry::Vacant(e) => {
-                let publisher = session
-                    .declare_publisher(wire::tuple_key_expr(owner, key))
-                    .congestion_control(CongestionControl::Block)
-                    .wait()
-                    .map_err(transport("put"))?;
-                Ok(e.insert(publisher))
+                let key_expr = key_expr()?;
+                e.insert(None);
+                Ok(Route::First(key_expr))
             }
         }
     }
@@ -354,17 +396,26 @@ impl Publishers {
 /// Publishes `value` as this PEIS's tuple `key`: the one path for local sets, remote sets applied, and expiry.
 fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
     let mut publishers = lock(&core.publishers);
-    // Declared before the store changes, so a failure leaves neither a new tuple nor a used seq.
-    let publisher = publishers.get_or_declare(&core.session, &core.me, &key)?;
+    // Resolved before the store changes, so a failure leaves neither a new tuple nor a used seq.
+    let route = publishers.route(&core.session, &core.me, &key)?;
     let tuple = lock(&core.store).set(key, value, core.clock.now());
     if tuple.expiry.is_some() {
         core.expiry_changed.notify_one();
     }
-    publisher
-        .put(tuple.data.clone())
-        .attachment(Metadata::of_tuple(&tuple).encode())
-        .wait()
-        .map_err(transport("put"))?;
+    let attachment = Metadata::of_tuple(&tuple).encode();
+    match route {
+        Route::Declared(publisher) => publisher
+            .put(tuple.data.clone())
+            .attachment(attachment)
+            .wait(),
+        Route::First(key_expr) => core
+            .session
+            .put(key_expr, tuple.data.clone())
+            .attachment(attachment)
+            .congestion_control(CongestionControl::Block)
+            .wait(),
+    }
+    .map_err(transport("put"))?;
     Ok(tuple)
 }
 
@@ -389,7 +440,7 @@ fn publish_removal(
             *reason == RemovalReason::Expired,
         );
         // The publisher goes with the tuple, so the cache holds only live tuples.
-        let result = match publishers.0.remove(key) {
+        let result = match publishers.0.remove(key).flatten() {
             Some(publisher) => publisher.delete().attachment(meta.encode()).wait(),
             None => core
                 .session
@@ -761,6 +812,19 @@ impl TupleSpace for ZenohPeis {
             })
             .await
             .map_err(transport("subscribe"))?;
+        if pattern.owner == ecology_tuples::OwnerPattern::Exact(core.me.clone()) {
+            // Only this PEIS writes its tuples: their current values are in its own store, and
+            // no other PEIS need be watched or asked. (Asking the ecology cost each such
+            // subscription two queries and a presence watch through the router: a PEIS host
+            // subscribes to three sets of its own tuples at start, so a thousand PEIS put six
+            // thousand queries on their router.)
+            let snapshot = lock(&core.store)
+                .matching(&pattern.key, core.clock.now())
+                .cloned()
+                .collect();
+            lock(&merge).finish_snapshot(snapshot);
+            return Ok(Subscription::from_channel(rx, subscriber));
+        }
         // Peers do not relay, and they meet through gossip: a PEIS that links
         // to this one after the snapshot has tuples that will never arrive as
         // changes. Each PEIS that appears is asked for its matching tuples.
@@ -818,8 +882,11 @@ impl TupleSpace for ZenohPeis {
                         owner: ecology_tuples::OwnerPattern::Exact(id.clone()),
                         key: key.clone(),
                     };
-                    match query_tuples(&core, &theirs).await {
-                        Ok(tuples) if !tuples.is_empty() => lock(&merge).catch_up(tuples),
+                    match query_tuples_answered(&core, &theirs).await {
+                        Ok((tuples, _)) if !tuples.is_empty() => lock(&merge).catch_up(tuples),
+                        // Asking each of a thousand PEIS five more times, for each
+                        // subscription to every PEIS, kept their router busy for seconds.
+                        Ok((_, true)) if !core.answers_lag_presence => {}
                         _ if attempt < CATCH_UP_ATTEMPTS => {
                             let at = tokio::time::Instant::now() + CATCH_UP_PAUSE * (attempt + 1);
                             again.push((at, id, attempt + 1));

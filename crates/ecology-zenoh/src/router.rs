@@ -6,9 +6,11 @@
 
 use std::future::Future;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use serde_json::json;
+use zenoh::sample::SampleKind;
 
 use crate::ZenohError;
 use crate::config::{Security, base_config, in_order, insert, millis, secure};
@@ -28,7 +30,13 @@ pub struct RouterOptions {
     pub lease: Duration,
     /// Open, or authenticated as a member with the router role.
     pub security: Security,
+    /// How many sessions (PEIS, other routers) it holds at once; past that it refuses new ones.
+    pub max_sessions: usize,
 }
+
+/// [`RouterOptions::max_sessions`] by default: room for a building of PEIS, each its own session
+/// (Zenoh's own default, 1,000, refused the executive of a home of a thousand PEIS).
+pub const DEFAULT_MAX_SESSIONS: usize = 10_000;
 
 impl Default for RouterOptions {
     fn default() -> Self {
@@ -39,15 +47,19 @@ impl Default for RouterOptions {
             zenoh_config: None,
             lease: Duration::from_secs(2),
             security: Security::Open,
+            max_sessions: DEFAULT_MAX_SESSIONS,
         }
     }
 }
 
 /// Runs a Zenoh router until `shutdown` completes. `ready` is called once it
-/// listens, with its Zenoh id.
+/// listens, with its Zenoh id; `full` each time it comes to hold
+/// [`RouterOptions::max_sessions`] sessions, with that number: from then on, until one leaves,
+/// a PEIS that connects is refused (and sees only that it could not connect).
 pub async fn run_router(
     options: RouterOptions,
     ready: impl FnOnce(String),
+    full: impl Fn(usize) + Send + Sync + 'static,
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), ZenohError> {
     let mut config = base_config(options.zenoh_config.as_deref())?;
@@ -65,6 +77,11 @@ pub async fn run_router(
         json!(options.multicast_scouting),
     )?;
     insert(c, "transport/link/tx/lease", millis(options.lease))?;
+    insert(
+        c,
+        "transport/unicast/max_sessions",
+        json!(options.max_sessions),
+    )?;
     secure(
         c,
         &options.security,
@@ -73,6 +90,28 @@ pub async fn run_router(
     let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
         message: e.to_string(),
     })?;
+    let max = options.max_sessions;
+    let held = AtomicUsize::new(0);
+    let _sessions = session
+        .info()
+        .transport_events_listener()
+        .history(true)
+        .callback(move |event| {
+            if event.transport().is_multicast() {
+                return;
+            }
+            if event.kind() == SampleKind::Put {
+                if held.fetch_add(1, Ordering::Relaxed) + 1 == max {
+                    full(max);
+                }
+            } else {
+                held.fetch_sub(1, Ordering::Relaxed);
+            }
+        })
+        .await
+        .map_err(|e| ZenohError::Open {
+            message: e.to_string(),
+        })?;
     ready(session.zid().to_string());
     shutdown.await;
     let _ = session.close().await;

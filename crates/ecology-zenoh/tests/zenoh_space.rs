@@ -1035,3 +1035,132 @@ async fn an_outsider_without_a_certificate_cannot_join() {
     }
     hsm.close().await;
 }
+
+/// A router on a free endpoint, run until the returned sender is dropped or fires; `full` is
+/// told each time it holds `max_sessions`.
+fn start_router(
+    max_sessions: usize,
+    full: impl Fn(usize) + Send + Sync + 'static,
+) -> (String, tokio::sync::oneshot::Sender<()>) {
+    let endpoint = free_endpoint();
+    let options = ecology_zenoh::RouterOptions {
+        listen: vec![endpoint.clone()],
+        max_sessions,
+        ..ecology_zenoh::RouterOptions::default()
+    };
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    tokio::spawn(ecology_zenoh::run_router(options, |_| {}, full, async {
+        let _ = stopped.await;
+    }));
+    (endpoint, stop)
+}
+
+/// A raw Zenoh client of the router at `endpoint`, giving up connecting after `timeout`.
+async fn stock_router_client(endpoint: &str, timeout: Duration) -> zenoh::Result<zenoh::Session> {
+    let mut config = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"client\"".to_owned()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        ("connect/timeout_ms", timeout.as_millis().to_string()),
+        ("connect/exit_on_failure", "true".to_owned()),
+        ("scouting/multicast/enabled", "false".to_owned()),
+    ] {
+        config.insert_json5(key, &value).expect("config");
+    }
+    zenoh::open(config).await
+}
+
+/// A PEIS that is a client of the router at `endpoint`.
+async fn router_client_peis(name: &str, endpoint: &str) -> ZenohPeis {
+    let mut options = ZenohOptions::new(peis(name));
+    options.mode = ecology_zenoh::Mode::Client;
+    options.connect = vec![endpoint.to_owned()];
+    ZenohPeis::open(options).await.expect("open")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_router_says_so_and_takes_a_session_again_once_one_leaves() {
+    let (told, mut full) = tokio::sync::mpsc::unbounded_channel();
+    let (endpoint, _stop) = start_router(2, move |max| {
+        let _ = told.send(max);
+    });
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let first = stock_router_client(&endpoint, PATIENCE)
+        .await
+        .expect("first");
+    let _second = stock_router_client(&endpoint, PATIENCE)
+        .await
+        .expect("second");
+    let max = tokio::time::timeout(PATIENCE, full.recv()).await;
+    assert_eq!(max, Ok(Some(2)), "the router says it is full");
+    assert!(
+        stock_router_client(&endpoint, Duration::from_secs(1))
+            .await
+            .is_err(),
+        "a third session is refused"
+    );
+    first.close().await.expect("close");
+    let third = stock_router_client(&endpoint, PATIENCE).await;
+    assert!(third.is_ok(), "once one left, a session is taken again");
+    let max = tokio::time::timeout(PATIENCE, full.recv()).await;
+    assert_eq!(max, Ok(Some(2)), "full again, it says so again");
+}
+
+/// Through a router, a PEIS asks the ecology only what it cannot know itself: a subscription to
+/// its own tuples is answered from its own store, and a present PEIS that answers nothing is not
+/// asked again (among a thousand PEIS, those queries kept the router busy for seconds). A stock
+/// client counts the queries it is sent for `a`'s tuples and for its own.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let (endpoint, _stop) = start_router(ecology_zenoh::DEFAULT_MAX_SESSIONS, |_| {});
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let spy = stock_router_client(&endpoint, PATIENCE).await.expect("spy");
+    let count = |key_expr: &str| {
+        let asked = Arc::new(AtomicUsize::new(0));
+        let counter = asked.clone();
+        let queryable = spy
+            .declare_queryable(key_expr.to_owned())
+            .callback(move |_query| {
+                counter.fetch_add(1, Ordering::Relaxed);
+            });
+        (asked, queryable)
+    };
+    let (asked_about_a, about_a) = count("peis/a/**");
+    let _about_a = about_a.await.expect("queryable");
+    let (asked_the_spy, of_spy) = count("peis/spy/**");
+    let _of_spy = of_spy.await.expect("queryable");
+    // Present as a PEIS is, its queryables declared before its token.
+    let _token = spy
+        .liveliness()
+        .declare_token("peis/spy/@alive")
+        .await
+        .expect("token");
+    let a = router_client_peis("a", &endpoint).await;
+    a.set(key("x.one"), Value::text("1")).await.expect("set");
+    let mut own = a
+        .subscribe(TuplePattern::parse("a:x.*").expect("pattern"))
+        .await
+        .expect("subscribe");
+    match next_event(&mut own, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!((t.key.as_str(), t.text()), ("x.one", Ok("1"))),
+        other => panic!("unexpected {other:?}"),
+    }
+    assert_eq!(
+        asked_about_a.load(Ordering::Relaxed),
+        0,
+        "its own tuples come from its store"
+    );
+    let _everyone = a
+        .subscribe(TuplePattern::parse("*:y.*").expect("pattern"))
+        .await
+        .expect("subscribe");
+    // A PEIS that answered nothing was asked again up to five times, the last 3 s later.
+    tokio::time::sleep(Duration::from_millis(3500)).await;
+    let asked = asked_the_spy.load(Ordering::Relaxed);
+    assert!(
+        (1..=2).contains(&asked),
+        "the spy, present and silent, is asked once by the snapshot and at most once more: {asked}"
+    );
+    a.close().await;
+}
