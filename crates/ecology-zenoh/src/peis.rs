@@ -60,7 +60,8 @@ struct Core {
     query_timeout: Duration,
     /// Whether a PEIS can be seen present before it can be asked (peers, which link through
     /// gossip): then one that answers nothing is asked again. Through a router, a PEIS declares
-    /// its queryables before its token, so its first answer is all it has.
+    /// its queryables before its token (and a Zenoh client declares them again in that order when
+    /// it reconnects), so its first full answer is all it has.
     answers_lag_presence: bool,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
     route_hints: Arc<RouteHints>,
