@@ -158,6 +158,14 @@ pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure>
         Err(e @ ZenohError::Config { .. }) => Err(JoinFailure::BadConfig(
             anyhow::Error::new(e).context("joining the ecology"),
         )),
+        Err(e @ ZenohError::Open { .. }) if !net.connect.is_empty() => {
+            let context = format!(
+                "joining the ecology (nothing at {} took this session in time: is it up, and if it \
+                 is a router, not full at its --max-sessions?)",
+                net.connect.join(", ")
+            );
+            Err(JoinFailure::Other(anyhow::Error::new(e).context(context)))
+        }
         Err(e) => Err(JoinFailure::Other(
             anyhow::Error::new(e).context("joining the ecology"),
         )),

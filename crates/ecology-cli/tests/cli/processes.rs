@@ -341,6 +341,60 @@ fn a_secured_router_forwards_for_its_members() {
     through_a_router(true);
 }
 
+/// A router holds `--max-sessions` sessions: once full it says so, and refuses the next PEIS.
+#[test]
+fn a_full_router_says_so_and_refuses_the_next_peis() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("full-router", &[TO_BEDROOM], Variant::Paper);
+    let endpoint = free_endpoint();
+    // Its stderr, where the warning goes, read as its stdout.
+    let mut command = Command::new("sh");
+    command.args([
+        "-c",
+        r#"exec "$0" router --listen "$1" --max-sessions 2 2>&1"#,
+        env!("CARGO_BIN_EXE_ecology"),
+        &endpoint,
+    ]);
+    let mut router = Proc::spawn("router", command).ready();
+    let through = ["--client", "--connect", endpoint.as_str()];
+    let scenario = fixture.scenario();
+    let _world = Proc::start(
+        "world",
+        &[&["world", scenario.as_str()][..], &through].concat(),
+    )
+    .ready();
+    let _astrid = Proc::start(
+        "astrid",
+        &[
+            &["peis", scenario.as_str(), "--name", "astrid"][..],
+            &through,
+        ]
+        .concat(),
+    )
+    .ready();
+    router.wait_for("that it is full", |l| {
+        l.starts_with("warning: the router holds 2 sessions, the most it takes (--max-sessions)")
+    });
+    // Its stderr, where the error goes, read as its stdout.
+    let mut command = Command::new("sh");
+    command.args([
+        "-c",
+        r#"exec "$0" peis "$1" --name hsm --client --connect "$2" 2>&1"#,
+        env!("CARGO_BIN_EXE_ecology"),
+        &scenario,
+        &endpoint,
+    ]);
+    let (code, lines) = Proc::spawn("hsm", command).finish();
+    assert_ne!(code, Some(0), "a third session is refused");
+    assert!(
+        lines.iter().any(|l| l.text.contains(&format!(
+            "nothing at {endpoint} took this session in time: is it up, and if it is a router, \
+             not full at its --max-sessions?"
+        ))),
+        "{lines:?}"
+    );
+}
+
 /// `ecology task` on `domain` and `plan` as JSON lines, once the PEIS `wait_for` are present,
 /// with `through` (how it reaches the ecology).
 fn task_args<'a>(
