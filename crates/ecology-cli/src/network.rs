@@ -158,7 +158,9 @@ pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure>
         Err(e @ ZenohError::Config { .. }) => Err(JoinFailure::BadConfig(
             anyhow::Error::new(e).context("joining the ecology"),
         )),
-        Err(e @ ZenohError::Open { .. }) if !net.connect.is_empty() => {
+        // Zenoh's words when no endpoint took the session within the connect timeout.
+        Err(e @ ZenohError::Open { .. }) if matches!(&e, ZenohError::Open { message } if message.contains("Unable to connect")) =>
+        {
             let context = format!(
                 "joining the ecology (nothing at {} took this session in time: is it up, and if it \
                  is a router, not full at its --max-sessions?)",

@@ -72,6 +72,18 @@ pub enum ZenohError {
         /// Zenoh's message.
         message: String,
     },
+    /// Whether another PEIS holds the name could not be told: the presence queries went
+    /// unanswered (a router still busy with many PEIS joining, say).
+    #[error(
+        "could not tell whether the name {name} is free: {message}; a router still taking in \
+         many PEIS joining answers late, so try again shortly"
+    )]
+    NameUnknown {
+        /// The name asked after.
+        name: String,
+        /// What the queries got instead of an answer.
+        message: String,
+    },
     /// The tuple space refused the PEIS (for example, its name is taken).
     #[error(transparent)]
     Space(#[from] TupleError),

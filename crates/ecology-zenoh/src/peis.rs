@@ -200,18 +200,18 @@ impl ZenohPeis {
         if options.mode == Mode::Peer {
             settle_links(&session).await;
         }
-        let already = session
-            .liveliness()
-            .get(wire::alive_key_expr(&me))
-            .timeout(options.query_timeout)
-            .await
-            .map_err(|e| ZenohError::Open {
-                message: e.to_string(),
-            })?;
-        if already.recv_async().await.is_ok() {
+        let taken = match name_taken(&session, &me, options.query_timeout).await {
+            Ok(false) => None,
+            Ok(true) => Some(ZenohError::Space(TupleError::AlreadyPresent(me.clone()))),
+            Err(message) => Some(ZenohError::NameUnknown {
+                name: me.to_string(),
+                message,
+            }),
+        };
+        if let Some(refused) = taken {
             let _ = session.close().await;
             runtime.close().await;
-            return Err(ZenohError::Space(TupleError::AlreadyPresent(me)));
+            return Err(refused);
         }
         let get_queryable = session
             .declare_queryable(format!("{}/{}/**", wire::ROOT, me))
@@ -299,6 +299,68 @@ impl ZenohPeis {
     async fn query_tuples(&self, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
         query_tuples(&self.inner.core, pattern).await
     }
+}
+
+/// How many times a PEIS joining asks whether its name is taken before it gives up.
+const NAME_CHECKS: u32 = 3;
+
+/// What one presence query told of a name.
+#[derive(Debug, PartialEq, Eq)]
+enum NameAnswer {
+    /// A PEIS of that name answered with its token.
+    Taken,
+    /// Every answer came, and none was a token.
+    Free,
+    /// An answer was an error (the query timed out, as it can while a router takes in two
+    /// thousand PEIS joining), and no token came: it tells nothing. It used to be read as "taken".
+    Unanswered(String),
+}
+
+/// The answer of one presence query's replies: a token, or an error's message.
+fn name_answer(replies: impl IntoIterator<Item = Result<(), String>>) -> NameAnswer {
+    let mut answer = NameAnswer::Free;
+    for reply in replies {
+        match reply {
+            Ok(()) => return NameAnswer::Taken,
+            Err(why) => answer = NameAnswer::Unanswered(why),
+        }
+    }
+    answer
+}
+
+/// Whether a PEIS named `me` is present, asked again while the answer is
+/// [`NameAnswer::Unanswered`], up to [`NAME_CHECKS`] times; then the error is what the last got.
+async fn name_taken(
+    session: &zenoh::Session,
+    me: &PeisId,
+    timeout: Duration,
+) -> Result<bool, String> {
+    let mut why = String::new();
+    for _ in 0..NAME_CHECKS {
+        let replies = session
+            .liveliness()
+            .get(wire::alive_key_expr(me))
+            .timeout(timeout)
+            .await
+            .map_err(|e| e.to_string())?;
+        let mut got = Vec::new();
+        while let Ok(reply) = replies.recv_async().await {
+            got.push(
+                reply
+                    .result()
+                    .map(|_| ())
+                    .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+            );
+        }
+        match name_answer(got) {
+            NameAnswer::Taken => return Ok(true),
+            NameAnswer::Free => return Ok(false),
+            NameAnswer::Unanswered(last) => why = last,
+        }
+    }
+    Err(format!(
+        "{NAME_CHECKS} presence queries in a row went unanswered ({why})"
+    ))
 }
 
 /// Every tuple matching `pattern`, asked of the PEIS that own them.
@@ -1062,4 +1124,23 @@ async fn alive_matching(core: &Core, key_expr: &str) -> Result<BTreeSet<PeisId>,
         }
     }
     Ok(alive)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{NameAnswer, name_answer};
+
+    #[test]
+    fn a_name_check_that_timed_out_says_nothing_of_the_name() {
+        let timeout = || Err("Timeout".to_owned());
+        assert_eq!(name_answer([]), NameAnswer::Free);
+        assert_eq!(name_answer([Ok(())]), NameAnswer::Taken);
+        assert_eq!(
+            name_answer([timeout()]),
+            NameAnswer::Unanswered("Timeout".to_owned())
+        );
+        // A token is a token, whatever else came.
+        assert_eq!(name_answer([timeout(), Ok(())]), NameAnswer::Taken);
+        assert_eq!(name_answer([Ok(()), timeout()]), NameAnswer::Taken);
+    }
 }
