@@ -159,7 +159,7 @@ pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure>
             anyhow::Error::new(e).context("joining the ecology"),
         )),
         // Zenoh's words when no endpoint took the session within the connect timeout.
-        Err(e @ ZenohError::Open { .. }) if matches!(&e, ZenohError::Open { message } if message.contains("Unable to connect")) =>
+        Err(e) if matches!(&e, ZenohError::Open { message } if message.contains("Unable to connect")) =>
         {
             let context = format!(
                 "joining the ecology (nothing at {} took this session in time: is it up, and if it \

@@ -296,8 +296,18 @@ impl State {
         self.presence
             .retain(|(_, tx)| tx.send(event.clone()).is_ok());
         let (PresenceEvent::Joined(peis) | PresenceEvent::Left(peis)) = event;
+        self.retain_presence_of(peis, |(_, tx)| tx.send(event.clone()).is_ok());
+    }
+
+    /// Keeps the subscriptions to `peis`'s presence that `keep` says to, and forgets that PEIS
+    /// once none is left.
+    fn retain_presence_of(
+        &mut self,
+        peis: &PeisId,
+        keep: impl FnMut(&(u64, mpsc::UnboundedSender<PresenceEvent>)) -> bool,
+    ) {
         if let Some(list) = self.presence_of.get_mut(peis) {
-            list.retain(|(_, tx)| tx.send(event.clone()).is_ok());
+            list.retain(keep);
             if list.is_empty() {
                 self.presence_of.remove(peis);
             }
@@ -383,12 +393,7 @@ impl Drop for SubscriberGuard {
                 Watched::Tuples => state.subscribers.remove(self.id),
                 Watched::Presence => state.presence.retain(|(id, _)| *id != self.id),
                 Watched::PresenceOf(peis) => {
-                    if let Some(list) = state.presence_of.get_mut(peis) {
-                        list.retain(|(id, _)| *id != self.id);
-                        if list.is_empty() {
-                            state.presence_of.remove(peis);
-                        }
-                    }
+                    state.retain_presence_of(peis, |(id, _)| *id != self.id);
                 }
             }
         }

@@ -316,12 +316,12 @@ enum NameAnswer {
     Unanswered(String),
 }
 
-/// The answer of one presence query's replies: a token, or an error's message.
-fn name_answer(replies: impl IntoIterator<Item = Result<(), String>>) -> NameAnswer {
+/// The answer of one presence query's replies ([`ask_alive`]'s).
+fn name_answer<T>(replies: impl IntoIterator<Item = Result<T, String>>) -> NameAnswer {
     let mut answer = NameAnswer::Free;
     for reply in replies {
         match reply {
-            Ok(()) => return NameAnswer::Taken,
+            Ok(_) => return NameAnswer::Taken,
             Err(why) => answer = NameAnswer::Unanswered(why),
         }
     }
@@ -337,22 +337,10 @@ async fn name_taken(
 ) -> Result<bool, String> {
     let mut why = String::new();
     for _ in 0..NAME_CHECKS {
-        let replies = session
-            .liveliness()
-            .get(wire::alive_key_expr(me))
-            .timeout(timeout)
+        let replies = ask_alive(session, &wire::alive_key_expr(me), timeout)
             .await
             .map_err(|e| e.to_string())?;
-        let mut got = Vec::new();
-        while let Ok(reply) = replies.recv_async().await {
-            got.push(
-                reply
-                    .result()
-                    .map(|_| ())
-                    .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-            );
-        }
-        match name_answer(got) {
+        match name_answer(replies) {
             NameAnswer::Taken => return Ok(true),
             NameAnswer::Free => return Ok(false),
             NameAnswer::Unanswered(last) => why = last,
@@ -1108,22 +1096,34 @@ async fn alive_peis(core: &Core) -> Result<BTreeSet<PeisId>, TupleError> {
 
 /// The PEIS whose liveliness tokens match `key_expr` and answer a query now.
 async fn alive_matching(core: &Core, key_expr: &str) -> Result<BTreeSet<PeisId>, TupleError> {
-    let replies = core
-        .session
-        .liveliness()
-        .get(key_expr)
-        .timeout(core.query_timeout)
+    let replies = ask_alive(&core.session, key_expr, core.query_timeout)
         .await
         .map_err(transport("peers"))?;
-    let mut alive = BTreeSet::new();
+    Ok(replies.into_iter().filter_map(Result::ok).collect())
+}
+
+/// The replies to a liveliness query on `key_expr`: the PEIS of each token, or the message of an
+/// error reply (a query that timed out gets one).
+async fn ask_alive(
+    session: &zenoh::Session,
+    key_expr: &str,
+    timeout: Duration,
+) -> zenoh::Result<Vec<Result<PeisId, String>>> {
+    let replies = session.liveliness().get(key_expr).timeout(timeout).await?;
+    let mut got = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
-        if let Ok(sample) = reply.result()
-            && let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str())
-        {
-            alive.insert(id);
+        match reply.result() {
+            Ok(sample) => {
+                if let Ok(id) = wire::parse_alive_key_expr(sample.key_expr().as_str()) {
+                    got.push(Ok(id));
+                }
+            }
+            Err(e) => got.push(Err(
+                String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()
+            )),
         }
     }
-    Ok(alive)
+    Ok(got)
 }
 
 #[cfg(test)]
@@ -1133,7 +1133,7 @@ mod tests {
     #[test]
     fn a_name_check_that_timed_out_says_nothing_of_the_name() {
         let timeout = || Err("Timeout".to_owned());
-        assert_eq!(name_answer([]), NameAnswer::Free);
+        assert_eq!(name_answer::<()>([]), NameAnswer::Free);
         assert_eq!(name_answer([Ok(())]), NameAnswer::Taken);
         assert_eq!(
             name_answer([timeout()]),
