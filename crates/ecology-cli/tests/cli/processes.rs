@@ -395,6 +395,48 @@ fn a_full_router_says_so_and_refuses_the_next_peis() {
     );
 }
 
+/// The processes that run an ecology keep their memory in small pages: transparent huge pages
+/// made a home of 1,000 PEIS hold a third more memory, and stalled the first plan.
+#[test]
+fn a_router_and_a_peis_run_without_transparent_huge_pages() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("small-pages", &[TO_BEDROOM], Variant::Paper);
+    let endpoint = free_endpoint();
+    let router = Proc::start("router", &["router", "--listen", &endpoint]).ready();
+    let scenario = fixture.scenario();
+    let astrid = Proc::start(
+        "astrid",
+        &[
+            "peis",
+            scenario.as_str(),
+            "--name",
+            "astrid",
+            "--client",
+            "--connect",
+            endpoint.as_str(),
+        ],
+    )
+    .ready();
+    let thp = |proc: &Proc| {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", proc.pid()))
+            .expect("reads the process's status");
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix("THP_enabled:"))
+            .map(|v| v.trim().to_string())
+    };
+    let Some(router_thp) = thp(&router) else {
+        eprintln!("skipped: this kernel does not report THP_enabled in /proc/PID/status");
+        return;
+    };
+    assert_eq!(router_thp, "0", "the router's huge pages are off");
+    assert_eq!(
+        thp(&astrid).as_deref(),
+        Some("0"),
+        "the PEIS's huge pages are off"
+    );
+}
+
 /// `ecology task` on `domain` and `plan` as JSON lines, once the PEIS `wait_for` are present,
 /// with `through` (how it reaches the ecology).
 fn task_args<'a>(
