@@ -64,6 +64,9 @@ pub enum Event {
         key: Key,
         /// Why.
         reason: String,
+        /// No answer came: the owner is gone, or out of reach, or the executive is (its own
+        /// network, or a router, lost); not a refusal. See [`ExecConfig::unanswered_grace`].
+        unanswered: bool,
     },
     /// A PEIS appeared.
     PeisJoined(PeisId),
@@ -119,6 +122,13 @@ pub struct ExecConfig {
     pub loss_window: Duration,
     /// How long to wait for a lost ecology to come back before the task fails.
     pub reconnect_timeout: Duration,
+    /// How long a remote set to a component of the configuration that got no answer waits
+    /// before the component is blamed: long enough for the owner's departure, or the
+    /// executive's loss of the ecology, to show first (a presence lease of 2 s, then the
+    /// loss window). The owner may be gone, and a set the executive sends while it is cut off
+    /// itself, or while the router is down, gets no answer either: neither is the component's
+    /// failure.
+    pub unanswered_grace: Duration,
 }
 
 impl Default for ExecConfig {
@@ -134,6 +144,7 @@ impl Default for ExecConfig {
             },
             loss_window: Duration::from_secs(1),
             reconnect_timeout: Duration::from_secs(30),
+            unanswered_grace: Duration::from_secs(3),
         }
     }
 }
@@ -279,12 +290,25 @@ struct ActionRun {
     deploy_timer: Option<TimerId>,
     action_timer: TimerId,
     waiting: BTreeMap<ComponentKey, TimerId>,
+    /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`]
+    /// and the failure's cause, should they be blamed when it runs out.
+    unanswered: BTreeMap<ComponentKey, (TimerId, String)>,
     done: BTreeSet<ComponentKey>,
     /// Inputs to re-point once their new producer runs (make-before-break):
     /// the producer, and the remote set that wires its consumer.
     deferred: Vec<(ComponentKey, Command)>,
     /// What the configuration reported of the atoms a sensing action reveals.
     observed: BTreeMap<String, bool>,
+}
+
+impl ActionRun {
+    /// Takes the timers of the configuration's components: their waiting grace periods and
+    /// their remote sets that got no answer.
+    fn take_component_timers(&mut self) -> Vec<TimerId> {
+        let waiting = std::mem::take(&mut self.waiting).into_values();
+        let unanswered = std::mem::take(&mut self.unanswered).into_values();
+        waiting.chain(unanswered.map(|(id, _)| id)).collect()
+    }
 }
 
 /// What the executive had written to a component of a PEIS that left: what it
@@ -527,8 +551,13 @@ impl Executive {
                     }
                 }
             }
-            Event::RemoteSetFailed { owner, key, reason } => {
-                self.on_remote_set_failed(owner, key, reason, &mut out);
+            Event::RemoteSetFailed {
+                owner,
+                key,
+                reason,
+                unanswered,
+            } => {
+                self.on_remote_set_failed(owner, key, reason, unanswered, &mut out);
             }
             Event::PeisJoined(peis) => self.on_joined(peis, &mut out),
             Event::PeisLeft(peis) => self.on_left(peis, &mut out),
@@ -707,15 +736,18 @@ impl Executive {
         (switched_off, stopped)
     }
 
-    /// Stops timing the components of the action: its deploy timeout and waiting grace periods.
+    /// Stops timing the components of the action: its deploy timeout, waiting grace periods and
+    /// unanswered remote sets.
     fn stop_component_timers(&mut self, out: &mut Vec<Command>) {
         let Some(run) = &mut self.run else { return };
         if let Some(id) = run.deploy_timer.take() {
             out.push(Command::CancelTimer(id));
         }
-        for (_, id) in std::mem::take(&mut run.waiting) {
-            out.push(Command::CancelTimer(id));
-        }
+        out.extend(
+            run.take_component_timers()
+                .into_iter()
+                .map(Command::CancelTimer),
+        );
     }
 
     /// The window of departures closed: the executive lost the ecology when at least two, and
@@ -888,6 +920,7 @@ impl Executive {
             deploy_timer: None,
             action_timer,
             waiting: BTreeMap::new(),
+            unanswered: BTreeMap::new(),
             done: BTreeSet::new(),
             deferred: Vec::new(),
             observed: BTreeMap::new(),
@@ -1079,9 +1112,12 @@ impl Executive {
         if let Some(old) = run.deploy_timer.take() {
             out.push(Command::CancelTimer(old));
         }
-        for (_, id) in std::mem::take(&mut run.waiting) {
-            out.push(Command::CancelTimer(id));
-        }
+        // What went unanswered before is sent again where the new configuration needs it.
+        out.extend(
+            run.take_component_timers()
+                .into_iter()
+                .map(Command::CancelTimer),
+        );
         run.done = finished.into_iter().collect();
         run.deferred = deferred;
         run.deploy_timer = deploy_timer;
@@ -1280,11 +1316,16 @@ impl Executive {
 
     /// A remote set failed: logged, and when it deployed a component of the
     /// configuration, that component failed (it cannot be switched on or wired).
+    /// A remote set failed. A refusal fails its component (when the configuration uses it) at
+    /// once; a set that got no answer waits [`ExecConfig::unanswered_grace`] first, since the
+    /// owner's departure, or the executive's own loss of the ecology, may be what kept the answer
+    /// away, and each has its own remedy.
     fn on_remote_set_failed(
         &mut self,
         owner: PeisId,
         key: Key,
         reason: String,
+        unanswered: bool,
         out: &mut Vec<Command>,
     ) {
         // `components.C.reqState`, or `C.params` and `C.mi-…`: the component is the first segment.
@@ -1298,11 +1339,29 @@ impl Executive {
         });
         if let Some(component) = component {
             let target = (owner, component);
+            // Whatever the executive believed it wrote there is unknown now, also if its PEIS
+            // left meanwhile: the next configuration that uses it writes it again.
+            self.params.remove(&target);
+            if let Some(orphan) = self.orphans.get_mut(&target) {
+                orphan.params = None;
+            }
             if self.in_current_config(&target) {
-                // Whatever the executive believed it wrote there is unknown now.
-                self.params.remove(&target);
                 let cause = format!("could not set {key}: {reason}");
-                self.failure(vec![target], cause, out);
+                if !unanswered {
+                    self.failure(vec![target], cause, out);
+                } else if !self.is_absent(&target.0)
+                    && self.lost.is_none()
+                    && self
+                        .run
+                        .as_ref()
+                        .is_some_and(|run| !run.unanswered.contains_key(&target))
+                {
+                    // Gone already: its departure failed what it ran.
+                    let timer = self.timer(self.config.unanswered_grace, out);
+                    if let Some(run) = &mut self.run {
+                        run.unanswered.insert(target, (timer, cause));
+                    }
+                }
             }
         }
     }
@@ -1382,6 +1441,24 @@ impl Executive {
                     (starting, cause)
                 };
                 self.failure(late, cause, out);
+            }
+            return;
+        }
+        let held = run
+            .unanswered
+            .iter()
+            .find(|(_, (t, _))| *t == id)
+            .map(|(k, _)| k.clone());
+        if let Some(key) = held
+            && let Some((_, cause)) = run.unanswered.remove(&key)
+        {
+            // Neither gone nor out of reach: the component is to blame after all.
+            if self.is_present(&key.0) {
+                let cause = format!(
+                    "{cause} ({} is still present {:?} later)",
+                    key.0, self.config.unanswered_grace
+                );
+                self.failure(vec![key], cause, out);
             }
             return;
         }
@@ -1513,11 +1590,15 @@ impl Executive {
         } else {
             None
         };
-        let Some(run) = self.run.take() else { return };
+        let Some(mut run) = self.run.take() else {
+            return;
+        };
         out.push(Command::CancelTimer(run.action_timer));
-        for (_, id) in run.waiting {
-            out.push(Command::CancelTimer(id));
-        }
+        out.extend(
+            run.take_component_timers()
+                .into_iter()
+                .map(Command::CancelTimer),
+        );
         // Inputs still waiting for their producer are wired all the same:
         // the next action may keep them.
         out.extend(run.deferred.into_iter().map(|(_, wire)| wire));
@@ -1588,14 +1669,18 @@ impl Executive {
     }
 
     fn fail_action(&mut self, reason: String, out: &mut Vec<Command>) {
-        let Some(run) = self.run.take() else { return };
+        let Some(mut run) = self.run.take() else {
+            return;
+        };
         out.push(Command::CancelTimer(run.action_timer));
         if let Some(id) = run.deploy_timer {
             out.push(Command::CancelTimer(id));
         }
-        for (_, id) in run.waiting {
-            out.push(Command::CancelTimer(id));
-        }
+        out.extend(
+            run.take_component_timers()
+                .into_iter()
+                .map(Command::CancelTimer),
+        );
         self.failed_actions
             .push(self.plan[run.index].action.clone());
         self.record(LogEvent::ActionFailed {

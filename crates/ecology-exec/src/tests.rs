@@ -505,6 +505,7 @@ fn losing_the_ecology() -> (Executive, Vec<Command>) {
             owner: peis("astrid"),
             key: key("tc1.params"),
             reason: "no reply within 2s".to_string(),
+            unanswered: true,
         },
     );
     let lost = exec.handle(
@@ -593,6 +594,7 @@ fn a_failed_remote_set_fails_its_component() {
             owner: peis("hsm"),
             key: key("tr1.params"),
             reason: "remote set of tr1.params is not allowed by hsm".to_string(),
+            unanswered: false,
         },
     );
     let text = timeline(&exec);
@@ -616,9 +618,94 @@ fn a_failed_remote_set_fails_its_component() {
             owner: peis("pippi"),
             key: key("components.ol2.reqState"),
             reason: "pippi cannot be reached".to_string(),
+            unanswered: true,
         },
     );
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
+}
+
+/// A remote set that got no answer, from a PEIS still present: the component is blamed, but
+/// only once the grace has passed without its PEIS leaving or the ecology being lost.
+#[test]
+fn an_unanswered_remote_set_fails_its_component_after_a_grace() {
+    let mut exec = running_first_action();
+    let held = exec.handle(secs(2.0), unanswered("hsm", "tr1.params"));
+    let text = timeline(&exec);
+    assert!(!text.contains("FAILURE"), "blamed at once:\n{text}");
+    assert_eq!(costs(&exec), [(80, false)], "{text}");
+    let grace = ExecConfig::default().unanswered_grace;
+    exec.handle(secs(5.0), Event::Timer(timer_of(&held, grace)));
+    let text = timeline(&exec);
+    assert!(
+        text.contains(
+            "FAILURE hsm:tr1: could not set tr1.params: no answer (hsm is still present 3s later)"
+        ),
+        "{text}"
+    );
+    assert_eq!(costs(&exec), [(80, false), (150, true)], "{text}");
+}
+
+/// The executive cut off while it deploys: its remote sets get no answer, then every PEIS seems
+/// to leave. Nothing is blamed on a component, and the action waits for the ecology instead of
+/// failing for want of a configuration.
+#[test]
+fn unanswered_remote_sets_of_an_executive_cut_off_blame_no_component() {
+    let mut exec = running_first_action();
+    let held = exec.handle(secs(2.0), unanswered("astrid", "tc1.params"));
+    exec.handle(secs(2.1), unanswered("hsm", "ca1.params"));
+    let first = exec.handle(secs(2.5), Event::PeisLeft(peis("hsm")));
+    exec.handle(secs(2.6), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(2.7), Event::PeisLeft(peis("pippi")));
+    let window = ExecConfig::default().loss_window;
+    exec.handle(secs(3.5), Event::Timer(timer_of(&first, window)));
+    // Cancelled at the loss; delivered all the same, it changes nothing.
+    let grace = ExecConfig::default().unanswered_grace;
+    exec.handle(secs(5.0), Event::Timer(timer_of(&held, grace)));
+    let text = timeline(&exec);
+    assert!(text.contains("LOST THE ECOLOGY"), "{text}");
+    assert!(!text.contains("could not set"), "{text}");
+    assert!(!names(&exec).contains(&"action_failed"), "{text}");
+    exec.handle(secs(6.0), Event::PeisJoined(peis("hsm")));
+    let last = exec.handle(secs(6.1), Event::PeisJoined(peis("astrid")));
+    exec.handle(secs(7.1), Event::Timer(timer_of(&last, window)));
+    let text = timeline(&exec);
+    assert!(text.contains("the ecology is back"), "{text}");
+    assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
+}
+
+/// A remote set that failed after its PEIS was taken for gone: what the executive wrote there is
+/// unknown, so once the lost ecology is back it writes it again, and only that.
+#[test]
+fn a_remote_set_that_failed_while_its_peis_was_away_is_written_again_on_its_return() {
+    let mut exec = running_first_action();
+    let first = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    exec.handle(secs(2.1), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(2.2), Event::PeisLeft(peis("pippi")));
+    exec.handle(secs(2.3), unanswered("hsm", "tr1.params"));
+    let window = ExecConfig::default().loss_window;
+    exec.handle(secs(3.0), Event::Timer(timer_of(&first, window)));
+    exec.handle(secs(6.0), Event::PeisJoined(peis("hsm")));
+    exec.handle(secs(6.1), Event::PeisJoined(peis("astrid")));
+    let last = exec.handle(secs(6.2), Event::PeisJoined(peis("pippi")));
+    let resumed = exec.handle(secs(7.2), Event::Timer(timer_of(&last, window)));
+    let text = timeline(&exec);
+    assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
+    let rewritten: Vec<String> = sets_to(&resumed, "hsm")
+        .into_iter()
+        .filter(|(k, _)| k.ends_with(".params"))
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(rewritten, ["tr1.params"], "{text}");
+}
+
+/// An unanswered remote set to `peis`'s tuple `key`.
+fn unanswered(peis_name: &str, key_text: &str) -> Event {
+    Event::RemoteSetFailed {
+        owner: peis(peis_name),
+        key: key(key_text),
+        reason: "no answer".to_string(),
+        unanswered: true,
+    }
 }
 
 #[test]

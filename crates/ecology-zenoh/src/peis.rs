@@ -351,6 +351,10 @@ async fn name_taken(
     ))
 }
 
+/// The payload of the error reply Zenoh gives a query that ran out of time (the asker's session,
+/// or a router that forwarded it): no PEIS wrote it.
+const ZENOH_TIMEOUT: &[u8] = b"Timeout";
+
 /// Every tuple matching `pattern`, asked of the PEIS that own them.
 async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
     Ok(query_tuples_answered(core, pattern).await?.0)
@@ -1000,6 +1004,11 @@ impl TupleSpace for ZenohPeis {
                     })?;
                 let data = Bytes::from(sample.payload().to_bytes().into_owned());
                 Ok(meta.into_tuple(owner, key, data))
+            }
+            // Zenoh's own answer to a query that ran out of time, from this session or a
+            // router on the way: the owner said nothing.
+            Err(err) if &*err.payload().to_bytes() == ZENOH_TIMEOUT => {
+                Err(TupleError::OwnerUnreachable { owner, key })
             }
             Err(err) => Err(TupleError::RemoteSetRefused {
                 owner,

@@ -331,6 +331,45 @@ async fn a_plain_put_is_a_tuple_and_malformed_samples_are_counted() {
     watcher.close().await;
 }
 
+/// An owner that never answers a remote set is out of reach, not refusing: Zenoh's own
+/// "Timeout" error reply is not the owner's reason.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_remote_set_nobody_answers_in_time_is_unanswered_not_refused() {
+    let endpoint = free_endpoint();
+    let mut options = ZenohOptions::new(peis("executive"));
+    options.listen = vec![endpoint.clone()];
+    options.query_timeout = Duration::from_millis(300);
+    let executive = ZenohPeis::open(options).await.expect("open");
+    // A stock client that takes remote sets to "ghost" and keeps them, unanswered.
+    let client = stock_client(&endpoint).await;
+    let held = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let keep = held.clone();
+    let _queryable = client
+        .declare_queryable(wire::remote_set_key_expr(&peis("ghost"), &key("c1.params")))
+        .callback(move |query| keep.lock().expect("lock").push(query))
+        .await
+        .expect("queryable");
+    let mut asked = false;
+    for _ in 0..50 {
+        let result = executive
+            .set_remote(peis("ghost"), key("c1.params"), Value::text("(cam)"))
+            .await;
+        // Until the queryable is known, there is no one to ask at all.
+        if !held.lock().expect("lock").is_empty() {
+            match result {
+                Err(TupleError::OwnerUnreachable { owner, .. }) => assert_eq!(owner, peis("ghost")),
+                other => panic!("a set that timed out reads as {other:?}"),
+            }
+            asked = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(asked, "the stock client's queryable was never asked");
+    client.close().await.expect("close");
+    executive.close().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stock_client_can_get_and_remote_set() {
     let options = PeisOptions {

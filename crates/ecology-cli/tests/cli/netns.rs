@@ -636,6 +636,41 @@ fn an_executive_cut_off_mid_move_waits_for_the_ecology_and_goes_on() {
     home.assert_nothing_left_on();
 }
 
+/// Cut off while it deploys, before any PEIS is seen gone: its remote sets get no answer. That
+/// is not the components' failure: the executive waits until the departures show it lost the
+/// ecology, and goes on with the same configuration once it is back.
+#[test]
+fn an_executive_cut_off_while_it_deploys_blames_no_component_and_goes_on() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("executive-cut-deploying", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("configuration");
+    home.net.cut("executive");
+    std::thread::sleep(Duration::from_secs(3));
+    home.net.heal("executive");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_no_set_blamed(&all);
+    assert_eq!(named(&all, "ecology_lost").len(), 1, "{all:#?}");
+    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// No component failed for a remote set that got no answer.
+fn assert_no_set_blamed(all: &[Value]) {
+    let blamed: Vec<&Value> = named(all, "failure")
+        .into_iter()
+        .filter(|f| {
+            f["cause"]
+                .as_str()
+                .is_some_and(|c| c.starts_with("could not set"))
+        })
+        .collect();
+    assert!(blamed.is_empty(), "{blamed:#?}\n{all:#?}");
+}
+
 #[test]
 fn an_executive_cut_off_for_longer_than_it_waits_fails_saying_so() {
     let _one = one_at_a_time();
@@ -672,6 +707,33 @@ fn a_router_killed_and_restarted_mid_move_loses_nothing() {
     home.start_router();
     let (code, all) = home.finish();
     assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
+    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// The router killed just as the executive deploys: the remote sets find no route. The
+/// executive does not count itself among the PEIS gone, blames no component, and once the
+/// router is back it writes again what never arrived, so the configuration runs.
+#[test]
+fn a_router_killed_while_the_executive_deploys_loses_nothing() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("router-deploying", Topology::Router, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("configuration");
+    home.proc("router").signal(Signal::SIGKILL);
+    let (lost, _) = home.wait_event("ecology_lost");
+    let mut gone = strings(&lost["gone"]);
+    gone.sort();
+    assert_eq!(gone, ["astrid", "hsm", "world"], "{lost}");
+    home.procs.remove("router");
+    home.start_router();
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_no_set_blamed(&all);
     assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
     assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
     assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
