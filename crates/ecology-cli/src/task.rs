@@ -64,6 +64,11 @@ pub struct TaskArgs {
     /// for it instead of blaming them.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
     pub loss_window: f64,
+    /// How long a remote set that got no answer waits before its component is blamed, in
+    /// seconds: the PEIS's departure, or the loss of the ecology, shows first within the PEIS's
+    /// lease and the loss window (raise it with longer leases).
+    #[arg(long, value_name = "SECONDS", default_value_t = 3.0)]
+    pub unanswered_grace: f64,
     /// How long to take in the ecology's tuples before the first action, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.5)]
     pub settle: f64,
@@ -123,6 +128,7 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
         action_timeout: seconds(args.action_timeout, "--action-timeout")?,
         reconnect_timeout: seconds(args.reconnect_timeout, "--reconnect-timeout")?,
         loss_window: seconds(args.loss_window, "--loss-window")?,
+        unanswered_grace: seconds(args.unanswered_grace, "--unanswered-grace")?,
         ..ExecConfig::default()
     };
     let settle = if args.settle == 0.0 {
