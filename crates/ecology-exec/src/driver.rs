@@ -227,9 +227,9 @@ pub async fn drive_until<S: TupleSpace>(
                 }
                 Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
                 event = presence.next() => match event {
-                    // Its own presence is not the ecology's: through a router, the executive
-                    // sees its own token go with the router, and come back with it.
-                    Some(PresenceEvent::Joined(p) | PresenceEvent::Left(p)) if p == *space.peis() => Vec::new(),
+                    // It does not leave its own ecology: through a router, the executive sees
+                    // its own token go with the router (and come back with it).
+                    Some(PresenceEvent::Left(p)) if p == *space.peis() => Vec::new(),
                     Some(PresenceEvent::Joined(p)) => exec.handle(elapsed(&clock), Event::PeisJoined(p)),
                     Some(PresenceEvent::Left(p)) => exec.handle(elapsed(&clock), Event::PeisLeft(p)),
                     None => Vec::new(),
