@@ -325,6 +325,7 @@ struct Orphan {
 #[derive(Debug)]
 struct Departures {
     timer: TimerId,
+    /// Every PEIS that left in the window, those back since included.
     gone: Vec<PeisId>,
     /// How many PEIS were present before the first left.
     present_before: usize,
@@ -635,9 +636,11 @@ impl Executive {
         self.on_peis_gone(&peis, format!("PEIS {peis} left the ecology"), out);
     }
 
-    /// A PEIS joined. While the ecology is lost, returns are counted towards going on;
-    /// otherwise what the executive wrote to it before it left and no longer uses is put back
-    /// (its components were failed when it left, so the configuration has moved on).
+    /// A PEIS joined. While the ecology is lost, returns are counted towards going on; while
+    /// departures are judged, it is dealt with at the judgement (its tuples, which the mirror
+    /// shows as they were before it left, are read again meanwhile); otherwise what the
+    /// executive wrote to it before it left and no longer uses is put back (its components were
+    /// failed when it left, so the configuration has moved on).
     fn on_joined(&mut self, peis: PeisId, out: &mut Vec<Command>) {
         let was_present = self.is_present(&peis);
         self.mirror.joined(&peis);
@@ -648,9 +651,6 @@ impl Executive {
             self.record(LogEvent::PeisJoined {
                 peis: peis.to_string(),
             });
-        }
-        if let Some(departures) = &mut self.departures {
-            departures.gone.retain(|p| *p != peis);
         }
         if let Some(lost) = &mut self.lost {
             if lost.gone.contains(&peis) {
@@ -663,6 +663,13 @@ impl Executive {
                     lost.settle = Some(settle);
                 }
             }
+            return;
+        }
+        if self
+            .departures
+            .as_ref()
+            .is_some_and(|d| d.gone.contains(&peis))
+        {
             return;
         }
         self.reclaim(&peis);
@@ -760,11 +767,8 @@ impl Executive {
         if self.run.is_none() || self.finished {
             return;
         }
-        let gone: BTreeSet<PeisId> = departures
-            .gone
-            .into_iter()
-            .filter(|p| self.is_absent(p))
-            .collect();
+        let (gone, returned): (BTreeSet<PeisId>, BTreeSet<PeisId>) =
+            departures.gone.into_iter().partition(|p| self.is_absent(p));
         if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
             if let Some(run) = &mut self.run {
                 (run.excluded, run.failed) = departures.before;
@@ -785,8 +789,31 @@ impl Executive {
             });
             return;
         }
+        // Those back already were away for less than the window (the executive's own process or
+        // link stalled, say): what their departure took out of the action is allowed again.
+        let (before_excluded, before_failed) = departures.before;
+        if let Some(run) = &mut self.run {
+            let back = |peis: &str| returned.iter().any(|p| p.as_str() == peis);
+            run.excluded.retain(|e| match e {
+                Exclusion::Component { peis, .. } => !back(peis) || before_excluded.contains(e),
+                Exclusion::Peis(peis) => !back(peis) || before_excluded.contains(e),
+            });
+            run.failed
+                .retain(|k| !returned.contains(&k.0) || before_failed.contains(k));
+        }
+        for peis in &returned {
+            self.reclaim(peis);
+        }
         if let Some(reason) = departures.no_configuration {
-            self.fail_action(reason, out);
+            if returned.is_empty() {
+                self.fail_action(reason, out);
+            } else {
+                // Found while they were away: configured again from the ecology as it is now.
+                self.configure(true, out);
+            }
+        }
+        for peis in &returned {
+            self.release_unused(peis, out);
         }
     }
 

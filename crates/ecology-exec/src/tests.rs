@@ -466,12 +466,14 @@ fn timer_of(commands: &[Command], after: Duration) -> TimerId {
 #[test]
 fn a_peis_back_from_a_partition_is_released_of_what_is_no_longer_used() {
     let mut exec = running_first_action();
-    exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
     assert_eq!(
         costs(&exec),
         [(80, false), (150, true)],
         "reconfigured at once"
     );
+    let window = ExecConfig::default().loss_window;
+    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
     // It comes back in the same run, still running the old configuration's params.
     let back = exec.handle(secs(5.0), Event::PeisJoined(peis("hsm")));
     assert_eq!(
@@ -696,6 +698,26 @@ fn a_remote_set_that_failed_while_its_peis_was_away_is_written_again_on_its_retu
         .map(|(k, _)| k)
         .collect();
     assert_eq!(rewritten, ["tr1.params"], "{text}");
+}
+
+/// Astrid away for less than the window: the action found no configuration without her, but
+/// when the departures are judged she is back, so the action is configured again instead of
+/// failing for a reason that no longer holds.
+#[test]
+fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(2.4), Event::PeisJoined(peis("astrid")));
+    let window = ExecConfig::default().loss_window;
+    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("FAILURE astrid:tc1: PEIS astrid left the ecology"),
+        "{text}"
+    );
+    assert!(!names(&exec).contains(&"action_failed"), "{text}");
+    assert_eq!(exec.status(), &RunStatus::Running { index: 0 }, "{text}");
+    assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
 }
 
 /// An unanswered remote set to `peis`'s tuple `key`.

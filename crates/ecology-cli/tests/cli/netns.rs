@@ -658,6 +658,28 @@ fn an_executive_cut_off_while_it_deploys_blames_no_component_and_goes_on() {
     home.assert_nothing_left_on();
 }
 
+/// The executive's process stopped for 4 s mid-move (SIGSTOP, as a stalled machine would): on
+/// waking it hears every PEIS leave and join again at once. Departures that are back before the
+/// loss window closes are forgiven: the action, which found no configuration without Astrid,
+/// is configured again instead of failing.
+#[test]
+fn an_executive_stopped_for_seconds_mid_move_goes_on() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("executive-stopped", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("running");
+    home.proc("executive").signal(Signal::SIGSTOP);
+    std::thread::sleep(Duration::from_secs(4));
+    home.proc("executive").signal(Signal::SIGCONT);
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
 /// No component failed for a remote set that got no answer.
 fn assert_no_set_blamed(all: &[Value]) {
     let blamed: Vec<&Value> = named(all, "failure")
