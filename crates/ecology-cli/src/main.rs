@@ -117,24 +117,18 @@ fn main() -> ExitCode {
         println!("{PARSE_ONLY}: the arguments are valid");
         return ExitCode::from(EXIT_OK);
     }
-    if matches!(
+    // One-shot commands, whose output may go to a pipe; the others run an ecology.
+    let one_shot = matches!(
         cli.command,
         Command::Check(_)
             | Command::Configure(_)
             | Command::Plan(_)
             | Command::Generate(_)
             | Command::Keys(_)
-    ) {
+    );
+    if one_shot {
         stop_quietly_on_a_closed_pipe();
-    }
-    if !matches!(
-        cli.command,
-        Command::Check(_)
-            | Command::Configure(_)
-            | Command::Plan(_)
-            | Command::Generate(_)
-            | Command::Keys(_)
-    ) {
+    } else {
         without_huge_pages();
     }
     let result = match cli.command {

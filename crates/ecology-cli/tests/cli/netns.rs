@@ -717,22 +717,7 @@ fn an_executive_cut_off_for_longer_than_it_waits_fails_saying_so() {
 
 #[test]
 fn a_router_killed_and_restarted_mid_move_loses_nothing() {
-    let _one = one_at_a_time();
-    let Some(mut home) = Home::start("router", Topology::Router, false, &[]) else {
-        return;
-    };
-    home.task(&[]);
-    home.wait_event("running");
-    home.proc("router").signal(Signal::SIGKILL);
-    home.wait_event("ecology_lost");
-    home.procs.remove("router");
-    home.start_router();
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
-    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
-    home.assert_nothing_left_on();
+    a_router_killed_and_restarted("router", "running");
 }
 
 /// The router killed just as the executive deploys: the remote sets find no route. The
@@ -740,12 +725,18 @@ fn a_router_killed_and_restarted_mid_move_loses_nothing() {
 /// router is back it writes again what never arrived, so the configuration runs.
 #[test]
 fn a_router_killed_while_the_executive_deploys_loses_nothing() {
+    a_router_killed_and_restarted("router-deploying", "configuration");
+}
+
+/// Every process a client of a router, which is killed once the executive logs `at`, and
+/// restarted once the executive judged the ecology lost: back, the move is done on the cameras.
+fn a_router_killed_and_restarted(test: &str, at: &str) {
     let _one = one_at_a_time();
-    let Some(mut home) = Home::start("router-deploying", Topology::Router, false, &[]) else {
+    let Some(mut home) = Home::start(test, Topology::Router, false, &[]) else {
         return;
     };
     home.task(&[]);
-    home.wait_event("configuration");
+    home.wait_event(at);
     home.proc("router").signal(Signal::SIGKILL);
     let (lost, _) = home.wait_event("ecology_lost");
     let mut gone = strings(&lost["gone"]);
