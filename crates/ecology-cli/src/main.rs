@@ -88,8 +88,8 @@ enum Command {
 /// without), and on a kernel that compacts memory to find a huge page when one is first touched
 /// (`defrag` set to `madvise`, a common default) the executive's first state took 12 ms to build
 /// instead of 1.5 ms in a process started after a pause. The one-shot planning commands keep
-/// huge pages: the configuration planner's benchmark instances planned 2–7% faster with them. Best effort: a kernel without the
-/// setting leaves things as they were.
+/// huge pages: the configuration planner's benchmark instances planned 2–7% faster with them.
+/// Best effort: a kernel without the setting leaves things as they were.
 fn without_huge_pages() {
     #[cfg(target_os = "linux")]
     let _ = nix::sys::prctl::set_thp_disable(true);

@@ -1341,12 +1341,11 @@ impl Executive {
         }
     }
 
-    /// A remote set failed: logged, and when it deployed a component of the
-    /// configuration, that component failed (it cannot be switched on or wired).
-    /// A remote set failed. A refusal fails its component (when the configuration uses it) at
-    /// once; a set that got no answer waits [`ExecConfig::unanswered_grace`] first, since the
-    /// owner's departure, or the executive's own loss of the ecology, may be what kept the answer
-    /// away, and each has its own remedy.
+    /// A remote set failed: logged, and when it deployed a component of the configuration, that
+    /// component failed (it cannot be switched on or wired). A refusal fails it at once; a set
+    /// that got no answer waits [`ExecConfig::unanswered_grace`] first, since the owner's
+    /// departure, or the executive's own loss of the ecology, may be what kept the answer away,
+    /// and each has its own remedy.
     fn on_remote_set_failed(
         &mut self,
         owner: PeisId,
@@ -1374,16 +1373,16 @@ impl Executive {
             }
             if self.in_current_config(&target) {
                 let cause = format!("could not set {key}: {reason}");
+                let held = self
+                    .run
+                    .as_ref()
+                    .is_some_and(|run| run.unanswered.contains_key(&target));
                 if !unanswered {
                     self.failure(vec![target], cause, out);
-                } else if !self.is_absent(&target.0)
-                    && self.lost.is_none()
-                    && self
-                        .run
-                        .as_ref()
-                        .is_some_and(|run| !run.unanswered.contains_key(&target))
-                {
-                    // Gone already: its departure failed what it ran.
+                } else if self.is_absent(&target.0) || self.lost.is_some() || held {
+                    // Its PEIS gone already (its departure failed what it ran), the ecology
+                    // lost (nothing is blamed), or held already: nothing more to do.
+                } else {
                     let timer = self.timer(self.config.unanswered_grace, out);
                     if let Some(run) = &mut self.run {
                         run.unanswered.insert(target, (timer, cause));
