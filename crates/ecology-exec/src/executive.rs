@@ -794,9 +794,9 @@ impl Executive {
         let (before_excluded, before_failed) = departures.before;
         if let Some(run) = &mut self.run {
             let back = |peis: &str| returned.iter().any(|p| p.as_str() == peis);
-            run.excluded.retain(|e| match e {
-                Exclusion::Component { peis, .. } => !back(peis) || before_excluded.contains(e),
-                Exclusion::Peis(peis) => !back(peis) || before_excluded.contains(e),
+            run.excluded.retain(|e| {
+                let (Exclusion::Component { peis, .. } | Exclusion::Peis(peis)) = e;
+                !back(peis) || before_excluded.contains(e)
             });
             run.failed
                 .retain(|k| !returned.contains(&k.0) || before_failed.contains(k));

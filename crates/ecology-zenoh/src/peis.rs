@@ -312,7 +312,7 @@ enum NameAnswer {
     /// Every answer came, and none was a token.
     Free,
     /// An answer was an error (the query timed out, as it can while a router takes in two
-    /// thousand PEIS joining), and no token came: it tells nothing. It used to be read as "taken".
+    /// thousand PEIS joining), and no token came: it tells nothing.
     Unanswered(String),
 }
 

@@ -347,15 +347,12 @@ fn a_full_router_says_so_and_refuses_the_next_peis() {
     let _one = one_at_a_time();
     let fixture = Fixture::new("full-router", &[TO_BEDROOM], Variant::Paper);
     let endpoint = free_endpoint();
-    // Its stderr, where the warning goes, read as its stdout.
-    let mut command = Command::new("sh");
-    command.args([
-        "-c",
-        r#"exec "$0" router --listen "$1" --max-sessions 2 2>&1"#,
-        env!("CARGO_BIN_EXE_ecology"),
-        &endpoint,
-    ]);
-    let mut router = Proc::spawn("router", command).ready();
+    // Its stderr, where the warning goes, read too.
+    let mut router = Proc::start_with_stderr(
+        "router",
+        &["router", "--listen", &endpoint, "--max-sessions", "2"],
+    )
+    .ready();
     let through = ["--client", "--connect", endpoint.as_str()];
     let scenario = fixture.scenario();
     let _world = Proc::start(
@@ -375,16 +372,12 @@ fn a_full_router_says_so_and_refuses_the_next_peis() {
     router.wait_for("that it is full", |l| {
         l.starts_with("warning: the router holds 2 sessions, the most it takes (--max-sessions)")
     });
-    // Its stderr, where the error goes, read as its stdout.
-    let mut command = Command::new("sh");
-    command.args([
-        "-c",
-        r#"exec "$0" peis "$1" --name hsm --client --connect "$2" 2>&1"#,
-        env!("CARGO_BIN_EXE_ecology"),
-        &scenario,
-        &endpoint,
-    ]);
-    let (code, lines) = Proc::spawn("hsm", command).finish();
+    // Its stderr, where the error goes, read too.
+    let (code, lines) = Proc::start_with_stderr(
+        "hsm",
+        &[&["peis", scenario.as_str(), "--name", "hsm"][..], &through].concat(),
+    )
+    .finish();
     assert_ne!(code, Some(0), "a third session is refused");
     assert!(
         lines.iter().any(|l| l.text.contains(&format!(

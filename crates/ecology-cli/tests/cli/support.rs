@@ -68,6 +68,20 @@ impl Proc {
         Proc::spawn(name, command)
     }
 
+    /// `ecology ARGS…` as [`Proc::start`], its stderr read with its stdout (for warnings and
+    /// errors a test checks).
+    pub fn start_with_stderr(name: &str, args: &[&str]) -> Proc {
+        let mut command = Command::new("sh");
+        command
+            .args([
+                "-c",
+                r#"exec "$0" "$@" 2>&1"#,
+                env!("CARGO_BIN_EXE_ecology"),
+            ])
+            .args(args);
+        Proc::spawn(name, command)
+    }
+
     /// Any `command`, from the repository's root, its stdout read line by line. Its stderr goes to
     /// `NAME.log` in the folder `ECOLOGY_TEST_STDERR` names, when set (with `RUST_LOG=zenoh=debug`,
     /// each process's Zenoh log apart), else to the test's own.
