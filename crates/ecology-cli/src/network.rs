@@ -28,6 +28,10 @@ pub struct NetArgs {
     /// Join as a client of the router given by --connect (all traffic through it) instead of as a peer.
     #[arg(long, global = true)]
     pub client: bool,
+    /// How long joining keeps trying the --connect endpoints, in seconds (default 30): on a lossy
+    /// link a session can take several attempts. After 5 s it says it is still trying.
+    #[arg(long, global = true, value_name = "SECONDS")]
+    pub connect_timeout: Option<f64>,
     /// Presence lease in seconds: when this process freezes or its network is cut, the others
     /// notice within this long (default 2).
     #[arg(long, global = true, value_name = "SECONDS")]
@@ -42,6 +46,14 @@ pub struct NetArgs {
 /// Whether this process has said that it runs unauthenticated.
 static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// How long joining goes on before the process says that it is still trying.
+const STILL_JOINING: Duration = Duration::from_secs(5);
+
+/// Whether this process has said that it is still joining: said once, not for each of the PEIS of
+/// `ecology peis --all`.
+static SAID_STILL_JOINING: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
 impl NetArgs {
     /// The Zenoh options of PEIS `name`.
     pub fn options(&self, name: PeisId) -> anyhow::Result<ZenohOptions> {
@@ -55,6 +67,9 @@ impl NetArgs {
         }
         if let Some(lease) = self.lease {
             options.peis.lease = seconds(lease, "--lease")?;
+        }
+        if let Some(timeout) = self.connect_timeout {
+            options.connect_timeout = seconds(timeout, "--connect-timeout")?;
         }
         options.security = self.security(&options.name)?;
         Ok(options)
@@ -152,7 +167,25 @@ pub enum JoinFailure {
 /// Joins the ecology as `name`.
 pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure> {
     let options = net.options(name).map_err(JoinFailure::BadConfig)?;
-    match ZenohPeis::open(options).await {
+    let timeout = options.connect_timeout;
+    let open = ZenohPeis::open(options);
+    tokio::pin!(open);
+    let opened = tokio::select! {
+        opened = &mut open => opened,
+        () = tokio::time::sleep(STILL_JOINING), if !net.connect.is_empty() && timeout > STILL_JOINING => {
+            if !SAID_STILL_JOINING.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                eprintln!(
+                    "still joining: nothing at {} has taken the session for {}s; trying for {}s \
+                     in all (--connect-timeout)",
+                    net.connect.join(", "),
+                    STILL_JOINING.as_secs(),
+                    timeout.as_secs_f64()
+                );
+            }
+            open.await
+        }
+    };
+    match opened {
         Ok(peis) => Ok(peis),
         Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => Err(JoinFailure::NameTaken(id)),
         Err(e @ ZenohError::Config { .. }) => Err(JoinFailure::BadConfig(
@@ -162,9 +195,11 @@ pub async fn join(name: PeisId, net: &NetArgs) -> Result<ZenohPeis, JoinFailure>
         Err(e) if matches!(&e, ZenohError::Open { message } if message.contains("Unable to connect")) =>
         {
             let context = format!(
-                "joining the ecology (nothing at {} took this session in time: is it up, and if it \
-                 is a router, not full at its --max-sessions?)",
-                net.connect.join(", ")
+                "joining the ecology (nothing at {} took this session within {}s \
+                 (--connect-timeout): is it up, and if it is a router, not full at its \
+                 --max-sessions?)",
+                net.connect.join(", "),
+                timeout.as_secs_f64()
             );
             Err(JoinFailure::Other(anyhow::Error::new(e).context(context)))
         }

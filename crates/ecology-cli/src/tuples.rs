@@ -11,9 +11,9 @@ use ecology_tuples::{
     Clock, Key, PeisId, PresenceEvent, SystemClock, Tuple, TupleError, TupleEvent, TuplePattern,
     TupleSpace, ValidationError, Value,
 };
-use ecology_zenoh::{ZenohError, ZenohPeis};
+use ecology_zenoh::ZenohPeis;
 
-use crate::network::{self, NetArgs};
+use crate::network::{self, JoinFailure, NetArgs};
 
 /// Exit code: success.
 pub const EXIT_OK: i32 = 0;
@@ -94,18 +94,21 @@ async fn run_async(args: TuplesArgs) -> anyhow::Result<i32> {
         Ok(command) => command,
         Err(e) => return Ok(bad_input(&e)),
     };
-    let options = args.net.options(name)?;
-    let peis = match ZenohPeis::open(options).await {
+    let peis = match network::join(name, &args.net).await {
         Ok(peis) => peis,
-        Err(ZenohError::Space(TupleError::AlreadyPresent(id))) => {
+        Err(JoinFailure::NameTaken(id)) => {
             eprintln!(
                 "ecology tuples: a PEIS named {id} is already present; choose another --name"
             );
             return Ok(EXIT_BAD_INPUT);
         }
-        Err(e) => {
+        Err(JoinFailure::BadConfig(e)) => {
+            eprintln!("ecology tuples: {e:#}");
+            return Ok(EXIT_BAD_INPUT);
+        }
+        Err(JoinFailure::Other(e)) => {
             // Unreachable endpoints are "not found", as an unreachable owner is.
-            eprintln!("ecology tuples: cannot join the ecology: {e}");
+            eprintln!("ecology tuples: {e:#}");
             return Ok(EXIT_NOT_FOUND);
         }
     };

@@ -38,9 +38,12 @@ const PERIOD: Duration = Duration::from_millis(50);
 const STALE: Duration = Duration::from_millis(500);
 /// A tracking system whose images stopped for this long reports `error`.
 const IMAGES_LOST: Duration = Duration::from_secs(1);
-/// A component that reads the world's ground truth reports `error` when
+/// A sensor that reads the world's ground truth reports `error` when
 /// nothing new came from the world for this long (the world publishes every
 /// robot's pose at every step, 20 times a second): the world left or froze.
+/// Components that read only the map from it (navigation, scan matching)
+/// do not judge its silence: the map does not change, and what they steer
+/// by comes through their inputs, whose staleness they judge.
 pub const WORLD_SILENT: Duration = Duration::from_secs(1);
 
 /// An injected fault of one component.
@@ -162,6 +165,20 @@ impl Truth {
     /// Takes in what the world published; an error once the world, heard
     /// before, has said nothing for [`WORLD_SILENT`].
     fn poll(&mut self) -> Result<(), ComponentError> {
+        let now = self.take_in();
+        match self.heard {
+            Some(heard) if now.saturating_duration_since(heard) > WORLD_SILENT => {
+                Err(fault(format!(
+                    "no ground truth from the {WORLD} PEIS for {} s: the world left or froze",
+                    WORLD_SILENT.as_secs_f64()
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Takes in what the world published, judging nothing; returns the time.
+    fn take_in(&mut self) -> Timestamp {
         let now = self.clock.now();
         while let Some(event) = self.subscription.try_next() {
             self.heard = Some(now);
@@ -177,15 +194,7 @@ impl Truth {
                 TupleEvent::Retargeted { .. } => {}
             }
         }
-        match self.heard {
-            Some(heard) if now.saturating_duration_since(heard) > WORLD_SILENT => {
-                Err(fault(format!(
-                    "no ground truth from the {WORLD} PEIS for {} s: the world left or froze",
-                    WORLD_SILENT.as_secs_f64()
-                )))
-            }
-            _ => Ok(()),
-        }
+        now
     }
 
     fn text(&self, key: &str) -> Option<&str> {
@@ -553,7 +562,7 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            truth.poll()?;
+            truth.take_in();
             let missing = inputs.missing(STALE);
             let Some(map) = truth.map() else {
                 self.report("waiting", "map").await?;
@@ -640,7 +649,7 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            truth.poll()?;
+            truth.take_in();
             let position = self.read(&inputs, "position", POSE_FORMAT, Pose::parse);
             let Ok(Some(pose)) = position else {
                 if !stalled {

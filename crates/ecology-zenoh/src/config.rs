@@ -40,7 +40,8 @@ pub struct ZenohOptions {
     pub zenoh_config: Option<PathBuf>,
     /// How long `get`, snapshots and remote sets wait for answers.
     pub query_timeout: Duration,
-    /// How long opening waits for the `connect` endpoints before failing.
+    /// How long opening keeps trying the `connect` endpoints before failing (30 s by default: on
+    /// a lossy link, a TCP handshake alone can take several seconds of retransmissions).
     pub connect_timeout: Duration,
     /// The clock for timestamps and expiry.
     pub clock: Arc<dyn Clock>,
@@ -60,7 +61,7 @@ impl ZenohOptions {
             multicast_scouting: false,
             zenoh_config: None,
             query_timeout: Duration::from_secs(2),
-            connect_timeout: Duration::from_secs(5),
+            connect_timeout: Duration::from_secs(30),
             clock: Arc::new(SystemClock),
             security: Security::Open,
         }

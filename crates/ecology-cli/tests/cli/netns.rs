@@ -171,6 +171,47 @@ impl Network {
         ip(&["link", "set", &self.get(host).1, "up"]);
     }
 
+    /// Makes `host` drop `percent` of the packets it sends and of those it receives, each at
+    /// random (nftables' random numbers; this kernel has no `netem`), as poor Wi-Fi does; `false`
+    /// (having said why the test is skipped) without `nft`.
+    pub fn drop_packets(&self, test: &str, host: &str, percent: u32) -> bool {
+        let drop = format!("numgen random mod 100 < {percent} drop;");
+        let rules = format!(
+            "table inet lossy {{ \
+               chain in {{ type filter hook input priority 0; {drop} }}; \
+               chain out {{ type filter hook output priority 0; {drop} }}; }}"
+        );
+        let out = Command::new("ip")
+            .args(["netns", "exec", &self.get(host).0, "nft", &rules])
+            .output();
+        match out {
+            Ok(out) if out.status.success() => true,
+            Ok(out) if String::from_utf8_lossy(&out.stderr).contains("nft") => {
+                eprintln!(
+                    "skipped {test}: nft cannot drop packets: {}",
+                    String::from_utf8_lossy(&out.stderr).trim()
+                );
+                false
+            }
+            Ok(out) => panic!("nft {rules}: {}", String::from_utf8_lossy(&out.stderr)),
+            Err(e) => panic!("cannot run ip: {e}"),
+        }
+    }
+
+    /// Makes `host` deliver every packet again.
+    pub fn stop_dropping(&self, host: &str) {
+        ip(&[
+            "netns",
+            "exec",
+            &self.get(host).0,
+            "nft",
+            "delete",
+            "table",
+            "inet",
+            "lossy",
+        ]);
+    }
+
     /// `ecology ARGS…` on `host`, named `name`.
     pub fn ecology(&self, host: &str, name: &str, args: &[String]) -> Proc {
         let mut command = Command::new("ip");
@@ -750,6 +791,65 @@ fn a_router_killed_and_restarted(test: &str, at: &str) {
     assert_eq!(named(&all, "ecology_back").len(), 1, "{all:#?}");
     assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
     assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// Astrid at the edge of Wi-Fi: her cable out for 0.5 s in every 1.5 s all through the move.
+/// Her navigation reads only the map from the world, so the world's tuples held up by the cuts
+/// do not fail it; her position input stalls and resumes; the move is done on the cameras.
+#[test]
+fn a_robot_whose_link_flaps_does_the_move() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("flapping", Topology::Peers, false, &[]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("running");
+    let mut cuts = 0;
+    let began = Instant::now();
+    while began.elapsed() < Duration::from_secs(12) {
+        home.net.cut("astrid");
+        std::thread::sleep(Duration::from_millis(500));
+        home.net.heal("astrid");
+        std::thread::sleep(Duration::from_millis(1000));
+        cuts += 1;
+    }
+    let (code, all) = home.finish();
+    eprintln!("astrid's cable cut {cuts} times during the move");
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// The paper's whole task (with Pippi) while every host drops a tenth of the packets it sends and
+/// of those it receives. Joining takes several tries now and then, TCP retransmits, and the task
+/// is done; nothing is left on.
+#[test]
+fn the_papers_whole_task_is_done_with_every_host_dropping_packets() {
+    let test = "lossy";
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start_with(test, Topology::Peers, false, &[], true) else {
+        return;
+    };
+    let hosts = ["world", "astrid", "hsm", "pippi", "executive"];
+    for host in hosts {
+        if !home.net.drop_packets(test, host, 10) {
+            return;
+        }
+    }
+    let began = Instant::now();
+    home.task(&[]);
+    let (code, all) = home.finish();
+    eprintln!(
+        "the whole task with 10% of packets dropped at every host: exit {code:?} after {:.1} s",
+        began.elapsed().as_secs_f64()
+    );
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(named(&all, "task_done").len(), 1, "{all:#?}");
+    for host in hosts {
+        home.net.stop_dropping(host);
+    }
     home.assert_nothing_left_on();
 }
 

@@ -375,17 +375,60 @@ fn a_full_router_says_so_and_refuses_the_next_peis() {
     // Its stderr, where the error goes, read too.
     let (code, lines) = Proc::start_with_stderr(
         "hsm",
-        &[&["peis", scenario.as_str(), "--name", "hsm"][..], &through].concat(),
+        &[
+            &["peis", scenario.as_str(), "--name", "hsm"][..],
+            &through,
+            &["--connect-timeout", "5"],
+        ]
+        .concat(),
     )
     .finish();
     assert_ne!(code, Some(0), "a third session is refused");
     assert!(
         lines.iter().any(|l| l.text.contains(&format!(
-            "nothing at {endpoint} took this session in time: is it up, and if it is a router, \
-             not full at its --max-sessions?"
+            "nothing at {endpoint} took this session within 5s (--connect-timeout): is it up, \
+             and if it is a router, not full at its --max-sessions?"
         ))),
         "{lines:?}"
     );
+}
+
+/// A PEIS started before the router it connects to, as after a power cut: it keeps trying (30 s
+/// by default, `--connect-timeout`), says after 5 s that it is still joining, and joins once the
+/// router is up.
+#[test]
+fn a_peis_started_before_its_router_joins_once_the_router_is_up() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("router-later", &[TO_BEDROOM], Variant::Paper);
+    let endpoint = free_endpoint();
+    let scenario = fixture.scenario();
+    let mut astrid = Proc::start_with_stderr(
+        "astrid",
+        &[
+            "peis",
+            &scenario,
+            "--name",
+            "astrid",
+            "--client",
+            "--connect",
+            &endpoint,
+        ],
+    );
+    astrid.wait_for("that it is still joining", |l| {
+        l.starts_with(&format!(
+            "still joining: nothing at {endpoint} has taken the session for 5s; trying for 30s in \
+             all (--connect-timeout)"
+        ))
+    });
+    let _router = Proc::start("router", &["router", "--listen", &endpoint]).ready();
+    let _astrid = astrid.ready();
+    let (code, lines) = Proc::start(
+        "peers",
+        &["tuples", "--client", "--connect", &endpoint, "peers"],
+    )
+    .finish();
+    assert_eq!(code, Some(0), "{lines:?}");
+    assert!(lines.iter().any(|l| l.text == "astrid"), "{lines:?}");
 }
 
 /// The processes that run an ecology keep their memory in small pages: transparent huge pages

@@ -289,17 +289,29 @@ fn one_hop_away_a_name_is_taken_and_get_and_set_reach_the_owner() {
     }
 }
 
-/// Nobody listens on the endpoint: joining fails, which is "not found" (1), as for an owner that
-/// cannot be reached, with the reason on stderr.
+/// Nobody listens on the endpoint: joining fails once `--connect-timeout` is over, which is "not
+/// found" (1), as for an owner that cannot be reached, with the reason on stderr.
 #[test]
 fn a_peis_that_cannot_be_reached_exits_1() {
     let nobody = free_endpoint();
-    let out = ecology(&["--connect", &nobody, "get", "astrid", "x"])
-        .output()
-        .expect("run ecology tuples");
+    let out = ecology(&[
+        "--connect",
+        &nobody,
+        "--connect-timeout",
+        "1",
+        "get",
+        "astrid",
+        "x",
+    ])
+    .output()
+    .expect("run ecology tuples");
     assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
-        String::from_utf8_lossy(&out.stderr).contains("cannot join the ecology"),
+        stderr.contains(&format!(
+            "joining the ecology (nothing at {nobody} took this session within 1s \
+             (--connect-timeout)"
+        )),
         "{out:?}"
     );
 }
