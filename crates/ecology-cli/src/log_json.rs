@@ -84,6 +84,9 @@ pub fn json_line(entry: &LogEntry) -> String {
             waiting,
         } => json!({ "gone": gone, "present": present, "waiting_s": waiting.as_secs_f64() }),
         LogEvent::EcologyBack { back, missing } => json!({ "back": back, "missing": missing }),
+        LogEvent::AwaitingReturn { gone, waiting } => {
+            json!({ "gone": gone, "waiting_s": waiting.as_secs_f64() })
+        }
         LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
         LogEvent::ActionFailed {
             index,

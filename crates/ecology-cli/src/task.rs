@@ -69,6 +69,11 @@ pub struct TaskArgs {
     /// lease and the loss window (raise it with longer leases).
     #[arg(long, value_name = "SECONDS", default_value_t = 3.0)]
     pub unanswered_grace: f64,
+    /// How long an action left without a configuration by PEIS that left waits for them to
+    /// return, in seconds, before it fails (a robot on a poor link is back shortly); 0 fails at
+    /// once.
+    #[arg(long, value_name = "SECONDS", default_value_t = 5.0)]
+    pub return_wait: f64,
     /// How long to take in the ecology's tuples before the first action, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 0.5)]
     pub settle: f64,
@@ -129,6 +134,11 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
         reconnect_timeout: seconds(args.reconnect_timeout, "--reconnect-timeout")?,
         loss_window: seconds(args.loss_window, "--loss-window")?,
         unanswered_grace: seconds(args.unanswered_grace, "--unanswered-grace")?,
+        return_wait: if args.return_wait == 0.0 {
+            Duration::ZERO
+        } else {
+            seconds(args.return_wait, "--return-wait")?
+        },
         ..ExecConfig::default()
     };
     let settle = if args.settle == 0.0 {

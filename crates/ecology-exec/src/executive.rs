@@ -129,6 +129,10 @@ pub struct ExecConfig {
     /// itself, or while the router is down, gets no answer either: neither is the component's
     /// failure.
     pub unanswered_grace: Duration,
+    /// How long an action left without a configuration by PEIS that left waits for them to
+    /// return before it fails: a robot on a poor link can go silent for its whole lease and be
+    /// back a second or two later. Zero fails at once.
+    pub return_wait: Duration,
 }
 
 impl Default for ExecConfig {
@@ -145,6 +149,7 @@ impl Default for ExecConfig {
             loss_window: Duration::from_secs(1),
             reconnect_timeout: Duration::from_secs(30),
             unanswered_grace: Duration::from_secs(3),
+            return_wait: Duration::from_secs(5),
         }
     }
 }
@@ -337,6 +342,25 @@ struct Departures {
     no_configuration: Option<String>,
 }
 
+/// PEIS that left, judged gone, without whom the action found no configuration: it waits
+/// [`ExecConfig::return_wait`] for them before it fails.
+#[derive(Debug)]
+struct Awaited {
+    timer: TimerId,
+    /// Those still gone.
+    gone: BTreeSet<PeisId>,
+    /// Those back, whose tuples are read again for a loss window before the action is
+    /// configured again (one restarted comes back with new tuples).
+    back: BTreeSet<PeisId>,
+    /// Runs a loss window after the latest return.
+    settle: Option<TimerId>,
+    /// The action's exclusions and failed components before they left: what their return
+    /// allows again.
+    before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+    /// Why the action has no configuration without them.
+    reason: String,
+}
+
 /// The executive lost the ecology: it waits for it, acting on nothing.
 #[derive(Debug)]
 struct Lost {
@@ -403,6 +427,7 @@ pub struct Executive {
     departures: Option<Departures>,
     /// Set while the ecology is lost.
     lost: Option<Lost>,
+    awaited: Option<Awaited>,
     /// Whether the task has ended and what it used has been released.
     finished: bool,
     /// Every action instance that failed in this task, in order.
@@ -442,6 +467,7 @@ impl Executive {
             orphans: BTreeMap::new(),
             departures: None,
             lost: None,
+            awaited: None,
             finished: false,
             failed_actions: Vec::new(),
             next_timer: 0,
@@ -672,6 +698,14 @@ impl Executive {
         {
             return;
         }
+        if self
+            .awaited
+            .as_ref()
+            .is_some_and(|a| a.gone.contains(&peis))
+        {
+            self.on_awaited_return(peis, out);
+            return;
+        }
         self.reclaim(&peis);
         self.release_unused(&peis, out);
     }
@@ -771,7 +805,15 @@ impl Executive {
             departures.gone.into_iter().partition(|p| self.is_absent(p));
         if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
             if let Some(run) = &mut self.run {
-                (run.excluded, run.failed) = departures.before;
+                (run.excluded, run.failed) = match self.awaited.take() {
+                    // Waiting already for others, who are among the lost now.
+                    Some(awaited) => {
+                        out.push(Command::CancelTimer(awaited.timer));
+                        out.extend(awaited.settle.map(Command::CancelTimer));
+                        awaited.before
+                    }
+                    None => departures.before,
+                };
             }
             self.stop_component_timers(out);
             self.record(LogEvent::EcologyLost {
@@ -791,29 +833,123 @@ impl Executive {
         }
         // Those back already were away for less than the window (the executive's own process or
         // link stalled, say): what their departure took out of the action is allowed again.
-        let (before_excluded, before_failed) = departures.before;
-        if let Some(run) = &mut self.run {
-            let back = |peis: &str| returned.iter().any(|p| p.as_str() == peis);
-            run.excluded.retain(|e| {
-                let (Exclusion::Component { peis, .. } | Exclusion::Peis(peis)) = e;
-                !back(peis) || before_excluded.contains(e)
-            });
-            run.failed
-                .retain(|k| !returned.contains(&k.0) || before_failed.contains(k));
-        }
+        self.forgive(&returned, &departures.before);
         for peis in &returned {
             self.reclaim(peis);
         }
         if let Some(reason) = departures.no_configuration {
-            if returned.is_empty() {
-                self.fail_action(reason, out);
-            } else {
+            // Those still gone may be back shortly (a robot on a poor link): the action waits
+            // for them before it fails.
+            let waits = !gone.is_empty() && !self.config.return_wait.is_zero();
+            if waits {
+                self.await_return(gone, departures.before, reason.clone(), out);
+            }
+            if !returned.is_empty() {
                 // Found while they were away: configured again from the ecology as it is now.
                 self.configure(true, out);
+            } else if !waits {
+                self.fail_action(reason, out);
             }
         }
         for peis in &returned {
             self.release_unused(peis, out);
+        }
+    }
+
+    /// Allows again what the departure of the PEIS `back` took out of the action: the
+    /// exclusions and failures that were not there `before` it.
+    fn forgive(
+        &mut self,
+        back: &BTreeSet<PeisId>,
+        before: &(Vec<Exclusion>, BTreeSet<ComponentKey>),
+    ) {
+        let Some(run) = &mut self.run else { return };
+        let (before_excluded, before_failed) = before;
+        let is_back = |peis: &str| back.iter().any(|p| p.as_str() == peis);
+        run.excluded.retain(|e| {
+            let (Exclusion::Component { peis, .. } | Exclusion::Peis(peis)) = e;
+            !is_back(peis) || before_excluded.contains(e)
+        });
+        run.failed
+            .retain(|k| !back.contains(&k.0) || before_failed.contains(k));
+    }
+
+    /// The action found no configuration without the PEIS `gone`, judged gone: it waits
+    /// [`ExecConfig::return_wait`] for them, with any it waited for already.
+    fn await_return(
+        &mut self,
+        gone: BTreeSet<PeisId>,
+        before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+        reason: String,
+        out: &mut Vec<Command>,
+    ) {
+        let (mut all, back, settle, before) = match self.awaited.take() {
+            // The earlier snapshot: it is before every departure waited for.
+            Some(earlier) => {
+                out.push(Command::CancelTimer(earlier.timer));
+                (earlier.gone, earlier.back, earlier.settle, earlier.before)
+            }
+            None => (BTreeSet::new(), BTreeSet::new(), None, before),
+        };
+        all.extend(gone);
+        self.stop_component_timers(out);
+        self.record(LogEvent::AwaitingReturn {
+            gone: all.iter().map(ToString::to_string).collect(),
+            waiting: self.config.return_wait,
+        });
+        let timer = self.timer(self.config.return_wait, out);
+        self.awaited = Some(Awaited {
+            timer,
+            gone: all,
+            back,
+            settle,
+            before,
+            reason,
+        });
+    }
+
+    /// A PEIS the action waited for is back: its tuples are read again for a loss window, then
+    /// the action is configured again ([`Executive::settle_returns`]).
+    fn on_awaited_return(&mut self, peis: PeisId, out: &mut Vec<Command>) {
+        let settle = self.timer(self.config.loss_window, out);
+        let Some(awaited) = &mut self.awaited else {
+            return;
+        };
+        awaited.gone.remove(&peis);
+        awaited.back.insert(peis);
+        if let Some(old) = awaited.settle.replace(settle) {
+            out.push(Command::CancelTimer(old));
+        }
+    }
+
+    /// A loss window after the latest return of PEIS the action waited for: what their departure
+    /// took out of the action (and their restart, if they restarted) is allowed again, and the
+    /// action is configured again from the ecology as it is now; what they no longer run is put
+    /// back.
+    fn settle_returns(&mut self, out: &mut Vec<Command>) {
+        let Some(awaited) = &mut self.awaited else {
+            return;
+        };
+        awaited.settle = None;
+        let back = std::mem::take(&mut awaited.back);
+        let before = awaited.before.clone();
+        self.forgive(&back, &before);
+        for peis in &back {
+            self.reclaim(peis);
+        }
+        self.configure(true, out);
+        for peis in &back {
+            self.release_unused(peis, out);
+        }
+    }
+
+    /// Stops waiting for PEIS to return, if it was.
+    fn stop_awaiting(&mut self, out: &mut Vec<Command>) {
+        if let Some(awaited) = self.awaited.take() {
+            out.push(Command::CancelTimer(awaited.timer));
+            if let Some(settle) = awaited.settle {
+                out.push(Command::CancelTimer(settle));
+            }
         }
     }
 
@@ -825,6 +961,15 @@ impl Executive {
             self.stop_component_timers(out);
             return;
         }
+        if let Some(awaited) = &mut self.awaited
+            && !(awaited.gone.is_empty() && awaited.back.is_empty())
+        {
+            // Others it waits for may still return, or are back and settling.
+            awaited.reason = reason;
+            self.stop_component_timers(out);
+            return;
+        }
+        self.stop_awaiting(out);
         self.fail_action(reason, out);
     }
 
@@ -1036,6 +1181,7 @@ impl Executive {
             self.no_configuration(reason, out);
             return;
         };
+        self.stop_awaiting(out);
         let planned = self.stopwatch.0.elapsed();
         self.record(LogEvent::Configuration {
             micros: micros(planned.saturating_sub(acquired)),
@@ -1406,6 +1552,29 @@ impl Executive {
             }
             return;
         }
+        if self.awaited.as_ref().is_some_and(|a| a.settle == Some(id)) {
+            self.settle_returns(out);
+            return;
+        }
+        if self.awaited.as_ref().is_some_and(|a| a.timer == id) {
+            if let Some(awaited) = self.awaited.take() {
+                out.extend(awaited.settle.map(Command::CancelTimer));
+                // Said on the reason's first line, ahead of the explanation's tree.
+                let gone: Vec<String> = awaited.gone.iter().map(ToString::to_string).collect();
+                let (first, rest) = match awaited.reason.split_once('\n') {
+                    Some((first, rest)) => (first, format!("\n{rest}")),
+                    None => (awaited.reason.as_str(), String::new()),
+                };
+                let reason = format!(
+                    "{first}; {} left and {} not back within {:?}{rest}",
+                    gone.join(", "),
+                    if gone.len() == 1 { "was" } else { "were" },
+                    self.config.return_wait,
+                );
+                self.fail_action(reason, out);
+            }
+            return;
+        }
         let Some(run) = &mut self.run else { return };
         if id == run.action_timer {
             let reason = format!(
@@ -1695,6 +1864,7 @@ impl Executive {
     }
 
     fn fail_action(&mut self, reason: String, out: &mut Vec<Command>) {
+        self.stop_awaiting(out);
         let Some(mut run) = self.run.take() else {
             return;
         };

@@ -144,6 +144,13 @@ pub enum LogEvent {
         /// How long it waits for them.
         waiting: Duration,
     },
+    /// The action has no configuration without PEIS that left: it waits for them.
+    AwaitingReturn {
+        /// The PEIS it waits for.
+        gone: Vec<String>,
+        /// How long it waits.
+        waiting: Duration,
+    },
     /// Most of the lost ecology is back: the action goes on, reconfigured.
     EcologyBack {
         /// The PEIS back.
@@ -232,6 +239,7 @@ impl LogEvent {
             LogEvent::Reclaimed { .. } => "reclaimed",
             LogEvent::EcologyLost { .. } => "ecology_lost",
             LogEvent::EcologyBack { .. } => "ecology_back",
+            LogEvent::AwaitingReturn { .. } => "awaiting_return",
             LogEvent::ActionDone { .. } => "action_done",
             LogEvent::ActionFailed { .. } => "action_failed",
             LogEvent::Observed { .. } => "observed",
@@ -394,6 +402,11 @@ impl fmt::Display for LogEntry {
                 f,
                 "  LOST THE ECOLOGY: {} of {present} PEIS left at once ({}); waiting up to {waiting:?} for them",
                 gone.len(),
+                gone.join(", ")
+            ),
+            LogEvent::AwaitingReturn { gone, waiting } => write!(
+                f,
+                "  no configuration without {}: waiting up to {waiting:?} for them to return",
                 gone.join(", ")
             ),
             LogEvent::EcologyBack { back, missing } => {

@@ -720,6 +720,59 @@ fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
 }
 
+/// Astrid's lease ran out on a poor link, and she is back 3 s later, after her departure was
+/// judged: the move, which has no configuration without her, waits for her instead of failing,
+/// and is configured again a loss window after her return (her tuples read again meanwhile).
+#[test]
+fn an_action_left_without_a_configuration_waits_for_the_peis_to_return() {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    let window = ExecConfig::default().loss_window;
+    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("no configuration without astrid: waiting up to 5s for them to return"),
+        "{text}"
+    );
+    assert!(!names(&exec).contains(&"action_failed"), "{text}");
+    let joined = exec.handle(secs(5.0), Event::PeisJoined(peis("astrid")));
+    assert_eq!(
+        costs(&exec).len(),
+        1,
+        "not before her tuples are read again"
+    );
+    exec.handle(secs(6.0), Event::Timer(timer_of(&joined, window)));
+    let text = timeline(&exec);
+    assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
+    // The wait was called off: its timer changes nothing.
+    let wait = ExecConfig::default().return_wait;
+    exec.handle(secs(8.0), Event::Timer(timer_of(&judged, wait)));
+    assert!(!names(&exec).contains(&"action_failed"), "{text}");
+    assert_eq!(exec.status(), &RunStatus::Running { index: 0 }, "{text}");
+}
+
+/// Not back within the wait: the action fails, saying that it waited.
+#[test]
+fn an_action_waits_for_a_peis_that_left_only_so_long() {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    let window = ExecConfig::default().loss_window;
+    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    assert!(!names(&exec).contains(&"action_failed"));
+    let wait = ExecConfig::default().return_wait;
+    exec.handle(secs(8.0), Event::Timer(timer_of(&judged, wait)));
+    let RunStatus::Failed { index: 0, reason } = exec.status() else {
+        panic!("{:?}\n{}", exec.status(), timeline(&exec));
+    };
+    assert!(
+        reason.starts_with(
+            "no configuration for (navigate astrid entrance): no method applies; astrid left and \
+             was not back within 5s\n"
+        ),
+        "{reason}"
+    );
+}
+
 /// An unanswered remote set to `peis`'s tuple `key`.
 fn unanswered(peis_name: &str, key_text: &str) -> Event {
     Event::RemoteSetFailed {
