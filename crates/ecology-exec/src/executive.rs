@@ -1557,8 +1557,16 @@ impl Executive {
             return;
         }
         if self.awaited.as_ref().is_some_and(|a| a.timer == id) {
-            if let Some(awaited) = self.awaited.take() {
-                out.extend(awaited.settle.map(Command::CancelTimer));
+            if let Some(mut awaited) = self.awaited.take() {
+                if !awaited.back.is_empty() {
+                    // Some are back, their tuples being read again: configured again now,
+                    // without those still gone; with nothing then, the action fails.
+                    out.extend(awaited.settle.take().map(Command::CancelTimer));
+                    awaited.gone.clear();
+                    self.awaited = Some(awaited);
+                    self.settle_returns(out);
+                    return;
+                }
                 // Said on the reason's first line, ahead of the explanation's tree.
                 let gone: Vec<String> = awaited.gone.iter().map(ToString::to_string).collect();
                 let (first, rest) = match awaited.reason.split_once('\n') {

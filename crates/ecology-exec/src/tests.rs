@@ -773,6 +773,30 @@ fn an_action_waits_for_a_peis_that_left_only_so_long() {
     );
 }
 
+/// Astrid gone, then hsm, and Astrid back just before the wait runs out, while her tuples are
+/// read again: the move is configured again at once, without hsm (on Astrid's laser), instead
+/// of failing.
+#[test]
+fn a_peis_back_as_the_wait_runs_out_is_configured_with_at_once() {
+    let mut exec = running_first_action();
+    let window = ExecConfig::default().loss_window;
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    let left = exec.handle(secs(3.5), Event::PeisLeft(peis("hsm")));
+    let judged = exec.handle(secs(4.5), Event::Timer(timer_of(&left, window)));
+    let text = timeline(&exec);
+    assert!(
+        text.contains("no configuration without astrid, hsm: waiting up to 5s"),
+        "{text}"
+    );
+    exec.handle(secs(9.2), Event::PeisJoined(peis("astrid")));
+    let wait = ExecConfig::default().return_wait;
+    exec.handle(secs(9.5), Event::Timer(timer_of(&judged, wait)));
+    let text = timeline(&exec);
+    assert!(!names(&exec).contains(&"action_failed"), "{text}");
+    assert_eq!(costs(&exec).last(), Some(&(150, true)), "{text}");
+}
+
 /// An unanswered remote set to `peis`'s tuple `key`.
 fn unanswered(peis_name: &str, key_text: &str) -> Event {
     Event::RemoteSetFailed {
