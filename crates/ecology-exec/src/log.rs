@@ -406,8 +406,9 @@ impl fmt::Display for LogEntry {
             ),
             LogEvent::AwaitingReturn { gone, waiting } => write!(
                 f,
-                "  no configuration without {}: waiting up to {waiting:?} for them to return",
-                gone.join(", ")
+                "  no configuration without {}: waiting up to {waiting:?} for {} to return",
+                gone.join(", "),
+                if gone.len() == 1 { "it" } else { "them" }
             ),
             LogEvent::EcologyBack { back, missing } => {
                 write!(f, "  the ecology is back: {}", back.join(", "))?;

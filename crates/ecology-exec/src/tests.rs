@@ -731,7 +731,7 @@ fn an_action_left_without_a_configuration_waits_for_the_peis_to_return() {
     let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
     let text = timeline(&exec);
     assert!(
-        text.contains("no configuration without astrid: waiting up to 5s for them to return"),
+        text.contains("no configuration without astrid: waiting up to 5s for it to return"),
         "{text}"
     );
     assert!(!names(&exec).contains(&"action_failed"), "{text}");

@@ -794,38 +794,31 @@ fn a_router_killed_and_restarted(test: &str, at: &str) {
     home.assert_nothing_left_on();
 }
 
-/// Astrid at the edge of Wi-Fi: her cable out for 0.5 s in every 1.5 s all through the move.
-/// Her navigation reads only the map from the world, so the world's tuples held up by the cuts
-/// do not fail it; her position input stalls and resumes. TCP backs off its resends across the
-/// cuts, so now and then she is silent for her whole lease and leaves: the move, which has no
-/// configuration without her, waits for her return. It is done on the cameras.
+/// Astrid at the edge of Wi-Fi: her cable out for 1.2 s mid-move, less than her lease. The
+/// world's tuples reach her again only with TCP's next resend, so she hears nothing of the world
+/// for longer than 1 s. Her navigation reads only the map from the world, so that silence does
+/// not fail it; her position input stalls and resumes, and the move is done on the cameras.
 #[test]
-fn a_robot_whose_link_flaps_does_the_move() {
+fn a_robot_cut_off_for_a_second_keeps_its_move() {
     let _one = one_at_a_time();
-    let Some(mut home) = Home::start("flapping", Topology::Peers, false, &[]) else {
+    let Some(mut home) = Home::start("robot-blip", Topology::Peers, false, &[]) else {
         return;
     };
     home.task(&[]);
     home.wait_event("running");
-    let mut cuts = 0;
-    let began = Instant::now();
-    while began.elapsed() < Duration::from_secs(12) {
-        home.net.cut("astrid");
-        std::thread::sleep(Duration::from_millis(500));
-        home.net.heal("astrid");
-        std::thread::sleep(Duration::from_millis(1000));
-        cuts += 1;
-    }
+    home.net.cut("astrid");
+    std::thread::sleep(Duration::from_millis(1200));
+    home.net.heal("astrid");
     let (code, all) = home.finish();
     assert_eq!(code, Some(0), "{all:#?}");
     assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
+    // Her departure, should TCP's resends keep her silent for her whole lease, is waited out;
+    // no component fails for anything else.
     let blamed: Vec<&Value> = named(&all, "failure")
         .into_iter()
         .filter(|f| f["cause"] != "PEIS astrid left the ecology")
         .collect();
     assert!(blamed.is_empty(), "{blamed:#?}\n{all:#?}");
-    let left = named(&all, "peis_left").len();
-    eprintln!("astrid's cable cut {cuts} times during the move; she left {left} times");
     assert_eq!(costs(&all).last().map(|c| c.0), Some(80), "{all:#?}");
     home.assert_nothing_left_on();
 }
