@@ -152,6 +152,15 @@ pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
     }
 }
 
+/// Zero, or a positive, finite number of seconds.
+pub fn seconds_or_zero(value: f64, what: &str) -> anyhow::Result<Duration> {
+    if value == 0.0 {
+        Ok(Duration::ZERO)
+    } else {
+        seconds(value, what)
+    }
+}
+
 /// Why a process could not join.
 #[derive(Debug)]
 pub enum JoinFailure {

@@ -17,7 +17,7 @@ use ecology_tuples::{Key, PeisId, SystemClock, TupleSpace, Value};
 
 use crate::demo::Acquire;
 use crate::input;
-use crate::network::{self, NetArgs, seconds};
+use crate::network::{self, NetArgs, seconds, seconds_or_zero};
 use crate::peis::{join_failed, missing_peis};
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 use ecology_config::WallClock;
@@ -134,18 +134,10 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
         reconnect_timeout: seconds(args.reconnect_timeout, "--reconnect-timeout")?,
         loss_window: seconds(args.loss_window, "--loss-window")?,
         unanswered_grace: seconds(args.unanswered_grace, "--unanswered-grace")?,
-        return_wait: if args.return_wait == 0.0 {
-            Duration::ZERO
-        } else {
-            seconds(args.return_wait, "--return-wait")?
-        },
+        return_wait: seconds_or_zero(args.return_wait, "--return-wait")?,
         ..ExecConfig::default()
     };
-    let settle = if args.settle == 0.0 {
-        Duration::ZERO
-    } else {
-        seconds(args.settle, "--settle")?
-    };
+    let settle = seconds_or_zero(args.settle, "--settle")?;
     let wait_timeout = seconds(args.wait_timeout, "--wait-timeout")?;
     let me = PeisId::new(&args.name).map_err(|e| anyhow::anyhow!("--name: {e}"))?;
     let mut expected = Vec::new();

@@ -326,6 +326,10 @@ struct Orphan {
     params: Option<String>,
 }
 
+/// The action's exclusions and failed components at one moment: what they are again when what
+/// happened since is forgiven.
+type Excluded = (Vec<Exclusion>, BTreeSet<ComponentKey>);
+
 /// PEIS that left within one [`ExecConfig::loss_window`], judged together when it closes.
 #[derive(Debug)]
 struct Departures {
@@ -336,7 +340,7 @@ struct Departures {
     present_before: usize,
     /// The action's exclusions and failed components before the first left: what they are again
     /// if the ecology turns out lost (its components did not fail; the network did).
-    before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+    before: Excluded,
     /// Why the action found no configuration meanwhile: it fails with that once the departures
     /// are judged, unless the ecology was lost.
     no_configuration: Option<String>,
@@ -356,7 +360,7 @@ struct Awaited {
     settle: Option<TimerId>,
     /// The action's exclusions and failed components before they left: what their return
     /// allows again.
-    before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+    before: Excluded,
     /// Why the action has no configuration without them.
     reason: String,
 }
@@ -804,16 +808,14 @@ impl Executive {
         let (gone, returned): (BTreeSet<PeisId>, BTreeSet<PeisId>) =
             departures.gone.into_iter().partition(|p| self.is_absent(p));
         if gone.len() >= 2 && gone.len() * 2 > departures.present_before {
+            // Waiting already for others, who are among the lost now: from before them.
+            let before = match &self.awaited {
+                Some(awaited) => awaited.before.clone(),
+                None => departures.before,
+            };
+            self.stop_awaiting(out);
             if let Some(run) = &mut self.run {
-                (run.excluded, run.failed) = match self.awaited.take() {
-                    // Waiting already for others, who are among the lost now.
-                    Some(awaited) => {
-                        out.push(Command::CancelTimer(awaited.timer));
-                        out.extend(awaited.settle.map(Command::CancelTimer));
-                        awaited.before
-                    }
-                    None => departures.before,
-                };
+                (run.excluded, run.failed) = before;
             }
             self.stop_component_timers(out);
             self.record(LogEvent::EcologyLost {
@@ -858,11 +860,7 @@ impl Executive {
 
     /// Allows again what the departure of the PEIS `back` took out of the action: the
     /// exclusions and failures that were not there `before` it.
-    fn forgive(
-        &mut self,
-        back: &BTreeSet<PeisId>,
-        before: &(Vec<Exclusion>, BTreeSet<ComponentKey>),
-    ) {
+    fn forgive(&mut self, back: &BTreeSet<PeisId>, before: &Excluded) {
         let Some(run) = &mut self.run else { return };
         let (before_excluded, before_failed) = before;
         let is_back = |peis: &str| back.iter().any(|p| p.as_str() == peis);
@@ -879,7 +877,7 @@ impl Executive {
     fn await_return(
         &mut self,
         gone: BTreeSet<PeisId>,
-        before: (Vec<Exclusion>, BTreeSet<ComponentKey>),
+        before: Excluded,
         reason: String,
         out: &mut Vec<Command>,
     ) {
@@ -941,6 +939,36 @@ impl Executive {
         for peis in &back {
             self.release_unused(peis, out);
         }
+    }
+
+    /// The wait for PEIS to return ran out. Those back, their tuples still being read again,
+    /// are configured with now, without those still gone; otherwise the action fails, saying
+    /// whom it waited for.
+    fn return_wait_over(&mut self, out: &mut Vec<Command>) {
+        let Some(mut awaited) = self.awaited.take() else {
+            return;
+        };
+        if !awaited.back.is_empty() {
+            out.extend(awaited.settle.take().map(Command::CancelTimer));
+            awaited.gone.clear();
+            self.awaited = Some(awaited);
+            // With no configuration then, the action fails.
+            self.settle_returns(out);
+            return;
+        }
+        // Said on the reason's first line, ahead of the explanation's tree.
+        let gone: Vec<String> = awaited.gone.iter().map(ToString::to_string).collect();
+        let (first, rest) = match awaited.reason.split_once('\n') {
+            Some((first, rest)) => (first, format!("\n{rest}")),
+            None => (awaited.reason.as_str(), String::new()),
+        };
+        let reason = format!(
+            "{first}; {} left and {} not back within {:?}{rest}",
+            gone.join(", "),
+            if gone.len() == 1 { "was" } else { "were" },
+            self.config.return_wait,
+        );
+        self.fail_action(reason, out);
     }
 
     /// Stops waiting for PEIS to return, if it was.
@@ -1557,30 +1585,7 @@ impl Executive {
             return;
         }
         if self.awaited.as_ref().is_some_and(|a| a.timer == id) {
-            if let Some(mut awaited) = self.awaited.take() {
-                if !awaited.back.is_empty() {
-                    // Some are back, their tuples being read again: configured again now,
-                    // without those still gone; with nothing then, the action fails.
-                    out.extend(awaited.settle.take().map(Command::CancelTimer));
-                    awaited.gone.clear();
-                    self.awaited = Some(awaited);
-                    self.settle_returns(out);
-                    return;
-                }
-                // Said on the reason's first line, ahead of the explanation's tree.
-                let gone: Vec<String> = awaited.gone.iter().map(ToString::to_string).collect();
-                let (first, rest) = match awaited.reason.split_once('\n') {
-                    Some((first, rest)) => (first, format!("\n{rest}")),
-                    None => (awaited.reason.as_str(), String::new()),
-                };
-                let reason = format!(
-                    "{first}; {} left and {} not back within {:?}{rest}",
-                    gone.join(", "),
-                    if gone.len() == 1 { "was" } else { "were" },
-                    self.config.return_wait,
-                );
-                self.fail_action(reason, out);
-            }
+            self.return_wait_over(out);
             return;
         }
         let Some(run) = &mut self.run else { return };

@@ -720,15 +720,23 @@ fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
 }
 
+/// The first move running, Astrid seen gone at 2 s and her departure judged at 3 s: the
+/// executive, and the commands of the judgement.
+fn astrid_gone_and_judged() -> (Executive, Vec<Command>) {
+    let mut exec = running_first_action();
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    let window = ExecConfig::default().loss_window;
+    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    (exec, judged)
+}
+
 /// Astrid's lease ran out on a poor link, and she is back 3 s later, after her departure was
 /// judged: the move, which has no configuration without her, waits for her instead of failing,
 /// and is configured again a loss window after her return (her tuples read again meanwhile).
 #[test]
 fn an_action_left_without_a_configuration_waits_for_the_peis_to_return() {
-    let mut exec = running_first_action();
-    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
+    let (mut exec, judged) = astrid_gone_and_judged();
     let window = ExecConfig::default().loss_window;
-    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
     let text = timeline(&exec);
     assert!(
         text.contains("no configuration without astrid: waiting up to 5s for it to return"),
@@ -754,10 +762,7 @@ fn an_action_left_without_a_configuration_waits_for_the_peis_to_return() {
 /// Not back within the wait: the action fails, saying that it waited.
 #[test]
 fn an_action_waits_for_a_peis_that_left_only_so_long() {
-    let mut exec = running_first_action();
-    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
-    let window = ExecConfig::default().loss_window;
-    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    let (mut exec, judged) = astrid_gone_and_judged();
     assert!(!names(&exec).contains(&"action_failed"));
     let wait = ExecConfig::default().return_wait;
     exec.handle(secs(8.0), Event::Timer(timer_of(&judged, wait)));
@@ -778,10 +783,8 @@ fn an_action_waits_for_a_peis_that_left_only_so_long() {
 /// of failing.
 #[test]
 fn a_peis_back_as_the_wait_runs_out_is_configured_with_at_once() {
-    let mut exec = running_first_action();
+    let (mut exec, _) = astrid_gone_and_judged();
     let window = ExecConfig::default().loss_window;
-    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
-    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
     let left = exec.handle(secs(3.5), Event::PeisLeft(peis("hsm")));
     let judged = exec.handle(secs(4.5), Event::Timer(timer_of(&left, window)));
     let text = timeline(&exec);
