@@ -157,7 +157,9 @@ pub fn seconds_or_zero(value: f64, what: &str) -> anyhow::Result<Duration> {
     if value == 0.0 {
         Ok(Duration::ZERO)
     } else {
-        seconds(value, what)
+        seconds(value, what).map_err(|_| {
+            anyhow::anyhow!("{what} must be 0 or a positive number of seconds, not {value}")
+        })
     }
 }
 

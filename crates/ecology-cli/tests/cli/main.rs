@@ -982,3 +982,37 @@ fn a_plan_whose_reader_goes_away_ends_quietly() {
     );
     assert!(stderr(&out).is_empty(), "{}", stderr(&out));
 }
+
+/// A time option out of range is bad input, refused before joining, and its
+/// message says what the option takes: 0 only where 0 means "off".
+#[test]
+fn task_refuses_time_options_out_of_range() {
+    let task = |option: &str| {
+        ecology(&[
+            "task",
+            "--plan",
+            "examples/tutorial/door.plan",
+            "--domain",
+            "domains/peis-home.eco",
+            option,
+        ])
+    };
+    let out = task("--return-wait=-1");
+    exits(
+        &out,
+        2,
+        "--return-wait must be 0 or a positive number of seconds, not -1",
+    );
+    let out = task("--settle=NaN");
+    exits(
+        &out,
+        2,
+        "--settle must be 0 or a positive number of seconds, not NaN",
+    );
+    let out = task("--waiting-grace=0");
+    exits(
+        &out,
+        2,
+        "--waiting-grace must be a positive number of seconds, not 0",
+    );
+}
