@@ -66,6 +66,7 @@ pub fn json_line(entry: &LogEntry) -> String {
         LogEvent::RemoteSetFailed { owner, key, reason } => {
             json!({ "owner": owner, "key": key, "reason": reason })
         }
+        LogEvent::RemoteSetRetried { owner, key } => json!({ "owner": owner, "key": key }),
         LogEvent::Released {
             switched_off,
             stopped,

@@ -225,7 +225,7 @@ pub async fn drive_until<S: TupleSpace>(
                         Vec::new()
                     }
                 }
-                Some(failed) = sets.next_failure() => exec.handle(elapsed(&clock), failed),
+                Some(outcome) = sets.next_outcome() => exec.handle(elapsed(&clock), outcome),
                 event = presence.next() => match event {
                     // It does not leave its own ecology: through a router, the executive sees
                     // its own token go with the router (and come back with it).
@@ -431,7 +431,8 @@ fn tuple_event(t: &Tuple) -> Event {
     }
 }
 
-type SetOutcome = (PeisId, Option<Event>);
+/// The owner a remote set went to, and what became of it: answered or failed.
+type SetOutcome = (PeisId, Event);
 
 /// The remote sets in flight: one at a time to each PEIS, in the order asked,
 /// and concurrently to different PEIS, so one unreachable PEIS delays no other.
@@ -479,41 +480,46 @@ impl<S: TupleSpace> RemoteSets<S> {
                     .set_remote(owner.clone(), key.clone(), Value::text(&value))
                     .await
             };
-            let failure = result.err().map(|e| Event::RemoteSetFailed {
-                owner: owner.clone(),
-                key,
-                reason: e.to_string(),
-                unanswered: matches!(
-                    e,
-                    TupleError::OwnerUnreachable { .. } | TupleError::Transport { .. }
-                ),
-            });
-            (owner, failure)
+            let outcome = match result {
+                Ok(_) => Event::RemoteSetAnswered {
+                    owner: owner.clone(),
+                    key,
+                },
+                Err(e) => Event::RemoteSetFailed {
+                    owner: owner.clone(),
+                    key,
+                    reason: e.to_string(),
+                    unanswered: matches!(
+                        e,
+                        TupleError::OwnerUnreachable { .. } | TupleError::Transport { .. }
+                    ),
+                },
+            };
+            (owner, outcome)
         });
     }
 
-    /// The next remote set that failed, as an event; `None` when none is in flight.
-    async fn next_failure(&mut self) -> Option<Event> {
+    /// What became of the next remote set to end, answered or failed, as an event; `None` when
+    /// none is in flight.
+    async fn next_outcome(&mut self) -> Option<Event> {
         while let Some(joined) = self.tasks.join_next().await {
-            let Ok((owner, failure)) = joined else {
+            let Ok((owner, outcome)) = joined else {
                 // A set task cannot panic short of a bug in the space; nothing to report then.
                 continue;
             };
             self.busy.remove(&owner);
             self.start_next(&owner);
-            if failure.is_some() {
-                return failure;
-            }
+            return Some(outcome);
         }
         None
     }
 
-    /// Waits until every queued set has been carried out, handing failures to
-    /// the executive (which may only log them now).
+    /// Waits until every queued set has been carried out, handing their outcomes to the
+    /// executive (which may only log failures now).
     async fn flush(&mut self, exec: &mut Executive, clock: &Arc<dyn Clock>, start: Timestamp) {
-        while let Some(failed) = self.next_failure().await {
+        while let Some(outcome) = self.next_outcome().await {
             let now = clock.now().saturating_duration_since(start);
-            let _ = exec.handle(now, failed);
+            let _ = exec.handle(now, outcome);
         }
     }
 }

@@ -18,7 +18,7 @@
 //! When no configuration exists the action fails with the planner's
 //! explanation.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -67,6 +67,13 @@ pub enum Event {
         /// No answer came: the owner is gone, or out of reach, or the executive is (its own
         /// network, or a router, lost); not a refusal. See [`ExecConfig::unanswered_grace`].
         unanswered: bool,
+    },
+    /// A remote set the executive asked for was carried out: the owner answered.
+    RemoteSetAnswered {
+        /// The PEIS that owns the tuple.
+        owner: PeisId,
+        /// The dotted key.
+        key: Key,
     },
     /// A PEIS appeared.
     PeisJoined(PeisId),
@@ -265,6 +272,14 @@ fn input_key(
     contract::input_key(consumer, &c.info_name, &args).ok()
 }
 
+/// The component a remote set of `key` is to: `components.C.reqState`, or `C.params` and
+/// `C.mi-…`, where it is the first segment.
+fn set_component(key: &Key) -> Option<ComponentId> {
+    ComponentField::parse(key)
+        .map(|(c, _)| c)
+        .or_else(|| key.segments().next().and_then(|c| ComponentId::new(c).ok()))
+}
+
 /// Takes the entries of `map` for the components of `peis` out of it.
 fn take_on<V>(map: &mut BTreeMap<ComponentKey, V>, peis: &PeisId) -> Vec<(ComponentKey, V)> {
     let keys: Vec<ComponentKey> = map.keys().filter(|(p, _)| p == peis).cloned().collect();
@@ -295,9 +310,10 @@ struct ActionRun {
     deploy_timer: Option<TimerId>,
     action_timer: TimerId,
     waiting: BTreeMap<ComponentKey, TimerId>,
-    /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`]
-    /// and the failure's cause, should they be blamed when it runs out.
-    unanswered: BTreeMap<ComponentKey, (TimerId, String)>,
+    /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`],
+    /// the set's key (an answer to it, sent again, clears the component), and the failure's
+    /// cause, should they be blamed when it runs out.
+    unanswered: BTreeMap<ComponentKey, (TimerId, Key, String)>,
     done: BTreeSet<ComponentKey>,
     /// Inputs to re-point once their new producer runs (make-before-break):
     /// the producer, and the remote set that wires its consumer.
@@ -312,7 +328,7 @@ impl ActionRun {
     fn take_component_timers(&mut self) -> Vec<TimerId> {
         let waiting = std::mem::take(&mut self.waiting).into_values();
         let unanswered = std::mem::take(&mut self.unanswered).into_values();
-        waiting.chain(unanswered.map(|(id, _)| id)).collect()
+        waiting.chain(unanswered.map(|(id, ..)| id)).collect()
     }
 }
 
@@ -427,6 +443,10 @@ pub struct Executive {
     params: BTreeMap<ComponentKey, String>,
     /// What it wrote to components of PEIS that left and may come back in the same run.
     orphans: BTreeMap<ComponentKey, Orphan>,
+    /// The remote sets asked for that are neither answered nor failed yet: by owner and key,
+    /// their values in the order asked (the driver carries out one owner's sets in order).
+    /// While a PEIS has one, the way to it is not known to work.
+    in_flight: BTreeMap<(PeisId, Key), VecDeque<String>>,
     /// Departures being judged, if any.
     departures: Option<Departures>,
     /// Set while the ecology is lost.
@@ -469,6 +489,7 @@ impl Executive {
             started: BTreeSet::new(),
             params: BTreeMap::new(),
             orphans: BTreeMap::new(),
+            in_flight: BTreeMap::new(),
             departures: None,
             lost: None,
             awaited: None,
@@ -588,13 +609,57 @@ impl Executive {
                 reason,
                 unanswered,
             } => {
-                self.on_remote_set_failed(owner, key, reason, unanswered, &mut out);
+                let value = self.set_over(&owner, &key);
+                self.on_remote_set_failed(owner, key, value, reason, unanswered, &mut out);
+            }
+            Event::RemoteSetAnswered { owner, key } => {
+                self.set_over(&owner, &key);
+                self.on_remote_set_answered(owner, &key, &mut out);
             }
             Event::PeisJoined(peis) => self.on_joined(peis, &mut out),
             Event::PeisLeft(peis) => self.on_left(peis, &mut out),
             Event::Timer(id) => self.on_timer(id, &mut out),
         }
+        self.sent(out)
+    }
+
+    /// `out`, its remote sets kept as in flight until answered or failed.
+    fn sent(&mut self, out: Vec<Command>) -> Vec<Command> {
+        for command in &out {
+            if let Command::RemoteSet { owner, key, value } = command {
+                self.in_flight
+                    .entry((owner.clone(), key.clone()))
+                    .or_default()
+                    .push_back(value.clone());
+            }
+        }
         out
+    }
+
+    /// The first remote set of `key` asked of `owner` is over, answered or failed: its value.
+    fn set_over(&mut self, owner: &PeisId, key: &Key) -> Option<String> {
+        let at = (owner.clone(), key.clone());
+        let values = self.in_flight.get_mut(&at)?;
+        let value = values.pop_front();
+        if values.is_empty() {
+            self.in_flight.remove(&at);
+        }
+        value
+    }
+
+    /// Whether a remote set asked of the PEIS of `consumer`, or of the PEIS of a producer wired
+    /// to it, is still neither answered nor failed: the way there is not known to work, so what
+    /// the consumer waits for may be held up on it.
+    fn way_unproven(&self, consumer: &ComponentKey) -> bool {
+        let Some(config) = self.run.as_ref().and_then(|r| r.config.as_ref()) else {
+            return false;
+        };
+        let producers = config.channels.iter().filter(|c| {
+            &*c.to_peis == consumer.0.as_str() && &*c.to_component == consumer.1.as_str()
+        });
+        std::iter::once(consumer.0.as_str())
+            .chain(producers.map(|c| &*c.from_peis))
+            .any(|p| self.in_flight.keys().any(|(q, _)| q.as_str() == p))
     }
 
     /// A PEIS that restarted starts afresh: forget what was written to its
@@ -1524,14 +1589,12 @@ impl Executive {
         &mut self,
         owner: PeisId,
         key: Key,
+        value: Option<String>,
         reason: String,
         unanswered: bool,
         out: &mut Vec<Command>,
     ) {
-        // `components.C.reqState`, or `C.params` and `C.mi-…`: the component is the first segment.
-        let component = ComponentField::parse(&key)
-            .map(|(c, _)| c)
-            .or_else(|| key.segments().next().and_then(|c| ComponentId::new(c).ok()));
+        let component = set_component(&key);
         self.record(LogEvent::RemoteSetFailed {
             owner: owner.to_string(),
             key: key.to_string(),
@@ -1553,16 +1616,52 @@ impl Executive {
                     .is_some_and(|run| run.unanswered.contains_key(&target));
                 if !unanswered {
                     self.failure(vec![target], cause, out);
-                } else if self.is_absent(&target.0) || self.lost.is_some() || held {
-                    // Its PEIS gone already (its departure failed what it ran), the ecology
-                    // lost (nothing is blamed), or held already: nothing more to do.
+                } else if self.is_absent(&target.0) || self.lost.is_some() {
+                    // Its PEIS gone already (its departure failed what it ran), or the ecology
+                    // lost (nothing is blamed): nothing more to do.
                 } else {
-                    let timer = self.timer(self.config.unanswered_grace, out);
-                    if let Some(run) = &mut self.run {
-                        run.unanswered.insert(target, (timer, cause));
+                    // Its PEIS is still heard: the set goes again, unless a later one of the
+                    // same key follows it anyway. An answer clears the component.
+                    let later = self
+                        .in_flight
+                        .contains_key(&(target.0.clone(), key.clone()));
+                    if let Some(value) = value.filter(|_| !later) {
+                        self.record(LogEvent::RemoteSetRetried {
+                            owner: target.0.to_string(),
+                            key: key.to_string(),
+                        });
+                        out.push(Command::RemoteSet {
+                            owner: target.0.clone(),
+                            key: key.clone(),
+                            value,
+                        });
+                    }
+                    if !held {
+                        let timer = self.timer(self.config.unanswered_grace, out);
+                        if let Some(run) = &mut self.run {
+                            run.unanswered.insert(target, (timer, key, cause));
+                        }
                     }
                 }
             }
+        }
+    }
+
+    /// A remote set was answered: if it was sent again after getting no answer, its component
+    /// is cleared.
+    fn on_remote_set_answered(&mut self, owner: PeisId, key: &Key, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        let Some(component) = set_component(key) else {
+            return;
+        };
+        let target = (owner, component);
+        if run
+            .unanswered
+            .get(&target)
+            .is_some_and(|(_, k, _)| k == key)
+            && let Some((timer, ..)) = run.unanswered.remove(&target)
+        {
+            out.push(Command::CancelTimer(timer));
         }
     }
 
@@ -1655,10 +1754,10 @@ impl Executive {
         let held = run
             .unanswered
             .iter()
-            .find(|(_, (t, _))| *t == id)
+            .find(|(_, (t, ..))| *t == id)
             .map(|(k, _)| k.clone());
         if let Some(key) = held
-            && let Some((_, cause)) = run.unanswered.remove(&key)
+            && let Some((_, _, cause)) = run.unanswered.remove(&key)
         {
             // Neither gone nor out of reach: the component is to blame after all.
             if self.is_present(&key.0) {
@@ -1677,6 +1776,15 @@ impl Executive {
             .map(|(k, _)| k.clone());
         if let Some(key) = waited {
             run.waiting.remove(&key);
+            if self.way_unproven(&key) {
+                // Not the component's fault while its PEIS, or a producer's, has not answered
+                // yet: the grace starts again, and the set is answered or fails meanwhile.
+                let id = self.timer(self.config.waiting_grace, out);
+                if let Some(run) = &mut self.run {
+                    run.waiting.insert(key, id);
+                }
+                return;
+            }
             let cause = self
                 .mirror
                 .component(key.0.as_str(), key.1.as_str())
@@ -1963,7 +2071,7 @@ impl Executive {
             branches,
         });
         self.start_action(0, &mut out);
-        out
+        self.sent(out)
     }
 
     /// Gives up after a failed action: the task fails, and what it used is released.
@@ -1987,7 +2095,7 @@ impl Executive {
             self.release(&mut out);
             self.record(LogEvent::TaskFailed { reason });
         }
-        out
+        self.sent(out)
     }
 
     /// Stops the task where it stands (the operator interrupted it): the
@@ -2014,6 +2122,6 @@ impl Executive {
         self.record(LogEvent::TaskFailed {
             reason: reason.to_string(),
         });
-        out
+        self.sent(out)
     }
 }

@@ -114,6 +114,13 @@ pub enum LogEvent {
         /// Why.
         reason: String,
     },
+    /// A remote set that got no answer from a PEIS still present was sent again.
+    RemoteSetRetried {
+        /// The owner of the tuple.
+        owner: String,
+        /// The key.
+        key: String,
+    },
     /// The task ended and released what it used.
     Released {
         /// Components the task had switched on, now switched off.
@@ -235,6 +242,7 @@ impl LogEvent {
             LogEvent::PeisLeft { .. } => "peis_left",
             LogEvent::PeisRestarted { .. } => "peis_restarted",
             LogEvent::RemoteSetFailed { .. } => "remote_set_failed",
+            LogEvent::RemoteSetRetried { .. } => "remote_set_retried",
             LogEvent::Released { .. } => "released",
             LogEvent::Reclaimed { .. } => "reclaimed",
             LogEvent::EcologyLost { .. } => "ecology_lost",
@@ -367,6 +375,12 @@ impl fmt::Display for LogEntry {
             LogEvent::PeisRestarted { peis } => write!(f, "  PEIS {peis} restarted"),
             LogEvent::RemoteSetFailed { owner, key, reason } => {
                 write!(f, "  remote set of {owner}:{key} failed: {reason}")
+            }
+            LogEvent::RemoteSetRetried { owner, key } => {
+                write!(
+                    f,
+                    "  remote set of {owner}:{key} sent again: {owner} is still present"
+                )
             }
             LogEvent::Released {
                 switched_off,

@@ -101,7 +101,11 @@ fn running_first_action() -> Executive {
         ("hsm", "ca1"),
         ("hsm", "tr1"),
     ] {
-        exec.handle(secs(1.0), tuple(p, &format!("{c}.status"), "running", 2));
+        answered(
+            &mut exec,
+            secs(1.0),
+            tuple(p, &format!("{c}.status"), "running", 2),
+        );
     }
     exec
 }
@@ -127,8 +131,26 @@ fn started_first_action() -> Executive {
             tuple(p, &format!("components.{c}.currState"), "on", 1),
         );
     }
-    exec.handle(Duration::ZERO, Event::Start);
+    answered(&mut exec, Duration::ZERO, Event::Start);
     exec
+}
+
+/// Hands `exec` the event, then tells it that each remote set it asks for was answered, as over
+/// a network that works; returns the commands.
+fn answered(exec: &mut Executive, now: Duration, event: Event) -> Vec<Command> {
+    let commands = exec.handle(now, event);
+    for command in &commands {
+        if let Command::RemoteSet { owner, key, .. } = command {
+            exec.handle(
+                now,
+                Event::RemoteSetAnswered {
+                    owner: owner.clone(),
+                    key: key.clone(),
+                },
+            );
+        }
+    }
+    commands
 }
 
 #[test]
@@ -297,12 +319,28 @@ fn inputs_are_repointed_only_once_their_new_producer_runs() {
 #[test]
 fn a_component_waiting_across_a_redeploy_is_still_timed() {
     let mut exec = running_first_action();
-    exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    answered(&mut exec, secs(2.0), tuple("hsm", "tr1.status", "error", 3));
     // While the new configuration deploys, navigation loses its position.
-    exec.handle(secs(2.1), tuple("astrid", "tc1.status", "waiting", 3));
-    exec.handle(secs(2.2), tuple("astrid", "l1.status", "running", 2));
-    exec.handle(secs(2.3), tuple("astrid", "od1.status", "running", 3));
-    let commands = exec.handle(secs(2.4), tuple("astrid", "s1.status", "running", 3));
+    answered(
+        &mut exec,
+        secs(2.1),
+        tuple("astrid", "tc1.status", "waiting", 3),
+    );
+    answered(
+        &mut exec,
+        secs(2.2),
+        tuple("astrid", "l1.status", "running", 2),
+    );
+    answered(
+        &mut exec,
+        secs(2.3),
+        tuple("astrid", "od1.status", "running", 3),
+    );
+    let commands = answered(
+        &mut exec,
+        secs(2.4),
+        tuple("astrid", "s1.status", "running", 3),
+    );
     assert_eq!(names(&exec).last(), Some(&"running"), "{}", timeline(&exec));
     let grace = ExecConfig::default().waiting_grace;
     let Some(id) = commands.iter().find_map(|c| match c {
@@ -645,6 +683,112 @@ fn an_unanswered_remote_set_fails_its_component_after_a_grace() {
         "{text}"
     );
     assert_eq!(costs(&exec), [(80, false), (150, true)], "{text}");
+}
+
+/// A remote set that got no answer from a PEIS still present goes again (a lossy link drops a
+/// query now and then); the answer to it clears the component, and the grace then runs out
+/// without blame.
+#[test]
+fn an_unanswered_remote_set_is_sent_again_and_its_answer_clears_the_component() {
+    let mut exec = running_first_action();
+    // The tracking system fails: the laser configuration gives s1 new params, not yet answered.
+    let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    let params = set_of(&commands, "astrid", "s1.params").map(str::to_string);
+    assert_eq!(params.as_deref(), Some("(scan-matching astrid s1)"));
+    let held = exec.handle(secs(4.0), unanswered("astrid", "s1.params"));
+    assert_eq!(set_of(&held, "astrid", "s1.params"), params.as_deref());
+    assert!(
+        timeline(&exec)
+            .contains("remote set of astrid:s1.params sent again: astrid is still present"),
+        "{}",
+        timeline(&exec)
+    );
+    let grace = timer_of(&held, ExecConfig::default().unanswered_grace);
+    let cleared = exec.handle(
+        secs(4.5),
+        Event::RemoteSetAnswered {
+            owner: peis("astrid"),
+            key: key("s1.params"),
+        },
+    );
+    assert_eq!(cleared, [Command::CancelTimer(grace)]);
+    // Delivered all the same, the cancelled grace blames nobody.
+    exec.handle(secs(7.0), Event::Timer(grace));
+    assert!(
+        failures(&exec).iter().all(|f| !f.starts_with("astrid:s1")),
+        "{}",
+        timeline(&exec)
+    );
+    assert_eq!(costs(&exec), [(80, false), (150, true)]);
+}
+
+/// A set sent again only while it is the last of its key: a later set of the same key, asked
+/// before the first failed, carries the newer value anyway.
+#[test]
+fn an_unanswered_remote_set_with_a_later_one_of_its_key_is_not_sent_again() {
+    let mut exec = running_first_action();
+    exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    // The laser fails before any answer: the camera configuration on pippi gives s1 new params.
+    let second = exec.handle(secs(2.5), tuple("astrid", "l1.status", "error", 3));
+    assert!(
+        set_of(&second, "astrid", "s1.params").is_some(),
+        "{}",
+        timeline(&exec)
+    );
+    let held = exec.handle(secs(4.0), unanswered("astrid", "s1.params"));
+    assert_eq!(set_of(&held, "astrid", "s1.params"), None, "{held:?}");
+}
+
+/// A component waiting while a remote set to its PEIS has been neither answered nor failed is
+/// not blamed when its grace runs out: what it waits for may be held up on the same way. Its
+/// grace starts again, and once the way is shown to work it is blamed as before.
+#[test]
+fn a_component_waiting_while_its_peis_has_not_answered_is_timed_again() {
+    let mut exec = running_first_action();
+    // The laser configuration's sets to astrid go unanswered for now.
+    let sets = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
+    answered(
+        &mut exec,
+        secs(2.2),
+        tuple("astrid", "l1.status", "running", 2),
+    );
+    answered(
+        &mut exec,
+        secs(2.3),
+        tuple("astrid", "od1.status", "running", 3),
+    );
+    answered(
+        &mut exec,
+        secs(2.4),
+        tuple("astrid", "s1.status", "running", 3),
+    );
+    let commands = answered(
+        &mut exec,
+        secs(2.5),
+        tuple("astrid", "tc1.status", "waiting", 4),
+    );
+    let grace = ExecConfig::default().waiting_grace;
+    let again = exec.handle(secs(4.5), Event::Timer(timer_of(&commands, grace)));
+    assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));
+    // The sets are answered; the grace that started again runs out: navigation is to blame.
+    for set in &sets {
+        if let Command::RemoteSet { owner, key, .. } = set {
+            exec.handle(
+                secs(5.0),
+                Event::RemoteSetAnswered {
+                    owner: owner.clone(),
+                    key: key.clone(),
+                },
+            );
+        }
+    }
+    exec.handle(secs(6.5), Event::Timer(timer_of(&again, grace)));
+    assert_eq!(
+        failures(&exec),
+        ["hsm:tr1 error", "astrid:tc1 waiting for longer than 2s"],
+        "{}",
+        timeline(&exec)
+    );
 }
 
 /// The executive cut off while it deploys: its remote sets get no answer, then every PEIS seems
