@@ -86,7 +86,9 @@ pub enum Event {
 /// What the executive asks its driver to do.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Command {
-    /// Ask `owner` to set its tuple `key` to `value` (a remote set).
+    /// Ask `owner` to set its tuple `key` to `value` (a remote set). The driver reports how each
+    /// one ended, once: [`Event::RemoteSetAnswered`] or [`Event::RemoteSetFailed`]; until then
+    /// the executive takes the way to `owner` as not known to work.
     RemoteSet {
         /// The PEIS that owns the tuple.
         owner: PeisId,

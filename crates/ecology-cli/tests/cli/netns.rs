@@ -82,6 +82,18 @@ fn remove_stale() {
     }
 }
 
+/// Whether `nft` runs here; if not, says that `test` is skipped.
+fn nft_runs(test: &str) -> bool {
+    let runs = Command::new("nft")
+        .arg("--version")
+        .output()
+        .is_ok_and(|out| out.status.success());
+    if !runs {
+        eprintln!("skipped {test}: dropping packets needs nft (nftables)");
+    }
+    runs
+}
+
 /// A network of hosts on one bridge; torn down when dropped.
 pub struct Network {
     bridge: String,
@@ -175,12 +187,7 @@ impl Network {
     /// random (nftables' random numbers; this kernel has no `netem`), as poor Wi-Fi does; `false`
     /// (having said why the test is skipped) without `nft`.
     pub fn drop_packets(&self, test: &str, host: &str, percent: u32) -> bool {
-        if !Command::new("nft")
-            .arg("--version")
-            .output()
-            .is_ok_and(|out| out.status.success())
-        {
-            eprintln!("skipped {test}: dropping packets needs nft (nftables)");
+        if !nft_runs(test) {
             return false;
         }
         let drop = format!("numgen random mod 100 < {percent} drop;");
@@ -188,6 +195,21 @@ impl Network {
             "table inet lossy {{ \
                chain in {{ type filter hook input priority 0; {drop} }}; \
                chain out {{ type filter hook output priority 0; {drop} }}; }}"
+        );
+        ip(&["netns", "exec", &self.get(host).0, "nft", &rules]);
+        true
+    }
+
+    /// Makes `host` drop every packet it receives from `from`: what `from` sends is lost, while
+    /// what `host` sends still arrives. `false` (having said why the test is skipped) without
+    /// `nft`.
+    pub fn drop_from(&self, test: &str, host: &str, from: &str) -> bool {
+        if !nft_runs(test) {
+            return false;
+        }
+        let rules = format!(
+            "table inet lossy {{ chain in {{ type filter hook input priority 0; ip saddr {} drop; }}; }}",
+            self.get(from).2
         );
         ip(&["netns", "exec", &self.get(host).0, "nft", &rules]);
         true
@@ -837,6 +859,38 @@ fn a_robot_cut_off_for_seconds_is_waited_for_and_goes_on() {
     assert_eq!(code, Some(0), "{all:#?}");
     assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
     assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// What the executive sends hsm is lost for a while, from before the move is deployed until
+/// after its first remote sets there fail unanswered (hsm is still heard: what it sends arrives).
+/// The sets go again and are answered once the link delivers again; no component is blamed,
+/// navigation's wait for its position is not held against it, and the move is done on the
+/// cameras. Leases of 8 s keep the one-way silence from ending the sessions.
+#[test]
+fn remote_sets_lost_on_the_way_to_a_peis_still_present_are_sent_again() {
+    let test = "one-way";
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start(test, Topology::Peers, false, &["--lease", "8"]) else {
+        return;
+    };
+    // The executive plans 4 s after it starts; what it sends hsm is lost from 0.7 s before.
+    home.task(&["--settle", "4", "--lease", "8"]);
+    std::thread::sleep(Duration::from_millis(3300));
+    if !home.net.drop_from(test, "hsm", "executive") {
+        return;
+    }
+    home.wait_event("deployed");
+    let (failed, _) = home.wait_event("remote_set_failed");
+    assert_eq!(failed["owner"], "hsm", "{failed}");
+    std::thread::sleep(Duration::from_millis(300));
+    home.net.stop_dropping("hsm");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    let retried = named(&all, "remote_set_retried");
+    assert!(retried.iter().any(|r| r["owner"] == "hsm"), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
     home.assert_nothing_left_on();
 }
 
