@@ -316,6 +316,14 @@ fn inputs_are_repointed_only_once_their_new_producer_runs() {
     );
 }
 
+/// The laser configuration's components report `running` at 2.2, 2.3 and 2.4 s, their sets
+/// answered; the commands of the last.
+fn laser_configuration_runs(exec: &mut Executive) -> Vec<Command> {
+    answered(exec, secs(2.2), tuple("astrid", "l1.status", "running", 2));
+    answered(exec, secs(2.3), tuple("astrid", "od1.status", "running", 3));
+    answered(exec, secs(2.4), tuple("astrid", "s1.status", "running", 3))
+}
+
 #[test]
 fn a_component_waiting_across_a_redeploy_is_still_timed() {
     let mut exec = running_first_action();
@@ -326,21 +334,7 @@ fn a_component_waiting_across_a_redeploy_is_still_timed() {
         secs(2.1),
         tuple("astrid", "tc1.status", "waiting", 3),
     );
-    answered(
-        &mut exec,
-        secs(2.2),
-        tuple("astrid", "l1.status", "running", 2),
-    );
-    answered(
-        &mut exec,
-        secs(2.3),
-        tuple("astrid", "od1.status", "running", 3),
-    );
-    let commands = answered(
-        &mut exec,
-        secs(2.4),
-        tuple("astrid", "s1.status", "running", 3),
-    );
+    let commands = laser_configuration_runs(&mut exec);
     assert_eq!(names(&exec).last(), Some(&"running"), "{}", timeline(&exec));
     let grace = ExecConfig::default().waiting_grace;
     let Some(id) = commands.iter().find_map(|c| match c {
@@ -747,21 +741,7 @@ fn a_component_waiting_while_its_peis_has_not_answered_is_timed_again() {
     let mut exec = running_first_action();
     // The laser configuration's sets to astrid go unanswered for now.
     let sets = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "error", 3));
-    answered(
-        &mut exec,
-        secs(2.2),
-        tuple("astrid", "l1.status", "running", 2),
-    );
-    answered(
-        &mut exec,
-        secs(2.3),
-        tuple("astrid", "od1.status", "running", 3),
-    );
-    answered(
-        &mut exec,
-        secs(2.4),
-        tuple("astrid", "s1.status", "running", 3),
-    );
+    laser_configuration_runs(&mut exec);
     let commands = answered(
         &mut exec,
         secs(2.5),
