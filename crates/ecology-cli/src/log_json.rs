@@ -88,6 +88,17 @@ pub fn json_line(entry: &LogEntry) -> String {
         LogEvent::AwaitingReturn { gone, waiting } => {
             json!({ "gone": gone, "waiting_s": waiting.as_secs_f64() })
         }
+        LogEvent::WaitingLonger {
+            peis,
+            component,
+            waited_for,
+            waiting,
+        } => json!({
+            "peis": peis,
+            "component": component,
+            "waited_for": waited_for,
+            "waiting_s": waiting.as_secs_f64(),
+        }),
         LogEvent::ActionDone { index, action } => json!({ "index": index, "action": action }),
         LogEvent::ActionFailed {
             index,

@@ -70,8 +70,9 @@ pub struct TaskArgs {
     #[arg(long, value_name = "SECONDS", default_value_t = 3.0)]
     pub unanswered_grace: f64,
     /// How long an action left without a configuration by PEIS that left waits for them to
-    /// return, in seconds, before it fails (a robot on a poor link is back shortly); 0 fails at
-    /// once.
+    /// return, in seconds, before it fails (a robot on a poor link is back shortly); also how much
+    /// longer than the waiting grace a `waiting` component that no configuration can do without
+    /// is given. 0 fails at once.
     #[arg(long, value_name = "SECONDS", default_value_t = 5.0)]
     pub return_wait: f64,
     /// How long to take in the ecology's tuples before the first action, in seconds.

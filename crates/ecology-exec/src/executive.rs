@@ -140,7 +140,9 @@ pub struct ExecConfig {
     pub unanswered_grace: Duration,
     /// How long an action left without a configuration by PEIS that left waits for them to
     /// return before it fails: a robot on a poor link can go silent for its whole lease and be
-    /// back a second or two later. Zero fails at once.
+    /// back a second or two later. Also how much longer than [`ExecConfig::waiting_grace`] a
+    /// component still `waiting` is given when no configuration can do without it: what it waits
+    /// for may only be held up. Zero fails at once.
     pub return_wait: Duration,
 }
 
@@ -312,6 +314,9 @@ struct ActionRun {
     deploy_timer: Option<TimerId>,
     action_timer: TimerId,
     waiting: BTreeMap<ComponentKey, TimerId>,
+    /// Components whose waiting was given longer, since nothing could stand in for them: once
+    /// per action.
+    waited_longer: BTreeSet<ComponentKey>,
     /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`],
     /// the set's key (an answer to it, sent again, clears the component), and the failure's
     /// cause, should they be blamed when it runs out.
@@ -1187,6 +1192,7 @@ impl Executive {
             deploy_timer: None,
             action_timer,
             waiting: BTreeMap::new(),
+            waited_longer: BTreeSet::new(),
             unanswered: BTreeMap::new(),
             done: BTreeSet::new(),
             deferred: Vec::new(),
@@ -1209,19 +1215,10 @@ impl Executive {
     }
 
     /// Acquire state, plan, deploy.
-    fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
-        let Some(run) = &self.run else { return };
-        let index = run.index;
-        let mut exclusions = run.excluded.clone();
-        let Some(goal) = self.plan[index].goal.clone() else {
-            return;
-        };
-        let before = self.stopwatch.0.elapsed();
-        let state = self.mirror.state(&self.world);
-        let (peis, components) = self.mirror.counts();
-        // A component that reports `error` stays out until it reports
-        // something else (its PEIS restarting it counts): whatever action
-        // it failed in.
+    /// Adds the components that report `error` to `exclusions`: such a component stays out until
+    /// it reports something else (its PEIS restarting it counts), whatever action it failed in.
+    /// Returns why each one added is unavailable.
+    fn add_unavailable(&self, exclusions: &mut Vec<Exclusion>) -> Vec<String> {
         let mut unavailable = Vec::new();
         for (p, c, cause) in self.mirror.in_error() {
             let exclusion = Exclusion::Component {
@@ -1233,6 +1230,56 @@ impl Executive {
                 unavailable.push(format!("{p}:{c} reports error ({cause})"));
             }
         }
+        unavailable
+    }
+
+    /// Whether the action has a configuration without `key` (and without what it excludes
+    /// already): a plan for the question alone, logged nowhere. A planner that runs out of
+    /// budget counts as yes: nothing shows that the component cannot be done without.
+    fn replaceable(&self, key: &ComponentKey) -> bool {
+        let Some(run) = &self.run else { return true };
+        let Some(goal) = &self.plan[run.index].goal else {
+            return true;
+        };
+        let mut exclusions = run.excluded.clone();
+        exclusions.push(Exclusion::Component {
+            peis: key.0.to_string(),
+            component: key.1.to_string(),
+        });
+        self.add_unavailable(&mut exclusions);
+        let state = self.mirror.state(&self.world);
+        let request = Request {
+            domain: self.planner.domain(),
+            state: &state,
+            goal,
+            exclusions: &exclusions,
+        };
+        let options = Options {
+            count: 1,
+            budget: self.config.planning,
+        };
+        let since = Since {
+            clock: &*self.stopwatch.0,
+            start: self.stopwatch.0.elapsed(),
+        };
+        self.planner
+            .plan(&request, &options, &since)
+            .is_ok_and(|o| {
+                !o.configurations.is_empty() || o.status == ecology_config::Status::BudgetExceeded
+            })
+    }
+
+    fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
+        let Some(run) = &self.run else { return };
+        let index = run.index;
+        let mut exclusions = run.excluded.clone();
+        let Some(goal) = self.plan[index].goal.clone() else {
+            return;
+        };
+        let before = self.stopwatch.0.elapsed();
+        let state = self.mirror.state(&self.world);
+        let (peis, components) = self.mirror.counts();
+        let unavailable = self.add_unavailable(&mut exclusions);
         let acquired = self.stopwatch.0.elapsed();
         self.record(LogEvent::StateAcquired {
             peis,
@@ -1778,6 +1825,7 @@ impl Executive {
             .map(|(k, _)| k.clone());
         if let Some(key) = waited {
             run.waiting.remove(&key);
+            let extended = run.waited_longer.contains(&key);
             if self.way_unproven(&key) {
                 // Not the component's fault while its PEIS, or a producer's, has not answered
                 // yet: the grace starts again, and the set is answered or fails meanwhile.
@@ -1787,19 +1835,35 @@ impl Executive {
                 }
                 return;
             }
-            let cause = self
+            let waited_for = self
                 .mirror
                 .component(key.0.as_str(), key.1.as_str())
-                .and_then(|c| c.cause.clone())
-                .map_or_else(
-                    || format!("waiting for longer than {:?}", self.config.waiting_grace),
-                    |c| {
-                        format!(
-                            "waiting for longer than {:?}: {c}",
-                            self.config.waiting_grace
-                        )
-                    },
-                );
+                .and_then(|c| c.cause.clone());
+            if !extended && !self.config.return_wait.is_zero() && !self.replaceable(&key) {
+                // Nothing can stand in for it: it is given as long as a PEIS that left is waited
+                // for, since what it waits for may only be held up (a link that keeps dropping).
+                self.record(LogEvent::WaitingLonger {
+                    peis: key.0.to_string(),
+                    component: key.1.to_string(),
+                    waited_for: waited_for.clone().unwrap_or_default(),
+                    waiting: self.config.return_wait,
+                });
+                let id = self.timer(self.config.return_wait, out);
+                if let Some(run) = &mut self.run {
+                    run.waited_longer.insert(key.clone());
+                    run.waiting.insert(key, id);
+                }
+                return;
+            }
+            let grace = if extended {
+                self.config.waiting_grace + self.config.return_wait
+            } else {
+                self.config.waiting_grace
+            };
+            let cause = waited_for.map_or_else(
+                || format!("waiting for longer than {grace:?}"),
+                |c| format!("waiting for longer than {grace:?}: {c}"),
+            );
             self.failure(vec![key], cause, out);
         }
     }

@@ -158,6 +158,18 @@ pub enum LogEvent {
         /// How long it waits.
         waiting: Duration,
     },
+    /// A component still `waiting` when its grace ran out, which no configuration can do
+    /// without, is given longer before it is blamed.
+    WaitingLonger {
+        /// Its PEIS.
+        peis: String,
+        /// The component.
+        component: String,
+        /// What it waits for: its cause (empty when it gave none).
+        waited_for: String,
+        /// How much longer.
+        waiting: Duration,
+    },
     /// Most of the lost ecology is back: the action goes on, reconfigured.
     EcologyBack {
         /// The PEIS back.
@@ -248,6 +260,7 @@ impl LogEvent {
             LogEvent::EcologyLost { .. } => "ecology_lost",
             LogEvent::EcologyBack { .. } => "ecology_back",
             LogEvent::AwaitingReturn { .. } => "awaiting_return",
+            LogEvent::WaitingLonger { .. } => "waiting_longer",
             LogEvent::ActionDone { .. } => "action_done",
             LogEvent::ActionFailed { .. } => "action_failed",
             LogEvent::Observed { .. } => "observed",
@@ -424,6 +437,22 @@ impl fmt::Display for LogEntry {
                 gone.join(", "),
                 if gone.len() == 1 { "it" } else { "them" }
             ),
+            LogEvent::WaitingLonger {
+                peis,
+                component,
+                waited_for,
+                waiting,
+            } => {
+                write!(
+                    f,
+                    "  no configuration without {peis}:{component}: waiting up to {waiting:?} more for"
+                )?;
+                if waited_for.is_empty() {
+                    write!(f, " its inputs")
+                } else {
+                    write!(f, " {waited_for}")
+                }
+            }
             LogEvent::EcologyBack { back, missing } => {
                 write!(f, "  the ecology is back: {}", back.join(", "))?;
                 if !missing.is_empty() {

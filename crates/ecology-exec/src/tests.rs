@@ -182,14 +182,12 @@ fn duplicate_late_and_stale_status_tuples_cause_one_reconfiguration() {
     );
 }
 
+/// The tracking system waits past its grace; the laser can stand in for it, so it is blamed.
 #[test]
 fn waiting_too_long_is_a_failure() {
     let mut exec = running_first_action();
-    exec.handle(
-        secs(2.0),
-        tuple("astrid", "s1.cause", "(global-pos astrid)", 1),
-    );
-    let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+    exec.handle(secs(2.0), tuple("hsm", "tr1.cause", "(image hsm)", 1));
+    let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "waiting", 3));
     let Some(Command::StartTimer { id, after }) = commands.first().cloned() else {
         panic!("a grace timer: {commands:?}");
     };
@@ -197,7 +195,7 @@ fn waiting_too_long_is_a_failure() {
     exec.handle(secs(4.0), Event::Timer(id));
     let text = timeline(&exec);
     assert!(
-        text.contains("FAILURE astrid:s1: waiting for longer than 2s: (global-pos astrid)"),
+        text.contains("FAILURE hsm:tr1: waiting for longer than 2s: (image hsm)"),
         "{text}"
     );
 }
@@ -258,14 +256,52 @@ fn an_unreadable_input_is_blamed_on_its_producer_while_deploying() {
     );
 }
 
+/// Pose tracking waits past its grace, and no configuration can do without it (both ways to a
+/// position end in s1): it is given as long again as a PEIS that left is waited for, then
+/// blamed; or, reporting `running` meanwhile, it is not blamed at all.
+#[test]
+fn a_waiting_component_nothing_can_stand_in_for_is_given_longer() {
+    let grace = ExecConfig::default().waiting_grace;
+    let longer = ExecConfig::default().return_wait;
+    for recovers in [false, true] {
+        let mut exec = running_first_action();
+        exec.handle(
+            secs(2.0),
+            tuple("astrid", "s1.cause", "(global-pos astrid)", 1),
+        );
+        let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+        let more = exec.handle(secs(4.0), Event::Timer(timer_of(&commands, grace)));
+        let text = timeline(&exec);
+        assert!(failures(&exec).is_empty(), "{text}");
+        assert!(
+            text.contains(
+                "no configuration without astrid:s1: waiting up to 5s more for (global-pos astrid)"
+            ),
+            "{text}"
+        );
+        let id = timer_of(&more, longer);
+        if recovers {
+            let commands = exec.handle(secs(5.0), tuple("astrid", "s1.status", "running", 4));
+            assert!(commands.contains(&Command::CancelTimer(id)), "{commands:?}");
+            assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
+        } else {
+            exec.handle(secs(9.0), Event::Timer(id));
+            assert_eq!(
+                failures(&exec),
+                ["astrid:s1 waiting for longer than 7s: (global-pos astrid)"]
+            );
+        }
+    }
+}
+
 #[test]
 fn an_unreadable_cause_naming_no_input_of_the_component_is_plain_waiting() {
     let mut exec = running_first_action();
     exec.handle(
         secs(2.0),
-        tuple("astrid", "s1.cause", "unreadable range-scan: ?", 1),
+        tuple("hsm", "tr1.cause", "unreadable range-scan: ?", 1),
     );
-    let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
+    let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "waiting", 3));
     assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
     let Some(Command::StartTimer { id, .. }) = commands.first().cloned() else {
         panic!("a grace timer: {commands:?}");
@@ -273,7 +309,7 @@ fn an_unreadable_cause_naming_no_input_of_the_component_is_plain_waiting() {
     exec.handle(secs(4.0), Event::Timer(id));
     assert_eq!(
         failures(&exec),
-        ["astrid:s1 waiting for longer than 2s: unreadable range-scan: ?"]
+        ["hsm:tr1 waiting for longer than 2s: unreadable range-scan: ?"]
     );
 }
 
@@ -343,10 +379,15 @@ fn a_component_waiting_across_a_redeploy_is_still_timed() {
     }) else {
         panic!("no grace timer for the waiting navigation: {commands:?}");
     };
-    exec.handle(secs(4.4), Event::Timer(id));
+    // Nothing can stand in for navigation: it is given longer, then blamed.
+    let more = exec.handle(secs(4.4), Event::Timer(id));
+    exec.handle(
+        secs(9.4),
+        Event::Timer(timer_of(&more, ExecConfig::default().return_wait)),
+    );
     let text = timeline(&exec);
     assert!(
-        text.contains("FAILURE astrid:tc1: waiting for longer than 2s"),
+        text.contains("FAILURE astrid:tc1: waiting for longer than 7s"),
         "{text}"
     );
 }
@@ -762,10 +803,16 @@ fn a_component_waiting_while_its_peis_has_not_answered_is_timed_again() {
             );
         }
     }
-    exec.handle(secs(6.5), Event::Timer(timer_of(&again, grace)));
+    // Nothing can stand in for navigation: it is given longer, then blamed.
+    let more = exec.handle(secs(6.5), Event::Timer(timer_of(&again, grace)));
+    assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));
+    exec.handle(
+        secs(11.5),
+        Event::Timer(timer_of(&more, ExecConfig::default().return_wait)),
+    );
     assert_eq!(
         failures(&exec),
-        ["hsm:tr1 error", "astrid:tc1 waiting for longer than 2s"],
+        ["hsm:tr1 error", "astrid:tc1 waiting for longer than 7s"],
         "{}",
         timeline(&exec)
     );
