@@ -895,6 +895,33 @@ fn remote_sets_lost_on_the_way_to_a_peis_still_present_are_sent_again() {
     home.assert_nothing_left_on();
 }
 
+/// What hsm sends Astrid is lost for 3.5 s mid-move (both stay present: a lease of 12 s on hsm).
+/// Her pose tracking waits for its position past its 2 s grace, and no configuration can do
+/// without it, so it is given 5 s more (`waiting_longer`); TCP delivers again within them and
+/// the move is done on the cameras, nothing blamed, nothing left on.
+#[test]
+fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
+    let test = "starved";
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start(test, Topology::Peers, false, &["--lease", "12"]) else {
+        return;
+    };
+    home.task(&[]);
+    home.wait_event("running");
+    if !home.net.drop_from(test, "astrid", "hsm") {
+        return;
+    }
+    std::thread::sleep(Duration::from_millis(3500));
+    home.net.stop_dropping("astrid");
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    let longer = named(&all, "waiting_longer");
+    assert!(longer.iter().any(|w| w["component"] == "s1"), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
 /// The paper's whole task (with Pippi) while every host drops a tenth of the packets it sends and
 /// of those it receives (the executive joins through the loss; the others joined before it
 /// began). TCP resends what is lost, and the task is done; nothing is left on.
