@@ -315,7 +315,7 @@ struct ActionRun {
     action_timer: TimerId,
     waiting: BTreeMap<ComponentKey, TimerId>,
     /// Components whose waiting was given longer, since nothing could stand in for them: once
-    /// per action.
+    /// per spell of waiting (until they report another status).
     waited_longer: BTreeSet<ComponentKey>,
     /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`],
     /// the set's key (an answer to it, sent again, clears the component), and the failure's
@@ -1528,6 +1528,10 @@ impl Executive {
             && let Some(id) = run.waiting.remove(&key)
         {
             out.push(Command::CancelTimer(id));
+        }
+        if status != "waiting" {
+            // Its spell of waiting is over: a later one may be given longer again.
+            run.waited_longer.remove(&key);
         }
         match status {
             "running" | "done" => {

@@ -284,6 +284,15 @@ fn a_waiting_component_nothing_can_stand_in_for_is_given_longer() {
             let commands = exec.handle(secs(5.0), tuple("astrid", "s1.status", "running", 4));
             assert!(commands.contains(&Command::CancelTimer(id)), "{commands:?}");
             assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
+            // A later spell of waiting is given longer again.
+            let commands = exec.handle(secs(6.0), tuple("astrid", "s1.status", "waiting", 5));
+            let more = exec.handle(secs(8.0), Event::Timer(timer_of(&commands, grace)));
+            assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
+            exec.handle(secs(13.0), Event::Timer(timer_of(&more, longer)));
+            assert_eq!(
+                failures(&exec),
+                ["astrid:s1 waiting for longer than 7s: (global-pos astrid)"]
+            );
         } else {
             exec.handle(secs(9.0), Event::Timer(id));
             assert_eq!(
