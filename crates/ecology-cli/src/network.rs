@@ -143,9 +143,14 @@ fn with_free_port(endpoint: &str) -> Option<String> {
     Some(format!("{protocol}/{host}:{port}{suffix}"))
 }
 
+/// Whether `value` is a positive, finite number of seconds a `Duration` holds.
+fn positive(value: f64) -> bool {
+    value.is_finite() && value > 0.0 && value < 1e9
+}
+
 /// A positive, finite number of seconds.
 pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
-    if value.is_finite() && value > 0.0 && value < 1e9 {
+    if positive(value) {
         Ok(Duration::from_secs_f64(value))
     } else {
         anyhow::bail!("{what} must be a positive number of seconds, not {value}")
@@ -156,10 +161,10 @@ pub fn seconds(value: f64, what: &str) -> anyhow::Result<Duration> {
 pub fn seconds_or_zero(value: f64, what: &str) -> anyhow::Result<Duration> {
     if value == 0.0 {
         Ok(Duration::ZERO)
+    } else if positive(value) {
+        Ok(Duration::from_secs_f64(value))
     } else {
-        seconds(value, what).map_err(|_| {
-            anyhow::anyhow!("{what} must be 0 or a positive number of seconds, not {value}")
-        })
+        anyhow::bail!("{what} must be 0 or a positive number of seconds, not {value}")
     }
 }
 

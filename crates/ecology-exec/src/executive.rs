@@ -1248,25 +1248,36 @@ impl Executive {
         });
         self.add_unavailable(&mut exclusions);
         let state = self.mirror.state(&self.world);
+        self.plan_configurations(&state, goal, &exclusions, 1)
+            .is_ok_and(|o| {
+                !o.configurations.is_empty() || o.status == ecology_config::Status::BudgetExceeded
+            })
+    }
+
+    /// Up to `count` configurations for `goal` in `state` without `exclusions`, under the
+    /// planning budget, which counts from now.
+    fn plan_configurations(
+        &self,
+        state: &EcologyState,
+        goal: &ecology_domain::Call,
+        exclusions: &[Exclusion],
+        count: usize,
+    ) -> Result<ecology_config::Outcome, ecology_config::RequestError> {
         let request = Request {
             domain: self.planner.domain(),
-            state: &state,
+            state,
             goal,
-            exclusions: &exclusions,
+            exclusions,
         };
         let options = Options {
-            count: 1,
+            count,
             budget: self.config.planning,
         };
         let since = Since {
             clock: &*self.stopwatch.0,
             start: self.stopwatch.0.elapsed(),
         };
-        self.planner
-            .plan(&request, &options, &since)
-            .is_ok_and(|o| {
-                !o.configurations.is_empty() || o.status == ecology_config::Status::BudgetExceeded
-            })
+        self.planner.plan(&request, &options, &since)
     }
 
     fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
@@ -1287,22 +1298,8 @@ impl Executive {
             unavailable,
             micros: micros(acquired.saturating_sub(before)),
         });
-        let request = Request {
-            domain: self.planner.domain(),
-            state: &state,
-            goal: &goal,
-            exclusions: &exclusions,
-        };
-        let options = Options {
-            count: self.config.alternatives.max(1),
-            budget: self.config.planning,
-        };
-        // The planning budget counts from now, not from the executive's start.
-        let since = Since {
-            clock: &*self.stopwatch.0,
-            start: acquired,
-        };
-        let outcome = match self.planner.plan(&request, &options, &since) {
+        let count = self.config.alternatives.max(1);
+        let outcome = match self.plan_configurations(&state, &goal, &exclusions, count) {
             Ok(outcome) => outcome,
             Err(err) => {
                 self.no_configuration(err.to_string(), out);
@@ -1493,10 +1490,15 @@ impl Executive {
             })
             .collect();
         for key in waiting {
-            let id = self.timer(self.config.waiting_grace, out);
-            if let Some(run) = &mut self.run {
-                run.waiting.insert(key, id);
-            }
+            self.time_waiting(key, self.config.waiting_grace, out);
+        }
+    }
+
+    /// Times the waiting of `key`: it is judged when `after` runs out.
+    fn time_waiting(&mut self, key: ComponentKey, after: Duration, out: &mut Vec<Command>) {
+        let id = self.timer(after, out);
+        if let Some(run) = &mut self.run {
+            run.waiting.insert(key, id);
         }
     }
 
@@ -1524,12 +1526,10 @@ impl Executive {
             return;
         }
         let Some(run) = &mut self.run else { return };
-        if status != "waiting"
-            && let Some(id) = run.waiting.remove(&key)
-        {
-            out.push(Command::CancelTimer(id));
-        }
         if status != "waiting" {
+            if let Some(id) = run.waiting.remove(&key) {
+                out.push(Command::CancelTimer(id));
+            }
             // Its spell of waiting is over: a later one may be given longer again.
             run.waited_longer.remove(&key);
         }
@@ -1559,10 +1559,7 @@ impl Executive {
                 self.failure(vec![key], cause, out);
             }
             "waiting" if !run.waiting.contains_key(&key) && run.phase == Phase::Running => {
-                let id = self.timer(self.config.waiting_grace, out);
-                if let Some(run) = &mut self.run {
-                    run.waiting.insert(key, id);
-                }
+                self.time_waiting(key, self.config.waiting_grace, out);
             }
             _ => {}
         }
@@ -1833,10 +1830,7 @@ impl Executive {
             if self.way_unproven(&key) {
                 // Not the component's fault while its PEIS, or a producer's, has not answered
                 // yet: the grace starts again, and the set is answered or fails meanwhile.
-                let id = self.timer(self.config.waiting_grace, out);
-                if let Some(run) = &mut self.run {
-                    run.waiting.insert(key, id);
-                }
+                self.time_waiting(key, self.config.waiting_grace, out);
                 return;
             }
             let waited_for = self
@@ -1852,11 +1846,10 @@ impl Executive {
                     waited_for: waited_for.clone().unwrap_or_default(),
                     waiting: self.config.return_wait,
                 });
-                let id = self.timer(self.config.return_wait, out);
                 if let Some(run) = &mut self.run {
                     run.waited_longer.insert(key.clone());
-                    run.waiting.insert(key, id);
                 }
+                self.time_waiting(key, self.config.return_wait, out);
                 return;
             }
             let grace = if extended {

@@ -139,7 +139,13 @@ fn started_first_action() -> Executive {
 /// a network that works; returns the commands.
 fn answered(exec: &mut Executive, now: Duration, event: Event) -> Vec<Command> {
     let commands = exec.handle(now, event);
-    for command in &commands {
+    answer_all(exec, now, &commands);
+    commands
+}
+
+/// Tells `exec` at `now` that each remote set among `commands` was answered.
+fn answer_all(exec: &mut Executive, now: Duration, commands: &[Command]) {
+    for command in commands {
         if let Command::RemoteSet { owner, key, .. } = command {
             exec.handle(
                 now,
@@ -150,7 +156,6 @@ fn answered(exec: &mut Executive, now: Duration, event: Event) -> Vec<Command> {
             );
         }
     }
-    commands
 }
 
 #[test]
@@ -801,17 +806,7 @@ fn a_component_waiting_while_its_peis_has_not_answered_is_timed_again() {
     let again = exec.handle(secs(4.5), Event::Timer(timer_of(&commands, grace)));
     assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));
     // The sets are answered; the grace that started again runs out: navigation is to blame.
-    for set in &sets {
-        if let Command::RemoteSet { owner, key, .. } = set {
-            exec.handle(
-                secs(5.0),
-                Event::RemoteSetAnswered {
-                    owner: owner.clone(),
-                    key: key.clone(),
-                },
-            );
-        }
-    }
+    answer_all(&mut exec, secs(5.0), &sets);
     // Nothing can stand in for navigation: it is given longer, then blamed.
     let more = exec.handle(secs(6.5), Event::Timer(timer_of(&again, grace)));
     assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));

@@ -498,6 +498,21 @@ impl Home {
         seen
     }
 
+    /// Waits for the task's end and checks that it was done on its first configuration (the
+    /// cameras, 80) with no component blamed, that the executive logged `event` with `field`
+    /// equal to `value` on the way, and that nothing is left on.
+    fn assert_done_unblamed(&mut self, (event, field, value): (&str, &str, &str)) {
+        let (code, all) = self.finish();
+        assert_eq!(code, Some(0), "{all:#?}");
+        assert!(
+            named(&all, event).iter().any(|e| e[field] == value),
+            "no {event} with {field} {value}: {all:#?}"
+        );
+        assert!(named(&all, "failure").is_empty(), "{all:#?}");
+        assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+        self.assert_nothing_left_on();
+    }
+
     /// Reads every component's state back and checks that the task left nothing on: each is
     /// switched on or off as before the task, idle, with no params.
     fn assert_nothing_left_on(&self) {
@@ -841,8 +856,9 @@ fn a_robot_cut_off_for_a_second_keeps_its_move() {
 }
 
 /// Astrid herself cut off mid-move until the executive waits for her (about 3 s): seen gone when
-/// her lease runs out, and the move has no configuration without her. It waits for her (`--return-wait`, 5 s) instead of failing;
-/// back, her tuples are read again and the move goes on with the cameras.
+/// her lease runs out, and the move has no configuration without her. It waits for her
+/// (`--return-wait`, 5 s) instead of failing; back, her tuples are read again and the move goes
+/// on with the cameras.
 #[test]
 fn a_robot_cut_off_for_seconds_is_waited_for_and_goes_on() {
     let _one = one_at_a_time();
@@ -886,13 +902,7 @@ fn remote_sets_lost_on_the_way_to_a_peis_still_present_are_sent_again() {
     assert_eq!(failed["owner"], "hsm", "{failed}");
     std::thread::sleep(Duration::from_millis(300));
     home.net.stop_dropping("hsm");
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    let retried = named(&all, "remote_set_retried");
-    assert!(retried.iter().any(|r| r["owner"] == "hsm"), "{all:#?}");
-    assert!(named(&all, "failure").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
-    home.assert_nothing_left_on();
+    home.assert_done_unblamed(("remote_set_retried", "owner", "hsm"));
 }
 
 /// What hsm sends Astrid is lost for 3.5 s mid-move (both stay present: a lease of 12 s on hsm).
@@ -913,13 +923,7 @@ fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
     }
     std::thread::sleep(Duration::from_millis(3500));
     home.net.stop_dropping("astrid");
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    let longer = named(&all, "waiting_longer");
-    assert!(longer.iter().any(|w| w["component"] == "s1"), "{all:#?}");
-    assert!(named(&all, "failure").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
-    home.assert_nothing_left_on();
+    home.assert_done_unblamed(("waiting_longer", "component", "s1"));
 }
 
 /// The paper's whole task (with Pippi) while every host drops a tenth of the packets it sends and
