@@ -154,9 +154,20 @@ class Peis:
         self.session = zenoh.open(conf)
         self.settle_links()
         alive = f"peis/{self.name}/@alive"
-        if any(r.ok is not None for r in self.session.liveliness().get(alive, timeout=2.0)):
-            self.session.close()
-            raise SystemExit(f"{program}: PEIS {self.name} is already present")
+        taken = lambda: any(r.ok is not None
+                            for r in self.session.liveliness().get(alive, timeout=2.0))
+        # A run of this PEIS that just stopped without leaving stays present until its lease (2 s)
+        # runs out: ask again for up to 3 s before taking the name for a live twin's.
+        deadline = time.monotonic() + 3.0
+        said = False
+        while taken():
+            if not said:
+                self.log(f"a PEIS named {self.name} is present: waiting up to 3s for it to leave")
+                said = True
+            if time.monotonic() >= deadline:
+                self.session.close()
+                raise SystemExit(f"{program}: PEIS {self.name} is already present")
+            time.sleep(0.25)
         self.component = make_component(self)
         self.queryables = [
             self.session.declare_queryable(f"peis/{self.name}/**",

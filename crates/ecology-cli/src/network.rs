@@ -33,7 +33,8 @@ pub struct NetArgs {
     #[arg(long, global = true, value_name = "SECONDS")]
     pub connect_timeout: Option<f64>,
     /// Presence lease in seconds: when this process freezes or its network is cut, the others
-    /// notice within this long (default 2).
+    /// notice within this long (default 2). Joining waits this long plus 1 s for a PEIS of its
+    /// name to leave (a run that just stopped) before it takes the name as taken.
     #[arg(long, global = true, value_name = "SECONDS")]
     pub lease: Option<f64>,
     /// The ecology's keys directory (made by `ecology keys`): join with this PEIS's certificate
@@ -72,6 +73,9 @@ impl NetArgs {
             options.connect_timeout = seconds(timeout, "--connect-timeout")?;
         }
         options.security = self.security(&options.name)?;
+        options.notices = Some(ecology_zenoh::Notices(std::sync::Arc::new(|line| {
+            eprintln!("{line}")
+        })));
         Ok(options)
     }
 

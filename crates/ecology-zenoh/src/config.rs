@@ -47,6 +47,19 @@ pub struct ZenohOptions {
     pub clock: Arc<dyn Clock>,
     /// Open, or authenticated with the member's certificate and the ecology's roster.
     pub security: Security,
+    /// Where joining says what it waits for, a line at a time (none by default).
+    pub notices: Option<Notices>,
+}
+
+/// Lines joining says to the user while it waits on something: the command line prints them on
+/// stderr.
+#[derive(Clone)]
+pub struct Notices(pub Arc<dyn Fn(&str) + Send + Sync>);
+
+impl std::fmt::Debug for Notices {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Notices(..)")
+    }
 }
 
 impl ZenohOptions {
@@ -64,6 +77,7 @@ impl ZenohOptions {
             connect_timeout: Duration::from_secs(30),
             clock: Arc::new(SystemClock),
             security: Security::Open,
+            notices: None,
         }
     }
 

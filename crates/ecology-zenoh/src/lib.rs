@@ -13,7 +13,7 @@ mod router;
 pub mod security;
 pub mod wire;
 
-pub use config::{Mode, Security, ZenohOptions};
+pub use config::{Mode, Notices, Security, ZenohOptions};
 pub use peis::ZenohPeis;
 pub use router::{DEFAULT_MAX_SESSIONS, RouterOptions, run_router};
 

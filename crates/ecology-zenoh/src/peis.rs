@@ -21,7 +21,7 @@ use zenoh::sample::{Sample, SampleKind};
 
 use crate::relink;
 use crate::wire::{self, Metadata, WireError};
-use crate::{Mode, ZenohError, ZenohOptions};
+use crate::{Mode, Notices, ZenohError, ZenohOptions};
 
 /// One PEIS in an ecology over Zenoh: a Zenoh session plus what the PEIS owns.
 ///
@@ -178,7 +178,9 @@ impl ZenohPeis {
     /// Opens a Zenoh session and joins the ecology as `options.name`.
     ///
     /// Fails if the configuration is invalid, an endpoint cannot be listened on or connected to,
-    /// or a PEIS with the same name is already present. Needs tokio's multi-thread runtime.
+    /// or a PEIS with the same name is still present after a wait of the lease plus 1 s (a run of
+    /// it that just stopped stays present until its lease runs out). Needs tokio's multi-thread
+    /// runtime.
     pub async fn open(options: ZenohOptions) -> Result<Self, ZenohError> {
         let config = options.zenoh_config()?;
         let (session, runtime) = relink::open(config).await.map_err(|e| ZenohError::Open {
@@ -200,7 +202,11 @@ impl ZenohPeis {
         if options.mode == Mode::Peer {
             settle_links(&session).await;
         }
-        let taken = match name_taken(&session, &me, options.query_timeout).await {
+        let mut answer = name_taken(&session, &me, options.query_timeout).await;
+        if answer == Ok(true) {
+            answer = wait_for_name(&session, &options).await;
+        }
+        let taken = match answer {
             Ok(false) => None,
             Ok(true) => Some(ZenohError::Space(TupleError::AlreadyPresent(me.clone()))),
             Err(message) => Some(ZenohError::NameUnknown {
@@ -349,6 +355,39 @@ async fn name_taken(
     Err(format!(
         "{NAME_CHECKS} presence queries in a row went unanswered ({why})"
     ))
+}
+
+/// How much longer than its own lease a joining PEIS waits for a PEIS of its name to leave.
+const NAME_GRACE: Duration = Duration::from_secs(1);
+
+/// How often a joining PEIS asks again whether its name is still taken.
+const NAME_POLL: Duration = Duration::from_millis(250);
+
+/// Whether the name of `options` is still taken after waiting up to the lease plus
+/// [`NAME_GRACE`] for the PEIS holding it to leave.
+///
+/// A run of a PEIS that just stopped (killed outright over QUIC, frozen, or cut off) stays present
+/// until its lease runs out: a run started again at once, as a supervisor restarts a crashed
+/// process, would otherwise be refused as its own twin. A PEIS of that name that is alive stays,
+/// and the name is still taken at the end.
+async fn wait_for_name(session: &zenoh::Session, options: &ZenohOptions) -> Result<bool, String> {
+    let me = &options.name;
+    let wait = options.peis.lease + NAME_GRACE;
+    if let Some(Notices(say)) = &options.notices {
+        say(&format!(
+            "a PEIS named {me} is present: waiting up to {}s for it to leave (a run of it that \
+             just stopped stays present until its lease runs out)",
+            wait.as_secs_f64()
+        ));
+    }
+    let deadline = tokio::time::Instant::now() + wait;
+    while tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(NAME_POLL).await;
+        if !name_taken(session, me, options.query_timeout).await? {
+            return Ok(false);
+        }
+    }
+    Ok(true)
 }
 
 /// The payload of the error reply Zenoh gives a query that ran out of time (the asker's session,

@@ -257,7 +257,8 @@ fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
 }
 
 /// A second `ecology peis --name hsm` that joins through astrid, one hop from hsm, is refused with
-/// the reason, every time: it waits for the links gossip opens before it checks its name.
+/// the reason, every time: it waits for the links gossip opens before it checks its name, then its
+/// lease plus 1 s for hsm to leave, which a live hsm does not.
 #[test]
 fn a_name_present_one_hop_away_is_refused() {
     let _one = one_at_a_time();
@@ -266,7 +267,8 @@ fn a_name_present_one_hop_away_is_refused() {
     let scenario = fixture.scenario();
     for round in 0..3 {
         let listen = free_endpoint();
-        let (code, lines) = Proc::start(
+        // Its stderr read too. A short lease: it waits that long, plus 1 s, for hsm to leave.
+        let (code, lines) = Proc::start_with_stderr(
             "twin",
             &[
                 "peis",
@@ -277,10 +279,19 @@ fn a_name_present_one_hop_away_is_refused() {
                 &listen,
                 "--connect",
                 &ecology.astrid_endpoint,
+                "--lease",
+                "0.5",
             ],
         )
         .finish();
         assert_eq!(code, Some(2), "round {round}: {lines:?}");
+        let said: Vec<&str> = lines.iter().map(|l| l.text.as_str()).collect();
+        assert!(
+            said.iter()
+                .any(|l| l.starts_with("a PEIS named hsm is present: waiting up to 1.5s"))
+                && said.contains(&"error: a PEIS named hsm is already present in the ecology"),
+            "round {round}: {said:?}"
+        );
     }
     // The first hsm is untouched.
     assert!(ecology.hsm.pid().as_raw() > 0);
@@ -531,6 +542,63 @@ fn through_a_router(secured: bool) {
     let (code, lines) = Proc::start("executive", &home_task_args(&plan, &through)).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+    assert_eq!(
+        all.last().map(|e| e["event"].clone()),
+        Some("task_done".into())
+    );
+}
+
+/// An executive killed outright mid-move, on a secured router, and started again at once, as a
+/// supervisor restarts a crashed process: over QUIC the router keeps the killed run's session, and
+/// its name, until its lease runs out. The new run says it waits for that, joins once the name is
+/// free, and does the task on the cameras (80). It used to exit 2 at once: "a PEIS named executive
+/// is already present".
+#[test]
+fn an_executive_killed_and_started_again_at_once_waits_for_its_name_and_does_the_task() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::new("restarted", &[TO_BEDROOM], Variant::Paper);
+    let keys = fixture.folder.join("keys").display().to_string();
+    make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
+    let router = free_endpoint().replacen("tcp/", "quic/", 1);
+    let _router = Proc::start("router", &["router", "--listen", &router, "--keys", &keys]).ready();
+    let through = [
+        "--client",
+        "--connect",
+        router.as_str(),
+        "--keys",
+        keys.as_str(),
+    ];
+    let scenario = fixture.scenario();
+    let _world = Proc::start(
+        "world",
+        &[&["world", scenario.as_str()][..], &through].concat(),
+    )
+    .ready();
+    let _hosts = ["astrid", "hsm"].map(|name| {
+        Proc::start(
+            name,
+            &[&["peis", scenario.as_str(), "--name", name][..], &through].concat(),
+        )
+        .ready()
+    });
+    let plan = fixture.plan();
+    let args = home_task_args(&plan, &through);
+    let mut first = Proc::start("executive", &args);
+    first.wait_for("running", |l| is_event(l, "running"));
+    first.signal(Signal::SIGKILL);
+    // Its stderr, where the notice goes, read too.
+    let (code, lines) = Proc::start_with_stderr("executive-again", &args).finish();
+    let (json, said): (Vec<Line>, Vec<Line>) =
+        lines.into_iter().partition(|l| l.text.starts_with('{'));
+    let all = events(&json);
+    assert_eq!(code, Some(0), "{said:?} {all:#?}");
+    assert!(
+        said.iter().any(|l| l.text
+            == "a PEIS named executive is present: waiting up to 3s for it to leave (a run of it \
+                that just stopped stays present until its lease runs out)"),
+        "{said:?}"
+    );
     assert_eq!(costs(&all), [(80, false)], "{all:#?}");
     assert_eq!(
         all.last().map(|e| e["event"].clone()),

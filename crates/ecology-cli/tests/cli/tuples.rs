@@ -271,7 +271,8 @@ fn peers_through_a_third_peis_lists_everyone() {
 fn one_hop_away_a_name_is_taken_and_get_and_set_reach_the_owner() {
     let (_alpha, _beta, second) = alpha_and_beta();
     for round in 0..4 {
-        let taken = run_joined(&second, &["--name", "alpha", "peers"]);
+        // A short lease: it waits that long, plus 1 s, for alpha to leave.
+        let taken = run_joined(&second, &["--name", "alpha", "--lease", "0.5", "peers"]);
         assert_eq!(taken.status.code(), Some(2), "round {round}: {taken:?}");
         assert!(
             String::from_utf8_lossy(&taken.stderr).contains("alpha is already present"),
