@@ -1,5 +1,5 @@
 //! The ecology across hosts: every process in a Linux network namespace of its own, all on one
-//! bridge, with addresses of the project's test network (198.18.0.0/15, the range RFC 2544 sets
+//! bridge (or two, joined only by a router's process), with addresses of the project's test network (198.18.0.0/15, the range RFC 2544 sets
 //! aside for benchmarking, so never a real network's). A cut is `ip link set … down` on the
 //! host's cable (its veth on the bridge): its TCP connections are neither closed nor reset, they
 //! go silent, as when a robot drives out of Wi-Fi range. Everything is torn down when a test ends,
@@ -96,11 +96,14 @@ fn nft_runs(test: &str) -> bool {
 
 /// A network of hosts on one bridge; torn down when dropped.
 pub struct Network {
-    bridge: String,
+    /// One bridge a subnet: the first made with the network, more by [`Network::add_subnet`].
+    bridges: Vec<String>,
     subnet: u32,
     tag: String,
     /// Host name → (namespace, cable on the bridge, address).
     hosts: BTreeMap<String, (String, String, String)>,
+    /// Host name → every (subnet, address) it has, its first cable's first.
+    addresses: BTreeMap<String, Vec<(usize, String)>>,
 }
 
 impl Network {
@@ -120,33 +123,76 @@ impl Network {
         remove_stale();
         let n = NEXT.fetch_add(1, Ordering::Relaxed);
         let pid = std::process::id();
-        let network = Network {
-            bridge: format!("ecb{pid}x{n}"),
+        let mut network = Network {
+            bridges: Vec::new(),
             subnet: n % 256,
             tag: format!("{pid}x{n}"),
             hosts: BTreeMap::new(),
+            addresses: BTreeMap::new(),
         };
-        ip(&["link", "add", &network.bridge, "type", "bridge"]);
-        ip(&["link", "set", &network.bridge, "up"]);
+        network.add_bridge(format!("ecb{pid}x{n}"));
         Some(network)
     }
 
-    /// Adds host `name` (its own namespace, cable and address); returns its address.
+    fn add_bridge(&mut self, bridge: String) {
+        // Registered at once, so that a failure below still tears it down.
+        self.bridges.push(bridge.clone());
+        ip(&["link", "add", &bridge, "type", "bridge"]);
+        ip(&["link", "set", &bridge, "up"]);
+    }
+
+    /// A second subnet, on a bridge of its own: its hosts reach the first's only through a host
+    /// on both, which forwards nothing (a namespace's IP forwarding is off). Returns its index.
+    pub fn add_subnet(&mut self) -> usize {
+        let bridge = format!("{}b", self.bridges[0]);
+        self.add_bridge(bridge);
+        self.bridges.len() - 1
+    }
+
+    /// Host `subnet`'s address number `h`: `198.18.S.h` on the first, `198.19.S.h` on the second.
+    fn address(&self, subnet: usize, h: usize) -> String {
+        format!("198.{}.{}.{h}", 18 + subnet, self.subnet)
+    }
+
+    /// Adds host `name` (its own namespace, cable and address) on the first subnet; returns its
+    /// address.
     pub fn host(&mut self, name: &str) -> String {
+        self.host_on(name, 0)
+    }
+
+    /// Adds host `name` on `subnet`; returns its address.
+    pub fn host_on(&mut self, name: &str, subnet: usize) -> String {
         let h = self.hosts.len() + 1;
         let ns = format!("{NS_PREFIX}{}-{name}", self.tag.replace('x', "-"));
         let cable = format!("ecv{}h{h}", self.tag);
-        let address = format!("198.18.{}.{h}", self.subnet);
+        let address = self.address(subnet, h);
         ip(&["netns", "add", &ns]);
         // Registered at once, so that a failure below still tears it down.
         self.hosts.insert(
             name.to_string(),
             (ns.clone(), cable.clone(), address.clone()),
         );
+        self.plug(name, &cable, "eth0", subnet, &address);
+        ip(&["-n", &ns, "link", "set", "lo", "up"]);
+        address
+    }
+
+    /// Gives host `name` a second cable, to `subnet`; returns its address there.
+    pub fn attach(&mut self, name: &str, subnet: usize) -> String {
+        let h = self.hosts.keys().position(|n| n == name).expect("a host") + 1;
+        let cable = format!("ecw{}h{h}", self.tag);
+        let address = self.address(subnet, h);
+        self.plug(name, &cable, "eth1", subnet, &address);
+        address
+    }
+
+    /// A veth from `subnet`'s bridge (`cable`) to `name`'s namespace (`device`, at `address`).
+    fn plug(&mut self, name: &str, cable: &str, device: &str, subnet: usize, address: &str) {
+        let ns = self.get(name).0.clone();
         ip(&[
-            "link", "add", &cable, "type", "veth", "peer", "name", "eth0", "netns", &ns,
+            "link", "add", cable, "type", "veth", "peer", "name", device, "netns", &ns,
         ]);
-        ip(&["link", "set", &cable, "master", &self.bridge, "up"]);
+        ip(&["link", "set", cable, "master", &self.bridges[subnet], "up"]);
         ip(&[
             "-n",
             &ns,
@@ -154,11 +200,13 @@ impl Network {
             "add",
             &format!("{address}/24"),
             "dev",
-            "eth0",
+            device,
         ]);
-        ip(&["-n", &ns, "link", "set", "eth0", "up"]);
-        ip(&["-n", &ns, "link", "set", "lo", "up"]);
-        address
+        ip(&["-n", &ns, "link", "set", device, "up"]);
+        self.addresses
+            .entry(name.to_string())
+            .or_default()
+            .push((subnet, address.to_string()));
     }
 
     fn get(&self, name: &str) -> &(String, String, String) {
@@ -169,8 +217,30 @@ impl Network {
 
     /// The endpoint a process on `host` listens on: `tcp/ADDRESS:7447` (`quic/` with keys).
     pub fn endpoint(&self, host: &str, keys: bool) -> String {
-        let proto = if keys { "quic" } else { "tcp" };
-        format!("{proto}/{}:{PORT}", self.get(host).2)
+        endpoint_at(&self.get(host).2, keys)
+    }
+
+    /// Every endpoint a process on `host` listens on: one on each subnet it is on.
+    pub fn endpoints(&self, host: &str, keys: bool) -> Vec<String> {
+        self.addresses[host]
+            .iter()
+            .map(|(_, address)| endpoint_at(address, keys))
+            .collect()
+    }
+
+    /// The endpoint of `host` that a process on `from` reaches: its address on `from`'s subnet.
+    pub fn endpoint_from(&self, host: &str, from: &str, keys: bool) -> String {
+        let subnet = self.addresses[from][0].0;
+        let (_, address) = self.addresses[host]
+            .iter()
+            .find(|(s, _)| *s == subnet)
+            .unwrap_or_else(|| panic!("{host} is not on {from}'s subnet"));
+        endpoint_at(address, keys)
+    }
+
+    /// Whether `from` has a route to `host`'s (first) address.
+    pub fn routes(&self, from: &str, host: &str) -> bool {
+        ip_output(&["-n", &self.get(from).0, "route", "get", &self.get(host).2]).is_some()
     }
 
     /// Unplugs `host`'s cable: nothing gets in or out, and nothing is told.
@@ -224,7 +294,8 @@ impl Network {
             .next()
             .and_then(|n| n.parse().ok())
             .expect("an address");
-        let address = format!("198.18.{}.{}", self.subnet, last + 100);
+        let subnet = self.addresses[host][0].0;
+        let address = self.address(subnet, last as usize + 100);
         // The old one goes first: deleting an interface's primary address deletes the others too.
         ip(&[
             "-n",
@@ -245,6 +316,7 @@ impl Network {
             "eth0",
         ]);
         self.hosts.get_mut(host).expect("a host").2 = address.clone();
+        self.addresses.get_mut(host).expect("a host")[0].1 = address.clone();
         address
     }
 
@@ -273,12 +345,20 @@ impl Network {
     }
 }
 
+/// `tcp/ADDRESS:7447`, or `quic/…` with keys.
+fn endpoint_at(address: &str, keys: bool) -> String {
+    let proto = if keys { "quic" } else { "tcp" };
+    format!("{proto}/{address}:{PORT}")
+}
+
 impl Drop for Network {
     fn drop(&mut self) {
         for (ns, _, _) in self.hosts.values() {
             let _ = ip_output(&["netns", "del", ns]);
         }
-        let _ = ip_output(&["link", "del", &self.bridge]);
+        for bridge in &self.bridges {
+            let _ = ip_output(&["link", "del", bridge]);
+        }
     }
 }
 
@@ -293,6 +373,10 @@ enum Topology {
     Peers,
     /// Every process a client of a router on a host of its own.
     Router,
+    /// As `Router`, on two subnets that reach each other only through the router's host: Astrid
+    /// and the executive on one (a robot's Wi-Fi), the world, hsm, Pippi and the probe on the
+    /// other (the building's wired network).
+    Subnets,
 }
 
 /// The small PEIS-Home across hosts: world, astrid, hsm and (for the task) executive, plus a
@@ -326,6 +410,7 @@ impl Home {
         whole: bool,
     ) -> Option<Home> {
         let mut net = Network::new(test)?;
+        let wifi = (topology == Topology::Subnets).then(|| net.add_subnet());
         for host in [
             "world",
             "astrid",
@@ -335,7 +420,13 @@ impl Home {
             "probe",
             "router",
         ] {
-            net.host(host);
+            match wifi {
+                Some(wifi) if matches!(host, "astrid" | "executive") => net.host_on(host, wifi),
+                _ => net.host(host),
+            };
+        }
+        if let Some(wifi) = wifi {
+            net.attach("router", wifi);
         }
         let fixture = Fixture::new(&format!("netns-{test}"), &[TO_BEDROOM], Variant::Paper);
         let keys = keyed.then(|| {
@@ -369,7 +460,7 @@ impl Home {
             procs: BTreeMap::new(),
             net,
         };
-        if topology == Topology::Router {
+        if topology != Topology::Peers {
             home.start_router();
         }
         let scenario = if whole {
@@ -415,11 +506,11 @@ impl Home {
                     args.extend(["--connect".to_string(), self.net.endpoint("world", keyed)]);
                 }
             }
-            Topology::Router => {
+            Topology::Router | Topology::Subnets => {
                 args.extend([
                     "--client".to_string(),
                     "--connect".to_string(),
-                    self.net.endpoint("router", keyed),
+                    self.net.endpoint_from("router", host, keyed),
                 ]);
             }
         }
@@ -435,11 +526,10 @@ impl Home {
     }
 
     fn start_router(&mut self) {
-        let mut args = strs(&[
-            "router",
-            "--listen",
-            &self.net.endpoint("router", self.keys.is_some()),
-        ]);
+        let mut args = strs(&["router"]);
+        for endpoint in self.net.endpoints("router", self.keys.is_some()) {
+            args.extend(["--listen".to_string(), endpoint]);
+        }
         if let Some(keys) = &self.keys {
             args.extend(["--keys".to_string(), keys.display().to_string()]);
         }
@@ -1035,5 +1125,29 @@ fn a_robot_whose_address_changes_mid_move_comes_back_through_its_router() {
     assert_eq!(code, Some(0), "{all:#?}");
     assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
     assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+    home.assert_nothing_left_on();
+}
+
+/// The router's case: Astrid and the executive on one subnet (a robot's Wi-Fi), the world, hsm
+/// and the probe on another (the building's wired network), and the router on a host with a
+/// cable to each, forwarding no packets. Neither side has a route to the other, yet every process,
+/// a client of the router at its address on its own subnet, meets every other: the move is done
+/// on hsm's cameras (80), and nothing is left on.
+#[test]
+fn peis_on_two_subnets_meet_through_a_router_on_both() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start("subnets", Topology::Subnets, false, &[]) else {
+        return;
+    };
+    assert!(!home.net.routes("astrid", "hsm"), "the subnets are apart");
+    assert!(
+        !home.net.routes("hsm", "executive"),
+        "the subnets are apart"
+    );
+    home.task(&[]);
+    let (code, all) = home.finish();
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
     home.assert_nothing_left_on();
 }
