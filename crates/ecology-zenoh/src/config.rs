@@ -10,6 +10,10 @@ use serde_json::json;
 use crate::ZenohError;
 use crate::security::Identity;
 
+/// How long a client's one dial of a router may take: TCP's first two SYNs (at 0 and 1 s) and the
+/// handshake after them.
+const CLIENT_OPEN_TIMEOUT: Duration = Duration::from_secs(3);
+
 /// How a PEIS takes part in the Zenoh network.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Mode {
@@ -86,7 +90,17 @@ impl ZenohOptions {
         let mut config = base_config(self.zenoh_config.as_deref())?;
         let config_ref = &mut config;
         match self.mode {
-            Mode::Client => insert(config_ref, "mode", json!("client"))?,
+            Mode::Client => {
+                insert(config_ref, "mode", json!("client"))?;
+                // How long one dial of a router may take (Zenoh's default: 10 s). A client that
+                // lost its router dials the routers it lists in turn, and a router whose host is
+                // gone holds each round up this long; a client dials again until it is linked.
+                insert(
+                    config_ref,
+                    "transport/unicast/open_timeout",
+                    millis(CLIENT_OPEN_TIMEOUT),
+                )?;
+            }
             Mode::Peer if self.zenoh_config.is_none() => insert(config_ref, "mode", json!("peer"))?,
             Mode::Peer => {}
         }
@@ -103,12 +117,12 @@ impl ZenohOptions {
                 "connect/endpoints",
                 json!(in_order(&self.connect)),
             )?;
-            insert(
-                config_ref,
-                "connect/timeout_ms",
-                millis(self.connect_timeout),
-            )?;
-            insert(config_ref, "connect/exit_on_failure", json!(true))?;
+            // One try of every endpoint in turn, each bounded by Zenoh's open timeout: Zenoh 1.10,
+            // given a timeout, retries the first endpoint until it runs out and never tries the
+            // next, so a process whose first router was down never reached the second. Trying
+            // again, until `connect_timeout`, is `relink::open`'s.
+            insert(config_ref, "connect/timeout_ms", json!(0))?;
+            insert(config_ref, "connect/exit_on_failure", json!(false))?;
         }
         if self.zenoh_config.is_none() || self.multicast_scouting {
             insert(

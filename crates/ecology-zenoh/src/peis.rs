@@ -182,10 +182,7 @@ impl ZenohPeis {
     /// it that just stopped stays present until its lease runs out). Needs tokio's multi-thread
     /// runtime.
     pub async fn open(options: ZenohOptions) -> Result<Self, ZenohError> {
-        let config = options.zenoh_config()?;
-        let (session, runtime) = relink::open(config).await.map_err(|e| ZenohError::Open {
-            message: e.to_string(),
-        })?;
+        let (session, runtime) = relink::open(&options).await?;
         let (shutdown, shutdown_rx) = watch::channel(false);
         let relinking = match options.mode {
             Mode::Peer => Some(

@@ -19,6 +19,7 @@ use zenoh::sample::SampleKind;
 use zenoh::session::LinkEventsListener;
 
 use crate::peis::AbortOnDrop;
+use crate::{Mode, ZenohError, ZenohOptions};
 
 /// Pauses before each new dial of a lost link (4.35 s in all): the first is short, as the link
 /// usually died of a reset on a path that is back (the pause lets its transport go first).
@@ -30,12 +31,92 @@ const PAUSES: [Duration; 5] = [
     Duration::from_millis(2500),
 ];
 
+/// The first pause between two tries at joining; each later one is twice as long, up to
+/// [`JOIN_PAUSE_MAX`].
+const JOIN_PAUSE: Duration = Duration::from_millis(250);
+const JOIN_PAUSE_MAX: Duration = Duration::from_secs(2);
+
+/// What Zenoh says when no `connect` endpoint took the session; `ecology` matches it.
+const UNABLE: &str = "Unable to connect";
+
 /// Opens a session as `zenoh::open` does, keeping its runtime to dial with.
-pub(crate) async fn open(config: zenoh::Config) -> zenoh::Result<(Session, OwnedRuntime)> {
-    let mut runtime = RuntimeBuilder::new(config).build().await?;
+///
+/// With `connect` endpoints, each try dials every one in turn, once (Zenoh's open timeout bounds
+/// each), and the session is open when one took it; while none did, it tries again, after a pause,
+/// until `connect_timeout`. Zenoh's own retries stay on the first endpoint until its timeout, so a
+/// process whose first router was down never reached the second.
+pub(crate) async fn open(options: &ZenohOptions) -> Result<(Session, OwnedRuntime), ZenohError> {
+    let start = tokio::time::Instant::now();
+    let deadline = start + options.connect_timeout;
+    let mut pause = JOIN_PAUSE;
+    let mut last = None;
+    loop {
+        let config = options.zenoh_config()?;
+        let remaining = deadline.saturating_duration_since(tokio::time::Instant::now());
+        let tried = tokio::time::timeout(remaining, open_once(config, options)).await;
+        let why = match tried {
+            Ok(Ok(opened)) => return Ok(opened),
+            Ok(Err(Tried::Failed(message))) => return Err(ZenohError::Open { message }),
+            Ok(Err(Tried::Unlinked(why))) => why,
+            // Cut off by the deadline: what the try before found says more.
+            Err(_) => last
+                .take()
+                .unwrap_or_else(|| "no endpoint took it in time".to_string()),
+        };
+        if tokio::time::Instant::now() + pause >= deadline {
+            return Err(ZenohError::Open {
+                message: format!(
+                    "{UNABLE} to any of {:?} within {}s: {why}",
+                    options.connect,
+                    options.connect_timeout.as_secs_f64()
+                ),
+            });
+        }
+        last = Some(why);
+        tokio::time::sleep(pause).await;
+        pause = (pause * 2).min(JOIN_PAUSE_MAX);
+    }
+}
+
+/// Why one try at opening a session did not.
+enum Tried {
+    /// No `connect` endpoint took it: worth another try.
+    Unlinked(String),
+    /// Anything else (an endpoint that cannot be listened on): final.
+    Failed(String),
+}
+
+/// One try: the runtime, the session on it, every endpoint dialled once.
+async fn open_once(
+    config: zenoh::Config,
+    options: &ZenohOptions,
+) -> Result<(Session, OwnedRuntime), Tried> {
+    let failed = |e: zenoh::Error| Tried::Failed(e.to_string());
+    let mut runtime = RuntimeBuilder::new(config).build().await.map_err(failed)?;
+    // Closes the runtime if this try goes no further.
     let owned = OwnedRuntime(runtime.clone());
-    let session = zenoh::session::init(runtime.clone().into()).await?;
-    runtime.start().await?;
+    let session = zenoh::session::init(runtime.clone().into())
+        .await
+        .map_err(failed)?;
+    let unlinked = match runtime.start().await {
+        // A client is started only once it holds its link to a router.
+        Ok(()) if options.mode == Mode::Client => None,
+        Ok(()) => {
+            let linked = options.connect.is_empty()
+                || session.info().peers_zid().await.next().is_some()
+                || session.info().routers_zid().await.next().is_some();
+            (!linked).then(|| "none of them took the session".to_string())
+        }
+        Err(e) if e.to_string().contains(UNABLE) => Some(e.to_string()),
+        Err(e) => {
+            let _ = session.close().await;
+            return Err(Tried::Failed(e.to_string()));
+        }
+    };
+    if let Some(why) = unlinked {
+        let _ = session.close().await;
+        return Err(Tried::Unlinked(why));
+    }
     Ok((session, owned))
 }
 

@@ -317,6 +317,45 @@ fn a_peis_that_cannot_be_reached_exits_1() {
     );
 }
 
+/// Several `--connect` endpoints, the first with nobody behind it: a peer and a client of a router
+/// join through the next one, at once. Zenoh alone kept dialling the first until the connect
+/// timeout and never tried the next.
+#[test]
+fn the_first_endpoint_down_a_process_joins_through_the_next() {
+    use crate::support::Proc;
+    let nobody = free_endpoint();
+    let router = free_endpoint();
+    let _router = Proc::start("router", &["router", "--listen", &router]).ready();
+    let alpha = free_endpoint();
+    let mut a = Proc::start(
+        "alpha",
+        &[
+            "tuples", "--name", "alpha", "--listen", &alpha, "set", "alpha", "x", "1", "--hold",
+        ],
+    );
+    a.wait_for("ready", |l| l == "ready");
+    for (mode, endpoint) in [("peer", &alpha), ("client", &router)] {
+        let mut args = vec!["--connect", &nobody, "--connect", endpoint];
+        if mode == "client" {
+            args.push("--client");
+        }
+        args.extend(["--connect-timeout", "10", "peers"]);
+        let started = std::time::Instant::now();
+        let out = ecology(&args).output().expect("run ecology tuples");
+        assert_eq!(out.status.code(), Some(0), "{mode}: {out:?}");
+        // Well within the connect timeout, which it used to run out.
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "{mode}: {:?}",
+            started.elapsed()
+        );
+        let listed = stdout(&out);
+        if mode == "peer" {
+            assert!(listed.lines().any(|l| l == "alpha"), "{listed}");
+        }
+    }
+}
+
 /// `--listen tcp/127.0.0.1:0` takes a free port, and the readiness line names the port it
 /// listens on: another process reaches the PEIS there.
 #[test]
