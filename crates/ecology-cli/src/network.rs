@@ -16,7 +16,8 @@ pub struct NetArgs {
     /// port 0 takes a free port, which the readiness line shows.
     #[arg(long, global = true, value_name = "ENDPOINT", value_parser = listen_endpoint)]
     pub listen: Vec<String>,
-    /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable).
+    /// Endpoint of a PEIS or router to connect to, such as tcp/127.0.0.1:7447 (repeatable: it
+    /// joins through whichever takes it, and a client that loses its router dials them all again).
     #[arg(long, global = true, value_name = "ENDPOINT")]
     pub connect: Vec<String>,
     /// A Zenoh configuration file (JSON5); --listen and --connect override it.
@@ -33,8 +34,8 @@ pub struct NetArgs {
     #[arg(long, global = true, value_name = "SECONDS")]
     pub connect_timeout: Option<f64>,
     /// Presence lease in seconds: when this process freezes or its network is cut, the others
-    /// notice within this long (default 2). Joining waits this long plus 1 s for a PEIS of its
-    /// name to leave (a run that just stopped) before it takes the name as taken.
+    /// notice within this long (default 2). A PEIS joining waits this long plus 1 s for another
+    /// of its name to leave (a run that just stopped) before it takes the name as taken.
     #[arg(long, global = true, value_name = "SECONDS")]
     pub lease: Option<f64>,
     /// The ecology's keys directory (made by `ecology keys`): join with this PEIS's certificate
