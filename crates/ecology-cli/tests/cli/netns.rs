@@ -661,6 +661,18 @@ impl Home {
         self.assert_nothing_left_on();
     }
 
+    /// Waits for the task's end and checks that it was done, no action failing, its last
+    /// configuration the cameras again (80, a reconfiguration), and that nothing is left on.
+    /// Returns every event.
+    fn assert_done_on_the_cameras_again(&mut self) -> Vec<Value> {
+        let (code, all) = self.finish();
+        assert_eq!(code, Some(0), "{all:#?}");
+        assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
+        assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
+        self.assert_nothing_left_on();
+        all
+    }
+
     /// Reads every component's state back and checks that the task left nothing on: each is
     /// switched on or off as before the task, idle, with no params.
     fn assert_nothing_left_on(&self) {
@@ -894,11 +906,7 @@ fn an_executive_stopped_for_seconds_mid_move_goes_on() {
     home.proc("executive").signal(Signal::SIGSTOP);
     std::thread::sleep(Duration::from_secs(4));
     home.proc("executive").signal(Signal::SIGCONT);
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
-    home.assert_nothing_left_on();
+    home.assert_done_on_the_cameras_again();
 }
 
 /// No component failed for a remote set that got no answer.
@@ -1019,11 +1027,7 @@ fn a_robot_cut_off_for_seconds_is_waited_for_and_goes_on() {
     let (waiting, _) = home.wait_event("awaiting_return");
     assert_eq!(strings(&waiting["gone"]), ["astrid"], "{waiting}");
     home.net.heal("astrid");
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
-    home.assert_nothing_left_on();
+    home.assert_done_on_the_cameras_again();
 }
 
 /// What the executive sends hsm is lost for a while, from before the move is deployed until
@@ -1146,11 +1150,7 @@ fn a_robot_whose_address_changes_mid_move_comes_back_through_its_router() {
     assert_eq!(left["peis"], "astrid", "{left}");
     let (joined, _) = home.wait_event("peis_joined");
     assert_eq!(joined["peis"], "astrid", "{joined}");
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
-    home.assert_nothing_left_on();
+    home.assert_done_on_the_cameras_again();
 }
 
 /// The router's case: Astrid and the executive on one subnet (a robot's Wi-Fi), the world, hsm
@@ -1192,8 +1192,8 @@ fn a_router_host_lost_mid_move_fails_over_to_the_second_router() {
     home.task(&[]);
     home.wait_event("running");
     home.net.cut("router");
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
+    // The probe, too, lists both routers, and joins through the second.
+    let all = home.assert_done_on_the_cameras_again();
     let lost = named(&all, "ecology_lost");
     let back = named(&all, "ecology_back");
     assert_eq!((lost.len(), back.len()), (1, 1), "{all:#?}");
@@ -1205,8 +1205,4 @@ fn a_router_host_lost_mid_move_fails_over_to_the_second_router() {
         "back {:.1} s after the ecology was judged lost: {all:#?}",
         last_back - t(lost[0])
     );
-    assert!(named(&all, "action_failed").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all).last(), Some(&(80, true)), "{all:#?}");
-    // The probe, too, lists both routers, and joins through the second.
-    home.assert_nothing_left_on();
 }

@@ -549,6 +549,52 @@ fn through_a_router(secured: bool) {
     );
 }
 
+/// A secured router (QUIC, keys for world, astrid, hsm and the executive) and the world, its
+/// client; both stopped when dropped.
+struct SecuredRouter {
+    keys: String,
+    endpoint: String,
+    _router: Proc,
+    _world: Proc,
+}
+
+impl SecuredRouter {
+    fn start(fixture: &Fixture) -> SecuredRouter {
+        let keys = fixture.folder.join("keys").display().to_string();
+        make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
+        let endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
+        let router = Proc::start(
+            "router",
+            &["router", "--listen", &endpoint, "--keys", &keys],
+        )
+        .ready();
+        let through = ["--client", "--connect", &endpoint, "--keys", &keys];
+        let scenario = fixture.scenario();
+        let world = Proc::start(
+            "world",
+            &[&["world", scenario.as_str()][..], &through].concat(),
+        )
+        .ready();
+        SecuredRouter {
+            keys,
+            endpoint,
+            _router: router,
+            _world: world,
+        }
+    }
+
+    /// The arguments that make a process a client of the router, with its keys.
+    fn through(&self) -> [&str; 5] {
+        [
+            "--client",
+            "--connect",
+            &self.endpoint,
+            "--keys",
+            &self.keys,
+        ]
+    }
+}
+
 /// An executive killed outright mid-move, on a secured router, and started again at once, as a
 /// supervisor restarts a crashed process: over QUIC the router keeps the killed run's session, and
 /// its name, until its lease runs out. The new run says it waits for that, joins once the name is
@@ -558,23 +604,9 @@ fn through_a_router(secured: bool) {
 fn an_executive_killed_and_started_again_at_once_waits_for_its_name_and_does_the_task() {
     let _one = one_at_a_time();
     let fixture = Fixture::new("restarted", &[TO_BEDROOM], Variant::Paper);
-    let keys = fixture.folder.join("keys").display().to_string();
-    make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
-    let router = free_endpoint().replacen("tcp/", "quic/", 1);
-    let _router = Proc::start("router", &["router", "--listen", &router, "--keys", &keys]).ready();
-    let through = [
-        "--client",
-        "--connect",
-        router.as_str(),
-        "--keys",
-        keys.as_str(),
-    ];
+    let secured = SecuredRouter::start(&fixture);
+    let through = secured.through();
     let scenario = fixture.scenario();
-    let _world = Proc::start(
-        "world",
-        &[&["world", scenario.as_str()][..], &through].concat(),
-    )
-    .ready();
     let _hosts = ["astrid", "hsm"].map(|name| {
         Proc::start(
             name,
@@ -613,23 +645,9 @@ fn an_executive_killed_and_started_again_at_once_waits_for_its_name_and_does_the
 fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
     let _one = one_at_a_time();
     let fixture = Fixture::new("many", &[TO_BEDROOM], Variant::Paper);
-    let keys = fixture.folder.join("keys").display().to_string();
-    make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
-    let router = free_endpoint().replacen("tcp/", "quic/", 1);
-    let _router = Proc::start("router", &["router", "--listen", &router, "--keys", &keys]).ready();
-    let through = [
-        "--client",
-        "--connect",
-        router.as_str(),
-        "--keys",
-        keys.as_str(),
-    ];
+    let secured = SecuredRouter::start(&fixture);
+    let through = secured.through();
     let scenario = fixture.scenario();
-    let _world = Proc::start(
-        "world",
-        &[&["world", scenario.as_str()][..], &through].concat(),
-    )
-    .ready();
     let hosts_args = [
         &[
             "peis",
