@@ -661,6 +661,17 @@ impl Home {
         self.assert_nothing_left_on();
     }
 
+    /// Runs the task, and checks that it was done on the cameras (80) with no failure at all, and
+    /// that nothing is left on.
+    fn move_done_unharmed(&mut self) {
+        self.task(&[]);
+        let (code, all) = self.finish();
+        assert_eq!(code, Some(0), "{all:#?}");
+        assert!(named(&all, "failure").is_empty(), "{all:#?}");
+        assert_eq!(costs(&all), [(80, false)], "{all:#?}");
+        self.assert_nothing_left_on();
+    }
+
     /// Waits for the task's end and checks that it was done, no action failing, its last
     /// configuration the cameras again (80, a reconfiguration), and that nothing is left on.
     /// Returns every event.
@@ -743,11 +754,7 @@ fn a_move_across_hosts(test: &str, keyed: bool) {
     let Some(mut home) = Home::start(test, Topology::Peers, keyed, &[]) else {
         return;
     };
-    home.task(&[]);
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
-    home.assert_nothing_left_on();
+    home.move_done_unharmed();
 }
 
 #[test]
@@ -1169,12 +1176,7 @@ fn peis_on_two_subnets_meet_through_a_router_on_both() {
         !home.net.routes("hsm", "executive"),
         "the subnets are apart"
     );
-    home.task(&[]);
-    let (code, all) = home.finish();
-    assert_eq!(code, Some(0), "{all:#?}");
-    assert!(named(&all, "failure").is_empty(), "{all:#?}");
-    assert_eq!(costs(&all), [(80, false)], "{all:#?}");
-    home.assert_nothing_left_on();
+    home.move_done_unharmed();
 }
 
 /// Two routers, the second linked to the first; every process a client that lists both, the
