@@ -46,14 +46,14 @@ const UNABLE: &str = "Unable to connect";
 /// until `connect_timeout`. Zenoh's own retries stay on the first endpoint until its timeout, so a
 /// process whose first router was down never reached the second.
 pub(crate) async fn open(options: &ZenohOptions) -> Result<(Session, OwnedRuntime), ZenohError> {
-    let start = tokio::time::Instant::now();
-    let deadline = start + options.connect_timeout;
+    let deadline = tokio::time::Instant::now() + options.connect_timeout;
+    // Built once (it may read a file): each try takes a copy.
+    let config = options.zenoh_config()?;
     let mut pause = JOIN_PAUSE;
     let mut last = None;
     loop {
-        let config = options.zenoh_config()?;
         let remaining = deadline.saturating_duration_since(tokio::time::Instant::now());
-        let tried = tokio::time::timeout(remaining, open_once(config, options)).await;
+        let tried = tokio::time::timeout(remaining, open_once(config.clone(), options)).await;
         let why = match tried {
             Ok(Ok(opened)) => return Ok(opened),
             Ok(Err(Tried::Failed(message))) => return Err(ZenohError::Open { message }),

@@ -100,10 +100,19 @@ pub struct Network {
     bridges: Vec<String>,
     subnet: u32,
     tag: String,
-    /// Host name → (namespace, cable on the bridge, address).
-    hosts: BTreeMap<String, (String, String, String)>,
-    /// Host name → every (subnet, address) it has, its first cable's first.
-    addresses: BTreeMap<String, Vec<(usize, String)>>,
+    /// Host name → its host.
+    hosts: BTreeMap<String, Host>,
+}
+
+/// A host of a [`Network`].
+struct Host {
+    ns: String,
+    /// Its number among the hosts, the last byte of each of its addresses.
+    number: usize,
+    /// Its first cable, on its first subnet's bridge.
+    cable: String,
+    /// Every (subnet, address) it has, its first cable's first.
+    addresses: Vec<(usize, String)>,
 }
 
 impl Network {
@@ -128,7 +137,6 @@ impl Network {
             subnet: n % 256,
             tag: format!("{pid}x{n}"),
             hosts: BTreeMap::new(),
-            addresses: BTreeMap::new(),
         };
         network.add_bridge(format!("ecb{pid}x{n}"));
         Some(network)
@@ -170,7 +178,12 @@ impl Network {
         // Registered at once, so that a failure below still tears it down.
         self.hosts.insert(
             name.to_string(),
-            (ns.clone(), cable.clone(), address.clone()),
+            Host {
+                ns: ns.clone(),
+                number: h,
+                cable: cable.clone(),
+                addresses: Vec::new(),
+            },
         );
         self.plug(name, &cable, "eth0", subnet, &address);
         ip(&["-n", &ns, "link", "set", "lo", "up"]);
@@ -179,7 +192,7 @@ impl Network {
 
     /// Gives host `name` a second cable, to `subnet`; returns its address there.
     pub fn attach(&mut self, name: &str, subnet: usize) -> String {
-        let h = self.hosts.keys().position(|n| n == name).expect("a host") + 1;
+        let h = self.get(name).number;
         let cable = format!("ecw{}h{h}", self.tag);
         let address = self.address(subnet, h);
         self.plug(name, &cable, "eth1", subnet, &address);
@@ -188,7 +201,7 @@ impl Network {
 
     /// A veth from `subnet`'s bridge (`cable`) to `name`'s namespace (`device`, at `address`).
     fn plug(&mut self, name: &str, cable: &str, device: &str, subnet: usize, address: &str) {
-        let ns = self.get(name).0.clone();
+        let ns = self.get(name).ns.clone();
         ip(&[
             "link", "add", cable, "type", "veth", "peer", "name", device, "netns", &ns,
         ]);
@@ -203,26 +216,37 @@ impl Network {
             device,
         ]);
         ip(&["-n", &ns, "link", "set", device, "up"]);
-        self.addresses
-            .entry(name.to_string())
-            .or_default()
+        self.get_mut(name)
+            .addresses
             .push((subnet, address.to_string()));
     }
 
-    fn get(&self, name: &str) -> &(String, String, String) {
+    fn get(&self, name: &str) -> &Host {
         self.hosts
             .get(name)
             .unwrap_or_else(|| panic!("no host {name}"))
     }
 
+    fn get_mut(&mut self, name: &str) -> &mut Host {
+        self.hosts
+            .get_mut(name)
+            .unwrap_or_else(|| panic!("no host {name}"))
+    }
+
+    /// `host`'s address on its first cable.
+    fn address_of(&self, host: &str) -> &str {
+        &self.get(host).addresses[0].1
+    }
+
     /// The endpoint a process on `host` listens on: `tcp/ADDRESS:7447` (`quic/` with keys).
     pub fn endpoint(&self, host: &str, keys: bool) -> String {
-        endpoint_at(&self.get(host).2, keys)
+        endpoint_at(self.address_of(host), keys)
     }
 
     /// Every endpoint a process on `host` listens on: one on each subnet it is on.
     pub fn endpoints(&self, host: &str, keys: bool) -> Vec<String> {
-        self.addresses[host]
+        self.get(host)
+            .addresses
             .iter()
             .map(|(_, address)| endpoint_at(address, keys))
             .collect()
@@ -230,8 +254,10 @@ impl Network {
 
     /// The endpoint of `host` that a process on `from` reaches: its address on `from`'s subnet.
     pub fn endpoint_from(&self, host: &str, from: &str, keys: bool) -> String {
-        let subnet = self.addresses[from][0].0;
-        let (_, address) = self.addresses[host]
+        let subnet = self.get(from).addresses[0].0;
+        let (_, address) = self
+            .get(host)
+            .addresses
             .iter()
             .find(|(s, _)| *s == subnet)
             .unwrap_or_else(|| panic!("{host} is not on {from}'s subnet"));
@@ -240,17 +266,24 @@ impl Network {
 
     /// Whether `from` has a route to `host`'s (first) address.
     pub fn routes(&self, from: &str, host: &str) -> bool {
-        ip_output(&["-n", &self.get(from).0, "route", "get", &self.get(host).2]).is_some()
+        ip_output(&[
+            "-n",
+            &self.get(from).ns,
+            "route",
+            "get",
+            self.address_of(host),
+        ])
+        .is_some()
     }
 
     /// Unplugs `host`'s cable: nothing gets in or out, and nothing is told.
     pub fn cut(&self, host: &str) {
-        ip(&["link", "set", &self.get(host).1, "down"]);
+        ip(&["link", "set", &self.get(host).cable, "down"]);
     }
 
     /// Plugs it back in.
     pub fn heal(&self, host: &str) {
-        ip(&["link", "set", &self.get(host).1, "up"]);
+        ip(&["link", "set", &self.get(host).cable, "up"]);
     }
 
     /// Makes `host` drop `percent` of the packets it sends and of those it receives, each at
@@ -266,7 +299,7 @@ impl Network {
                chain in {{ type filter hook input priority 0; {drop} }}; \
                chain out {{ type filter hook output priority 0; {drop} }}; }}"
         );
-        ip(&["netns", "exec", &self.get(host).0, "nft", &rules]);
+        ip(&["netns", "exec", &self.get(host).ns, "nft", &rules]);
         true
     }
 
@@ -279,23 +312,19 @@ impl Network {
         }
         let rules = format!(
             "table inet lossy {{ chain in {{ type filter hook input priority 0; ip saddr {} drop; }}; }}",
-            self.get(from).2
+            self.address_of(from)
         );
-        ip(&["netns", "exec", &self.get(host).0, "nft", &rules]);
+        ip(&["netns", "exec", &self.get(host).ns, "nft", &rules]);
         true
     }
 
     /// Gives `host` a new address, as a robot roaming to another Wi-Fi access point gets one:
     /// the old one is gone at once, with every connection that used it.
     pub fn readdress(&mut self, host: &str) -> String {
-        let (ns, _, old) = self.get(host).clone();
-        let last: u32 = old
-            .rsplit('.')
-            .next()
-            .and_then(|n| n.parse().ok())
-            .expect("an address");
-        let subnet = self.addresses[host][0].0;
-        let address = self.address(subnet, last as usize + 100);
+        let current = self.get(host);
+        let ns = current.ns.clone();
+        let (subnet, old) = current.addresses[0].clone();
+        let address = self.address(subnet, current.number + 100);
         // The old one goes first: deleting an interface's primary address deletes the others too.
         ip(&[
             "-n",
@@ -315,8 +344,7 @@ impl Network {
             "dev",
             "eth0",
         ]);
-        self.hosts.get_mut(host).expect("a host").2 = address.clone();
-        self.addresses.get_mut(host).expect("a host")[0].1 = address.clone();
+        self.get_mut(host).addresses[0].1 = address.clone();
         address
     }
 
@@ -325,7 +353,7 @@ impl Network {
         ip(&[
             "netns",
             "exec",
-            &self.get(host).0,
+            &self.get(host).ns,
             "nft",
             "delete",
             "table",
@@ -338,7 +366,7 @@ impl Network {
     pub fn ecology(&self, host: &str, name: &str, args: &[String]) -> Proc {
         let mut command = Command::new("ip");
         command
-            .args(["netns", "exec", &self.get(host).0])
+            .args(["netns", "exec", &self.get(host).ns])
             .arg(env!("CARGO_BIN_EXE_ecology"))
             .args(args);
         Proc::spawn(name, command)
@@ -353,8 +381,8 @@ fn endpoint_at(address: &str, keys: bool) -> String {
 
 impl Drop for Network {
     fn drop(&mut self) {
-        for (ns, _, _) in self.hosts.values() {
-            let _ = ip_output(&["netns", "del", ns]);
+        for host in self.hosts.values() {
+            let _ = ip_output(&["netns", "del", &host.ns]);
         }
         for bridge in &self.bridges {
             let _ = ip_output(&["link", "del", bridge]);
