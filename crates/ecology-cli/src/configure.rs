@@ -139,6 +139,7 @@ pub fn configure(args: &ConfigureArgs) -> anyhow::Result<u8> {
             max_expansions: args.max_nodes,
             max_time: args.max_millis.map(Duration::from_millis),
         },
+        explain: true,
     };
     let mut line = ProgressLine::new(!args.json);
     let mut observe = |s: Snapshot| line.update(clock.elapsed(), || searching(&s));

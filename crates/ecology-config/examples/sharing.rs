@@ -5,11 +5,16 @@
 //! writes `DIR/domain.eco`, `DIR/state.facts`, `DIR/goal` and `DIR/exclusions`
 //! (one `PEIS:COMPONENT` a line); `… -- solve DIR [MAX_MILLIS]` reads them back
 //! and plans, printing one line `cost=… status=… micros=… cold_micros=…
-//! first_micros=… expanded=… lower_bound=…` where `micros` is the work of a
-//! [`Planner`] whose domain was compiled beforehand, as the executive's is
-//! (compiling the state, grounding, search, assembling the configuration),
-//! and `cold_micros` that of [`plan`], which compiles the domain too; each
-//! the median of up to 1,000 runs while they take under half a second in all. `… -- run P L K CPP R F SEED
+//! explained_micros=… first_micros=… expanded=… lower_bound=…`. `micros` is
+//! the work of a [`Planner`] whose domain was compiled beforehand, as the
+//! executive's is (reading the state, grounding, search, assembling the
+//! configuration), answering what the peers answer: the cheapest
+//! configuration, or that there is none (`Options::explain` off).
+//! `cold_micros` is that of [`plan`], which compiles the domain too, and
+//! `explained_micros` the planner's again with the explanation of a "none"
+//! that `ecology configure` prints. Each is the median of up to 1,000 runs
+//! while they take under half a second in all, in microseconds with three
+//! decimals. `… -- run P L K CPP R F SEED
 //! [MAX_MILLIS]` generates and plans without files.
 
 use std::time::{Duration, Instant};
@@ -83,12 +88,20 @@ fn main() {
             };
             let max_time = max_time.map(|m| Duration::from_millis(m.parse().expect("ms")));
             let request = instance.request();
+            // What the peers answer: the cheapest configuration, or that
+            // there is none.
             let options = Options {
                 count: 1,
                 budget: Budget {
                     max_expansions: None,
                     max_time,
                 },
+                explain: false,
+            };
+            // What `ecology configure` answers: also why there is none.
+            let explaining = Options {
+                explain: true,
+                ..options
             };
             let generated = start.elapsed();
             // Up to 1,000 runs while they take under half a second in all;
@@ -123,15 +136,24 @@ fn main() {
                 let outcome = plan(&request, &options, &clock).expect("valid goal");
                 (clock.elapsed(), outcome)
             });
+            let (explained, _) = median(&|| {
+                let clock = WallClock::start();
+                let outcome = planner
+                    .plan(&prepared, &explaining, &clock)
+                    .expect("valid goal");
+                (clock.elapsed(), outcome)
+            });
+            let micros = |d: Duration| format!("{:.3}", d.as_secs_f64() * 1e6);
             println!(
-                "cost={} status={:?} micros={} cold_micros={} generate_micros={} first_micros={} expanded={} lower_bound={}",
+                "cost={} status={:?} micros={} cold_micros={} explained_micros={} generate_micros={} first_micros={} expanded={} lower_bound={}",
                 outcome
                     .configurations
                     .first()
                     .map_or("none".to_string(), |c| c.cost.to_string()),
                 outcome.status,
-                total.as_micros(),
-                cold.as_micros(),
+                micros(total),
+                micros(cold),
+                micros(explained),
                 generated.as_micros(),
                 outcome
                     .stats

@@ -400,7 +400,7 @@ impl Candidates<'_> {
 #[derive(Debug)]
 pub(crate) struct Schema {
     /// The domain's names; a plan's table adds the state's after them.
-    domain_syms: std::sync::Arc<Symbols>,
+    pub(crate) domain_syms: std::sync::Arc<Symbols>,
     pub(crate) funcs: Vec<CFunc>,
     pub(crate) tasks: Vec<CTask>,
     pub(crate) methods: Vec<CMethod>,
@@ -411,6 +411,8 @@ pub(crate) struct Schema {
     /// By task: how often each functionality schema can occur in one
     /// decomposition of it, computed the first time a goal asks.
     multiplicity: Vec<std::sync::OnceLock<std::sync::Arc<[u64]>>>,
+    /// The schemas as the relaxation that proves "none" reads them.
+    pub(crate) relaxed: crate::relaxed::Relaxed,
 }
 
 /// The domain and state, compiled.
@@ -488,6 +490,7 @@ impl Schema {
             multiplicity: (0..domain.tasks.len())
                 .map(|_| std::sync::OnceLock::new())
                 .collect(),
+            relaxed: crate::relaxed::Relaxed::default(),
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -581,6 +584,7 @@ impl Schema {
             }
         }
         schema.indexed = indexed;
+        schema.relaxed = crate::relaxed::Relaxed::new(&schema);
         schema
     }
 

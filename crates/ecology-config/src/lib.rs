@@ -31,6 +31,7 @@ mod cost;
 mod explain;
 mod ground;
 pub mod oracle;
+mod relaxed;
 mod relevant;
 mod search;
 mod share;
@@ -134,6 +135,12 @@ pub struct Options {
     pub count: usize,
     /// When to stop early.
     pub budget: Budget,
+    /// When no configuration exists, say why ([`Outcome::explanation`]).
+    /// Without it, a goal that cannot be provided even with every binding
+    /// forgotten is answered before grounding: a caller that only asks
+    /// whether a configuration exists gets the answer in a fraction of the
+    /// time.
+    pub explain: bool,
 }
 
 impl Default for Options {
@@ -141,6 +148,7 @@ impl Default for Options {
         Options {
             count: 1,
             budget: Budget::default(),
+            explain: true,
         }
     }
 }
@@ -369,7 +377,7 @@ pub struct Outcome {
     pub configurations: Vec<Configuration>,
     /// Whether they are proven.
     pub status: Status,
-    /// When there are none: why.
+    /// When there are none and [`Options::explain`] asked: why.
     pub explanation: Option<Explanation>,
     /// When the budget ran out: no configuration costs less than this.
     pub lower_bound: Option<u64>,
@@ -395,6 +403,7 @@ pub struct Search<'a> {
     /// The search over chosen providers, when the domain has provider shape.
     shared: Option<share::Shared>,
     count: usize,
+    explain: bool,
     dived: bool,
 }
 
@@ -423,25 +432,21 @@ impl<'a> Search<'a> {
         cost_model: &'a dyn CostModel,
         options: &Options,
     ) -> Result<Search<'a>, RequestError> {
-        Search::new_until(request, None, cost_model, options, &|| false)
+        let schema = std::sync::Arc::new(Schema::new(request.domain));
+        Search::new_until(request, schema, cost_model, options, &|| false)
     }
 
     /// Like [`Search::new`], asking `over` between phases and now and then
     /// while grounding whether the budget ran out; if it did, the search is
     /// [`Search::cut`] and finishes at once with nothing and no bound.
-    /// The domain's schema is `planner`'s when it was prepared from the
-    /// request's domain, else compiled here.
+    /// `schema` is the request's domain compiled.
     fn new_until(
         request: &Request<'a>,
-        planner: Option<&Planner>,
+        schema: std::sync::Arc<Schema>,
         cost_model: &'a dyn CostModel,
         options: &Options,
         over: &dyn Fn() -> bool,
     ) -> Result<Search<'a>, RequestError> {
-        let schema = match planner {
-            Some(planner) if planner.prepared_for(request.domain) => planner.schema.clone(),
-            _ => std::sync::Arc::new(Schema::new(request.domain)),
-        };
         let mut compiled = Compiled::new_until(schema, request.state, over);
         let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
         let excluded = excluded(&mut compiled, request.exclusions);
@@ -466,6 +471,7 @@ impl<'a> Search<'a> {
             engine,
             shared,
             count: options.count.max(1),
+            explain: options.explain,
             dived: false,
         })
     }
@@ -564,7 +570,7 @@ impl<'a> Search<'a> {
         if let Some(mut shared) = self.shared.take() {
             let lower_bound = if complete { None } else { shared.lower_bound() };
             let (configurations, explanation, whole) =
-                shared.finish(&mut self.engine, complete, over);
+                shared.finish(&mut self.engine, complete, self.explain, over);
             let lower_bound = match (lower_bound, whole) {
                 (None, false) => configurations.last().map(|c| c.cost),
                 (bound, _) => bound,
@@ -593,7 +599,7 @@ impl<'a> Search<'a> {
         for (i, c) in configurations.iter_mut().enumerate() {
             c.optimal = complete || i < proven_count;
         }
-        let explanation = (configurations.is_empty() && complete).then(|| {
+        let explanation = (configurations.is_empty() && complete && self.explain).then(|| {
             explain::explain(
                 &self.engine.ctx,
                 &self.engine.graph,
@@ -744,7 +750,34 @@ fn plan_prepared<'a>(
             .max_time
             .is_some_and(|t| clock.elapsed() >= t)
     };
-    let mut search = Search::new_until(request, planner, cost_model, options, &over_time)?;
+    let schema = match planner {
+        Some(planner) if planner.prepared_for(request.domain) => planner.schema.clone(),
+        _ => std::sync::Arc::new(Schema::new(request.domain)),
+    };
+    if !options.explain {
+        let (callee, args) = check_goal(request.domain, &schema, request.goal)?;
+        let none = schema.relaxed.proves_none(
+            &schema,
+            request.state,
+            callee,
+            &args,
+            request.exclusions,
+            &over_time,
+        );
+        if none == Some(true) {
+            return Ok(Outcome {
+                configurations: Vec::new(),
+                status: Status::Proven,
+                explanation: None,
+                lower_bound: None,
+                stats: Stats {
+                    micros: clock.elapsed().as_micros() as u64,
+                    ..Stats::default()
+                },
+            });
+        }
+    }
+    let mut search = Search::new_until(request, schema, cost_model, options, &over_time)?;
     if search.cut() {
         // The bound is the goal's when grounding was complete, else none.
         return Ok(search.finish(false, clock.elapsed()));
@@ -812,16 +845,30 @@ fn resolve_goal(
     compiled: &mut Compiled,
     goal: &Call,
 ) -> Result<(Callee, Vec<compile::Sym>), RequestError> {
-    let Some(&callee) = compiled.callee_by_name.get(&goal.name) else {
+    let (callee, args) = check_goal(domain, &compiled.schema, goal)?;
+    let args = args
+        .into_iter()
+        .map(|a| compiled.syms.intern_str(a))
+        .collect();
+    Ok((callee, args))
+}
+
+/// The goal's callee and arguments, checked against the domain.
+fn check_goal<'g>(
+    domain: &Domain,
+    schema: &Schema,
+    goal: &'g Call,
+) -> Result<(Callee, Vec<&'g str>), RequestError> {
+    let Some(&callee) = schema.callee_by_name.get(&goal.name) else {
         return Err(RequestError::UnknownGoal {
             name: goal.name.to_string(),
         });
     };
     let expected = match callee {
-        Callee::Func(f) => domain.functionalities[compiled.funcs[f as usize].src]
+        Callee::Func(f) => domain.functionalities[schema.funcs[f as usize].src]
             .params
             .len(),
-        Callee::Task(t) => domain.tasks[compiled.tasks[t as usize].src].params.len(),
+        Callee::Task(t) => domain.tasks[schema.tasks[t as usize].src].params.len(),
     };
     if expected != goal.args.len() {
         return Err(RequestError::Arity {
@@ -833,7 +880,7 @@ fn resolve_goal(
     let mut args = Vec::new();
     for t in &goal.args {
         match t {
-            ecology_domain::Term::Const(c) => args.push(compiled.syms.intern(c)),
+            ecology_domain::Term::Const(c) => args.push(&**c),
             ecology_domain::Term::Var(v) => return Err(RequestError::NotGround(format!("?{v}"))),
         }
     }

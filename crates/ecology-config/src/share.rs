@@ -949,11 +949,13 @@ impl Shared {
 
     /// Builds the configurations: proven ones, then (budget exceeded) the
     /// incumbent. After the first, asks `over` before each whether the budget
-    /// ran out; the last value says whether every one was built.
+    /// ran out; the last value says whether every one was built. When there
+    /// is none, says why if `explain`.
     pub(crate) fn finish(
         &mut self,
         engine: &mut Engine<'_>,
         complete: bool,
+        explain: bool,
         over: &dyn Fn() -> bool,
     ) -> (Vec<Configuration>, Option<explain::Explanation>, bool) {
         let mut out = Vec::new();
@@ -993,7 +995,7 @@ impl Shared {
                 Err(reason) => engine.reject(reason),
             }
         }
-        let explanation = (out.is_empty() && complete)
+        let explanation = (out.is_empty() && complete && explain)
             .then(|| explain::explain(&engine.ctx, &engine.graph, engine.root, &engine.rejections));
         (out, explanation, whole)
     }

@@ -750,7 +750,11 @@ fn budgets_stop_the_search_with_the_best_found_flagged() {
             max_time: Some(Duration::from_millis(500)),
         },
     ] {
-        let options = Options { count: 1, budget };
+        let options = Options {
+            count: 1,
+            budget,
+            ..Options::default()
+        };
         let outcome = plan(&request, &options, &Stepping::seconds()).expect("valid");
         assert_eq!(outcome.status, Status::BudgetExceeded);
         if let Some(found) = outcome.configurations.first() {
@@ -773,7 +777,11 @@ fn budgets_hold_for_the_provider_search() {
     assert_eq!(full.lower_bound, None);
     let optimum = full.configurations[0].cost;
     let with = |budget| {
-        let options = Options { count: 1, budget };
+        let options = Options {
+            count: 1,
+            budget,
+            ..Options::default()
+        };
         plan(&request, &options, &Stepping::millis()).expect("valid")
     };
     // No node: nothing found, but a bound.
@@ -792,7 +800,16 @@ fn budgets_hold_for_the_provider_search() {
             max_expansions: None,
             max_time: Some(Duration::from_secs(3600)),
         };
-        plan(&request, &Options { count: 1, budget }, &clock).expect("valid");
+        plan(
+            &request,
+            &Options {
+                count: 1,
+                budget,
+                ..Options::default()
+            },
+            &clock,
+        )
+        .expect("valid");
         clock.reads.get()
     };
     // The first budget of time (a millisecond per clock reading) that finds
@@ -900,6 +917,21 @@ fn agrees_on(
     if expected.is_empty() {
         prop_assert!(best.explanation.is_some());
     }
+    // Asked only whether one exists, the planner gives the same answer
+    // (through the relaxation when it proves "none"), without saying why.
+    let quick = Options {
+        explain: false,
+        ..Options::default()
+    };
+    let quick = plan(&request, &quick, &NoClock).expect("valid goal");
+    prop_assert_eq!(quick.status, Status::Proven);
+    prop_assert_eq!(
+        quick.configurations.first().map(|c| c.cost),
+        expected.first().map(|c| c.cost),
+        "{}",
+        context()
+    );
+    prop_assert!(quick.explanation.is_none());
     // Excluding a component used by the optimum never makes it cheaper.
     if let Some(first) = best.configurations.first() {
         for f in &first.functionalities {
@@ -1042,6 +1074,108 @@ fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
     });
 }
 
+/// Whether the relaxation proves that `request` has no configuration.
+fn relaxation_proves_none(request: &Request<'_>) -> bool {
+    let schema = crate::compile::Schema::new(request.domain);
+    let (callee, args) = crate::check_goal(request.domain, &schema, request.goal).expect("valid");
+    schema
+        .relaxed
+        .proves_none(
+            &schema,
+            request.state,
+            callee,
+            &args,
+            request.exclusions,
+            &|| false,
+        )
+        .expect("not cut")
+}
+
+// The relaxation that answers "none" without grounding is sound (it proves
+// none only where the oracle finds none) and not idle (it proves most of the
+// cases without a configuration), on random domains, shared-provider
+// ecologies and the paper's, with a component or PEIS excluded.
+#[test]
+fn the_relaxation_proves_none_only_where_there_is_none() {
+    let (mut none, mut proven) = (0, 0);
+    let mut check = |instance: &synthetic::Instance, seed: u64| {
+        let mut cases = vec![instance.exclusions.clone()];
+        if !instance.components.is_empty() {
+            let (peis, component) =
+                &instance.components[(seed % instance.components.len() as u64) as usize];
+            let mut more = instance.exclusions.clone();
+            more.push(Exclusion::Component {
+                peis: peis.clone(),
+                component: component.clone(),
+            });
+            cases.push(more.clone());
+            more.push(Exclusion::Peis(peis.clone()));
+            cases.push(more);
+        }
+        for exclusions in &cases {
+            let request = Request {
+                exclusions,
+                ..instance.request()
+            };
+            let Some(expected) = oracle::enumerate(
+                request.domain,
+                request.state,
+                request.goal,
+                exclusions,
+                &PaperCost,
+                Limit(20_000),
+            ) else {
+                continue;
+            };
+            let proves = relaxation_proves_none(&request);
+            assert!(
+                !proves || expected.is_empty(),
+                "seed {seed} excluding {exclusions:?}: proved none, the oracle found {}\n{}\n{}",
+                expected.len(),
+                instance.domain_text,
+                instance.facts_text
+            );
+            if expected.is_empty() {
+                none += 1;
+                proven += usize::from(proves);
+            }
+        }
+    };
+    for seed in 0..300 {
+        check(
+            &synthetic::small(seed).unwrap_or_else(|e| panic!("seed {seed}: {}", e.0)),
+            seed,
+        );
+        check(&small_sharing(seed), seed);
+    }
+    eprintln!("the relaxation proved {proven} of {none} cases without a configuration");
+    assert!(
+        proven * 2 >= none && none >= 100,
+        "the relaxation proved {proven} of {none} cases without a configuration"
+    );
+    // The paper's ecology: without Astrid's laser and the PEIS with cameras
+    // (hsm's ceiling and Pippi), nothing localizes her; with Pippi there, her
+    // camera does.
+    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
+    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses");
+    let goal = parse_goal("(navigate astrid kitchen)").expect("parses");
+    for (exclude, none) in [
+        (&["astrid:l1", "hsm", "pippi"][..], true),
+        (&["astrid:l1", "hsm"], false),
+    ] {
+        let exclusions = exclusions(exclude);
+        let request = Request {
+            domain: &domain,
+            state: &state,
+            goal: &goal,
+            exclusions: &exclusions,
+        };
+        assert_eq!(relaxation_proves_none(&request), none, "{exclude:?}");
+        let outcome = plan(&request, &Options::default(), &NoClock).expect("valid");
+        assert_eq!(outcome.configurations.is_empty(), none, "{exclude:?}");
+    }
+}
+
 #[test]
 fn the_generators_are_deterministic() {
     let a = synthetic::small(42).expect("generates");
@@ -1132,6 +1266,7 @@ fn out_of_time(request: &Request<'_>, limit: Duration) -> (Outcome, u64) {
             max_expansions: None,
             max_time: Some(limit),
         },
+        ..Options::default()
     };
     let clock = Stepping::seconds();
     let outcome = plan(request, &options, &clock).expect("valid");
@@ -1166,6 +1301,7 @@ fn every_phase_of_the_provider_search_checks_the_budget() {
             max_expansions: None,
             max_time: Some(Duration::from_secs(3600)),
         },
+        ..Options::default()
     };
     plan(&request, &unlimited, &clock).expect("valid");
     let reads = clock.reads.get();
@@ -1179,6 +1315,7 @@ fn every_phase_of_the_provider_search_checks_the_budget() {
                 max_expansions: None,
                 max_time: Some(Duration::from_millis(ms)),
             },
+            ..Options::default()
         };
         let outcome = plan(&request, &options, &Stepping::millis()).expect("valid");
         if outcome.status == Status::Proven {

@@ -1248,20 +1248,23 @@ impl Executive {
         });
         self.add_unavailable(&mut exclusions);
         let state = self.mirror.state(&self.world);
-        self.plan_configurations(&state, goal, &exclusions, 1)
+        // Only whether one exists: no explanation, so that "none" is answered
+        // before grounding when it can be.
+        self.plan_configurations(&state, goal, &exclusions, 1, false)
             .is_ok_and(|o| {
                 !o.configurations.is_empty() || o.status == ecology_config::Status::BudgetExceeded
             })
     }
 
     /// Up to `count` configurations for `goal` in `state` without `exclusions`, under the
-    /// planning budget, which counts from now.
+    /// planning budget, which counts from now; when there is none, why if `explain`.
     fn plan_configurations(
         &self,
         state: &EcologyState,
         goal: &ecology_domain::Call,
         exclusions: &[Exclusion],
         count: usize,
+        explain: bool,
     ) -> Result<ecology_config::Outcome, ecology_config::RequestError> {
         let request = Request {
             domain: self.planner.domain(),
@@ -1272,6 +1275,7 @@ impl Executive {
         let options = Options {
             count,
             budget: self.config.planning,
+            explain,
         };
         let since = Since {
             clock: &*self.stopwatch.0,
@@ -1299,7 +1303,7 @@ impl Executive {
             micros: micros(acquired.saturating_sub(before)),
         });
         let count = self.config.alternatives.max(1);
-        let outcome = match self.plan_configurations(&state, &goal, &exclusions, count) {
+        let outcome = match self.plan_configurations(&state, &goal, &exclusions, count, true) {
             Ok(outcome) => outcome,
             Err(err) => {
                 self.no_configuration(err.to_string(), out);
