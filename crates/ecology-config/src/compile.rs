@@ -6,7 +6,7 @@ use std::hash::{Hash, Hasher};
 use hashbrown::HashTable;
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
-use ecology_domain::{Domain, EcologyState, Info, Literal, Name, Term};
+use ecology_domain::{ComponentCost, Domain, EcologyState, Info, Literal, Name, Power, Term};
 
 /// An interned symbol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -177,7 +177,10 @@ pub(crate) struct GInfo {
 impl GInfo {
     /// `(name arg ...)`, for people.
     pub(crate) fn text(&self, syms: &Symbols) -> String {
-        let mut out = format!("({}", syms.name(self.name));
+        let name = syms.name(self.name);
+        let mut out = String::with_capacity(name.len() + 2 + 8 * self.args.len());
+        out.push('(');
+        out.push_str(name);
         for &a in self.args.iter() {
             out.push(' ');
             out.push_str(syms.name(a));
@@ -308,26 +311,50 @@ const NO_FACTS: &FactList = &FactList {
 #[derive(Debug, Default)]
 pub(crate) struct Facts {
     by_pred: HashMap<Sym, FactList>,
-    /// (predicate, argument position, value) → indices into `by_pred[predicate]`.
-    index: HashMap<(Sym, u8, Sym), Vec<u32>>,
+    /// (predicate, argument position, value) → where its facts' indices
+    /// into `by_pred[predicate]` are in `postings`.
+    index: HashMap<IndexKey, (u32, u32)>,
+    /// The indexed facts, key after key, each key's in ascending order.
+    postings: Vec<u32>,
+    /// While the state is read: each key of each indexed fact, with the fact.
+    pending: Vec<(IndexKey, u32)>,
     indexed: HashSet<Sym>,
 }
 
+/// (predicate, argument position, value).
+type IndexKey = (Sym, u8, Sym);
+
 impl Facts {
     /// Adds a fact; the state has no duplicates (`EcologyState` is a set).
+    /// Its index entries wait for [`Facts::build_index`].
     fn insert(&mut self, pred: Sym, args: &[Sym]) {
         let list = self.by_pred.entry(pred).or_default();
         let at = list.ends.len() as u32;
         if self.indexed.contains(&pred) {
             for (pos, &arg) in args.iter().enumerate().take(u8::MAX as usize) {
-                self.index
-                    .entry((pred, pos as u8, arg))
-                    .or_default()
-                    .push(at);
+                self.pending.push(((pred, pos as u8, arg), at));
             }
         }
         list.args.extend_from_slice(args);
         list.ends.push(list.args.len() as u32);
+    }
+
+    /// Indexes the facts inserted: one sort and one list for all keys,
+    /// rather than a list per key.
+    fn build_index(&mut self) {
+        let mut pending = std::mem::take(&mut self.pending);
+        pending.sort_unstable();
+        self.postings.reserve(pending.len());
+        let mut at = 0;
+        while at < pending.len() {
+            let key = pending[at].0;
+            let start = self.postings.len() as u32;
+            while at < pending.len() && pending[at].0 == key {
+                self.postings.push(pending[at].1);
+                at += 1;
+            }
+            self.index.insert(key, (start, self.postings.len() as u32));
+        }
     }
 
     pub(crate) fn holds(&self, pred: Sym, args: &[Sym]) -> bool {
@@ -360,7 +387,9 @@ impl Facts {
                 let list = self
                     .index
                     .get(&(pred, pos as u8, value))
-                    .map_or(&[][..], Vec::as_slice);
+                    .map_or(&[][..], |&(start, end)| {
+                        &self.postings[start as usize..end as usize]
+                    });
                 if best.is_none_or(|b| list.len() < b.len()) {
                     best = Some(list);
                 }
@@ -422,6 +451,10 @@ pub(crate) struct Compiled {
     /// The domain's names, then the state's.
     pub(crate) syms: Symbols,
     pub(crate) facts: Facts,
+    /// The state's `cost` facts, (PEIS, component) → cost; the first one counts.
+    pub(crate) costs: HashMap<(Sym, Sym), ComponentCost>,
+    /// The state's `channel-cost` facts, (from, to) → cost; the first one counts.
+    pub(crate) channels: HashMap<(Sym, Sym), u64>,
     /// Reading the state was cut short by the caller's budget: facts are missing.
     pub(crate) cut: bool,
 }
@@ -647,39 +680,119 @@ impl Compiled {
         state: &EcologyState,
         over: &dyn Fn() -> bool,
     ) -> Compiled {
-        let mut syms = Symbols::over(schema.domain_syms.clone(), state.len() / 2);
+        let mut syms = Symbols::over(schema.domain_syms.clone(), state.len());
         let mut facts = Facts {
             indexed: schema.indexed.clone(),
             ..Facts::default()
         };
-        facts.index.reserve(state.len());
+        facts.pending.reserve(state.len());
         let mut cut = false;
         let mut args = Vec::with_capacity(8);
         // A state's reader shares one `Name` among all uses of a name, so
         // most names are found by their address, without hashing the text.
         // The state outlives this map, so an address names one text.
         let mut by_address: HashMap<usize, Sym> =
-            HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
+            HashMap::with_capacity_and_hasher(state.len(), Default::default());
         let mut intern = |syms: &mut Symbols, name: &Name| {
             *by_address
                 .entry(Name::as_ptr(name) as *const u8 as usize)
                 .or_insert_with(|| syms.intern(name))
         };
+        // Costs and channel costs (most of a large state) are read straight
+        // into their tables, their numbers not interned, unless a
+        // precondition looks them up.
+        let direct = |syms: &mut Symbols, name: &str| {
+            let sym = syms.intern_str(name);
+            (!facts.indexed.contains(&sym)).then_some(sym)
+        };
+        let (cost, channel_cost) = (direct(&mut syms, "cost"), direct(&mut syms, "channel-cost"));
+        let mut costs: HashMap<(Sym, Sym), ComponentCost> =
+            HashMap::with_capacity_and_hasher(state.len() / 4, Default::default());
+        let mut channels: HashMap<(Sym, Sym), u64> =
+            HashMap::with_capacity_and_hasher(state.len() / 4, Default::default());
         for (k, fact) in state.facts().iter().enumerate() {
             if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
                 cut = true;
                 break;
             }
             let pred = intern(&mut syms, &fact.predicate);
+            if Some(pred) == cost {
+                if let [p, c, amount, power] = &fact.args[..]
+                    && let Ok(amount) = amount.parse::<u64>()
+                {
+                    let power = if &**power == "on" {
+                        Power::On
+                    } else {
+                        Power::Off
+                    };
+                    let key = (intern(&mut syms, p), intern(&mut syms, c));
+                    costs.entry(key).or_insert(ComponentCost { amount, power });
+                }
+                continue;
+            }
+            if Some(pred) == channel_cost {
+                if let [a, b, n] = &fact.args[..]
+                    && let Ok(n) = n.parse::<u64>()
+                {
+                    let key = (intern(&mut syms, a), intern(&mut syms, b));
+                    channels.entry(key).or_insert(n);
+                }
+                continue;
+            }
             args.clear();
             args.extend(fact.args.iter().map(|a| intern(&mut syms, a)));
             facts.insert(pred, &args);
         }
-        Compiled {
+        facts.build_index();
+        let mut compiled = Compiled {
             schema,
             syms,
             facts,
+            costs,
+            channels,
             cut,
+        };
+        // Looked up by a precondition: read from the indexed facts.
+        if cost.is_none() {
+            compiled.read_costs();
+        }
+        if channel_cost.is_none() {
+            compiled.read_channel_costs();
+        }
+        compiled
+    }
+
+    /// The costs from the `cost` facts kept with the others.
+    fn read_costs(&mut self) {
+        let Some(cost) = self.syms.get("cost") else {
+            return;
+        };
+        for fact in self.facts.of(cost).iter() {
+            if let [p, c, amount, power] = fact[..]
+                && let Ok(amount) = self.syms.name(amount).parse::<u64>()
+            {
+                let power = match self.syms.name(power) {
+                    "on" => Power::On,
+                    _ => Power::Off,
+                };
+                self.costs
+                    .entry((p, c))
+                    .or_insert(ComponentCost { amount, power });
+            }
+        }
+    }
+
+    /// The channel costs from the `channel-cost` facts kept with the others.
+    fn read_channel_costs(&mut self) {
+        let Some(pred) = self.syms.get("channel-cost") else {
+            return;
+        };
+        for fact in self.facts.of(pred).iter() {
+            if let [a, b, n] = fact[..]
+                && let Ok(n) = self.syms.name(n).parse()
+            {
+                self.channels.entry((a, b)).or_insert(n);
+            }
         }
     }
 

@@ -104,37 +104,9 @@ impl<'a> Ctx<'a> {
         excluded: Excluded,
         goal: Callee,
     ) -> Ctx<'a> {
-        let mut costs = HashMap::default();
-        if let Some(cost) = compiled.syms.get("cost") {
-            let facts = compiled.facts.of(cost);
-            costs.reserve(facts.len());
-            for fact in facts.iter() {
-                if let [p, c, amount, power] = fact[..] {
-                    let amount = compiled.syms.name(amount).parse::<u64>();
-                    let power = match compiled.syms.name(power) {
-                        "on" => Power::On,
-                        _ => Power::Off,
-                    };
-                    if let Ok(amount) = amount {
-                        costs
-                            .entry((p, c))
-                            .or_insert(ComponentCost { amount, power });
-                    }
-                }
-            }
-        }
-        let mut channels = HashMap::default();
-        if let Some(pred) = compiled.syms.get("channel-cost") {
-            let facts = compiled.facts.of(pred);
-            channels.reserve(facts.len());
-            for fact in facts.iter() {
-                if let [a, b, n] = fact[..]
-                    && let Ok(n) = compiled.syms.name(n).parse()
-                {
-                    channels.entry((a, b)).or_insert(n);
-                }
-            }
-        }
+        let mut compiled = compiled;
+        let costs = std::mem::take(&mut compiled.costs);
+        let channels = std::mem::take(&mut compiled.channels);
         let multiplicity = compiled.schema.multiplicity(goal);
         Ctx {
             domain,
@@ -257,6 +229,15 @@ pub(crate) struct Graph {
 }
 
 impl Graph {
+    /// An empty graph with room for `items` items before it grows.
+    pub(crate) fn with_capacity(items: usize) -> Graph {
+        Graph {
+            items: Vec::with_capacity(items),
+            memo: HashTable::with_capacity(items),
+            ..Graph::default()
+        }
+    }
+
     pub(crate) fn item(&self, id: ItemId) -> &Item {
         &self.items[id.0 as usize]
     }

@@ -30,6 +30,8 @@ use crate::compile::{CLit, CTerm, Callee, Schema, Symbols};
 
 /// How many facts are read between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;
+/// How many predicates' addresses a pass remembers.
+const PREDICATES_SEEN: usize = 16;
 
 /// One positive precondition literal, as the relaxation reads it.
 #[derive(Debug)]
@@ -157,7 +159,10 @@ impl Relaxed {
         over: &dyn Fn() -> bool,
     ) -> Option<bool> {
         let excluded = |lit: &Lit, fact: &[Name]| {
-            let peis = lit.peis_at.map(|i| &*fact[i]);
+            let Some(peis) = lit.peis_at.map(|i| &*fact[i]) else {
+                return false;
+            };
+            let peis = Some(peis);
             let component = lit.component_at.map(|i| &*fact[i]);
             exclusions.iter().any(|e| match e {
                 Exclusion::Peis(p) => peis == Some(p.as_str()),
@@ -176,6 +181,9 @@ impl Relaxed {
         };
         let mut met = vec![false; self.lits.len()];
         let mut unmet = self.lits.len();
+        // A state's reader shares one `Name` among all uses of a name, so a
+        // fact's predicate is mostly found by its address among the few seen.
+        let mut seen: Vec<(*const u8, Option<&Pred>)> = Vec::with_capacity(PREDICATES_SEEN);
         for (k, fact) in state.facts().iter().enumerate() {
             if unmet == 0 {
                 break;
@@ -183,9 +191,18 @@ impl Relaxed {
             if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
                 return None;
             }
-            let Some(pred) = self.preds.iter().find(|p| p.name == fact.predicate) else {
-                continue;
+            let address = Name::as_ptr(&fact.predicate) as *const u8;
+            let pred = match seen.iter().find(|(a, _)| *a == address) {
+                Some((_, pred)) => *pred,
+                None => {
+                    let pred = self.preds.iter().find(|p| p.name == fact.predicate);
+                    if seen.len() < PREDICATES_SEEN {
+                        seen.push((address, pred));
+                    }
+                    pred
+                }
             };
+            let Some(pred) = pred else { continue };
             let keyed = pred
                 .keyed
                 .iter()

@@ -27,6 +27,8 @@ use crate::{ChannelInstance, Configuration, FunctionalityInstance};
 use ecology_domain::Name;
 
 const NO_PARENT: u32 = u32::MAX;
+/// Ground items a graph has room for before it grows: a small ecology's.
+const GRAPH_CAPACITY: usize = 64;
 
 /// A wire: the consumer's component, the information, the producer's and
 /// the consumer's instance.
@@ -160,7 +162,7 @@ impl<'a> Engine<'a> {
         over: &dyn Fn() -> bool,
     ) -> Engine<'a> {
         // Already cut (while reading the state): only the goal's item, empty.
-        let mut graph = Graph::default();
+        let mut graph = Graph::with_capacity(GRAPH_CAPACITY);
         graph.cut = cut;
         let root = graph.ground_until(&ctx, goal, args, over);
         let mut engine = Engine {
