@@ -152,11 +152,12 @@ pub(crate) enum CLit {
 }
 
 impl CLit {
-    fn terms(&self) -> Vec<CTerm> {
-        match self {
-            CLit::Pos(a) | CLit::Neg(a) => a.args.clone(),
-            CLit::Eq(a, b) | CLit::Neq(a, b) => vec![*a, *b],
-        }
+    fn terms(&self) -> impl Iterator<Item = CTerm> + '_ {
+        let (args, pair): (&[CTerm], [Option<CTerm>; 2]) = match self {
+            CLit::Pos(a) | CLit::Neg(a) => (&a.args, [None, None]),
+            CLit::Eq(a, b) | CLit::Neq(a, b) => (&[], [Some(*a), Some(*b)]),
+        };
+        args.iter().copied().chain(pair.into_iter().flatten())
     }
 }
 
@@ -316,13 +317,28 @@ pub(crate) struct Facts {
     index: HashMap<IndexKey, (u32, u32)>,
     /// The indexed facts, key after key, each key's in ascending order.
     postings: Vec<u32>,
-    /// While the state is read: each key of each indexed fact, with the fact.
-    pending: Vec<(IndexKey, u32)>,
+    /// While the state is read: each key of each indexed fact, with the
+    /// fact, packed by [`pack`] so that they sort as numbers.
+    pending: Vec<u128>,
     indexed: HashSet<Sym>,
 }
 
 /// (predicate, argument position, value).
 type IndexKey = (Sym, u8, Sym);
+
+/// An index key and a fact's place, as one number ordered by key, then place.
+fn pack((pred, pos, value): IndexKey, at: u32) -> u128 {
+    (pred.0 as u128) << 72 | (pos as u128) << 64 | (value.0 as u128) << 32 | at as u128
+}
+
+/// The key of a packed entry.
+fn key_of(packed: u128) -> IndexKey {
+    (
+        Sym((packed >> 72) as u32),
+        (packed >> 64) as u8,
+        Sym((packed >> 32) as u32),
+    )
+}
 
 impl Facts {
     /// Adds a fact; the state has no duplicates (`EcologyState` is a set).
@@ -332,7 +348,7 @@ impl Facts {
         let at = list.ends.len() as u32;
         if self.indexed.contains(&pred) {
             for (pos, &arg) in args.iter().enumerate().take(u8::MAX as usize) {
-                self.pending.push(((pred, pos as u8, arg), at));
+                self.pending.push(pack((pred, pos as u8, arg), at));
             }
         }
         list.args.extend_from_slice(args);
@@ -345,12 +361,13 @@ impl Facts {
         let mut pending = std::mem::take(&mut self.pending);
         pending.sort_unstable();
         self.postings.reserve(pending.len());
+        self.index.reserve(pending.len());
         let mut at = 0;
         while at < pending.len() {
-            let key = pending[at].0;
+            let key = key_of(pending[at]);
             let start = self.postings.len() as u32;
-            while at < pending.len() && pending[at].0 == key {
-                self.postings.push(pending[at].1);
+            while at < pending.len() && key_of(pending[at]) == key {
+                self.postings.push(pending[at] as u32);
                 at += 1;
             }
             self.index.insert(key, (start, self.postings.len() as u32));
@@ -367,10 +384,6 @@ impl Facts {
     }
 
     /// Facts of `pred` that may match `pattern`, using the most selective index.
-    fn candidates(&self, pred: Sym, pattern: &[Option<Sym>]) -> Candidates<'_> {
-        self.candidates_of(pred, pattern.iter().copied())
-    }
-
     fn candidates_of(
         &self,
         pred: Sym,
@@ -707,9 +720,9 @@ impl Compiled {
         };
         let (cost, channel_cost) = (direct(&mut syms, "cost"), direct(&mut syms, "channel-cost"));
         let mut costs: HashMap<(Sym, Sym), ComponentCost> =
-            HashMap::with_capacity_and_hasher(state.len() / 4, Default::default());
+            HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
         let mut channels: HashMap<(Sym, Sym), u64> =
-            HashMap::with_capacity_and_hasher(state.len() / 4, Default::default());
+            HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
         for (k, fact) in state.facts().iter().enumerate() {
             if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
                 cut = true;
@@ -819,7 +832,7 @@ impl Compiled {
             if done[i] || matches!(lit, CLit::Pos(_)) {
                 continue;
             }
-            if lit.terms().iter().all(|t| t.ground(binding).is_some()) {
+            if lit.terms().all(|t| t.ground(binding).is_some()) {
                 if !self.check(lit, binding) {
                     return;
                 }
@@ -835,11 +848,7 @@ impl Compiled {
             .enumerate()
             .filter(|(i, l)| !done[*i] && matches!(l, CLit::Pos(_)))
             .max_by_key(|(i, l)| {
-                let bound = l
-                    .terms()
-                    .iter()
-                    .filter(|t| t.ground(binding).is_some())
-                    .count();
+                let bound = l.terms().filter(|t| t.ground(binding).is_some()).count();
                 (bound, usize::MAX - i)
             });
         let Some((i, CLit::Pos(atom))) = next else {
@@ -850,38 +859,48 @@ impl Compiled {
             }
             return;
         };
-        let pattern: Vec<Option<Sym>> = atom.args.iter().map(|t| t.ground(binding)).collect();
-        let candidates = self.facts.candidates(atom.pred, &pattern);
+        let candidates = self
+            .facts
+            .candidates_of(atom.pred, atom.args.iter().map(|t| t.ground(binding)));
         done[i] = true;
-        let mut newly = Vec::with_capacity(atom.args.len());
+        // The slots this fact binds: at most one per argument.
+        let mut short = [0u16; 8];
+        let mut long = Vec::new();
+        let newly: &mut [u16] = if atom.args.len() <= short.len() {
+            &mut short[..atom.args.len()]
+        } else {
+            long.resize(atom.args.len(), 0);
+            &mut long
+        };
         'facts: for k in 0..candidates.len() {
             let fact = candidates.get(k);
             if fact.len() != atom.args.len() {
                 continue;
             }
-            newly.clear();
+            let mut bound = 0;
             for (term, &value) in atom.args.iter().zip(fact) {
                 match term {
                     CTerm::Const(c) if *c != value => {
-                        undo(binding, &newly);
+                        undo(binding, &newly[..bound]);
                         continue 'facts;
                     }
                     CTerm::Const(_) => {}
                     CTerm::Var(slot) => match binding[*slot as usize] {
-                        Some(bound) if bound != value => {
-                            undo(binding, &newly);
+                        Some(bound_to) if bound_to != value => {
+                            undo(binding, &newly[..bound]);
                             continue 'facts;
                         }
                         Some(_) => {}
                         None => {
                             binding[*slot as usize] = Some(value);
-                            newly.push(*slot);
+                            newly[bound] = *slot;
+                            bound += 1;
                         }
                     },
                 }
             }
             self.solve_rec(lits, done, binding, found);
-            undo(binding, &newly);
+            undo(binding, &newly[..bound]);
         }
         done[i] = false;
     }

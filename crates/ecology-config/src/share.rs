@@ -139,6 +139,8 @@ struct Node {
     need: u32,
     opt: u32,
     g: u64,
+    /// A dive expanded it: its children are pushed already.
+    expanded: bool,
 }
 
 /// The provider-shape search; see the module docs.
@@ -740,7 +742,17 @@ impl Shared {
         ones(&state[self.pwords..]).next()
     }
 
-    fn push(&mut self, parent: u32, need: u32, opt: u32, g: u64, f: u64, state: &[u64]) {
+    /// Adds a node to the open list; `None` when its state was reached
+    /// before at no higher cost.
+    fn push(
+        &mut self,
+        parent: u32,
+        need: u32,
+        opt: u32,
+        g: u64,
+        f: u64,
+        state: &[u64],
+    ) -> Option<u32> {
         let id = self.nodes.len() as u32;
         if self.count == 1 {
             let mut hasher = FxHasher::default();
@@ -749,7 +761,7 @@ impl Shared {
             match self.seen.get(&key) {
                 Some(&old) if self.state(old) == state => {
                     if self.nodes[old as usize].g <= g {
-                        return;
+                        return None;
                     }
                     self.seen.insert(key, id);
                 }
@@ -764,10 +776,12 @@ impl Shared {
             need,
             opt,
             g,
+            expanded: false,
         });
         self.states.extend_from_slice(state);
         self.open.push((Reverse(f), g, Reverse(id)));
         self.generated += 1;
+        Some(id)
     }
 
     fn state(&self, id: u32) -> &[u64] {
@@ -788,15 +802,27 @@ impl Shared {
     }
 
     /// Greedy descent from a node, cheapest `f` first; a new incumbent if better.
-    /// Gives up after `limit` steps, each counted as an expansion, or when
-    /// `over` (asked every [`DIVE_STEPS_PER_CHECK`] steps) says the budget ran out.
+    /// Each step expands a node as the search would, pushing its children
+    /// onto the open list, and marks it expanded, so that the search does not
+    /// expand it again. Gives up after `limit` steps, each counted as an
+    /// expansion, or when `over` (asked every [`DIVE_STEPS_PER_CHECK`] steps)
+    /// says the budget ran out.
     fn dive(&mut self, from: u32, limit: u64, over: &dyn Fn() -> bool) {
-        let mut state = self.state(from).to_vec();
-        let mut g = self.nodes[from as usize].g;
-        let mut choice = self.choices(from);
+        let mut id = from;
+        let mut state = Vec::with_capacity(self.words);
         let mut kids = Kids::default();
         let mut steps = 0;
-        while let Some(need) = self.first_open(&state) {
+        loop {
+            state.clear();
+            state.extend_from_slice(self.state(id));
+            let g = self.nodes[id as usize].g;
+            let Some(need) = self.first_open(&state) else {
+                if g < self.bound {
+                    self.bound = g;
+                    self.incumbent = Some((g, self.choices(id)));
+                }
+                return;
+            };
             if steps == limit
                 || (steps % DIVE_STEPS_PER_CHECK == DIVE_STEPS_PER_CHECK - 1 && over())
             {
@@ -805,23 +831,28 @@ impl Shared {
             steps += 1;
             // Each step of the dive counts against the node budget.
             self.expanded += 1;
+            self.nodes[id as usize].expanded = true;
             self.children(&state, need, &mut kids);
-            let best = (0..kids.info.len())
-                .map(|k| {
-                    let (o, add) = kids.info[k];
-                    let h = self.h(kids.state(k, self.words));
-                    (g.saturating_add(add).saturating_add(h), o, k)
-                })
-                .filter(|k| k.0 < self.bound)
-                .min_by_key(|k| (k.0, k.1));
-            let Some((_, o, k)) = best else { return };
-            choice[need] = o;
-            g = g.saturating_add(kids.info[k].1);
-            state.copy_from_slice(kids.state(k, self.words));
-        }
-        if g < self.bound {
-            self.bound = g;
-            self.incumbent = Some((g, choice));
+            let mut best: Option<(u64, u32, u32)> = None;
+            for (k, &(o, add)) in kids.info.iter().enumerate() {
+                let s = kids.state(k, self.words);
+                let cg = g.saturating_add(add);
+                let h = self.h(s);
+                if h == INFEASIBLE {
+                    continue;
+                }
+                let cf = cg.saturating_add(h);
+                if cf >= self.bound {
+                    continue;
+                }
+                if let Some(child) = self.push(id, need as u32, o, cg, cf, s)
+                    && best.is_none_or(|(bf, bo, _)| (cf, o) < (bf, bo))
+                {
+                    best = Some((cf, o, child));
+                }
+            }
+            let Some((_, _, child)) = best else { return };
+            id = child;
         }
     }
 
@@ -862,6 +893,9 @@ impl Shared {
             if single && f >= self.bound {
                 self.open.clear();
                 break;
+            }
+            if self.nodes[id as usize].expanded {
+                continue; // A dive expanded it.
             }
             state.clear();
             state.extend_from_slice(self.state(id));
