@@ -830,30 +830,48 @@ impl Shared {
             }
             steps += 1;
             // Each step of the dive counts against the node budget.
-            self.expanded += 1;
             self.nodes[id as usize].expanded = true;
-            self.children(&state, need, &mut kids);
-            let mut best: Option<(u64, u32, u32)> = None;
-            for (k, &(o, add)) in kids.info.iter().enumerate() {
-                let s = kids.state(k, self.words);
-                let cg = g.saturating_add(add);
-                let h = self.h(s);
-                if h == INFEASIBLE {
-                    continue;
-                }
-                let cf = cg.saturating_add(h);
-                if cf >= self.bound {
-                    continue;
-                }
-                if let Some(child) = self.push(id, need as u32, o, cg, cf, s)
-                    && best.is_none_or(|(bf, bo, _)| (cf, o) < (bf, bo))
-                {
-                    best = Some((cf, o, child));
-                }
-            }
-            let Some((_, _, child)) = best else { return };
+            let Some(child) = self.expand(id, g, &state, need, true, &mut kids) else {
+                return;
+            };
             id = child;
         }
+    }
+
+    /// Expands node `id` (cost so far `g`, state `state`) on its open need
+    /// `need`: pushes each child whose bound is finite (and, when `prune`,
+    /// below the incumbent's cost). Returns the pushed child of least `f`
+    /// (then of least option).
+    fn expand(
+        &mut self,
+        id: u32,
+        g: u64,
+        state: &[u64],
+        need: usize,
+        prune: bool,
+        kids: &mut Kids,
+    ) -> Option<u32> {
+        self.expanded += 1;
+        self.children(state, need, kids);
+        let mut best: Option<(u64, u32, u32)> = None;
+        for (k, &(o, add)) in kids.info.iter().enumerate() {
+            let s = kids.state(k, self.words);
+            let cg = g.saturating_add(add);
+            let h = self.h(s);
+            if h == INFEASIBLE {
+                continue;
+            }
+            let cf = cg.saturating_add(h);
+            if prune && cf >= self.bound {
+                continue;
+            }
+            if let Some(child) = self.push(id, need as u32, o, cg, cf, s)
+                && best.is_none_or(|(bf, bo, _)| (cf, o) < (bf, bo))
+            {
+                best = Some((cf, o, child));
+            }
+        }
+        best.map(|(_, _, child)| child)
     }
 
     /// Nothing chosen; the goal's need open.
@@ -923,21 +941,7 @@ impl Shared {
                 }
                 continue;
             };
-            self.expanded += 1;
-            self.children(&state, need, &mut kids);
-            for (k, &(o, add)) in kids.info.iter().enumerate() {
-                let s = kids.state(k, self.words);
-                let cg = g.saturating_add(add);
-                let h = self.h(s);
-                if h == INFEASIBLE {
-                    continue;
-                }
-                let cf = cg.saturating_add(h);
-                if single && cf >= self.bound {
-                    continue;
-                }
-                self.push(id, need as u32, o, cg, cf, s);
-            }
+            self.expand(id, g, &state, need, single, &mut kids);
             if single
                 && self.expanded % 4096 == 0
                 && let Some(&(_, _, Reverse(top))) = self.open.peek()
