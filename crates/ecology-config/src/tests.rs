@@ -27,22 +27,34 @@ fn exclusions(list: &[&str]) -> Vec<Exclusion> {
         .collect()
 }
 
-fn run(domain: &str, facts: &str, goal: &str, exclude: &[&str], count: usize) -> Outcome {
+/// `f` of the request for `goal` in `facts` with `domain`, without `exclude`.
+fn with_request<T>(
+    domain: &str,
+    facts: &str,
+    goal: &str,
+    exclude: &[&str],
+    f: impl FnOnce(&Request<'_>) -> T,
+) -> T {
     let domain = parse_domain(domain.as_bytes()).expect("domain parses");
     let state = parse_facts(facts.as_bytes()).expect("facts parse");
     let goal = parse_goal(goal).expect("goal parses");
     let exclusions = exclusions(exclude);
-    let request = Request {
+    f(&Request {
         domain: &domain,
         state: &state,
         goal: &goal,
         exclusions: &exclusions,
-    };
+    })
+}
+
+fn run(domain: &str, facts: &str, goal: &str, exclude: &[&str], count: usize) -> Outcome {
     let options = Options {
         count,
         ..Options::default()
     };
-    plan(&request, &options, &NoClock).expect("goal is valid")
+    with_request(domain, facts, goal, exclude, |request| {
+        plan(request, &options, &NoClock).expect("goal is valid")
+    })
 }
 
 fn home(goal: &str, exclude: &[&str]) -> Outcome {
@@ -1152,23 +1164,20 @@ fn the_relaxation_proves_none_only_where_there_is_none() {
     // The paper's ecology: without Astrid's laser and the PEIS with cameras
     // (hsm's ceiling and Pippi), nothing localizes her; with Pippi there, her
     // camera does.
-    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("parses");
-    let state = parse_facts(PEIS_HOME_FACTS.as_bytes()).expect("parses");
-    let goal = parse_goal("(navigate astrid kitchen)").expect("parses");
+    let goal = "(navigate astrid kitchen)";
     for (exclude, none) in [
         (&["astrid:l1", "hsm", "pippi"][..], true),
         (&["astrid:l1", "hsm"], false),
     ] {
-        let exclusions = exclusions(exclude);
-        let request = Request {
-            domain: &domain,
-            state: &state,
-            goal: &goal,
-            exclusions: &exclusions,
-        };
-        assert_eq!(relaxation_proves_none(&request), none, "{exclude:?}");
-        let outcome = plan(&request, &Options::default(), &NoClock).expect("valid");
-        assert_eq!(outcome.configurations.is_empty(), none, "{exclude:?}");
+        let proves = with_request(PEIS_HOME, PEIS_HOME_FACTS, goal, exclude, |request| {
+            relaxation_proves_none(request)
+        });
+        assert_eq!(proves, none, "{exclude:?}");
+        assert_eq!(
+            home(goal, exclude).configurations.is_empty(),
+            none,
+            "{exclude:?}"
+        );
     }
 }
 
