@@ -124,25 +124,22 @@ fn main() {
                 domain: planner.domain(),
                 ..request
             };
-            let (total, outcome) = median(&|| {
-                let clock = WallClock::start();
-                let outcome = planner
-                    .plan(&prepared, &options, &clock)
-                    .expect("valid goal");
-                (clock.elapsed(), outcome)
-            });
+            let planned = |options: &Options| {
+                median(&|| {
+                    let clock = WallClock::start();
+                    let outcome = planner
+                        .plan(&prepared, options, &clock)
+                        .expect("valid goal");
+                    (clock.elapsed(), outcome)
+                })
+            };
+            let (total, outcome) = planned(&options);
             let (cold, _) = median(&|| {
                 let clock = WallClock::start();
                 let outcome = plan(&request, &options, &clock).expect("valid goal");
                 (clock.elapsed(), outcome)
             });
-            let (explained, _) = median(&|| {
-                let clock = WallClock::start();
-                let outcome = planner
-                    .plan(&prepared, &explaining, &clock)
-                    .expect("valid goal");
-                (clock.elapsed(), outcome)
-            });
+            let (explained, _) = planned(&explaining);
             let micros = |d: Duration| format!("{:.3}", d.as_secs_f64() * 1e6);
             println!(
                 "cost={} status={:?} micros={} cold_micros={} explained_micros={} generate_micros={} first_micros={} expanded={} lower_bound={}",

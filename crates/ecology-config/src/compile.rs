@@ -6,7 +6,7 @@ use std::hash::{Hash, Hasher};
 use hashbrown::HashTable;
 use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
-use ecology_domain::{ComponentCost, Domain, EcologyState, Info, Literal, Name, Power, Term};
+use ecology_domain::{ComponentCost, Domain, EcologyState, Info, Literal, Name, Term};
 
 /// An interned symbol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -712,13 +712,9 @@ impl Compiled {
                 .or_insert_with(|| syms.intern(name))
         };
         // Costs and channel costs (most of a large state) are read straight
-        // into their tables, their numbers not interned, unless a
-        // precondition looks them up.
-        let direct = |syms: &mut Symbols, name: &str| {
-            let sym = syms.intern_str(name);
-            (!facts.indexed.contains(&sym)).then_some(sym)
-        };
-        let (cost, channel_cost) = (direct(&mut syms, "cost"), direct(&mut syms, "channel-cost"));
+        // into their tables, their numbers not interned; they are kept as
+        // facts too only when a precondition looks them up.
+        let (cost, channel_cost) = (syms.intern_str("cost"), syms.intern_str("channel-cost"));
         let mut costs: HashMap<(Sym, Sym), ComponentCost> =
             HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
         let mut channels: HashMap<(Sym, Sym), u64> =
@@ -729,83 +725,38 @@ impl Compiled {
                 break;
             }
             let pred = intern(&mut syms, &fact.predicate);
-            if Some(pred) == cost {
-                if let [p, c, amount, power] = &fact.args[..]
-                    && let Ok(amount) = amount.parse::<u64>()
-                {
-                    let power = if &**power == "on" {
-                        Power::On
-                    } else {
-                        Power::Off
-                    };
-                    let key = (intern(&mut syms, p), intern(&mut syms, c));
-                    costs.entry(key).or_insert(ComponentCost { amount, power });
+            if pred == cost || pred == channel_cost {
+                match &fact.args[..] {
+                    [p, c, amount, power] if pred == cost => {
+                        if let Some(value) = ComponentCost::read(amount, power) {
+                            let key = (intern(&mut syms, p), intern(&mut syms, c));
+                            costs.entry(key).or_insert(value);
+                        }
+                    }
+                    [a, b, n] if pred == channel_cost => {
+                        if let Ok(n) = n.parse::<u64>() {
+                            let key = (intern(&mut syms, a), intern(&mut syms, b));
+                            channels.entry(key).or_insert(n);
+                        }
+                    }
+                    _ => {}
                 }
-                continue;
-            }
-            if Some(pred) == channel_cost {
-                if let [a, b, n] = &fact.args[..]
-                    && let Ok(n) = n.parse::<u64>()
-                {
-                    let key = (intern(&mut syms, a), intern(&mut syms, b));
-                    channels.entry(key).or_insert(n);
+                if !facts.indexed.contains(&pred) {
+                    continue;
                 }
-                continue;
             }
             args.clear();
             args.extend(fact.args.iter().map(|a| intern(&mut syms, a)));
             facts.insert(pred, &args);
         }
         facts.build_index();
-        let mut compiled = Compiled {
+        Compiled {
             schema,
             syms,
             facts,
             costs,
             channels,
             cut,
-        };
-        // Looked up by a precondition: read from the indexed facts.
-        if cost.is_none() {
-            compiled.read_costs();
-        }
-        if channel_cost.is_none() {
-            compiled.read_channel_costs();
-        }
-        compiled
-    }
-
-    /// The costs from the `cost` facts kept with the others.
-    fn read_costs(&mut self) {
-        let Some(cost) = self.syms.get("cost") else {
-            return;
-        };
-        for fact in self.facts.of(cost).iter() {
-            if let [p, c, amount, power] = fact[..]
-                && let Ok(amount) = self.syms.name(amount).parse::<u64>()
-            {
-                let power = match self.syms.name(power) {
-                    "on" => Power::On,
-                    _ => Power::Off,
-                };
-                self.costs
-                    .entry((p, c))
-                    .or_insert(ComponentCost { amount, power });
-            }
-        }
-    }
-
-    /// The channel costs from the `channel-cost` facts kept with the others.
-    fn read_channel_costs(&mut self) {
-        let Some(pred) = self.syms.get("channel-cost") else {
-            return;
-        };
-        for fact in self.facts.of(pred).iter() {
-            if let [a, b, n] = fact[..]
-                && let Ok(n) = self.syms.name(n).parse()
-            {
-                self.channels.entry((a, b)).or_insert(n);
-            }
         }
     }
 

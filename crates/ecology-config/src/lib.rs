@@ -433,22 +433,35 @@ impl<'a> Search<'a> {
         options: &Options,
     ) -> Result<Search<'a>, RequestError> {
         let schema = std::sync::Arc::new(Schema::new(request.domain));
-        Search::new_until(request, schema, cost_model, options, &|| false)
+        let goal = check_goal(request.domain, &schema, request.goal)?;
+        Ok(Search::new_until(
+            request,
+            schema,
+            goal,
+            cost_model,
+            options,
+            &|| false,
+        ))
     }
 
     /// Like [`Search::new`], asking `over` between phases and now and then
     /// while grounding whether the budget ran out; if it did, the search is
     /// [`Search::cut`] and finishes at once with nothing and no bound.
-    /// `schema` is the request's domain compiled.
+    /// `schema` is the request's domain compiled, `goal` its goal checked
+    /// against it ([`check_goal`]).
     fn new_until(
         request: &Request<'a>,
         schema: std::sync::Arc<Schema>,
+        (callee, goal_args): (Callee, Vec<&str>),
         cost_model: &'a dyn CostModel,
         options: &Options,
         over: &dyn Fn() -> bool,
-    ) -> Result<Search<'a>, RequestError> {
+    ) -> Search<'a> {
         let mut compiled = Compiled::new_until(schema, request.state, over);
-        let (callee, args) = resolve_goal(request.domain, &mut compiled, request.goal)?;
+        let args: Vec<compile::Sym> = goal_args
+            .iter()
+            .map(|a| compiled.syms.intern_str(a))
+            .collect();
         let excluded = excluded(&mut compiled, request.exclusions);
         let cut = compiled.cut || over();
         let ctx = Ctx::new(request.domain, compiled, cost_model, excluded, callee);
@@ -467,13 +480,13 @@ impl<'a> Search<'a> {
             engine.graph.cut = cut;
             shared
         };
-        Ok(Search {
+        Search {
             engine,
             shared,
             count: options.count.max(1),
             explain: options.explain,
             dived: false,
-        })
+        }
     }
 
     /// Runs at most `expansions` steps.
@@ -754,13 +767,13 @@ fn plan_prepared<'a>(
         Some(planner) if planner.prepared_for(request.domain) => planner.schema.clone(),
         _ => std::sync::Arc::new(Schema::new(request.domain)),
     };
+    let goal = check_goal(request.domain, &schema, request.goal)?;
     if !options.explain {
-        let (callee, args) = check_goal(request.domain, &schema, request.goal)?;
         let none = schema.relaxed.proves_none(
             &schema,
             request.state,
-            callee,
-            &args,
+            goal.0,
+            &goal.1,
             request.exclusions,
             &over_time,
         );
@@ -777,7 +790,7 @@ fn plan_prepared<'a>(
             });
         }
     }
-    let mut search = Search::new_until(request, schema, cost_model, options, &over_time)?;
+    let mut search = Search::new_until(request, schema, goal, cost_model, options, &over_time);
     if search.cut() {
         // The bound is the goal's when grounding was complete, else none.
         return Ok(search.finish(false, clock.elapsed()));
@@ -837,20 +850,6 @@ fn excluded(compiled: &mut Compiled, exclusions: &[Exclusion]) -> Excluded {
         }
     }
     out
-}
-
-/// The goal's callee and interned arguments.
-fn resolve_goal(
-    domain: &Domain,
-    compiled: &mut Compiled,
-    goal: &Call,
-) -> Result<(Callee, Vec<compile::Sym>), RequestError> {
-    let (callee, args) = check_goal(domain, &compiled.schema, goal)?;
-    let args = args
-        .into_iter()
-        .map(|a| compiled.syms.intern_str(a))
-        .collect();
-    Ok((callee, args))
 }
 
 /// The goal's callee and arguments, checked against the domain.

@@ -21,7 +21,7 @@
 //! configuration; a goal that is usable may still have none, and is then left
 //! to grounding and search.
 
-use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
+use rustc_hash::FxHashMap as HashMap;
 
 use ecology_domain::{EcologyState, Name};
 
@@ -30,8 +30,6 @@ use crate::compile::{CLit, CTerm, Callee, Schema, Symbols};
 
 /// How many facts are read between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;
-/// Up to this many exclusions are compared one by one, more are put in sets.
-const FEW_EXCLUSIONS: usize = 4;
 /// How many predicates' addresses a pass remembers.
 const PREDICATES_SEEN: usize = 16;
 
@@ -160,29 +158,11 @@ impl Relaxed {
         exclusions: &[Exclusion],
         over: &dyn Fn() -> bool,
     ) -> Option<bool> {
-        // Many exclusions are looked up in sets, a few one by one.
-        let (mut peis_out, mut components_out) = (HashSet::default(), HashSet::default());
-        if exclusions.len() > FEW_EXCLUSIONS {
-            for e in exclusions {
-                match e {
-                    Exclusion::Peis(p) => {
-                        peis_out.insert(p.as_str());
-                    }
-                    Exclusion::Component { peis, component } => {
-                        components_out.insert((peis.as_str(), component.as_str()));
-                    }
-                }
-            }
-        }
         let excluded = |lit: &Lit, fact: &[Name]| {
             let Some(peis) = lit.peis_at.map(|i| &*fact[i]) else {
                 return false;
             };
             let component = lit.component_at.map(|i| &*fact[i]);
-            if exclusions.len() > FEW_EXCLUSIONS {
-                return peis_out.contains(peis)
-                    || component.is_some_and(|c| components_out.contains(&(peis, c)));
-            }
             exclusions.iter().any(|e| match e {
                 Exclusion::Peis(p) => peis == p,
                 Exclusion::Component {

@@ -66,6 +66,20 @@ pub struct ComponentCost {
     pub power: Power,
 }
 
+impl ComponentCost {
+    /// What the last two arguments of a `(cost PEIS COMPONENT AMOUNT POWER)` fact say; `None`
+    /// when the amount is not a number. Any power but `on` is off.
+    pub fn read(amount: &str, power: &str) -> Option<ComponentCost> {
+        Some(ComponentCost {
+            amount: amount.parse().ok()?,
+            power: match power {
+                "on" => Power::On,
+                _ => Power::Off,
+            },
+        })
+    }
+}
+
 /// A set of ground facts, in insertion order without duplicates.
 #[derive(Debug, Clone, Default)]
 pub struct EcologyState {
@@ -139,13 +153,9 @@ impl EcologyState {
     /// The `cost` fact of component `component` on `peis`.
     pub fn component_cost(&self, peis: &str, component: &str) -> Option<ComponentCost> {
         self.with_predicate("cost").find_map(|f| match &f.args[..] {
-            [p, c, amount, power] if &**p == peis && &**c == component => Some(ComponentCost {
-                amount: amount.parse().ok()?,
-                power: match &**power {
-                    "on" => Power::On,
-                    _ => Power::Off,
-                },
-            }),
+            [p, c, amount, power] if &**p == peis && &**c == component => {
+                ComponentCost::read(amount, power)
+            }
             _ => None,
         })
     }
