@@ -99,12 +99,11 @@ pub(crate) struct Ctx<'a> {
 impl<'a> Ctx<'a> {
     pub(crate) fn new(
         domain: &'a Domain,
-        compiled: Compiled,
+        mut compiled: Compiled,
         cost_model: &'a dyn CostModel,
         excluded: Excluded,
         goal: Callee,
     ) -> Ctx<'a> {
-        let mut compiled = compiled;
         let costs = std::mem::take(&mut compiled.costs);
         let channels = std::mem::take(&mut compiled.channels);
         let multiplicity = compiled.schema.multiplicity(goal);

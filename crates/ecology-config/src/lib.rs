@@ -432,8 +432,7 @@ impl<'a> Search<'a> {
         cost_model: &'a dyn CostModel,
         options: &Options,
     ) -> Result<Search<'a>, RequestError> {
-        let schema = std::sync::Arc::new(Schema::new(request.domain));
-        let goal = check_goal(request.domain, &schema, request.goal)?;
+        let (schema, goal) = schema_and_goal(request, None)?;
         Ok(Search::new_until(
             request,
             schema,
@@ -452,7 +451,7 @@ impl<'a> Search<'a> {
     fn new_until(
         request: &Request<'a>,
         schema: std::sync::Arc<Schema>,
-        (callee, goal_args): (Callee, Vec<&str>),
+        (callee, goal_args): Goal<'_>,
         cost_model: &'a dyn CostModel,
         options: &Options,
         over: &dyn Fn() -> bool,
@@ -763,32 +762,27 @@ fn plan_prepared<'a>(
             .max_time
             .is_some_and(|t| clock.elapsed() >= t)
     };
-    let schema = match planner {
-        Some(planner) if planner.prepared_for(request.domain) => planner.schema.clone(),
-        _ => std::sync::Arc::new(Schema::new(request.domain)),
-    };
-    let goal = check_goal(request.domain, &schema, request.goal)?;
-    if !options.explain {
-        let none = schema.relaxed.proves_none(
+    let (schema, goal) = schema_and_goal(request, planner)?;
+    if !options.explain
+        && schema.relaxed.proves_none(
             &schema,
             request.state,
             goal.0,
             &goal.1,
             request.exclusions,
             &over_time,
-        );
-        if none == Some(true) {
-            return Ok(Outcome {
-                configurations: Vec::new(),
-                status: Status::Proven,
-                explanation: None,
-                lower_bound: None,
-                stats: Stats {
-                    micros: clock.elapsed().as_micros() as u64,
-                    ..Stats::default()
-                },
-            });
-        }
+        )
+    {
+        return Ok(Outcome {
+            configurations: Vec::new(),
+            status: Status::Proven,
+            explanation: None,
+            lower_bound: None,
+            stats: Stats {
+                micros: clock.elapsed().as_micros() as u64,
+                ..Stats::default()
+            },
+        });
     }
     let mut search = Search::new_until(request, schema, goal, cost_model, options, &over_time);
     if search.cut() {
@@ -852,12 +846,29 @@ fn excluded(compiled: &mut Compiled, exclusions: &[Exclusion]) -> Excluded {
     out
 }
 
+/// A goal checked against its domain: its callee and arguments.
+type Goal<'g> = (Callee, Vec<&'g str>);
+
+/// The request's domain compiled (`planner`'s when it was prepared from that
+/// domain), and its goal checked against it.
+fn schema_and_goal<'g>(
+    request: &Request<'g>,
+    planner: Option<&Planner>,
+) -> Result<(std::sync::Arc<Schema>, Goal<'g>), RequestError> {
+    let schema = match planner {
+        Some(planner) if planner.prepared_for(request.domain) => planner.schema.clone(),
+        _ => std::sync::Arc::new(Schema::new(request.domain)),
+    };
+    let goal = check_goal(request.domain, &schema, request.goal)?;
+    Ok((schema, goal))
+}
+
 /// The goal's callee and arguments, checked against the domain.
 fn check_goal<'g>(
     domain: &Domain,
     schema: &Schema,
     goal: &'g Call,
-) -> Result<(Callee, Vec<&'g str>), RequestError> {
+) -> Result<Goal<'g>, RequestError> {
     let Some(&callee) = schema.callee_by_name.get(&goal.name) else {
         return Err(RequestError::UnknownGoal {
             name: goal.name.to_string(),

@@ -147,7 +147,7 @@ impl Relaxed {
     }
 
     /// Whether the relaxation proves that `goal` on `args` has no
-    /// configuration in `state` without the `exclusions`. `None` when `over`
+    /// configuration in `state` without the `exclusions`; not when `over`
     /// said the budget ran out before the state was read.
     pub(crate) fn proves_none(
         &self,
@@ -157,7 +157,7 @@ impl Relaxed {
         args: &[&str],
         exclusions: &[Exclusion],
         over: &dyn Fn() -> bool,
-    ) -> Option<bool> {
+    ) -> bool {
         let excluded = |lit: &Lit, fact: &[Name]| {
             let Some(peis) = lit.peis_at.map(|i| &*fact[i]) else {
                 return false;
@@ -188,7 +188,7 @@ impl Relaxed {
                 break;
             }
             if k % FACTS_PER_CHECK == FACTS_PER_CHECK - 1 && over() {
-                return None;
+                return false;
             }
             let address = Name::as_ptr(&fact.predicate) as *const u8;
             let pred = match seen.iter().find(|(a, _)| *a == address) {
@@ -253,6 +253,6 @@ impl Relaxed {
                         })
             }),
         };
-        Some(!usable)
+        !usable
     }
 }

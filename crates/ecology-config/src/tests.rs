@@ -1084,19 +1084,15 @@ fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
 
 /// Whether the relaxation proves that `request` has no configuration.
 fn relaxation_proves_none(request: &Request<'_>) -> bool {
-    let schema = crate::compile::Schema::new(request.domain);
-    let (callee, args) = crate::check_goal(request.domain, &schema, request.goal).expect("valid");
-    schema
-        .relaxed
-        .proves_none(
-            &schema,
-            request.state,
-            callee,
-            &args,
-            request.exclusions,
-            &|| false,
-        )
-        .expect("not cut")
+    let (schema, (callee, args)) = crate::schema_and_goal(request, None).expect("valid");
+    schema.relaxed.proves_none(
+        &schema,
+        request.state,
+        callee,
+        &args,
+        request.exclusions,
+        &|| false,
+    )
 }
 
 // The relaxation that answers "none" without grounding is sound (it proves
