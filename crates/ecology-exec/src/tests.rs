@@ -1345,6 +1345,9 @@ mod on_the_tuple_space {
         async fn delete(&self, key: Key) -> Result<bool, TupleError> {
             self.inner.delete(key).await
         }
+        async fn release_claims(&self, holder: PeisId) -> Result<Vec<Tuple>, TupleError> {
+            self.inner.release_claims(holder).await
+        }
         async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
             self.inner.get(owner, key).await
         }

@@ -12,17 +12,17 @@
 //! that was on as switched off, so the ecology sees it go before the PEIS
 //! leaves.
 //!
-//! The host is also a dead man's switch. It remembers who asked for each
-//! component (the *creator* of the `reqState` `on` and of the `params`, that
-//! is the remote setter) and watches that PEIS's presence: once it has been
-//! gone for [`HostOptions::release_after`] (after its lease, if it vanished),
-//! the host puts back what it asked for, `reqState` `off` and empty `params`,
-//! as that PEIS would have on ending its task. It watches the presence of
-//! those PEIS alone, not of every PEIS, and one that is not seen present
-//! within that time after asking (it left before the host could watch it)
-//! is released too. So a partition, a lost router
-//! or a killed executive never leaves a component running for a task nobody
-//! runs any more.
+//! The host is also a dead man's switch. Several executives may hold a component at once: the
+//! space arbitrates their requests and keeps the holders as the tuple `components.C.holders`
+//! (see `ecology_tuples::claims`). The host watches the presence of every holder, and of no
+//! other PEIS: once one has been gone for [`HostOptions::release_after`] (after its lease, if it
+//! vanished), the host drops it from every component it holds
+//! ([`TupleSpace::release_claims`]); a component whose last holder that was is put back, `reqState`
+//! `off` if a request switched it on and empty `params`, as that PEIS would have on ending its
+//! task. What another holder still uses keeps running. A holder that is not seen present within
+//! that time after it claimed (it left before the host could watch it) is released too. So a
+//! partition, a lost router or a killed executive never leaves a component running for a task
+//! nobody runs any more, and never takes one from a task that still runs.
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -116,10 +116,6 @@ struct State<S: TupleSpace> {
     params: Option<String>,
     generation: u64,
     task: Option<AbortHandle>,
-    /// Who remote-set `reqState` `on`, while it stands.
-    on_for: Option<PeisId>,
-    /// Who remote-set the current (non-empty) `params`.
-    params_for: Option<PeisId>,
 }
 
 type Outcome = (String, u64, Result<(), ComponentError>);
@@ -179,8 +175,6 @@ pub async fn run_host_with<S: TupleSpace>(
                 params: None,
                 generation: 0,
                 task: None,
-                on_for: None,
-                params_for: None,
             },
         );
     }
@@ -188,10 +182,15 @@ pub async fn run_host_with<S: TupleSpace>(
         .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
     let params_pattern = TuplePattern::parse(&format!("{me}:*.params"))
         .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
+    let holders_pattern = TuplePattern::parse(&format!("{me}:components.*.holders"))
+        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
     let mut requests = space.subscribe(requests_pattern).await?;
     let mut params = space.subscribe(params_pattern).await?;
-    // The presence of each PEIS that asked for something, and no other: with N PEIS, a host that
-    // heard every join and leave would make the ecology's start cost N² events.
+    let mut claims = space.subscribe(holders_pattern).await?;
+    // Who holds each component, as its holders tuple last said.
+    let mut holders: BTreeMap<String, Vec<PeisId>> = BTreeMap::new();
+    // The presence of each holder, and of no other PEIS: with N PEIS, a host that heard every
+    // join and leave would make the ecology's start cost N² events.
     let mut watched: BTreeMap<PeisId, PresenceSubscription> = BTreeMap::new();
     // Each PEIS whose presence ended, or that has not been seen since it asked, and when what it
     // asked for is put back unless it is seen.
@@ -217,11 +216,8 @@ pub async fn run_host_with<S: TupleSpace>(
             event = requests.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::ReqState)) = ComponentField::parse(&t.key) else { continue };
-                watch(&space, &clock, &options, t.creator.as_ref(), &mut watched, &mut gone).await?;
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
-                let asked = t.text().unwrap_or("");
-                state.on_for = t.creator.clone().filter(|_| asked == "on");
-                match asked {
+                match t.text().unwrap_or("").trim() {
                     "on" if !state.on && state.starting_until.is_none() => {
                         state.starting_until = Some(clock.now().saturating_add(state.spec.startup));
                     }
@@ -250,11 +246,9 @@ pub async fn run_host_with<S: TupleSpace>(
             event = params.next() => {
                 let Some(TupleEvent::Changed(t)) = event else { continue };
                 let Some((c, ComponentField::Params)) = ComponentField::parse(&t.key) else { continue };
-                watch(&space, &clock, &options, t.creator.as_ref(), &mut watched, &mut gone).await?;
                 let Some(state) = states.get_mut(c.as_str()) else { continue };
                 let had_params = state.params.is_some();
                 state.params = t.text().ok().map(|p| p.trim().to_string()).filter(|p| !p.is_empty());
-                state.params_for = t.creator.clone().filter(|_| state.params.is_some());
                 // Cleared params leave it idle, whether its body still ran or had finished (`done`).
                 let stopping = state.params.is_none() && (state.task.is_some() || had_params);
                 if state.on {
@@ -264,6 +258,18 @@ pub async fn run_host_with<S: TupleSpace>(
                         space.set(field(&c, ComponentField::Status)?, Value::text("idle")).await?;
                     }
                 }
+            }
+            event = claims.next() => {
+                let Some(TupleEvent::Changed(t)) = event else { continue };
+                let Some((c, ComponentField::Holders)) = ComponentField::parse(&t.key) else { continue };
+                let now_held = ecology_tuples::claims::parse_holders(t.text().unwrap_or(""));
+                for holder in &now_held {
+                    watch(&space, &clock, &options, holder, &mut watched, &mut gone).await?;
+                }
+                holders.insert(c.to_string(), now_held);
+                // A PEIS that holds nothing here any more is watched no longer.
+                watched.retain(|p, _| holders.values().any(|h| h.contains(p)));
+                gone.retain(|p, _| watched.contains_key(p));
             }
             Some(joined) = tasks.join_next(), if !tasks.is_empty() => {
                 let (c, generation, result) = match joined {
@@ -301,7 +307,7 @@ pub async fn run_host_with<S: TupleSpace>(
                 for peis in due {
                     gone.remove(&peis);
                     watched.remove(&peis);
-                    release(&space, &states, &peis, &options).await?;
+                    release(&space, &peis, &options).await?;
                 }
                 let ready: Vec<String> = states
                     .iter()
@@ -333,55 +339,46 @@ pub async fn run_host_with<S: TupleSpace>(
     Ok(())
 }
 
-/// Puts back what `gone` asked for, as it would have on ending its task: the host writes its own
-/// `reqState` `off` and empty `params`, which its request handlers then apply like any other.
+/// Drops `gone` from the holders of every component it holds; the space puts back each one it
+/// was the last to hold, and the request handlers then apply that like any other request.
 async fn release<S: TupleSpace>(
     space: &S,
-    states: &BTreeMap<String, State<S>>,
     gone: &PeisId,
     options: &HostOptions,
 ) -> Result<(), HostError> {
-    for (c, state) in states {
-        if state.on_for.as_ref() == Some(gone) {
-            (options.note)(format!(
-                "{c} switched off: {gone}, which switched it on, is gone"
-            ));
-            space
-                .set(field(c, ComponentField::ReqState)?, Value::text("off"))
-                .await?;
-        }
-        if state.params_for.as_ref() == Some(gone) {
-            (options.note)(format!(
-                "{c} stopped: {gone}, which gave its params, is gone"
-            ));
-            space
-                .set(field(c, ComponentField::Params)?, Value::text(""))
-                .await?;
-        }
+    for tuple in space.release_claims(gone.clone()).await? {
+        let Some((c, field)) = ComponentField::parse(&tuple.key) else {
+            continue;
+        };
+        let note = match field {
+            ComponentField::ReqState => format!("{c} switched off: {gone}, which held it, is gone"),
+            ComponentField::Params => format!("{c} stopped: {gone}, which held it, is gone"),
+            ComponentField::Holders if !tuple.text().unwrap_or("").trim().is_empty() => {
+                format!("{gone} no longer holds {c}: it is gone; others still do")
+            }
+            _ => continue,
+        };
+        (options.note)(note);
     }
     Ok(())
 }
 
-/// Starts watching the presence of `creator`, the PEIS that asked for something, unless it is
-/// watched already. Until it is seen present it counts as gone, so one that left before it could
-/// be watched is released too.
+/// Starts watching the presence of `holder`, unless it is watched already. Until it is seen
+/// present it counts as gone, so one that left before it could be watched is released too.
 async fn watch<S: TupleSpace>(
     space: &S,
     clock: &Arc<dyn Clock>,
     options: &HostOptions,
-    creator: Option<&PeisId>,
+    holder: &PeisId,
     watched: &mut BTreeMap<PeisId, PresenceSubscription>,
     gone: &mut BTreeMap<PeisId, Timestamp>,
 ) -> Result<(), HostError> {
-    let Some(creator) = creator else {
-        return Ok(());
-    };
-    if watched.contains_key(creator) {
+    if watched.contains_key(holder) {
         return Ok(());
     }
-    let presence = space.subscribe_presence_of(creator.clone()).await?;
-    watched.insert(creator.clone(), presence);
-    gone.entry(creator.clone())
+    let presence = space.subscribe_presence_of(holder.clone()).await?;
+    watched.insert(holder.clone(), presence);
+    gone.entry(holder.clone())
         .or_insert(clock.now().saturating_add(options.release_after));
     Ok(())
 }

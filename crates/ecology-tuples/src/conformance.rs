@@ -59,7 +59,8 @@ macro_rules! conformance_tests {
     ($make:expr) => {
         $crate::conformance_tests!(@tests $make;
             last_value_per_key, order_per_key, wildcard_subscriptions, late_subscriber_gets_current_values,
-            meta_tuple_refollows_pointer, remote_set_is_applied_by_owner, non_owner_cannot_publish,
+            meta_tuple_refollows_pointer, remote_set_is_applied_by_owner, claims_are_arbitrated_by_the_owner,
+            non_owner_cannot_publish,
             expiry_removes_tuples, presence_join_and_leave, presence_of_one_peis, vanished_peis_left_within_lease,
             a_rejoining_peis_starts_a_later_epoch);
     };
@@ -494,6 +495,143 @@ pub async fn remote_set_is_applied_by_owner<H: Harness>(h: &mut H) {
         .await
         .expect("own set");
     assert_eq!(mine.owner, peis("deployer"));
+}
+
+/// Several executives ask one PEIS for its components: the owner grants a free component, shares
+/// one that would run the same, refuses one that would run otherwise (naming who holds it),
+/// releases only the requester's claim, puts a component back after its last holder, and drops a
+/// holder that is gone (`crate::claims`).
+pub async fn claims_are_arbitrated_by_the_owner<H: Harness>(h: &mut H) {
+    let hsm = h.join("hsm", PeisOptions::default()).await;
+    let a = h.join("exec-a", PeisOptions::default()).await;
+    let b = h.join("exec-b", PeisOptions::default()).await;
+    let ask = |space: &H::Space, k: &str, v: &str| {
+        let space = space.clone();
+        let (k, v) = (key(k), Value::text(v));
+        async move { space.set_remote(peis("hsm"), k, v).await }
+    };
+    let read = |k: &str| {
+        let hsm = hsm.clone();
+        let k = key(k);
+        async move {
+            let tuple = hsm.get(peis("hsm"), k).await.expect("get");
+            tuple.map(|t| t.text().expect("text").to_owned())
+        }
+    };
+    publish(&hsm, "components.ca1.currState", "off").await;
+    publish(&hsm, "components.tr1.currState", "on").await;
+
+    // Free: granted. The same params: shared, without writing them again.
+    ask(&a, "tr1.params", "(tracking-system hsm tr1 astrid)")
+        .await
+        .expect("free");
+    let params = hsm
+        .get(peis("hsm"), key("tr1.params"))
+        .await
+        .expect("get")
+        .expect("set");
+    assert_eq!(
+        read("components.tr1.holders").await.as_deref(),
+        Some("exec-a")
+    );
+    let wire = "(meta hsm ca1.out.image)";
+    ask(&a, "tr1.mi-image", wire).await.expect("wired");
+    ask(&b, "tr1.params", "(tracking-system hsm tr1 astrid)")
+        .await
+        .expect("shared");
+    ask(&b, "tr1.mi-image", wire)
+        .await
+        .expect("the same wiring");
+    assert_eq!(
+        read("components.tr1.holders").await.as_deref(),
+        Some("exec-a exec-b")
+    );
+    let again = hsm
+        .get(peis("hsm"), key("tr1.params"))
+        .await
+        .expect("get")
+        .expect("set");
+    assert_eq!(
+        again.seq, params.seq,
+        "sharing does not restart the component"
+    );
+
+    // Other params or other wiring: refused, naming the holders; nothing changes.
+    let refused = ask(&b, "tr1.params", "(tracking-system hsm tr1 bob)").await;
+    let Err(TupleError::RemoteSetRefused { reason, .. }) = refused else {
+        panic!("re-aiming a shared tracker must be refused: {refused:?}");
+    };
+    assert_eq!(
+        crate::claims::held_by(&reason),
+        Some(vec![peis("exec-a")]),
+        "{reason}"
+    );
+    let refused = ask(&b, "tr1.mi-image", "(meta hsm ca2.out.image)").await;
+    assert!(
+        matches!(refused, Err(TupleError::RemoteSetRefused { .. })),
+        "{refused:?}"
+    );
+    assert_eq!(
+        read("tr1.params").await.as_deref(),
+        Some("(tracking-system hsm tr1 astrid)")
+    );
+    assert_eq!(read("tr1.mi-image").await.as_deref(), Some(wire));
+
+    // Nobody releases what another holds: a's release leaves b's component running.
+    ask(&a, "tr1.params", "")
+        .await
+        .expect("a release is never refused");
+    assert_eq!(
+        read("tr1.params").await.as_deref(),
+        Some("(tracking-system hsm tr1 astrid)")
+    );
+    assert_eq!(
+        read("components.tr1.holders").await.as_deref(),
+        Some("exec-b")
+    );
+    // Now b holds it alone, and may re-aim it.
+    ask(&b, "tr1.params", "(tracking-system hsm tr1 bob)")
+        .await
+        .expect("sole holder");
+
+    // Switched on by a, shared by b; the last holder's release switches it off.
+    ask(&a, "components.ca1.reqState", "on")
+        .await
+        .expect("free");
+    ask(&b, "components.ca1.reqState", "on")
+        .await
+        .expect("on is on");
+    ask(&a, "components.ca1.reqState", "off")
+        .await
+        .expect("release");
+    assert_eq!(read("components.ca1.reqState").await.as_deref(), Some("on"));
+    assert_eq!(
+        read("components.ca1.holders").await.as_deref(),
+        Some("exec-b")
+    );
+    ask(&b, "ca1.params", "").await.expect("release by params");
+    assert_eq!(
+        read("components.ca1.reqState").await.as_deref(),
+        Some("off")
+    );
+    assert_eq!(read("components.ca1.holders").await.as_deref(), Some(""));
+
+    // The owner drops a holder that is gone: the last holder's component is put back.
+    assert_eq!(
+        hsm.release_claims(peis("exec-b"))
+            .await
+            .expect("release")
+            .len(),
+        2
+    );
+    assert_eq!(read("tr1.params").await.as_deref(), Some(""));
+    assert_eq!(read("components.tr1.holders").await.as_deref(), Some(""));
+    assert!(
+        hsm.release_claims(peis("exec-b"))
+            .await
+            .expect("release")
+            .is_empty()
+    );
 }
 
 /// A handle publishes only its own PEIS's tuples; another PEIS's tuples change only if that PEIS agrees.

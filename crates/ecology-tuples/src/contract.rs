@@ -19,6 +19,9 @@ pub enum ComponentField {
     CurrState,
     /// `components.C.reqState`: `on` or `off`, as asked by remote set.
     ReqState,
+    /// `components.C.holders`: who holds the component (see [`crate::claims`]), names separated
+    /// by spaces; empty or absent when it is free (init component).
+    Holders,
     /// `C.status`: `initializing`, `idle`, `running`, `waiting`, `done` or `error`.
     Status,
     /// `C.cause`: why the component reports what it does.
@@ -32,11 +35,12 @@ pub enum ComponentField {
 }
 
 impl ComponentField {
-    const ALL: [ComponentField; 8] = [
+    const ALL: [ComponentField; 9] = [
         ComponentField::Type,
         ComponentField::Cost,
         ComponentField::CurrState,
         ComponentField::ReqState,
+        ComponentField::Holders,
         ComponentField::Status,
         ComponentField::Cause,
         ComponentField::Params,
@@ -50,6 +54,7 @@ impl ComponentField {
             ComponentField::Cost => "cost",
             ComponentField::CurrState => "currState",
             ComponentField::ReqState => "reqState",
+            ComponentField::Holders => "holders",
             ComponentField::Status => "status",
             ComponentField::Cause => "cause",
             ComponentField::Params => "params",
@@ -65,6 +70,7 @@ impl ComponentField {
                 | ComponentField::Cost
                 | ComponentField::CurrState
                 | ComponentField::ReqState
+                | ComponentField::Holders
         )
     }
 

@@ -477,6 +477,17 @@ impl TupleSpace for InProcessPeis {
         }
     }
 
+    async fn release_claims(&self, holder: PeisId) -> Result<Vec<Tuple>, TupleError> {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        let peer = state.live_peer(&self.me, self.generation())?;
+        let written = peer.tuples.release_holder(&holder, now);
+        for tuple in &written {
+            state.broadcast(&TupleEvent::Changed(tuple.clone()));
+        }
+        Ok(written)
+    }
+
     async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
         let now = self.shared.clock.now();
         let mut state = self.shared.lock();
@@ -569,14 +580,31 @@ impl TupleSpace for InProcessPeis {
             }
             _ => return Err(TupleError::OwnerUnreachable { owner, key }),
         }
-        // The owner applies the request with its own sequence numbers and limits, and records who asked.
+        // The owner applies the request with its own sequence numbers and limits, records who
+        // asked, and arbitrates claims on its components (`crate::claims`).
         let value = value.with_creator(self.me.clone());
-        let (tuple, expires) = state.set_owned(&owner, None, key, value, now)?;
+        let expires = value.time_to_live.is_some();
+        let requester = self.me.clone();
+        let peer = state
+            .peers
+            .get_mut(&owner)
+            .ok_or_else(|| TupleError::Departed(owner.clone()))?;
+        let (written, answer) = peer
+            .tuples
+            .set_requested(Some(&requester), key.clone(), value, now)
+            .map_err(|reason| TupleError::RemoteSetRefused {
+                owner: owner.clone(),
+                key,
+                reason,
+            })?;
+        for tuple in written {
+            state.broadcast(&TupleEvent::Changed(tuple));
+        }
         drop(state);
         if expires {
             self.shared.wake.notify_one();
         }
-        Ok(tuple)
+        Ok(answer)
     }
 
     async fn peers(&self) -> Result<Vec<PeisId>, TupleError> {

@@ -8,6 +8,7 @@
 //! [`InProcessSpace`] runs a whole ecology in one process on an injected [`Clock`]
 //! ([`VirtualClock`] in tests); `ecology-zenoh` implements the same [`TupleSpace`] over the network.
 
+pub mod claims;
 mod clock;
 pub mod contract;
 mod error;

@@ -69,6 +69,65 @@ impl OwnedTuples {
         tuple
     }
 
+    /// Decides a remote set of `key` to `value` from `requester` under the claims rules
+    /// ([`crate::claims::arbitrate`]) and makes its writes, all at `now`. Returns the tuples
+    /// written, in order, and the one to answer the requester with: the request's own tuple
+    /// when it was written, else the current one at `key` (or, when there is none, the
+    /// component's holders); `Err` with the reason when the request is refused.
+    pub fn set_requested(
+        &mut self,
+        requester: Option<&PeisId>,
+        key: Key,
+        value: Value,
+        now: Timestamp,
+    ) -> Result<(Vec<Tuple>, Tuple), String> {
+        let writes = match crate::claims::arbitrate(requester, &key, &value, |k| self.get(k, now)) {
+            crate::claims::Arbitration::Apply(writes) => writes,
+            crate::claims::Arbitration::Refuse(reason) => return Err(reason),
+        };
+        let written: Vec<Tuple> = writes
+            .into_iter()
+            .map(|(k, v)| self.set(k, v, now))
+            .collect();
+        let answer = written
+            .iter()
+            .find(|t| t.key == key)
+            .or_else(|| self.get(&key, now))
+            .or_else(|| written.last())
+            .cloned()
+            .unwrap_or_else(|| self.absent(key, now));
+        Ok((written, answer))
+    }
+
+    /// Drops `holder` from every component it holds here, as the owner does once it is gone
+    /// ([`crate::claims::release_holder`]); returns the tuples written.
+    pub fn release_holder(&mut self, holder: &PeisId, now: Timestamp) -> Vec<Tuple> {
+        let holders = KeyPattern::new("components.*.holders").unwrap_or_else(|_| KeyPattern::any());
+        let writes = crate::claims::release_holder(holder, self.matching(&holders, now), |k| {
+            self.get(k, now)
+        });
+        writes
+            .into_iter()
+            .map(|(k, v)| self.set(k, v, now))
+            .collect()
+    }
+
+    /// The answer to a request that wrote nothing at a key nobody wrote: an empty tuple, not stored.
+    fn absent(&self, key: Key, now: Timestamp) -> Tuple {
+        Tuple {
+            owner: self.owner.clone(),
+            key,
+            data: bytes::Bytes::new(),
+            mimetype: crate::name::Mimetype::text(),
+            ts_write: now,
+            ts_user: None,
+            expiry: None,
+            seq: 0,
+            epoch: self.epoch,
+            creator: None,
+        }
+    }
+
     /// Deletes `key`; returns the removal event if the tuple existed.
     pub fn delete(&mut self, key: &Key) -> Option<TupleEvent> {
         self.tuples.remove(key)?;

@@ -13,7 +13,8 @@ use crate::subscription::{PresenceSubscription, Resubscribe, Subscription};
 ///
 /// The handle publishes only its own PEIS's tuples ([`TupleSpace::set`], [`TupleSpace::delete`]);
 /// it changes another PEIS's tuple only by asking that PEIS ([`TupleSpace::set_remote`]), which applies
-/// the request itself under its [`RemoteSetPolicy`]. Reads and subscriptions cover every PEIS.
+/// the request itself under its [`RemoteSetPolicy`] and arbitrates claims on its components
+/// ([`crate::claims`]). Reads and subscriptions cover every PEIS.
 /// Handles are cheap to clone; clones act as the same PEIS.
 pub trait TupleSpace: Clone + Send + Sync + 'static {
     /// The PEIS this handle acts as.
@@ -25,6 +26,14 @@ pub trait TupleSpace: Clone + Send + Sync + 'static {
 
     /// Deletes this PEIS's tuple `key`; returns whether it existed.
     fn delete(&self, key: Key) -> impl Future<Output = Result<bool, TupleError>> + Send;
+
+    /// Drops `holder` from the holders of every component of this PEIS it holds, putting back
+    /// those it was the last to hold (see [`crate::claims`]), as the owner does once a holder is
+    /// gone; returns the tuples written. Atomic with the arbitration of remote sets.
+    fn release_claims(
+        &self,
+        holder: PeisId,
+    ) -> impl Future<Output = Result<Vec<Tuple>, TupleError>> + Send;
 
     /// The current tuple (owner, key), if it exists and has not expired.
     fn get(

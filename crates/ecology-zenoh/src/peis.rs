@@ -490,10 +490,47 @@ fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
     // Resolved before the store changes, so a failure leaves neither a new tuple nor a used seq.
     let route = publishers.route(&core.session, &core.me, &key)?;
     let tuple = lock(&core.store).set(key, value, core.clock.now());
+    send(core, route, &tuple)?;
+    Ok(tuple)
+}
+
+/// Applies a remote set from `requester` under the claims rules (`ecology_tuples::claims`) and
+/// publishes what it wrote; returns the tuple to answer with, or the reason it was refused.
+/// `publishers` is held throughout, so no other write of this PEIS comes between the decision
+/// and its writes.
+fn publish_requested(
+    core: &Core,
+    requester: Option<&PeisId>,
+    key: Key,
+    value: Value,
+) -> Result<Tuple, String> {
+    let mut publishers = lock(&core.publishers);
+    let (written, answer) =
+        lock(&core.store).set_requested(requester, key, value, core.clock.now())?;
+    publish_written(core, &mut publishers, &written).map_err(|e| e.to_string())?;
+    Ok(answer)
+}
+
+/// Publishes what this PEIS wrote to its store, `written`, each on its route; the caller holds
+/// `publishers` since the writes.
+fn publish_written(
+    core: &Core,
+    publishers: &mut Publishers,
+    written: &[Tuple],
+) -> Result<(), TupleError> {
+    for tuple in written {
+        let route = publishers.route(&core.session, &core.me, &tuple.key)?;
+        send(core, route, tuple)?;
+    }
+    Ok(())
+}
+
+/// Hands `tuple`, already in the store, to Zenoh on `route`.
+fn send(core: &Core, route: Route<'_>, tuple: &Tuple) -> Result<(), TupleError> {
     if tuple.expiry.is_some() {
         core.expiry_changed.notify_one();
     }
-    let attachment = Metadata::of_tuple(&tuple).encode();
+    let attachment = Metadata::of_tuple(tuple).encode();
     match route {
         Route::Declared(publisher) => publisher
             .put(tuple.data.clone())
@@ -506,8 +543,7 @@ fn publish(core: &Core, key: Key, value: Value) -> Result<Tuple, TupleError> {
             .congestion_control(CongestionControl::Block)
             .wait(),
     }
-    .map_err(transport("put"))?;
-    Ok(tuple)
+    .map_err(transport("put"))
 }
 
 /// Publishes a removal of this PEIS's tuple; the caller holds `publishers` since the seq was assigned.
@@ -619,11 +655,10 @@ async fn answer_get(core: &Core, query: Query) {
 }
 
 async fn apply_remote_set(core: &Core, query: Query) {
-    let result = remote_set_value(core, &query);
-    let outcome = match result {
-        Ok((key, value)) => publish(core, key, value).map_err(|e| e.to_string()),
-        Err(reason) => Err(reason),
-    };
+    let outcome = remote_set_value(core, &query).and_then(|(key, value)| {
+        let requester = value.creator.clone();
+        publish_requested(core, requester.as_ref(), key, value)
+    });
     let _ = match outcome {
         Ok(tuple) => {
             query
@@ -849,6 +884,15 @@ impl TupleSpace for ZenohPeis {
             }
             None => Ok(false),
         }
+    }
+
+    async fn release_claims(&self, holder: PeisId) -> Result<Vec<Tuple>, TupleError> {
+        let core = &self.inner.core;
+        // Held from the decision to the last put, as for a remote set.
+        let mut publishers = lock(&core.publishers);
+        let written = lock(&core.store).release_holder(&holder, core.clock.now());
+        publish_written(core, &mut publishers, &written)?;
+        Ok(written)
     }
 
     async fn get(&self, owner: PeisId, key: Key) -> Result<Option<Tuple>, TupleError> {
