@@ -14,8 +14,10 @@ package (pip install eclipse-zenoh==1.10.2), nothing else, and follows docs/comp
   intersects; peis/NAME/@set/** applies remote sets.
 - Remote sets: only of the keys in `remote_settable` (the component's reqState, params and mi-INFO),
   with a value of at most `MAX_VALUE` bytes, `on` or `off` for a reqState, and without a time to live;
-  anything else is refused with a reply error. An applied set is published as our tuple (with the
-  request's mimetype and creator), replied with as applied, and handed to the component.
+  anything else is refused with a reply error. Claims are arbitrated (`Peis.arbitrate`): a request
+  the component's holders (`components.C.holders`) would not share is refused, naming them. An
+  applied set is published as our tuple (with the request's mimetype and creator), replied with
+  as applied, and handed to the component.
 - Liveliness: the PEIS waits for the mesh to form, refuses to start when the token
   peis/NAME/@alive is already declared anywhere in the ecology, publishes its component's first
   tuples, declares both queryables, then the token. It leaves in order: the component reported off,
@@ -126,6 +128,10 @@ def parse_meta_tuple(text):
 
 # --- The PEIS: owns its tuples, answers gets, applies remote sets --------------------------------
 
+class Refused(Exception):
+    """A remote set refused because others hold the component; the message names them."""
+
+
 class Peis:
     def __init__(self, name, component, remote_settable, make_component, program,
                  listen=(), connect=(), no_epoch=False):
@@ -226,10 +232,71 @@ class Peis:
             return query.reply_err(f"value of {len(data)} bytes is over {MAX_VALUE}")
         if key.endswith(".reqState") and data.decode("utf-8", "replace").strip() not in ("on", "off"):
             return query.reply_err(f"{key} must be on or off, not {data[:40]!r}")
-        data, meta = self.set(key, data, mimetype, creator)
-        query.reply(query.key_expr, data, attachment=meta)
-        self.log(f"remote set {key} = {data.decode('utf-8', 'replace')}")
-        self.component.on_set(key, data.decode("utf-8", "replace"))
+        try:
+            writes = self.arbitrate(creator, key, data)
+        except Refused as e:
+            return query.reply_err(str(e))
+        answer = None
+        for k, value in writes:
+            written = self.set(k, value, mimetype if k == key else "text/plain",
+                               creator if k == key else None)
+            if k == key:
+                answer = written
+            if k != f"components.{self.c}.holders":
+                self.log(f"remote set {k} = {value.decode('utf-8', 'replace')}")
+                self.component.on_set(k, value.decode("utf-8", "replace"))
+        if answer is None:  # shared, or a release of what others still hold: nothing of ours moved
+            answer = self.tuples.get(key, (None, data, encode_meta(0, time.time_ns(), self.epoch,
+                                                                    mimetype)))[1:]
+        query.reply(query.key_expr, answer[0], attachment=answer[1])
+
+    def text(self, key):
+        """Our tuple `key` as text, stripped; empty when we have none."""
+        entry = self.tuples.get(key)
+        return entry[1].decode("utf-8", "replace").strip() if entry else ""
+
+    def arbitrate(self, requester, key, data):
+        """Claims (docs/components.md, "Several executives"): the writes a remote set of `key` comes
+        to, as (key, bytes) pairs, or `Refused` naming who holds the component. Free: applied, and
+        the requester holds it. The same as what runs: shared, only the holders change. Anything else
+        while others hold it: refused. A release (reqState off, empty params) removes only its
+        requester while others hold; the last holder's release switches off what a request
+        switched on."""
+        holders_key = f"components.{self.c}.holders"
+        holders = self.text(holders_key).split()
+        others = [h for h in holders if h != requester]
+        asked = data.decode("utf-8", "replace").strip()
+        power, params = f"components.{self.c}.reqState", f"{self.c}.params"
+        release = (key == power and asked == "off") or (key == params and asked == "")
+        named = lambda hs: " ".join(hs).encode()
+        if release:
+            if others:
+                return [(holders_key, named(others))] if len(others) != len(holders) else []
+            writes = [(key, data)]
+            if holders:
+                # The last holder leaves: off again, if a request switched it on.
+                switched_on = (self.text(power) == "on"
+                               and decode_meta(self.tuples[power][2])["creator"] is not None)
+                if key == params and switched_on:
+                    writes.append((power, b"off"))
+                writes.append((holders_key, b""))
+            return writes
+        if others:
+            if key == power:
+                same = self.component.on
+            elif key == params:
+                same = self.text(params) == asked
+            else:
+                same = self.tuples.get(key, (None, None))[1] == data
+            if not same:
+                now = self.text(key) or "nothing"
+                raise Refused(f"held by {' '.join(others)}: {key} is {now}")
+            writes = []
+        else:
+            writes = [(key, data)]
+        if requester and requester not in holders:
+            writes.append((holders_key, named(holders + [requester])))
+        return writes
 
     def run(self):
         """The main loop: one thread handles every event, so no state is shared between threads."""

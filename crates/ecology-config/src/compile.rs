@@ -457,6 +457,15 @@ pub(crate) struct Schema {
     pub(crate) relaxed: crate::relaxed::Relaxed,
 }
 
+/// A component held by another executive, from the fact
+/// `(held PEIS COMPONENT HOLDER FUNCTIONALITY ARG…)`: it may only be shared, running the same.
+#[derive(Debug, Clone)]
+pub(crate) struct Held {
+    pub(crate) holder: Sym,
+    pub(crate) func: Sym,
+    pub(crate) args: Vec<Sym>,
+}
+
 /// The domain and state, compiled.
 #[derive(Debug)]
 pub(crate) struct Compiled {
@@ -468,6 +477,9 @@ pub(crate) struct Compiled {
     pub(crate) costs: HashMap<(Sym, Sym), ComponentCost>,
     /// The state's `channel-cost` facts, (from, to) → cost; the first one counts.
     pub(crate) channels: HashMap<(Sym, Sym), u64>,
+    /// The state's `held` facts, (PEIS, component) → the instances other executives hold it
+    /// running.
+    pub(crate) held: HashMap<(Sym, Sym), Vec<Held>>,
     /// Reading the state was cut short by the caller's budget: facts are missing.
     pub(crate) cut: bool,
 }
@@ -715,6 +727,8 @@ impl Compiled {
         // into their tables, their numbers not interned; they are kept as
         // facts too only when a precondition looks them up.
         let (cost, channel_cost) = (syms.intern_str("cost"), syms.intern_str("channel-cost"));
+        let held_pred = syms.intern_str("held");
+        let mut held: HashMap<(Sym, Sym), Vec<Held>> = HashMap::default();
         let mut costs: HashMap<(Sym, Sym), ComponentCost> =
             HashMap::with_capacity_and_hasher(state.len() / 2, Default::default());
         let mut channels: HashMap<(Sym, Sym), u64> =
@@ -747,6 +761,13 @@ impl Compiled {
             }
             args.clear();
             args.extend(fact.args.iter().map(|a| intern(&mut syms, a)));
+            if pred == held_pred && args.len() >= 4 {
+                held.entry((args[0], args[1])).or_default().push(Held {
+                    holder: args[2],
+                    func: args[3],
+                    args: args[4..].to_vec(),
+                });
+            }
             facts.insert(pred, &args);
         }
         facts.build_index();
@@ -756,6 +777,7 @@ impl Compiled {
             facts,
             costs,
             channels,
+            held,
             cut,
         }
     }

@@ -109,6 +109,24 @@ fn explain_item(
                     format!("component {peis}:{component} is excluded")
                 }
                 Some(FuncProblem::PeisExcluded) => format!("PEIS {peis} is excluded"),
+                Some(FuncProblem::Held) => {
+                    let held = c.held.get(&(f.peis, f.component)).into_iter().flatten();
+                    let by: Vec<String> = held
+                        .map(|h| {
+                            let args: Vec<&str> = h.args.iter().map(|&a| c.syms.name(a)).collect();
+                            format!(
+                                "{} running ({} {})",
+                                c.syms.name(h.holder),
+                                c.syms.name(h.func),
+                                args.join(" ")
+                            )
+                        })
+                        .collect();
+                    format!(
+                        "component {peis}:{component} is held by {}",
+                        by.join(" and ")
+                    )
+                }
                 Some(FuncProblem::Precondition(i)) => {
                     let schema = &ctx.domain.functionalities[c.funcs[f.func as usize].src];
                     let args: Vec<&str> = graph

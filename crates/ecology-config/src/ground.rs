@@ -34,6 +34,8 @@ pub(crate) struct ItemId(pub(crate) u32);
 pub(crate) enum FuncProblem {
     ComponentExcluded,
     PeisExcluded,
+    /// Another executive holds the component running another instance (a `held` fact).
+    Held,
     /// The precondition literal at this index is false.
     Precondition(usize),
 }
@@ -158,6 +160,18 @@ impl<'a> Ctx<'a> {
             .channel_cost(c.syms.name(from), c.syms.name(to), state)
     }
 
+    /// Whether another executive holds component (`peis`, `component`) running something other
+    /// than functionality `func` on `args`: then this instance cannot use it. One held running
+    /// exactly this instance can be shared.
+    fn held_otherwise(&self, func: u32, peis: Sym, component: Sym, args: &[Sym]) -> bool {
+        let Some(held) = self.compiled.held.get(&(peis, component)) else {
+            return false;
+        };
+        let name = &self.domain.functionalities[self.compiled.funcs[func as usize].src].name;
+        held.iter()
+            .any(|h| self.compiled.syms.name(h.func) != &**name || h.args != args)
+    }
+
     fn func_item(&self, func: u32, args: &[Sym]) -> FuncItem {
         let c = &self.compiled;
         let schema = &c.funcs[func as usize];
@@ -186,6 +200,8 @@ impl<'a> Ctx<'a> {
             Some(FuncProblem::PeisExcluded)
         } else if self.excluded.components.contains(&(peis, component)) {
             Some(FuncProblem::ComponentExcluded)
+        } else if self.held_otherwise(func, peis, component, args) {
+            Some(FuncProblem::Held)
         } else {
             schema
                 .pre

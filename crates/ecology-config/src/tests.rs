@@ -238,6 +238,39 @@ fn excluding_the_tracking_system_switches_the_laser_on() {
     assert_eq!(shape(best), PIPPI_190);
 }
 
+// Several executives: another's claim on the tracking system, in the state as a `held` fact.
+// Held running for Bob, it is not available for Astrid (the laser at 170 instead), and the
+// explanation names who holds it; held running for Astrid, it is shared at its running cost.
+#[test]
+fn a_component_held_by_another_executive_is_shared_only_running_the_same() {
+    let held = |instance: &str| {
+        format!("{PEIS_HOME_FACTS}\n(held hsm tr1 exec-bob tracking-system hsm tr1 {instance})\n")
+    };
+    let for_bob = held("bob");
+    let outcome = run(PEIS_HOME, &for_bob, "(navigate astrid bedroom)", &[], 1);
+    let best = &outcome.configurations[0];
+    assert_eq!((best.cost, shape(best)), (170, LASER_170.to_string()));
+    let outcome = run(
+        PEIS_HOME,
+        &for_bob,
+        "(navigate astrid bedroom)",
+        &["astrid:l1", "pippi:ol2"],
+        1,
+    );
+    explained(
+        outcome,
+        "(tracking-system hsm tr1 astrid): component hsm:tr1 is held by exec-bob running (tracking-system hsm tr1 bob)",
+    );
+    // The camera is held by Bob's executive too, for the same instance: shared.
+    let shared = format!(
+        "{}(held hsm ca1 exec-bob ceiling-cameras hsm ca1)\n",
+        held("astrid")
+    );
+    let outcome = run(PEIS_HOME, &shared, "(navigate astrid bedroom)", &[], 1);
+    let best = &outcome.configurations[0];
+    assert_eq!((best.cost, shape(best)), (80, CAMERAS_80.to_string()));
+}
+
 #[test]
 fn no_position_source_left_is_explained() {
     let outcome = home(
