@@ -65,6 +65,8 @@ struct Core {
     answers_lag_presence: bool,
     token: Mutex<Option<zenoh::liveliness::LivelinessToken>>,
     route_hints: Arc<RouteHints>,
+    /// Whether this PEIS runs in the secured mode: then remote sets name their requester.
+    secured: bool,
 }
 
 /// Key expressions of tuples this PEIS's subscriptions receive, to be declared to Zenoh.
@@ -228,6 +230,14 @@ impl ZenohPeis {
             .map_err(|e| ZenohError::Open {
                 message: e.to_string(),
             })?;
+        // Remote sets that name their requester (`@by`): `**` does not reach into a chunk that
+        // starts with `@`, so they have a queryable of their own.
+        let by_queryable = session
+            .declare_queryable(format!("{}/{}/@by/**", wire::ROOT, me))
+            .await
+            .map_err(|e| ZenohError::Open {
+                message: e.to_string(),
+            })?;
         let token = session
             .liveliness()
             .declare_token(wire::alive_key_expr(&me))
@@ -257,11 +267,12 @@ impl ZenohPeis {
                 requested: Mutex::new(HashSet::new()),
                 declare,
             }),
+            secured: matches!(options.security, crate::Security::Authenticated(_)),
         });
         let service = tokio::spawn(serve(
             core.clone(),
             get_queryable,
-            set_queryable,
+            [set_queryable, by_queryable],
             declare_rx,
             shutdown_rx,
         ));
@@ -585,7 +596,7 @@ fn publish_removal(
 async fn serve(
     core: Arc<Core>,
     get_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
-    set_queryable: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    set_queryables: [zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>; 2],
     mut route_hints: mpsc::UnboundedReceiver<String>,
     mut shutdown: watch::Receiver<bool>,
 ) {
@@ -606,7 +617,11 @@ async fn serve(
                 Ok(query) => answer_get(&core, query).await,
                 Err(_) => return,
             },
-            query = set_queryable.recv_async() => match query {
+            query = set_queryables[0].recv_async() => match query {
+                Ok(query) => apply_remote_set(&core, query).await,
+                Err(_) => return,
+            },
+            query = set_queryables[1].recv_async() => match query {
                 Ok(query) => apply_remote_set(&core, query).await,
                 Err(_) => return,
             },
@@ -659,6 +674,7 @@ async fn apply_remote_set(core: &Core, query: Query) {
         let requester = value.creator.clone();
         publish_requested(core, requester.as_ref(), key, value)
     });
+
     let _ = match outcome {
         Ok(tuple) => {
             query
@@ -671,7 +687,7 @@ async fn apply_remote_set(core: &Core, query: Query) {
 }
 
 fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> {
-    let key = wire::parse_remote_set_key_expr(&core.me, query.key_expr().as_str())
+    let (named, key) = wire::parse_remote_set_key_expr(&core.me, query.key_expr().as_str())
         .map_err(|e| format!("{e} (a remote set needs one exact key)"))?;
     let data = query
         .payload()
@@ -683,6 +699,7 @@ fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> 
             .into_request(data),
         None => Value::bytes(data),
     };
+    let value = requester(core, named, value)?;
     if let Err(e) = core.options.limits.check(&key, &value) {
         return Err(e.to_string());
     }
@@ -691,6 +708,24 @@ fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> 
     }
     ecology_tuples::contract::check_request(&key, &value.data)?;
     Ok((key, value))
+}
+
+/// The request `value` with its creator set to who asked. In the secured mode that is the
+/// requester its key expression names (`@by`), which the access rules let only that member use;
+/// a request without one, or whose creator stamp names someone else, is refused. In the open mode
+/// it is the name the request gives, key expression first, which nothing checks.
+fn requester(core: &Core, named: Option<PeisId>, value: Value) -> Result<Value, String> {
+    match (named, value.creator.clone()) {
+        (Some(named), Some(stamp)) if named != stamp => Err(format!(
+            "the request's creator stamp names {stamp}, but {named} sent it"
+        )),
+        (Some(named), _) => Ok(value.with_creator(named)),
+        (None, _) if core.secured => Err(format!(
+            "{} takes remote sets only from a named requester (peis/{}/@by/REQUESTER/KEY)",
+            core.me, core.me
+        )),
+        (None, _) => Ok(value),
+    }
 }
 
 /// What the previous sample of a subscription was about, reused when the next one repeats it.
@@ -1057,9 +1092,15 @@ impl TupleSpace for ZenohPeis {
         // The owner records who asked (the tuple's creator): a PEIS watches the presence of whoever
         // switched its components on, and puts them back when that PEIS is gone.
         let value = value.with_creator(core.me.clone());
+        // Secured, the key expression names the requester, which the owner can trust.
+        let key_expr = if core.secured {
+            wire::requested_set_key_expr(&owner, &core.me, &key)
+        } else {
+            wire::remote_set_key_expr(&owner, &key)
+        };
         let replies = core
             .session
-            .get(wire::remote_set_key_expr(&owner, &key))
+            .get(key_expr)
             .payload(value.data.clone())
             .attachment(Metadata::of_request(&value).encode())
             .consolidation(ConsolidationMode::None)

@@ -8,9 +8,11 @@
 //! - a member publishes, deletes, answers queries for, declares queryables on and is present
 //!   (liveliness token) under `peis/NAME/…` only: its own tuples;
 //! - any member may subscribe to and query tuples and presence;
-//! - a remote set (a query to `peis/OWNER/@set/KEY`) passes only when a grant lets that requester
-//!   set that key of that owner: by default the executive may set `components.*.reqState`,
-//!   `*.params` and `*.mi-*`; nobody else anything;
+//! - a remote set names its requester (a query to `peis/OWNER/@by/REQUESTER/KEY`), and passes
+//!   only when REQUESTER is the member's own name and a grant lets it set that key of that
+//!   owner: by default the executive may set `components.*.reqState`, `*.params` and `*.mi-*`;
+//!   nobody else anything. So the owner knows who asked (the holder of a claim) from the key
+//!   expression, and refuses the unnamed form `peis/OWNER/@set/KEY` of the open mode;
 //! - a router is trusted to have enforced the same rules on what it forwards.
 //!
 //! A peer that cannot show a certificate of the ecology cannot open a link at all; one whose name
@@ -350,7 +352,7 @@ impl Roster {
             "liveliness_query",
         ];
         // `**` does not cover chunks that start with `@`, so the verbatim ones are listed.
-        let everything = json!(["**", "peis/*/@set/**", "peis/*/@alive"]);
+        let everything = json!(["**", "peis/*/@set/**", "peis/*/@by/**", "peis/*/@alive"]);
         let mut rules = vec![
             json!({"id": "read", "messages": ["declare_subscriber", "query",
                     "declare_liveliness_subscriber", "liveliness_query"],
@@ -360,11 +362,6 @@ impl Roster {
                    "key_exprs": everything}),
             json!({"id": "relay", "messages": ALL, "flows": ["ingress"], "permission": "allow",
                    "key_exprs": everything}),
-            json!({"id": "executive", "messages": ["query"], "flows": ["ingress"],
-                   "permission": "allow",
-                   "key_exprs": EXECUTIVE_KEYS.iter()
-                       .map(|k| format!("peis/*/@set/{}", GrantPattern(k.to_string()).chunks()))
-                       .collect::<Vec<_>>()}),
         ];
         let mut subjects = Vec::new();
         let mut policies = Vec::new();
@@ -375,13 +372,25 @@ impl Roster {
                 "messages": ["put", "delete", "reply", "declare_queryable", "liveliness_token"],
                 "flows": ["ingress"], "permission": "allow",
                 "key_exprs": [format!("peis/{name}/**"), format!("peis/{name}/@set/**"),
-                              format!("peis/{name}/@alive")],
+                              format!("peis/{name}/@by/**"), format!("peis/{name}/@alive")],
             }));
             subjects.push(json!({"id": format!("member-{name}"), "cert_common_names": [name]}));
             let mut own_rules = vec![json!(format!("own-{name}")), json!("read"), json!("send")];
             match member.role {
                 Role::Peis => {}
-                Role::Executive => own_rules.push(json!("executive")),
+                // A remote set names its requester (`@by/NAME`), and a member may name only itself.
+                Role::Executive => {
+                    let id = format!("executive-{name}");
+                    rules.push(json!({
+                        "id": id, "messages": ["query"], "flows": ["ingress"],
+                        "permission": "allow",
+                        "key_exprs": EXECUTIVE_KEYS.iter()
+                            .map(|k| format!("peis/*/@by/{name}/{}",
+                                             GrantPattern(k.to_string()).chunks()))
+                            .collect::<Vec<_>>(),
+                    }));
+                    own_rules.push(json!(id));
+                }
                 Role::Router => own_rules.push(json!("relay")),
             }
             for (i, grant) in self.grants.iter().enumerate() {
@@ -393,7 +402,7 @@ impl Roster {
                 rules.push(json!({
                     "id": id, "messages": ["query"], "flows": ["ingress"], "permission": "allow",
                     "key_exprs": grant.keys.iter()
-                        .map(|k| format!("peis/{owner}/@set/{}", k.chunks()))
+                        .map(|k| format!("peis/{owner}/@by/{name}/{}", k.chunks()))
                         .collect::<Vec<_>>(),
                 }));
                 own_rules.push(json!(id));
@@ -751,11 +760,21 @@ mod tests {
         };
         assert_eq!(
             rule("own-hsm")["key_exprs"],
-            json!(["peis/hsm/**", "peis/hsm/@set/**", "peis/hsm/@alive"])
+            json!([
+                "peis/hsm/**",
+                "peis/hsm/@set/**",
+                "peis/hsm/@by/**",
+                "peis/hsm/@alive"
+            ])
         );
         assert_eq!(
             rule("grant-0")["key_exprs"],
-            json!(["peis/hsm/@set/*/fault"])
+            json!(["peis/hsm/@by/launcher/*/fault"])
+        );
+        // An executive sets the contract's keys of every PEIS, under its own name only.
+        assert_eq!(
+            rule("executive-executive")["key_exprs"][0],
+            json!("peis/*/@by/executive/components/*/reqState")
         );
         let policy = |subject: &str| {
             acl["policies"]
@@ -766,7 +785,7 @@ mod tests {
         };
         assert_eq!(
             policy("member-executive"),
-            json!(["own-executive", "read", "send", "executive"])
+            json!(["own-executive", "read", "send", "executive-executive"])
         );
         assert_eq!(
             policy("member-launcher"),

