@@ -351,13 +351,17 @@ fn age(tuple: &Tuple, clock: &dyn Clock) -> Duration {
 fn event_line(event: &TupleEvent, clock: &dyn Clock) -> String {
     match event {
         TupleEvent::Changed(t) => format!(
-            "{:<12} {:<32} {}  ({} seq {}, age {:.1}s)",
+            "{:<12} {:<32} {}  ({} seq {}, age {:.1}s{})",
             t.owner,
             t.key,
             preview(t),
             t.mimetype,
             t.seq,
-            age(t, clock).as_secs_f64()
+            age(t, clock).as_secs_f64(),
+            t.creator
+                .as_ref()
+                .map(|c| format!(", set by {c}"))
+                .unwrap_or_default()
         ),
         TupleEvent::Removed {
             owner, key, reason, ..
@@ -395,6 +399,10 @@ fn event_json(event: &TupleEvent, clock: &dyn Clock) -> String {
             }
             if let Some(expiry) = t.expiry {
                 object["expiry_ns"] = serde_json::Value::from(expiry.as_nanos());
+            }
+            // Who set it by remote set: with keys, the member that sent the request.
+            if let Some(creator) = &t.creator {
+                object["set_by"] = serde_json::Value::from(creator.as_str());
             }
             object
         }

@@ -113,13 +113,11 @@ fn explain_item(
                     let held = c.held.get(&(f.peis, f.component)).into_iter().flatten();
                     let by: Vec<String> = held
                         .map(|h| {
-                            let args: Vec<&str> = h.args.iter().map(|&a| c.syms.name(a)).collect();
-                            format!(
-                                "{} running ({} {})",
-                                c.syms.name(h.holder),
-                                c.syms.name(h.func),
-                                args.join(" ")
-                            )
+                            let words: Vec<&str> = std::iter::once(h.func)
+                                .chain(h.args.iter().copied())
+                                .map(|a| c.syms.name(a))
+                                .collect();
+                            format!("{} running ({})", c.syms.name(h.holder), words.join(" "))
                         })
                         .collect();
                     format!(

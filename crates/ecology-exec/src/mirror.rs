@@ -31,6 +31,8 @@ pub struct ComponentView {
     pub cause: Option<String>,
     /// `C.params`, as applied by the PEIS.
     pub params: Option<String>,
+    /// `components.C.holders`: the executives that hold it (claims), in the order they claimed it.
+    pub holders: Vec<PeisId>,
 }
 
 /// What the mirror knows of one PEIS.
@@ -81,12 +83,33 @@ pub enum Change {
 pub struct Mirror {
     peis: BTreeMap<PeisId, PeisView>,
     last_seq: HashMap<(PeisId, Key), u64>,
+    /// The executive's own PEIS name, once known: its own claims are not another's.
+    me: Option<PeisId>,
 }
 
 impl Mirror {
     /// An empty mirror.
     pub fn new() -> Mirror {
         Mirror::default()
+    }
+
+    /// Tells the mirror the executive's own PEIS name, so that its claims are told apart from
+    /// other executives'.
+    pub fn acting_as(&mut self, me: PeisId) {
+        self.me = Some(me);
+    }
+
+    /// The holders of component (`peis`, `component`) other than this executive.
+    pub fn held_by_others(&self, peis: &str, component: &str) -> Vec<PeisId> {
+        self.component(peis, component)
+            .map(|c| {
+                c.holders
+                    .iter()
+                    .filter(|h| Some(*h) != self.me.as_ref())
+                    .cloned()
+                    .collect()
+            })
+            .unwrap_or_default()
     }
 
     /// Every PEIS seen.
@@ -164,8 +187,10 @@ impl Mirror {
     }
 
     /// The ecology state: `(peis P)` for present PEIS, and for each of their
-    /// components with a known type `(pc P TYPE C)`, `(cost P C N on|off)` and
-    /// `(status P C S)`, plus the given world facts.
+    /// components with a known type `(pc P TYPE C)`, `(cost P C N on|off)`,
+    /// `(status P C S)` and, for each other executive that holds it,
+    /// `(held P C HOLDER FUNCTIONALITY ARG…)` with the instance it runs
+    /// (`idle` when it runs none), plus the given world facts.
     pub fn state(&self, world: &EcologyState) -> EcologyState {
         let mut state = EcologyState::new();
         for (name, view) in &self.peis {
@@ -184,6 +209,16 @@ impl Mirror {
                 }
                 if let Some(status) = &comp.status {
                     state.insert(Fact::new("status", &[name, c, status]));
+                }
+                for holder in comp.holders.iter().filter(|h| Some(*h) != self.me.as_ref()) {
+                    let params = comp.params.as_deref().unwrap_or("");
+                    let instance = params.trim().trim_start_matches('(').trim_end_matches(')');
+                    let mut args = vec![name, c, holder.as_str()];
+                    match instance.split_whitespace().collect::<Vec<_>>() {
+                        words if words.is_empty() => args.push("idle"),
+                        words => args.extend(words),
+                    }
+                    state.insert(Fact::new("held", &args));
                 }
             }
         }
@@ -235,6 +270,7 @@ impl PeisView {
             ComponentField::Cost => c.cost = value.parse().ok(),
             ComponentField::CurrState => c.on = value == "on",
             ComponentField::ReqState => {}
+            ComponentField::Holders => c.holders = ecology_tuples::claims::parse_holders(value),
             ComponentField::Status => {
                 c.status = Some(value.to_string());
                 return Some(Change::Status {

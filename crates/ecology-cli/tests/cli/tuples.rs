@@ -98,7 +98,14 @@ fn two_processes_share_tuples() {
 
     let set = run_joined(
         &endpoint,
-        &["set", "astrid", "components.l1.reqState", "on"],
+        &[
+            "--name",
+            "operator",
+            "set",
+            "astrid",
+            "components.l1.reqState",
+            "on",
+        ],
     );
     assert_eq!(
         (set.status.code(), stdout(&set).as_str()),
@@ -106,6 +113,22 @@ fn two_processes_share_tuples() {
     );
     let got = run_joined(&endpoint, &["get", "astrid", "components.l1.reqState"]);
     assert_eq!(stdout(&got), "on\n");
+    // Who set a tuple by remote set shows, and holds the component it switched on.
+    let watched = run_joined(
+        &endpoint,
+        &["watch", "astrid:components.l1.*", "--json", "--count", "3"],
+    );
+    let lines = stdout(&watched);
+    let by_key = |k: &str| {
+        lines
+            .lines()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .find(|e| e["key"] == k)
+            .unwrap_or_else(|| panic!("no {k} in {lines}"))
+    };
+    assert_eq!(by_key("components.l1.reqState")["set_by"], "operator");
+    assert_eq!(by_key("components.l1.holders")["value"], "operator");
+    assert_eq!(by_key("components.l1.status").get("set_by"), None);
 
     let unreachable = run_joined(&endpoint, &["set", "ghost", "x", "1"]);
     assert_eq!(unreachable.status.code(), Some(1));
@@ -129,12 +152,13 @@ fn two_processes_share_tuples() {
     assert_eq!(event["value"], "running");
     assert_eq!(event["seq"], 1);
 
-    let readable = run_joined(&endpoint, &["watch", "astrid:**", "--count", "2"]);
+    let readable = run_joined(&endpoint, &["watch", "astrid:**", "--count", "3"]);
     let text = stdout(&readable);
     assert!(
         text.contains("components.l1.status") && text.contains("\"running\""),
         "{text}"
     );
+    assert!(text.contains(", set by operator)"), "{text}");
     assert!(text.contains("age "), "{text}");
 
     let peers = run_joined(&endpoint, &["--name", "lister", "peers"]);
