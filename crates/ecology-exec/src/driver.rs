@@ -20,7 +20,7 @@ use ecology_tuples::{
     TupleEvent, TuplePattern, TupleSpace, Value,
 };
 
-use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
+use crate::executive::{Command, Event, Executive, RunStatus, Timer};
 use crate::interest::Interest;
 use crate::log::LogEntry;
 use crate::plan::{Observation, Plan};
@@ -143,7 +143,10 @@ pub async fn drive_until<S: TupleSpace>(
     let mut commands = tuples.widen(exec, elapsed(&clock), &interest).await?;
     exec.note_acquisition(acquiring.elapsed());
     let mut presence = space.subscribe_presence().await?;
-    let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
+    // One deadline per timer (starting it again replaces it), and the order it was started in,
+    // which decides between timers due at once.
+    let mut timers: BTreeMap<Timer, (Timestamp, u64)> = BTreeMap::new();
+    let mut started_timers = 0u64;
     let mut sets = RemoteSets::new(space.clone());
     let settle_until = start.saturating_add(config.settle);
     let mut started = false;
@@ -186,11 +189,11 @@ pub async fn drive_until<S: TupleSpace>(
         if commands.is_empty() {
             let next_timer = timers
                 .iter()
-                .min_by_key(|(_, at)| **at)
-                .map(|(id, at)| (*id, *at));
-            let wake_at = match (started, next_timer) {
+                .min_by_key(|(_, due)| **due)
+                .map(|(timer, (at, _))| (timer.clone(), *at));
+            let wake_at = match (started, &next_timer) {
                 (false, _) => Some(settle_until),
-                (true, Some((_, at))) => Some(at),
+                (true, Some((_, at))) => Some(*at),
                 (true, None) => None,
             };
             let wake_at = match (wake_at, config.limit) {
@@ -218,9 +221,9 @@ pub async fn drive_until<S: TupleSpace>(
                     if !started && now >= settle_until {
                         started = true;
                         exec.handle(elapsed(&clock), Event::Start)
-                    } else if let Some((id, _)) = next_timer.filter(|(_, at)| *at <= now) {
-                        timers.remove(&id);
-                        exec.handle(elapsed(&clock), Event::Timer(id))
+                    } else if let Some((timer, _)) = next_timer.filter(|(_, at)| *at <= now) {
+                        timers.remove(&timer);
+                        exec.handle(elapsed(&clock), Event::Timer(timer))
                     } else {
                         Vec::new()
                     }
@@ -251,11 +254,12 @@ pub async fn drive_until<S: TupleSpace>(
         observed = exec.log().len();
         for command in commands.drain(..) {
             match command {
-                Command::StartTimer { id, after } => {
-                    timers.insert(id, clock.now().saturating_add(after));
+                Command::StartTimer { timer, after } => {
+                    started_timers += 1;
+                    timers.insert(timer, (clock.now().saturating_add(after), started_timers));
                 }
-                Command::CancelTimer(id) => {
-                    timers.remove(&id);
+                Command::CancelTimer(timer) => {
+                    timers.remove(&timer);
                 }
                 Command::RemoteSet { owner, key, value } => sets.send(owner, key, value),
             }

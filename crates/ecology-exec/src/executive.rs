@@ -34,9 +34,38 @@ use crate::plan::{
     Observation, Plan, PlanBranch, PlannedAction, observations_text, parse_observations,
 };
 
-/// A timer the executive asked for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct TimerId(pub u64);
+/// A timer the executive asks for: what runs out when it fires.
+///
+/// There is at most one of each value at a time. A driver keeps one deadline per `Timer`:
+/// [`Command::StartTimer`] of a timer already started replaces its deadline, and
+/// [`Command::CancelTimer`] removes it, so a timer fires once, as it was last started, and never
+/// once cancelled. That is what keeps a firing from being stale, where a fresh id per start used
+/// to: a timer started again does not fire for its earlier start. The executive still acts on
+/// [`Event::Timer`] only while its own state has that timer running, and ignores it otherwise.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Timer {
+    /// The action's time runs out ([`ExecConfig::action_timeout`]).
+    Action,
+    /// The components of the new configuration had their time to report `running`
+    /// ([`ExecConfig::deploy_timeout`]).
+    Deploy,
+    /// The component reports `waiting` for longer than [`ExecConfig::waiting_grace`] (or, when
+    /// nothing can stand in for it, [`ExecConfig::return_wait`] more).
+    Waiting(ComponentKey),
+    /// A remote set to the component got no answer for [`ExecConfig::unanswered_grace`].
+    Unanswered(ComponentKey),
+    /// The window of departures closes ([`ExecConfig::loss_window`]): they are judged.
+    LossWindow,
+    /// The lost ecology did not come back in time ([`ExecConfig::reconnect_timeout`]).
+    Reconnect,
+    /// A loss window after the latest return of a PEIS of the lost ecology.
+    LostSettle,
+    /// The PEIS an action without a configuration waits for did not return in time
+    /// ([`ExecConfig::return_wait`]).
+    ReturnWait,
+    /// A loss window after the latest return of a PEIS the action waits for.
+    ReturnSettle,
+}
 
 /// What the executive reacts to.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -80,7 +109,7 @@ pub enum Event {
     /// A PEIS disappeared (left, crashed or lost).
     PeisLeft(PeisId),
     /// A timer fired.
-    Timer(TimerId),
+    Timer(Timer),
 }
 
 /// What the executive asks its driver to do.
@@ -97,15 +126,16 @@ pub enum Command {
         /// The value.
         value: String,
     },
-    /// Fire `Event::Timer(id)` after `after`.
+    /// Fire `Event::Timer(timer)` after `after`, instead of when it was to fire if it was
+    /// started already (see [`Timer`]).
     StartTimer {
         /// The timer.
-        id: TimerId,
+        timer: Timer,
         /// The delay.
         after: Duration,
     },
-    /// Forget a timer.
-    CancelTimer(TimerId),
+    /// Forget a timer: it does not fire.
+    CancelTimer(Timer),
 }
 
 /// Time limits of the executive.
@@ -296,6 +326,11 @@ fn micros(d: Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
 }
 
+/// Starts `timer`, to fire `after` from now (instead of when it was to, if it runs already).
+fn start(timer: Timer, after: Duration) -> Command {
+    Command::StartTimer { timer, after }
+}
+
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Phase {
     /// Waiting for the components of the new configuration to run.
@@ -311,16 +346,17 @@ struct ActionRun {
     failed: BTreeSet<ComponentKey>,
     config: Option<Configuration>,
     phase: Phase,
-    deploy_timer: Option<TimerId>,
-    action_timer: TimerId,
-    waiting: BTreeMap<ComponentKey, TimerId>,
+    /// Whether [`Timer::Deploy`] runs. [`Timer::Action`] runs as long as the action does.
+    deploy_timer: bool,
+    /// The components whose [`Timer::Waiting`] runs, or ran out while the ecology was lost.
+    waiting: BTreeSet<ComponentKey>,
     /// Components whose waiting was given longer, since nothing could stand in for them: once
     /// per spell of waiting (until they report another status).
     waited_longer: BTreeSet<ComponentKey>,
-    /// Components whose remote set got no answer: the timer of [`ExecConfig::unanswered_grace`],
-    /// the set's key (an answer to it, sent again, clears the component), and the failure's
-    /// cause, should they be blamed when it runs out.
-    unanswered: BTreeMap<ComponentKey, (TimerId, Key, String)>,
+    /// Components whose remote set got no answer, each timed by its [`Timer::Unanswered`]: the
+    /// set's key (an answer to it, sent again, clears the component), and the failure's cause,
+    /// should they be blamed when the timer runs out.
+    unanswered: BTreeMap<ComponentKey, (Key, String)>,
     done: BTreeSet<ComponentKey>,
     /// Inputs to re-point once their new producer runs (make-before-break):
     /// the producer, and the remote set that wires its consumer.
@@ -332,10 +368,13 @@ struct ActionRun {
 impl ActionRun {
     /// Takes the timers of the configuration's components: their waiting grace periods and
     /// their remote sets that got no answer.
-    fn take_component_timers(&mut self) -> Vec<TimerId> {
-        let waiting = std::mem::take(&mut self.waiting).into_values();
-        let unanswered = std::mem::take(&mut self.unanswered).into_values();
-        waiting.chain(unanswered.map(|(id, ..)| id)).collect()
+    fn take_component_timers(&mut self) -> Vec<Timer> {
+        let waiting = std::mem::take(&mut self.waiting).into_iter();
+        let unanswered = std::mem::take(&mut self.unanswered).into_keys();
+        waiting
+            .map(Timer::Waiting)
+            .chain(unanswered.map(Timer::Unanswered))
+            .collect()
     }
 }
 
@@ -353,10 +392,10 @@ struct Orphan {
 /// happened since is forgiven.
 type Excluded = (Vec<Exclusion>, BTreeSet<ComponentKey>);
 
-/// PEIS that left within one [`ExecConfig::loss_window`], judged together when it closes.
+/// PEIS that left within one [`ExecConfig::loss_window`], judged together when it closes
+/// ([`Timer::LossWindow`]).
 #[derive(Debug)]
 struct Departures {
-    timer: TimerId,
     /// Every PEIS that left in the window, those back since included.
     gone: Vec<PeisId>,
     /// How many PEIS were present before the first left.
@@ -370,17 +409,16 @@ struct Departures {
 }
 
 /// PEIS that left, judged gone, without whom the action found no configuration: it waits
-/// [`ExecConfig::return_wait`] for them before it fails.
+/// [`ExecConfig::return_wait`] for them before it fails ([`Timer::ReturnWait`]).
 #[derive(Debug)]
 struct Awaited {
-    timer: TimerId,
     /// Those still gone.
     gone: BTreeSet<PeisId>,
     /// Those back, whose tuples are read again for a loss window before the action is
     /// configured again (one restarted comes back with new tuples).
     back: BTreeSet<PeisId>,
-    /// Runs a loss window after the latest return.
-    settle: Option<TimerId>,
+    /// Whether [`Timer::ReturnSettle`] runs: a loss window after the latest return.
+    settle: bool,
     /// The action's exclusions and failed components before they left: what their return
     /// allows again.
     before: Excluded,
@@ -388,15 +426,15 @@ struct Awaited {
     reason: String,
 }
 
-/// The executive lost the ecology: it waits for it, acting on nothing.
+/// The executive lost the ecology: it waits for it ([`Timer::Reconnect`]), acting on nothing.
 #[derive(Debug)]
 struct Lost {
     gone: BTreeSet<PeisId>,
     back: BTreeSet<PeisId>,
     present_before: usize,
-    deadline: TimerId,
-    /// Runs a window after the latest return: then the task goes on, if most are back.
-    settle: Option<TimerId>,
+    /// Whether [`Timer::LostSettle`] runs, a window after the latest return: then the task goes
+    /// on, if most are back.
+    settle: bool,
 }
 
 /// Measures how long acquisition and planning take, for the log. The
@@ -463,7 +501,6 @@ pub struct Executive {
     finished: bool,
     /// Every action instance that failed in this task, in order.
     failed_actions: Vec<String>,
-    next_timer: u64,
     now: Duration,
     log: Vec<LogEntry>,
     intake: Intake,
@@ -502,7 +539,6 @@ impl Executive {
             awaited: None,
             finished: false,
             failed_actions: Vec::new(),
-            next_timer: 0,
             now: Duration::ZERO,
             log: Vec::new(),
             intake: Intake::default(),
@@ -625,7 +661,7 @@ impl Executive {
             }
             Event::PeisJoined(peis) => self.on_joined(peis, &mut out),
             Event::PeisLeft(peis) => self.on_left(peis, &mut out),
-            Event::Timer(id) => self.on_timer(id, &mut out),
+            Event::Timer(timer) => self.on_timer(timer, &mut out),
         }
         self.sent(out)
     }
@@ -725,9 +761,8 @@ impl Executive {
             Some(departures) => departures.gone.push(peis.clone()),
             None => {
                 let before = (run.excluded.clone(), run.failed.clone());
-                let timer = self.timer(self.config.loss_window, out);
+                out.push(start(Timer::LossWindow, self.config.loss_window));
                 self.departures = Some(Departures {
-                    timer,
                     gone: vec![peis.clone()],
                     present_before,
                     before,
@@ -757,13 +792,8 @@ impl Executive {
         if let Some(lost) = &mut self.lost {
             if lost.gone.contains(&peis) {
                 lost.back.insert(peis);
-                if let Some(old) = lost.settle.take() {
-                    out.push(Command::CancelTimer(old));
-                }
-                let settle = self.timer(self.config.loss_window, out);
-                if let Some(lost) = &mut self.lost {
-                    lost.settle = Some(settle);
-                }
+                lost.settle = true;
+                out.push(start(Timer::LostSettle, self.config.loss_window));
             }
             return;
         }
@@ -857,8 +887,8 @@ impl Executive {
     /// unanswered remote sets.
     fn stop_component_timers(&mut self, out: &mut Vec<Command>) {
         let Some(run) = &mut self.run else { return };
-        if let Some(id) = run.deploy_timer.take() {
-            out.push(Command::CancelTimer(id));
+        if std::mem::take(&mut run.deploy_timer) {
+            out.push(Command::CancelTimer(Timer::Deploy));
         }
         out.extend(
             run.take_component_timers()
@@ -895,13 +925,12 @@ impl Executive {
                 present: departures.present_before,
                 waiting: self.config.reconnect_timeout,
             });
-            let deadline = self.timer(self.config.reconnect_timeout, out);
+            out.push(start(Timer::Reconnect, self.config.reconnect_timeout));
             self.lost = Some(Lost {
                 gone: gone.into_iter().collect(),
                 back: BTreeSet::new(),
                 present_before: departures.present_before,
-                deadline,
-                settle: None,
+                settle: false,
             });
             return;
         }
@@ -953,13 +982,11 @@ impl Executive {
         reason: String,
         out: &mut Vec<Command>,
     ) {
+        // Its timer starts again, for the earlier PEIS too.
         let (mut all, back, settle, before) = match self.awaited.take() {
             // The earlier snapshot: it is before every departure waited for.
-            Some(earlier) => {
-                out.push(Command::CancelTimer(earlier.timer));
-                (earlier.gone, earlier.back, earlier.settle, earlier.before)
-            }
-            None => (BTreeSet::new(), BTreeSet::new(), None, before),
+            Some(earlier) => (earlier.gone, earlier.back, earlier.settle, earlier.before),
+            None => (BTreeSet::new(), BTreeSet::new(), false, before),
         };
         all.extend(gone);
         self.stop_component_timers(out);
@@ -967,9 +994,8 @@ impl Executive {
             gone: all.iter().map(ToString::to_string).collect(),
             waiting: self.config.return_wait,
         });
-        let timer = self.timer(self.config.return_wait, out);
+        out.push(start(Timer::ReturnWait, self.config.return_wait));
         self.awaited = Some(Awaited {
-            timer,
             gone: all,
             back,
             settle,
@@ -981,15 +1007,13 @@ impl Executive {
     /// A PEIS the action waited for is back: its tuples are read again for a loss window, then
     /// the action is configured again ([`Executive::settle_returns`]).
     fn on_awaited_return(&mut self, peis: PeisId, out: &mut Vec<Command>) {
-        let settle = self.timer(self.config.loss_window, out);
         let Some(awaited) = &mut self.awaited else {
             return;
         };
         awaited.gone.remove(&peis);
         awaited.back.insert(peis);
-        if let Some(old) = awaited.settle.replace(settle) {
-            out.push(Command::CancelTimer(old));
-        }
+        awaited.settle = true;
+        out.push(start(Timer::ReturnSettle, self.config.loss_window));
     }
 
     /// A loss window after the latest return of PEIS the action waited for: what their departure
@@ -1000,7 +1024,7 @@ impl Executive {
         let Some(awaited) = &mut self.awaited else {
             return;
         };
-        awaited.settle = None;
+        awaited.settle = false;
         let back = std::mem::take(&mut awaited.back);
         let before = awaited.before.clone();
         self.forgive(&back, &before);
@@ -1021,7 +1045,9 @@ impl Executive {
             return;
         };
         if !awaited.back.is_empty() {
-            out.extend(awaited.settle.take().map(Command::CancelTimer));
+            if std::mem::take(&mut awaited.settle) {
+                out.push(Command::CancelTimer(Timer::ReturnSettle));
+            }
             awaited.gone.clear();
             self.awaited = Some(awaited);
             // With no configuration then, the action fails.
@@ -1046,9 +1072,9 @@ impl Executive {
     /// Stops waiting for PEIS to return, if it was.
     fn stop_awaiting(&mut self, out: &mut Vec<Command>) {
         if let Some(awaited) = self.awaited.take() {
-            out.push(Command::CancelTimer(awaited.timer));
-            if let Some(settle) = awaited.settle {
-                out.push(Command::CancelTimer(settle));
+            out.push(Command::CancelTimer(Timer::ReturnWait));
+            if awaited.settle {
+                out.push(Command::CancelTimer(Timer::ReturnSettle));
             }
         }
     }
@@ -1077,14 +1103,14 @@ impl Executive {
     /// of those lost are back, reconfiguring from the ecology as it is now.
     fn try_resume(&mut self, out: &mut Vec<Command>) {
         let Some(lost) = &mut self.lost else { return };
-        lost.settle = None;
+        lost.settle = false;
         lost.back
             .retain(|p| self.mirror.peis().get(p).is_some_and(|v| v.present));
         if lost.back.len() * 2 <= lost.gone.len() {
             return;
         }
         let Some(lost) = self.lost.take() else { return };
-        out.push(Command::CancelTimer(lost.deadline));
+        out.push(Command::CancelTimer(Timer::Reconnect));
         let missing: Vec<String> = lost
             .gone
             .difference(&lost.back)
@@ -1098,10 +1124,8 @@ impl Executive {
             self.reclaim(peis);
         }
         // Its action's time counts afresh: what it timed was the network.
-        let action_timer = self.timer(self.config.action_timeout, out);
-        if let Some(run) = &mut self.run {
-            out.push(Command::CancelTimer(run.action_timer));
-            run.action_timer = action_timer;
+        if self.run.is_some() {
+            out.push(start(Timer::Action, self.config.action_timeout));
         }
         self.configure(true, out);
     }
@@ -1109,8 +1133,8 @@ impl Executive {
     /// The lost ecology did not come back in time: the task fails, saying so.
     fn give_up(&mut self, out: &mut Vec<Command>) {
         let Some(lost) = self.lost.take() else { return };
-        if let Some(id) = lost.settle {
-            out.push(Command::CancelTimer(id));
+        if lost.settle {
+            out.push(Command::CancelTimer(Timer::LostSettle));
         }
         let names = |set: &BTreeSet<PeisId>| {
             set.iter()
@@ -1146,13 +1170,6 @@ impl Executive {
         self.log.push(LogEntry { t: self.now, event });
     }
 
-    fn timer(&mut self, after: Duration, out: &mut Vec<Command>) -> TimerId {
-        self.next_timer += 1;
-        let id = TimerId(self.next_timer);
-        out.push(Command::StartTimer { id, after });
-        id
-    }
-
     fn start_action(&mut self, index: usize, out: &mut Vec<Command>) {
         if index >= self.plan.len() && self.success <= ecology_core::EPSILON {
             // A conditional plan that gives up here: nothing the robots can
@@ -1182,16 +1199,15 @@ impl Executive {
             index,
             action: action.clone(),
         });
-        let action_timer = self.timer(self.config.action_timeout, out);
+        out.push(start(Timer::Action, self.config.action_timeout));
         self.run = Some(ActionRun {
             index,
             excluded: Vec::new(),
             failed: BTreeSet::new(),
             config: None,
             phase: Phase::Running,
-            deploy_timer: None,
-            action_timer,
-            waiting: BTreeMap::new(),
+            deploy_timer: false,
+            waiting: BTreeSet::new(),
             waited_longer: BTreeSet::new(),
             unanswered: BTreeMap::new(),
             done: BTreeSet::new(),
@@ -1419,14 +1435,12 @@ impl Executive {
             switched_on,
             channels,
         });
-        let deploy_timer = if pending.is_empty() {
-            None
-        } else {
-            Some(self.timer(self.config.deploy_timeout, out))
-        };
         let Some(run) = &mut self.run else { return };
-        if let Some(old) = run.deploy_timer.take() {
-            out.push(Command::CancelTimer(old));
+        let deploy_timer = !pending.is_empty();
+        if deploy_timer {
+            out.push(start(Timer::Deploy, self.config.deploy_timeout));
+        } else if run.deploy_timer {
+            out.push(Command::CancelTimer(Timer::Deploy));
         }
         // What went unanswered before is sent again where the new configuration needs it.
         out.extend(
@@ -1453,8 +1467,8 @@ impl Executive {
             return;
         }
         run.phase = Phase::Running;
-        if let Some(id) = run.deploy_timer.take() {
-            out.push(Command::CancelTimer(id));
+        if std::mem::take(&mut run.deploy_timer) {
+            out.push(Command::CancelTimer(Timer::Deploy));
         }
         let config = run.config.clone();
         let mut switched_off = Vec::new();
@@ -1486,7 +1500,7 @@ impl Executive {
         let Some(config) = &run.config else { return };
         let waiting: Vec<ComponentKey> = components_of(config, |_| true)
             .into_iter()
-            .filter(|k| !run.waiting.contains_key(k) && !run.failed.contains(k))
+            .filter(|k| !run.waiting.contains(k) && !run.failed.contains(k))
             .filter(|(p, c)| {
                 self.mirror
                     .component(p.as_str(), c.as_str())
@@ -1500,9 +1514,9 @@ impl Executive {
 
     /// Times the waiting of `key`: it is judged when `after` runs out.
     fn time_waiting(&mut self, key: ComponentKey, after: Duration, out: &mut Vec<Command>) {
-        let id = self.timer(after, out);
+        out.push(start(Timer::Waiting(key.clone()), after));
         if let Some(run) = &mut self.run {
-            run.waiting.insert(key, id);
+            run.waiting.insert(key);
         }
     }
 
@@ -1531,8 +1545,8 @@ impl Executive {
         }
         let Some(run) = &mut self.run else { return };
         if status != "waiting" {
-            if let Some(id) = run.waiting.remove(&key) {
-                out.push(Command::CancelTimer(id));
+            if run.waiting.remove(&key) {
+                out.push(Command::CancelTimer(Timer::Waiting(key.clone())));
             }
             // Its spell of waiting is over: a later one may be given longer again.
             run.waited_longer.remove(&key);
@@ -1562,7 +1576,7 @@ impl Executive {
                     .unwrap_or_else(|| "error".to_string());
                 self.failure(vec![key], cause, out);
             }
-            "waiting" if !run.waiting.contains_key(&key) && run.phase == Phase::Running => {
+            "waiting" if !run.waiting.contains(&key) && run.phase == Phase::Running => {
                 self.time_waiting(key, self.config.waiting_grace, out);
             }
             _ => {}
@@ -1691,9 +1705,12 @@ impl Executive {
                         });
                     }
                     if !held {
-                        let timer = self.timer(self.config.unanswered_grace, out);
+                        out.push(start(
+                            Timer::Unanswered(target.clone()),
+                            self.config.unanswered_grace,
+                        ));
                         if let Some(run) = &mut self.run {
-                            run.unanswered.insert(target, (timer, key, cause));
+                            run.unanswered.insert(target, (key, cause));
                         }
                     }
                 }
@@ -1709,164 +1726,171 @@ impl Executive {
             return;
         };
         let target = (owner, component);
-        if run
-            .unanswered
-            .get(&target)
-            .is_some_and(|(_, k, _)| k == key)
-            && let Some((timer, ..)) = run.unanswered.remove(&target)
-        {
-            out.push(Command::CancelTimer(timer));
+        if run.unanswered.get(&target).is_some_and(|(k, _)| k == key) {
+            run.unanswered.remove(&target);
+            out.push(Command::CancelTimer(Timer::Unanswered(target)));
         }
     }
 
-    fn on_timer(&mut self, id: TimerId, out: &mut Vec<Command>) {
-        if self.departures.as_ref().is_some_and(|d| d.timer == id) {
-            self.judge_departures(out);
-            return;
-        }
-        if let Some(lost) = &self.lost {
+    /// A timer ran out: what it timed is acted on, if it still runs in the executive's state.
+    fn on_timer(&mut self, timer: Timer, out: &mut Vec<Command>) {
+        let lost_own = matches!(
+            timer,
+            Timer::LossWindow | Timer::Reconnect | Timer::LostSettle
+        );
+        if self.lost.is_some() && !lost_own {
             // While lost, only its own timers count: whatever else ran out timed the network.
-            if lost.deadline == id {
-                self.give_up(out);
-            } else if lost.settle == Some(id) {
-                self.try_resume(out);
-            }
             return;
         }
-        if self.awaited.as_ref().is_some_and(|a| a.settle == Some(id)) {
-            self.settle_returns(out);
-            return;
-        }
-        if self.awaited.as_ref().is_some_and(|a| a.timer == id) {
-            self.return_wait_over(out);
-            return;
-        }
-        let Some(run) = &mut self.run else { return };
-        if id == run.action_timer {
-            let reason = format!(
-                "the action did not finish within {:?}",
-                self.config.action_timeout
-            );
-            self.fail_action(reason, out);
-            return;
-        }
-        if run.deploy_timer == Some(id) {
-            run.deploy_timer = None;
-            if let Phase::Deploying { pending } = &run.phase {
-                // Components still switching on are to blame; only when every
-                // pending one is on (and so waits for something) are all blamed.
-                let starting: Vec<ComponentKey> = pending
-                    .iter()
-                    .filter(|(p, c)| {
-                        !self
-                            .mirror
-                            .component(p.as_str(), c.as_str())
-                            .is_some_and(|v| v.on)
-                    })
-                    .cloned()
-                    .collect();
-                let (late, cause) = if starting.is_empty() {
-                    // A component waiting for a producer that is itself not
-                    // running is not to blame: its input is wired only once
-                    // the producer runs. Blame the pending components whose
-                    // producers all run (all of them, in a cycle).
-                    let config = run.config.as_ref();
-                    let starved = |key: &ComponentKey| {
-                        config.is_some_and(|c| {
-                            c.channels.iter().any(|ch| {
-                                &*ch.to_peis == key.0.as_str()
-                                    && &*ch.to_component == key.1.as_str()
-                                    && component_key(&ch.from_peis, &ch.from_component).is_some_and(
-                                        |producer| producer != *key && pending.contains(&producer),
-                                    )
-                            })
-                        })
-                    };
-                    let sources: Vec<ComponentKey> =
-                        pending.iter().filter(|k| !starved(k)).cloned().collect();
-                    let late = if sources.is_empty() {
-                        pending.iter().cloned().collect()
-                    } else {
-                        sources
-                    };
-                    let cause = format!(
-                        "did not report running within {:?}",
-                        self.config.deploy_timeout
-                    );
-                    (late, cause)
-                } else {
-                    let cause = format!(
-                        "did not finish switching on within {:?}",
-                        self.config.deploy_timeout
-                    );
-                    (starting, cause)
-                };
-                self.failure(late, cause, out);
-            }
-            return;
-        }
-        let held = run
-            .unanswered
-            .iter()
-            .find(|(_, (t, ..))| *t == id)
-            .map(|(k, _)| k.clone());
-        if let Some(key) = held
-            && let Some((_, _, cause)) = run.unanswered.remove(&key)
-        {
-            // Neither gone nor out of reach: the component is to blame after all.
-            if self.is_present(&key.0) {
-                let cause = format!(
-                    "{cause} ({} is still present {:?} later)",
-                    key.0, self.config.unanswered_grace
-                );
-                self.failure(vec![key], cause, out);
-            }
-            return;
-        }
-        let waited = run
-            .waiting
-            .iter()
-            .find(|(_, t)| **t == id)
-            .map(|(k, _)| k.clone());
-        if let Some(key) = waited {
-            run.waiting.remove(&key);
-            let extended = run.waited_longer.contains(&key);
-            if self.way_unproven(&key) {
-                // Not the component's fault while its PEIS, or a producer's, has not answered
-                // yet: the grace starts again, and the set is answered or fails meanwhile.
-                self.time_waiting(key, self.config.waiting_grace, out);
-                return;
-            }
-            let waited_for = self
-                .mirror
-                .component(key.0.as_str(), key.1.as_str())
-                .and_then(|c| c.cause.clone());
-            if !extended && !self.config.return_wait.is_zero() && !self.replaceable(&key) {
-                // Nothing can stand in for it: it is given as long as a PEIS that left is waited
-                // for, since what it waits for may only be held up (a link that keeps dropping).
-                self.record(LogEvent::WaitingLonger {
-                    peis: key.0.to_string(),
-                    component: key.1.to_string(),
-                    waited_for: waited_for.clone().unwrap_or_default(),
-                    waiting: self.config.return_wait,
-                });
-                if let Some(run) = &mut self.run {
-                    run.waited_longer.insert(key.clone());
+        match timer {
+            Timer::LossWindow => self.judge_departures(out),
+            Timer::Reconnect => self.give_up(out),
+            Timer::LostSettle => {
+                if self.lost.as_ref().is_some_and(|lost| lost.settle) {
+                    self.try_resume(out);
                 }
-                self.time_waiting(key, self.config.return_wait, out);
-                return;
             }
-            let grace = if extended {
-                self.config.waiting_grace + self.config.return_wait
+            Timer::ReturnSettle => {
+                if self.awaited.as_ref().is_some_and(|a| a.settle) {
+                    self.settle_returns(out);
+                }
+            }
+            Timer::ReturnWait => self.return_wait_over(out),
+            Timer::Action => {
+                if self.run.is_some() {
+                    let reason = format!(
+                        "the action did not finish within {:?}",
+                        self.config.action_timeout
+                    );
+                    self.fail_action(reason, out);
+                }
+            }
+            Timer::Deploy => self.deploy_timed_out(out),
+            Timer::Unanswered(key) => self.unanswered_over(key, out),
+            Timer::Waiting(key) => self.waiting_over(key, out),
+        }
+    }
+
+    /// The components of the new configuration did not all report `running` in time: those
+    /// still pending are to blame.
+    fn deploy_timed_out(&mut self, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        if !std::mem::take(&mut run.deploy_timer) {
+            return;
+        }
+        if let Phase::Deploying { pending } = &run.phase {
+            // Components still switching on are to blame; only when every
+            // pending one is on (and so waits for something) are all blamed.
+            let starting: Vec<ComponentKey> = pending
+                .iter()
+                .filter(|(p, c)| {
+                    !self
+                        .mirror
+                        .component(p.as_str(), c.as_str())
+                        .is_some_and(|v| v.on)
+                })
+                .cloned()
+                .collect();
+            let (late, cause) = if starting.is_empty() {
+                // A component waiting for a producer that is itself not
+                // running is not to blame: its input is wired only once
+                // the producer runs. Blame the pending components whose
+                // producers all run (all of them, in a cycle).
+                let config = run.config.as_ref();
+                let starved = |key: &ComponentKey| {
+                    config.is_some_and(|c| {
+                        c.channels.iter().any(|ch| {
+                            &*ch.to_peis == key.0.as_str()
+                                && &*ch.to_component == key.1.as_str()
+                                && component_key(&ch.from_peis, &ch.from_component).is_some_and(
+                                    |producer| producer != *key && pending.contains(&producer),
+                                )
+                        })
+                    })
+                };
+                let sources: Vec<ComponentKey> =
+                    pending.iter().filter(|k| !starved(k)).cloned().collect();
+                let late = if sources.is_empty() {
+                    pending.iter().cloned().collect()
+                } else {
+                    sources
+                };
+                let cause = format!(
+                    "did not report running within {:?}",
+                    self.config.deploy_timeout
+                );
+                (late, cause)
             } else {
-                self.config.waiting_grace
+                let cause = format!(
+                    "did not finish switching on within {:?}",
+                    self.config.deploy_timeout
+                );
+                (starting, cause)
             };
-            let cause = waited_for.map_or_else(
-                || format!("waiting for longer than {grace:?}"),
-                |c| format!("waiting for longer than {grace:?}: {c}"),
+            self.failure(late, cause, out);
+        }
+    }
+
+    /// A remote set to `key` got no answer for [`ExecConfig::unanswered_grace`], and neither
+    /// was it answered since.
+    fn unanswered_over(&mut self, key: ComponentKey, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        let Some((_, cause)) = run.unanswered.remove(&key) else {
+            return;
+        };
+        // Neither gone nor out of reach: the component is to blame after all.
+        if self.is_present(&key.0) {
+            let cause = format!(
+                "{cause} ({} is still present {:?} later)",
+                key.0, self.config.unanswered_grace
             );
             self.failure(vec![key], cause, out);
         }
+    }
+
+    /// `key` reported `waiting` for its whole grace: blamed, unless what it waits for may be
+    /// held up, or nothing can stand in for it.
+    fn waiting_over(&mut self, key: ComponentKey, out: &mut Vec<Command>) {
+        let Some(run) = &mut self.run else { return };
+        if !run.waiting.remove(&key) {
+            return;
+        }
+        let extended = run.waited_longer.contains(&key);
+        if self.way_unproven(&key) {
+            // Not the component's fault while its PEIS, or a producer's, has not answered
+            // yet: the grace starts again, and the set is answered or fails meanwhile.
+            self.time_waiting(key, self.config.waiting_grace, out);
+            return;
+        }
+        let waited_for = self
+            .mirror
+            .component(key.0.as_str(), key.1.as_str())
+            .and_then(|c| c.cause.clone());
+        if !extended && !self.config.return_wait.is_zero() && !self.replaceable(&key) {
+            // Nothing can stand in for it: it is given as long as a PEIS that left is waited
+            // for, since what it waits for may only be held up (a link that keeps dropping).
+            self.record(LogEvent::WaitingLonger {
+                peis: key.0.to_string(),
+                component: key.1.to_string(),
+                waited_for: waited_for.clone().unwrap_or_default(),
+                waiting: self.config.return_wait,
+            });
+            if let Some(run) = &mut self.run {
+                run.waited_longer.insert(key.clone());
+            }
+            self.time_waiting(key, self.config.return_wait, out);
+            return;
+        }
+        let grace = if extended {
+            self.config.waiting_grace + self.config.return_wait
+        } else {
+            self.config.waiting_grace
+        };
+        let cause = waited_for.map_or_else(
+            || format!("waiting for longer than {grace:?}"),
+            |c| format!("waiting for longer than {grace:?}: {c}"),
+        );
+        self.failure(vec![key], cause, out);
     }
 
     /// Excludes the failed components and reconfigures the action; while the
@@ -1976,7 +2000,7 @@ impl Executive {
         let Some(mut run) = self.run.take() else {
             return;
         };
-        out.push(Command::CancelTimer(run.action_timer));
+        out.push(Command::CancelTimer(Timer::Action));
         out.extend(
             run.take_component_timers()
                 .into_iter()
@@ -2056,9 +2080,9 @@ impl Executive {
         let Some(mut run) = self.run.take() else {
             return;
         };
-        out.push(Command::CancelTimer(run.action_timer));
-        if let Some(id) = run.deploy_timer {
-            out.push(Command::CancelTimer(id));
+        out.push(Command::CancelTimer(Timer::Action));
+        if run.deploy_timer {
+            out.push(Command::CancelTimer(Timer::Deploy));
         }
         out.extend(
             run.take_component_timers()
