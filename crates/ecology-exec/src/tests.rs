@@ -8,8 +8,9 @@ use std::time::Duration;
 
 use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 
-use ecology_tuples::{ComponentId, Key, PeisId};
+use ecology_tuples::{ComponentId, Key, PeisId, Timestamp};
 
+use crate::driver::Timers;
 use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, Timer};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
@@ -561,6 +562,40 @@ fn fired(commands: &[Command], timer: &Timer, after: Duration) -> Event {
     };
     assert!(commands.contains(&start), "no {start:?} in {commands:?}");
     Event::Timer(timer.clone())
+}
+
+/// The driver keeps one deadline per timer: one started again fires once, for its latest start;
+/// one cancelled never; timers due at once fire in the order they were last started.
+#[test]
+fn the_driver_fires_a_timer_for_its_latest_start_only() {
+    let at = |s: u64| Timestamp(s * 1_000_000_000);
+    let tc1 = Timer::Waiting(component("astrid", "tc1"));
+    let mut timers = Timers::default();
+    timers.start(Timer::Action, at(10));
+    timers.start(Timer::Deploy, at(3));
+    timers.start(tc1.clone(), at(4));
+    timers.start(Timer::LossWindow, at(4));
+    timers.start(Timer::ReturnWait, at(2));
+    // Started again: it fires at 5, not at 3, and after the loss window, due at once.
+    timers.start(Timer::Deploy, at(5));
+    timers.start(Timer::LostSettle, at(5));
+    timers.start(tc1.clone(), at(5));
+    timers.cancel(&Timer::ReturnWait);
+    let mut fired = Vec::new();
+    while let Some((timer, when)) = timers.next() {
+        timers.cancel(&timer);
+        fired.push((timer, when));
+    }
+    assert_eq!(
+        fired,
+        [
+            (Timer::LossWindow, at(4)),
+            (Timer::Deploy, at(5)),
+            (Timer::LostSettle, at(5)),
+            (tc1, at(5)),
+            (Timer::Action, at(10)),
+        ]
+    );
 }
 
 #[test]
