@@ -20,7 +20,7 @@ use ecology_tuples::{
     TupleEvent, TuplePattern, TupleSpace, Value,
 };
 
-use crate::executive::{Command, Event, Executive, RunStatus, TimerId};
+use crate::executive::{Command, Event, Executive, RunStatus, Timer};
 use crate::interest::Interest;
 use crate::log::LogEntry;
 use crate::plan::{Observation, Plan};
@@ -143,7 +143,7 @@ pub async fn drive_until<S: TupleSpace>(
     let mut commands = tuples.widen(exec, elapsed(&clock), &interest).await?;
     exec.note_acquisition(acquiring.elapsed());
     let mut presence = space.subscribe_presence().await?;
-    let mut timers: BTreeMap<TimerId, Timestamp> = BTreeMap::new();
+    let mut timers = Timers::default();
     let mut sets = RemoteSets::new(space.clone());
     let settle_until = start.saturating_add(config.settle);
     let mut started = false;
@@ -184,13 +184,10 @@ pub async fn drive_until<S: TupleSpace>(
             return Ok(exec.status().clone());
         }
         if commands.is_empty() {
-            let next_timer = timers
-                .iter()
-                .min_by_key(|(_, at)| **at)
-                .map(|(id, at)| (*id, *at));
-            let wake_at = match (started, next_timer) {
+            let next_timer = timers.next();
+            let wake_at = match (started, &next_timer) {
                 (false, _) => Some(settle_until),
-                (true, Some((_, at))) => Some(at),
+                (true, Some((_, at))) => Some(*at),
                 (true, None) => None,
             };
             let wake_at = match (wake_at, config.limit) {
@@ -218,9 +215,9 @@ pub async fn drive_until<S: TupleSpace>(
                     if !started && now >= settle_until {
                         started = true;
                         exec.handle(elapsed(&clock), Event::Start)
-                    } else if let Some((id, _)) = next_timer.filter(|(_, at)| *at <= now) {
-                        timers.remove(&id);
-                        exec.handle(elapsed(&clock), Event::Timer(id))
+                    } else if let Some((timer, _)) = next_timer.filter(|(_, at)| *at <= now) {
+                        timers.cancel(&timer);
+                        exec.handle(elapsed(&clock), Event::Timer(timer))
                     } else {
                         Vec::new()
                     }
@@ -251,15 +248,44 @@ pub async fn drive_until<S: TupleSpace>(
         observed = exec.log().len();
         for command in commands.drain(..) {
             match command {
-                Command::StartTimer { id, after } => {
-                    timers.insert(id, clock.now().saturating_add(after));
+                Command::StartTimer { timer, after } => {
+                    timers.start(timer, clock.now().saturating_add(after));
                 }
-                Command::CancelTimer(id) => {
-                    timers.remove(&id);
-                }
+                Command::CancelTimer(timer) => timers.cancel(&timer),
                 Command::RemoteSet { owner, key, value } => sets.send(owner, key, value),
             }
         }
+    }
+}
+
+/// The executive's timers that run: one deadline per [`Timer`], so that one started again fires
+/// only for its latest start, and one cancelled never (see [`Timer`]).
+#[derive(Debug, Default)]
+pub(crate) struct Timers {
+    /// Each timer's deadline, and when it was started among the others: timers due at once fire
+    /// in the order they were started.
+    running: BTreeMap<Timer, (Timestamp, u64)>,
+    started: u64,
+}
+
+impl Timers {
+    /// Starts `timer` to fire `at`, instead of when it was to if it runs already.
+    pub(crate) fn start(&mut self, timer: Timer, at: Timestamp) {
+        self.started += 1;
+        self.running.insert(timer, (at, self.started));
+    }
+
+    /// Stops `timer`, if it runs.
+    pub(crate) fn cancel(&mut self, timer: &Timer) {
+        self.running.remove(timer);
+    }
+
+    /// The timer that fires next, and when.
+    pub(crate) fn next(&self) -> Option<(Timer, Timestamp)> {
+        self.running
+            .iter()
+            .min_by_key(|(_, due)| **due)
+            .map(|(timer, (at, _))| (timer.clone(), *at))
     }
 }
 

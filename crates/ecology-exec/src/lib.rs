@@ -21,7 +21,7 @@ mod tests;
 mod tests_conditional;
 
 pub use driver::{Acquisition, DriverConfig, Replan, drive, drive_observed, drive_until};
-pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, TimerId};
+pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, Timer};
 pub use interest::{Intake, Interest};
 pub use log::{LogEntry, LogEvent};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};

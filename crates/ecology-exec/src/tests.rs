@@ -8,9 +8,10 @@ use std::time::Duration;
 
 use ecology_domain::{EcologyState, parse_domain, parse_facts, parse_goal};
 
-use ecology_tuples::{Key, PeisId};
+use ecology_tuples::{ComponentId, Key, PeisId, Timestamp};
 
-use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, TimerId};
+use crate::driver::Timers;
+use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, Timer};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
 const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
@@ -25,6 +26,14 @@ fn peis(name: &str) -> PeisId {
 
 fn key(text: &str) -> Key {
     Key::new(text).expect("a key")
+}
+
+/// The component `name` of the PEIS `peis_name`.
+fn component(peis_name: &str, name: &str) -> (PeisId, ComponentId) {
+    (
+        peis(peis_name),
+        ComponentId::new(name).expect("a component name"),
+    )
 }
 
 fn plan() -> Vec<PlannedAction> {
@@ -193,11 +202,16 @@ fn waiting_too_long_is_a_failure() {
     let mut exec = running_first_action();
     exec.handle(secs(2.0), tuple("hsm", "tr1.cause", "(image hsm)", 1));
     let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "waiting", 3));
-    let Some(Command::StartTimer { id, after }) = commands.first().cloned() else {
-        panic!("a grace timer: {commands:?}");
-    };
-    assert_eq!(after, ExecConfig::default().waiting_grace);
-    exec.handle(secs(4.0), Event::Timer(id));
+    let timer = Timer::Waiting(component("hsm", "tr1"));
+    assert_eq!(
+        commands.first(),
+        Some(&Command::StartTimer {
+            timer: timer.clone(),
+            after: ExecConfig::default().waiting_grace
+        }),
+        "a grace timer: {commands:?}"
+    );
+    exec.handle(secs(4.0), Event::Timer(timer));
     let text = timeline(&exec);
     assert!(
         text.contains("FAILURE hsm:tr1: waiting for longer than 2s: (image hsm)"),
@@ -268,6 +282,7 @@ fn an_unreadable_input_is_blamed_on_its_producer_while_deploying() {
 fn a_waiting_component_nothing_can_stand_in_for_is_given_longer() {
     let grace = ExecConfig::default().waiting_grace;
     let longer = ExecConfig::default().return_wait;
+    let s1 = Timer::Waiting(component("astrid", "s1"));
     for recovers in [false, true] {
         let mut exec = running_first_action();
         exec.handle(
@@ -275,7 +290,7 @@ fn a_waiting_component_nothing_can_stand_in_for_is_given_longer() {
             tuple("astrid", "s1.cause", "(global-pos astrid)", 1),
         );
         let commands = exec.handle(secs(2.0), tuple("astrid", "s1.status", "waiting", 3));
-        let more = exec.handle(secs(4.0), Event::Timer(timer_of(&commands, grace)));
+        let more = exec.handle(secs(4.0), fired(&commands, &s1, grace));
         let text = timeline(&exec);
         assert!(failures(&exec).is_empty(), "{text}");
         assert!(
@@ -284,22 +299,25 @@ fn a_waiting_component_nothing_can_stand_in_for_is_given_longer() {
             ),
             "{text}"
         );
-        let id = timer_of(&more, longer);
+        let given_longer = fired(&more, &s1, longer);
         if recovers {
             let commands = exec.handle(secs(5.0), tuple("astrid", "s1.status", "running", 4));
-            assert!(commands.contains(&Command::CancelTimer(id)), "{commands:?}");
+            assert!(
+                commands.contains(&Command::CancelTimer(s1.clone())),
+                "{commands:?}"
+            );
             assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
             // A later spell of waiting is given longer again.
             let commands = exec.handle(secs(6.0), tuple("astrid", "s1.status", "waiting", 5));
-            let more = exec.handle(secs(8.0), Event::Timer(timer_of(&commands, grace)));
+            let more = exec.handle(secs(8.0), fired(&commands, &s1, grace));
             assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
-            exec.handle(secs(13.0), Event::Timer(timer_of(&more, longer)));
+            exec.handle(secs(13.0), fired(&more, &s1, longer));
             assert_eq!(
                 failures(&exec),
                 ["astrid:s1 waiting for longer than 7s: (global-pos astrid)"]
             );
         } else {
-            exec.handle(secs(9.0), Event::Timer(id));
+            exec.handle(secs(9.0), given_longer);
             assert_eq!(
                 failures(&exec),
                 ["astrid:s1 waiting for longer than 7s: (global-pos astrid)"]
@@ -317,10 +335,12 @@ fn an_unreadable_cause_naming_no_input_of_the_component_is_plain_waiting() {
     );
     let commands = exec.handle(secs(2.0), tuple("hsm", "tr1.status", "waiting", 3));
     assert!(failures(&exec).is_empty(), "{}", timeline(&exec));
-    let Some(Command::StartTimer { id, .. }) = commands.first().cloned() else {
-        panic!("a grace timer: {commands:?}");
-    };
-    exec.handle(secs(4.0), Event::Timer(id));
+    let timer = Timer::Waiting(component("hsm", "tr1"));
+    assert!(
+        matches!(commands.first(), Some(Command::StartTimer { timer: t, .. }) if *t == timer),
+        "a grace timer: {commands:?}"
+    );
+    exec.handle(secs(4.0), Event::Timer(timer));
     assert_eq!(
         failures(&exec),
         ["hsm:tr1 waiting for longer than 2s: unreadable range-scan: ?"]
@@ -387,17 +407,12 @@ fn a_component_waiting_across_a_redeploy_is_still_timed() {
     let commands = laser_configuration_runs(&mut exec);
     assert_eq!(names(&exec).last(), Some(&"running"), "{}", timeline(&exec));
     let grace = ExecConfig::default().waiting_grace;
-    let Some(id) = commands.iter().find_map(|c| match c {
-        Command::StartTimer { id, after } if *after == grace => Some(*id),
-        _ => None,
-    }) else {
-        panic!("no grace timer for the waiting navigation: {commands:?}");
-    };
+    let tc1 = Timer::Waiting(component("astrid", "tc1"));
     // Nothing can stand in for navigation: it is given longer, then blamed.
-    let more = exec.handle(secs(4.4), Event::Timer(id));
+    let more = exec.handle(secs(4.4), fired(&commands, &tc1, grace));
     exec.handle(
         secs(9.4),
-        Event::Timer(timer_of(&more, ExecConfig::default().return_wait)),
+        fired(&more, &tc1, ExecConfig::default().return_wait),
     );
     let text = timeline(&exec);
     assert!(
@@ -539,15 +554,48 @@ fn sets_to(commands: &[Command], owner: &str) -> Vec<(String, String)> {
         .collect()
 }
 
-/// The timer `commands` started to run for `after`.
-fn timer_of(commands: &[Command], after: Duration) -> TimerId {
-    commands
-        .iter()
-        .find_map(|c| match c {
-            Command::StartTimer { id, after: a } if *a == after => Some(*id),
-            _ => None,
-        })
-        .unwrap_or_else(|| panic!("no timer of {after:?} in {commands:?}"))
+/// `timer` firing, which `commands` started to run for `after`.
+fn fired(commands: &[Command], timer: &Timer, after: Duration) -> Event {
+    let start = Command::StartTimer {
+        timer: timer.clone(),
+        after,
+    };
+    assert!(commands.contains(&start), "no {start:?} in {commands:?}");
+    Event::Timer(timer.clone())
+}
+
+/// The driver keeps one deadline per timer: one started again fires once, for its latest start;
+/// one cancelled never; timers due at once fire in the order they were last started.
+#[test]
+fn the_driver_fires_a_timer_for_its_latest_start_only() {
+    let at = |s: u64| Timestamp(s * 1_000_000_000);
+    let tc1 = Timer::Waiting(component("astrid", "tc1"));
+    let mut timers = Timers::default();
+    timers.start(Timer::Action, at(10));
+    timers.start(Timer::Deploy, at(3));
+    timers.start(tc1.clone(), at(4));
+    timers.start(Timer::LossWindow, at(4));
+    timers.start(Timer::ReturnWait, at(2));
+    // Started again: it fires at 5, not at 3, and after the loss window, due at once.
+    timers.start(Timer::Deploy, at(5));
+    timers.start(Timer::LostSettle, at(5));
+    timers.start(tc1.clone(), at(5));
+    timers.cancel(&Timer::ReturnWait);
+    let mut fired = Vec::new();
+    while let Some((timer, when)) = timers.next() {
+        timers.cancel(&timer);
+        fired.push((timer, when));
+    }
+    assert_eq!(
+        fired,
+        [
+            (Timer::LossWindow, at(4)),
+            (Timer::Deploy, at(5)),
+            (Timer::LostSettle, at(5)),
+            (tc1, at(5)),
+            (Timer::Action, at(10)),
+        ]
+    );
 }
 
 #[test]
@@ -560,7 +608,7 @@ fn a_peis_back_from_a_partition_is_released_of_what_is_no_longer_used() {
         "reconfigured at once"
     );
     let window = ExecConfig::default().loss_window;
-    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    exec.handle(secs(3.0), fired(&left, &Timer::LossWindow, window));
     // It comes back in the same run, still running the old configuration's params.
     let back = exec.handle(secs(5.0), Event::PeisJoined(peis("hsm")));
     assert_eq!(
@@ -599,7 +647,11 @@ fn losing_the_ecology() -> (Executive, Vec<Command>) {
     );
     let lost = exec.handle(
         secs(3.0),
-        Event::Timer(timer_of(&first, ExecConfig::default().loss_window)),
+        fired(
+            &first,
+            &Timer::LossWindow,
+            ExecConfig::default().loss_window,
+        ),
     );
     let text = timeline(&exec);
     assert!(
@@ -621,8 +673,8 @@ fn an_executive_that_lost_the_ecology_goes_on_when_it_is_back() {
     exec.handle(secs(10.2), Event::PeisJoined(peis("astrid")));
     let last = exec.handle(secs(10.4), Event::PeisJoined(peis("pippi")));
     let before = costs(&exec).len();
-    let settle = timer_of(&last, ExecConfig::default().loss_window);
-    let resumed = exec.handle(secs(11.4), Event::Timer(settle));
+    let settle = fired(&last, &Timer::LostSettle, ExecConfig::default().loss_window);
+    let resumed = exec.handle(secs(11.4), settle);
     let text = timeline(&exec);
     assert!(
         text.contains("the ecology is back: astrid, hsm, pippi"),
@@ -646,11 +698,15 @@ fn an_executive_whose_ecology_stays_lost_fails_saying_so() {
     let back = exec.handle(secs(10.0), Event::PeisJoined(peis("pippi")));
     exec.handle(
         secs(11.0),
-        Event::Timer(timer_of(&back, ExecConfig::default().loss_window)),
+        fired(&back, &Timer::LostSettle, ExecConfig::default().loss_window),
     );
     assert!(!names(&exec).contains(&"ecology_back"));
-    let deadline = timer_of(&lost, ExecConfig::default().reconnect_timeout);
-    let end = exec.handle(secs(33.0), Event::Timer(deadline));
+    let deadline = fired(
+        &lost,
+        &Timer::Reconnect,
+        ExecConfig::default().reconnect_timeout,
+    );
+    let end = exec.handle(secs(33.0), deadline);
     let RunStatus::Failed { reason, .. } = exec.status().clone() else {
         panic!("the task should fail: {}", timeline(&exec));
     };
@@ -723,7 +779,10 @@ fn an_unanswered_remote_set_fails_its_component_after_a_grace() {
     assert!(!text.contains("FAILURE"), "blamed at once:\n{text}");
     assert_eq!(costs(&exec), [(80, false)], "{text}");
     let grace = ExecConfig::default().unanswered_grace;
-    exec.handle(secs(5.0), Event::Timer(timer_of(&held, grace)));
+    exec.handle(
+        secs(5.0),
+        fired(&held, &Timer::Unanswered(component("hsm", "tr1")), grace),
+    );
     let text = timeline(&exec);
     assert!(
         text.contains(
@@ -752,7 +811,8 @@ fn an_unanswered_remote_set_is_sent_again_and_its_answer_clears_the_component() 
         "{}",
         timeline(&exec)
     );
-    let grace = timer_of(&held, ExecConfig::default().unanswered_grace);
+    let grace = Timer::Unanswered(component("astrid", "s1"));
+    let expired = fired(&held, &grace, ExecConfig::default().unanswered_grace);
     let cleared = exec.handle(
         secs(4.5),
         Event::RemoteSetAnswered {
@@ -762,7 +822,7 @@ fn an_unanswered_remote_set_is_sent_again_and_its_answer_clears_the_component() 
     );
     assert_eq!(cleared, [Command::CancelTimer(grace)]);
     // Delivered all the same, the cancelled grace blames nobody.
-    exec.handle(secs(7.0), Event::Timer(grace));
+    exec.handle(secs(7.0), expired);
     assert!(
         failures(&exec).iter().all(|f| !f.starts_with("astrid:s1")),
         "{}",
@@ -803,16 +863,30 @@ fn a_component_waiting_while_its_peis_has_not_answered_is_timed_again() {
         tuple("astrid", "tc1.status", "waiting", 4),
     );
     let grace = ExecConfig::default().waiting_grace;
-    let again = exec.handle(secs(4.5), Event::Timer(timer_of(&commands, grace)));
+    let again = exec.handle(
+        secs(4.5),
+        fired(
+            &commands,
+            &Timer::Waiting(component("astrid", "tc1")),
+            grace,
+        ),
+    );
     assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));
     // The sets are answered; the grace that started again runs out: navigation is to blame.
     answer_all(&mut exec, secs(5.0), &sets);
     // Nothing can stand in for navigation: it is given longer, then blamed.
-    let more = exec.handle(secs(6.5), Event::Timer(timer_of(&again, grace)));
+    let more = exec.handle(
+        secs(6.5),
+        fired(&again, &Timer::Waiting(component("astrid", "tc1")), grace),
+    );
     assert_eq!(failures(&exec), ["hsm:tr1 error"], "{}", timeline(&exec));
     exec.handle(
         secs(11.5),
-        Event::Timer(timer_of(&more, ExecConfig::default().return_wait)),
+        fired(
+            &more,
+            &Timer::Waiting(component("astrid", "tc1")),
+            ExecConfig::default().return_wait,
+        ),
     );
     assert_eq!(
         failures(&exec),
@@ -834,17 +908,20 @@ fn unanswered_remote_sets_of_an_executive_cut_off_blame_no_component() {
     exec.handle(secs(2.6), Event::PeisLeft(peis("astrid")));
     exec.handle(secs(2.7), Event::PeisLeft(peis("pippi")));
     let window = ExecConfig::default().loss_window;
-    exec.handle(secs(3.5), Event::Timer(timer_of(&first, window)));
+    exec.handle(secs(3.5), fired(&first, &Timer::LossWindow, window));
     // Cancelled at the loss; delivered all the same, it changes nothing.
     let grace = ExecConfig::default().unanswered_grace;
-    exec.handle(secs(5.0), Event::Timer(timer_of(&held, grace)));
+    exec.handle(
+        secs(5.0),
+        fired(&held, &Timer::Unanswered(component("astrid", "tc1")), grace),
+    );
     let text = timeline(&exec);
     assert!(text.contains("LOST THE ECOLOGY"), "{text}");
     assert!(!text.contains("could not set"), "{text}");
     assert!(!names(&exec).contains(&"action_failed"), "{text}");
     exec.handle(secs(6.0), Event::PeisJoined(peis("hsm")));
     let last = exec.handle(secs(6.1), Event::PeisJoined(peis("astrid")));
-    exec.handle(secs(7.1), Event::Timer(timer_of(&last, window)));
+    exec.handle(secs(7.1), fired(&last, &Timer::LostSettle, window));
     let text = timeline(&exec);
     assert!(text.contains("the ecology is back"), "{text}");
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
@@ -860,11 +937,11 @@ fn a_remote_set_that_failed_while_its_peis_was_away_is_written_again_on_its_retu
     exec.handle(secs(2.2), Event::PeisLeft(peis("pippi")));
     exec.handle(secs(2.3), unanswered("hsm", "tr1.params"));
     let window = ExecConfig::default().loss_window;
-    exec.handle(secs(3.0), Event::Timer(timer_of(&first, window)));
+    exec.handle(secs(3.0), fired(&first, &Timer::LossWindow, window));
     exec.handle(secs(6.0), Event::PeisJoined(peis("hsm")));
     exec.handle(secs(6.1), Event::PeisJoined(peis("astrid")));
     let last = exec.handle(secs(6.2), Event::PeisJoined(peis("pippi")));
-    let resumed = exec.handle(secs(7.2), Event::Timer(timer_of(&last, window)));
+    let resumed = exec.handle(secs(7.2), fired(&last, &Timer::LostSettle, window));
     let text = timeline(&exec);
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
     let rewritten: Vec<String> = sets_to(&resumed, "hsm")
@@ -884,7 +961,7 @@ fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
     let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
     exec.handle(secs(2.4), Event::PeisJoined(peis("astrid")));
     let window = ExecConfig::default().loss_window;
-    exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    exec.handle(secs(3.0), fired(&left, &Timer::LossWindow, window));
     let text = timeline(&exec);
     assert!(
         text.contains("FAILURE astrid:tc1: PEIS astrid left the ecology"),
@@ -901,7 +978,7 @@ fn astrid_gone_and_judged() -> (Executive, Vec<Command>) {
     let mut exec = running_first_action();
     let left = exec.handle(secs(2.0), Event::PeisLeft(peis("astrid")));
     let window = ExecConfig::default().loss_window;
-    let judged = exec.handle(secs(3.0), Event::Timer(timer_of(&left, window)));
+    let judged = exec.handle(secs(3.0), fired(&left, &Timer::LossWindow, window));
     (exec, judged)
 }
 
@@ -924,12 +1001,12 @@ fn an_action_left_without_a_configuration_waits_for_the_peis_to_return() {
         1,
         "not before her tuples are read again"
     );
-    exec.handle(secs(6.0), Event::Timer(timer_of(&joined, window)));
+    exec.handle(secs(6.0), fired(&joined, &Timer::ReturnSettle, window));
     let text = timeline(&exec);
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
     // The wait was called off: its timer changes nothing.
     let wait = ExecConfig::default().return_wait;
-    exec.handle(secs(8.0), Event::Timer(timer_of(&judged, wait)));
+    exec.handle(secs(8.0), fired(&judged, &Timer::ReturnWait, wait));
     assert!(!names(&exec).contains(&"action_failed"), "{text}");
     assert_eq!(exec.status(), &RunStatus::Running { index: 0 }, "{text}");
 }
@@ -940,7 +1017,7 @@ fn an_action_waits_for_a_peis_that_left_only_so_long() {
     let (mut exec, judged) = astrid_gone_and_judged();
     assert!(!names(&exec).contains(&"action_failed"));
     let wait = ExecConfig::default().return_wait;
-    exec.handle(secs(8.0), Event::Timer(timer_of(&judged, wait)));
+    exec.handle(secs(8.0), fired(&judged, &Timer::ReturnWait, wait));
     let RunStatus::Failed { index: 0, reason } = exec.status() else {
         panic!("{:?}\n{}", exec.status(), timeline(&exec));
     };
@@ -961,7 +1038,7 @@ fn a_peis_back_as_the_wait_runs_out_is_configured_with_at_once() {
     let (mut exec, _) = astrid_gone_and_judged();
     let window = ExecConfig::default().loss_window;
     let left = exec.handle(secs(3.5), Event::PeisLeft(peis("hsm")));
-    let judged = exec.handle(secs(4.5), Event::Timer(timer_of(&left, window)));
+    let judged = exec.handle(secs(4.5), fired(&left, &Timer::LossWindow, window));
     let text = timeline(&exec);
     assert!(
         text.contains("no configuration without astrid, hsm: waiting up to 5s"),
@@ -969,7 +1046,7 @@ fn a_peis_back_as_the_wait_runs_out_is_configured_with_at_once() {
     );
     exec.handle(secs(9.2), Event::PeisJoined(peis("astrid")));
     let wait = ExecConfig::default().return_wait;
-    exec.handle(secs(9.5), Event::Timer(timer_of(&judged, wait)));
+    exec.handle(secs(9.5), fired(&judged, &Timer::ReturnWait, wait));
     let text = timeline(&exec);
     assert!(!names(&exec).contains(&"action_failed"), "{text}");
     assert_eq!(costs(&exec).last(), Some(&(150, true)), "{text}");
