@@ -286,8 +286,8 @@ class Peis:
                 same = self.component.on
             elif key == params:
                 same = self.text(params) == asked
-            else:
-                same = self.tuples.get(key, (None, None))[1] == data
+            else:  # a wire shares only for a holder: params come first
+                same = requester in holders and self.tuples.get(key, (None, None))[1] == data
             if not same:
                 now = self.text(key) or "nothing"
                 raise Refused(f"held by {' '.join(others)}: {key} is {now}")

@@ -67,6 +67,11 @@ pub fn json_line(entry: &LogEntry) -> String {
             json!({ "owner": owner, "key": key, "reason": reason })
         }
         LogEvent::RemoteSetRetried { owner, key } => json!({ "owner": owner, "key": key }),
+        LogEvent::Held {
+            peis,
+            component,
+            holders,
+        } => json!({ "peis": peis, "component": component, "holders": holders }),
         LogEvent::Released {
             switched_off,
             stopped,

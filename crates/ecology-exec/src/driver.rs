@@ -130,6 +130,7 @@ pub async fn drive_until<S: TupleSpace>(
     stop: impl Future<Output = ()>,
     mut replan: Option<&mut dyn Replan>,
 ) -> Result<RunStatus, TupleError> {
+    exec.acting_as(space.peis().clone());
     let mut observed = exec.log().len();
     let start = clock.now();
     let elapsed = |clock: &Arc<dyn Clock>| clock.now().saturating_duration_since(start);

@@ -114,6 +114,16 @@ pub enum LogEvent {
         /// Why.
         reason: String,
     },
+    /// A component this executive asked for is held by other executives with other params or
+    /// wiring (its owner refused the request): not a failure, it is left out until it is released.
+    Held {
+        /// The component's PEIS.
+        peis: String,
+        /// The component.
+        component: String,
+        /// Who holds it.
+        holders: Vec<String>,
+    },
     /// A remote set that got no answer from a PEIS still present was sent again.
     RemoteSetRetried {
         /// The owner of the tuple.
@@ -255,6 +265,7 @@ impl LogEvent {
             LogEvent::PeisRestarted { .. } => "peis_restarted",
             LogEvent::RemoteSetFailed { .. } => "remote_set_failed",
             LogEvent::RemoteSetRetried { .. } => "remote_set_retried",
+            LogEvent::Held { .. } => "held",
             LogEvent::Released { .. } => "released",
             LogEvent::Reclaimed { .. } => "reclaimed",
             LogEvent::EcologyLost { .. } => "ecology_lost",
@@ -389,6 +400,15 @@ impl fmt::Display for LogEntry {
             LogEvent::RemoteSetFailed { owner, key, reason } => {
                 write!(f, "  remote set of {owner}:{key} failed: {reason}")
             }
+            LogEvent::Held {
+                peis,
+                component,
+                holders,
+            } => write!(
+                f,
+                "  {peis}:{component} is held by {}: done without until it is released",
+                holders.join(", ")
+            ),
             LogEvent::RemoteSetRetried { owner, key } => {
                 write!(
                     f,

@@ -74,6 +74,13 @@ pub enum Change {
         /// The literals it wrote, as text.
         literals: String,
     },
+    /// Who holds a component changed (`components.C.holders`).
+    Holders {
+        /// The PEIS.
+        peis: PeisId,
+        /// The component.
+        component: ComponentId,
+    },
     /// Anything else (types, costs, on/off, causes).
     Other,
 }
@@ -270,7 +277,13 @@ impl PeisView {
             ComponentField::Cost => c.cost = value.parse().ok(),
             ComponentField::CurrState => c.on = value == "on",
             ComponentField::ReqState => {}
-            ComponentField::Holders => c.holders = ecology_tuples::claims::parse_holders(value),
+            ComponentField::Holders => {
+                c.holders = ecology_tuples::claims::parse_holders(value);
+                return Some(Change::Holders {
+                    peis: owner.clone(),
+                    component,
+                });
+            }
             ComponentField::Status => {
                 c.status = Some(value.to_string());
                 return Some(Change::Status {

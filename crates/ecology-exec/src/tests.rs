@@ -2,6 +2,7 @@
 //! whole runs against the real PEIS host (`ecology_peis::run_host`) on the
 //! in-process tuple space, in virtual time.
 
+mod claims;
 mod peis_home;
 
 use std::time::Duration;
@@ -1123,7 +1124,7 @@ mod on_the_tuple_space {
     };
 
     /// How long each component takes to switch on.
-    const STARTUP: Duration = Duration::from_millis(500);
+    pub(super) const STARTUP: Duration = Duration::from_millis(500);
 
     /// How far virtual time moves in one step.
     const STEP: Duration = Duration::from_millis(20);
@@ -1150,13 +1151,13 @@ mod on_the_tuple_space {
 
     /// The components that have failed for good, by (PEIS, component), with
     /// their causes.
-    type Broken = Arc<Mutex<BTreeMap<(String, String), String>>>;
+    pub(super) type Broken = Arc<Mutex<BTreeMap<(String, String), String>>>;
 
     /// A component that follows the contract: `waiting` while an input is
     /// missing or stale, `running` while it works, `done` when its step ends;
     /// once `broken` holds a cause for it, it fails with that cause (again
     /// whenever it is started).
-    fn body(broken: Broken) -> Arc<dyn Component<InProcessPeis>> {
+    pub(super) fn body(broken: Broken) -> Arc<dyn Component<InProcessPeis>> {
         Arc::new(move |ctx: Context<InProcessPeis>| {
             let broken = broken.clone();
             async move {
@@ -1395,7 +1396,7 @@ mod on_the_tuple_space {
     /// (ending this sleep) only when no task can run: so each step comes once
     /// everything the last one set off has been handled, however many turns
     /// that took.
-    async fn tick(clock: &VirtualClock) -> Infallible {
+    pub(super) async fn tick(clock: &VirtualClock) -> Infallible {
         loop {
             tokio::time::sleep(STEP).await;
             clock.advance(STEP);

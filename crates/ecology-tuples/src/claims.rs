@@ -6,9 +6,10 @@
 //! `C.mi-INFO…`) may be applied, in the order the requests arrive:
 //!
 //! - **free** (nobody else holds it): applied; the requester becomes a holder;
-//! - **the same** as what runs (`on` while it is on, the params it runs, the producer an input
-//!   already reads): *shared*, the requester joins the holders, and nothing else is written, so
-//!   the running body is not restarted;
+//! - **the same** as what runs (`on` while it is on, the params it runs; for an input, the
+//!   producer it already reads, asked by one that holds it already, since params come before
+//!   wiring): *shared*, the requester joins the holders, and nothing else is written, so the
+//!   running body is not restarted;
 //! - **anything else**: refused, naming the holders ([`held_by`] reads the reason back).
 //!
 //! A release (`reqState` `off`, empty `params`) only removes its requester from the holders
@@ -136,7 +137,12 @@ pub fn arbitrate<'a>(
                 text_of(now) == "on" || text_of(current(&ComponentField::CurrState.key(&c))) == "on"
             }
             Claim::Params => text_of(now) == asked,
-            Claim::Input => now.is_some_and(|t| t.data == value.data),
+            // An executive gives params before it wires: one that does not hold the component
+            // by now was refused its params, and wiring alone must not make it a holder.
+            Claim::Input => {
+                requester.is_some_and(|r| holders.contains(r))
+                    && now.is_some_and(|t| t.data == value.data)
+            }
         };
         if !same {
             let names: Vec<&str> = others.iter().map(|h| h.as_str()).collect();

@@ -137,6 +137,10 @@ impl Executive {
         let Some(run) = &self.run else { return };
         let index = run.index;
         let mut exclusions = run.excluded.clone();
+        exclusions.extend(run.held.iter().map(|(p, c)| Exclusion::Component {
+            peis: p.to_string(),
+            component: c.to_string(),
+        }));
         let Some(goal) = self.plan[index].goal.clone() else {
             return;
         };
@@ -264,7 +268,12 @@ impl Executive {
             // A component kept from the previous configuration with the same
             // params is ready if it runs, and may even have finished its step.
             let status = view.and_then(|v| v.status.as_deref());
-            let ready = unchanged && matches!(status, Some("running" | "done"));
+            // One that other executives hold running these very params is shared: asking for
+            // them restarts nothing, so it is ready if it runs.
+            let shared = !unchanged
+                && view.and_then(|v| v.params.as_deref()).map(str::trim) == Some(call.trim())
+                && !self.mirror.held_by_others(&f.peis, &f.component).is_empty();
+            let ready = (unchanged || shared) && matches!(status, Some("running" | "done"));
             if unchanged && status == Some("done") {
                 finished.push(key.clone());
             }

@@ -304,6 +304,12 @@ impl Executive {
         &self.log
     }
 
+    /// Tells the executive its own PEIS name (the driver does, from its tuple space), so that it
+    /// tells its own claims on components from other executives'.
+    pub fn acting_as(&mut self, me: PeisId) {
+        self.mirror.acting_as(me);
+    }
+
     /// The mirror of the ecology's tuples.
     pub fn mirror(&self) -> &Mirror {
         &self.mirror
@@ -407,6 +413,12 @@ impl Executive {
                             }
                             self.forget(&peis);
                             self.on_peis_gone(&peis, format!("PEIS {peis} restarted"), &mut out);
+                        }
+                        Change::Holders { peis, component } => {
+                            // Released or taken by others: considered again at the next configuration.
+                            if let Some(run) = &mut self.run {
+                                run.held.remove(&(peis, component));
+                            }
                         }
                         Change::Other => {}
                     }

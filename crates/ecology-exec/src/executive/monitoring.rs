@@ -250,6 +250,10 @@ impl Executive {
             if let Some(orphan) = self.orphans.get_mut(&target) {
                 orphan.params = None;
             }
+            if !unanswered && let Some(holders) = ecology_tuples::claims::held_by(&reason) {
+                self.held_by_others(target, holders, out);
+                return;
+            }
             if self.in_current_config(&target) {
                 let cause = format!("could not set {key}: {reason}");
                 let held = self
@@ -290,6 +294,33 @@ impl Executive {
                 }
             }
         }
+    }
+
+    /// The owner of `target` refused a request because other executives, `holders`, hold it
+    /// with other params or wiring (two executives planned from the same state, and the other
+    /// asked first). Not a failure: nothing is blamed or excluded for good. The action is
+    /// configured again without it, once, and it is considered again when its holders change.
+    /// What was asked of it before the refusal is put back by make-before-break, like any
+    /// component the new configuration does not use.
+    pub(super) fn held_by_others(
+        &mut self,
+        target: ComponentKey,
+        holders: Vec<PeisId>,
+        out: &mut Vec<Command>,
+    ) {
+        if !self.in_current_config(&target) || self.lost.is_some() {
+            return;
+        }
+        let Some(run) = &mut self.run else { return };
+        if !run.held.insert(target.clone()) {
+            return;
+        }
+        self.record(LogEvent::Held {
+            peis: target.0.to_string(),
+            component: target.1.to_string(),
+            holders: holders.iter().map(ToString::to_string).collect(),
+        });
+        self.configure(true, out);
     }
 
     /// A remote set was answered: if it was sent again after getting no answer, its component

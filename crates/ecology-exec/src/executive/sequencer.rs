@@ -29,6 +29,9 @@ pub(super) struct ActionRun {
     pub(super) index: usize,
     pub(super) excluded: Vec<Exclusion>,
     pub(super) failed: BTreeSet<ComponentKey>,
+    /// Components whose owner refused a request because other executives hold them: left out
+    /// of this action's configurations until their holders change. Not failures.
+    pub(super) held: BTreeSet<ComponentKey>,
     pub(super) config: Option<Configuration>,
     pub(super) phase: Phase,
     /// Whether [`Timer::Deploy`] runs. [`Timer::Action`] runs as long as the action does.
@@ -99,6 +102,7 @@ impl Executive {
             index,
             excluded: Vec::new(),
             failed: BTreeSet::new(),
+            held: BTreeSet::new(),
             config: None,
             phase: Phase::Running,
             deploy_timer: false,
