@@ -770,6 +770,46 @@ fn a_failed_remote_set_fails_its_component() {
     assert_eq!(costs(&exec), [(80, false), (150, true)]);
 }
 
+/// Another executive asked hsm for its tracking system first, with other params: hsm refuses,
+/// naming the holder. Not a failure: nothing is blamed or excluded for good, the action is
+/// configured again without it, and once its holders change it is considered again.
+#[test]
+fn a_component_held_by_another_executive_is_done_without_not_blamed() {
+    let mut exec = running_first_action();
+    let refusal = "PEIS hsm refused a remote set of tr1.params: held by exec-bob: tr1 runs (tracking-system hsm tr1 bob)";
+    exec.handle(
+        secs(2.0),
+        Event::RemoteSetFailed {
+            owner: peis("hsm"),
+            key: key("tr1.params"),
+            reason: refusal.to_string(),
+            unanswered: false,
+        },
+    );
+    // The wiring of tr1 refused as well, for the same reason: acted on once.
+    exec.handle(
+        secs(2.0),
+        Event::RemoteSetFailed {
+            owner: peis("hsm"),
+            key: key("tr1.mi-image"),
+            reason: refusal.replace("tr1.params", "tr1.mi-image"),
+            unanswered: false,
+        },
+    );
+    let text = timeline(&exec);
+    assert!(
+        text.contains("hsm:tr1 is held by exec-bob: done without until it is released"),
+        "{text}"
+    );
+    assert!(!text.contains("FAILURE"), "blamed:\n{text}");
+    assert_eq!(costs(&exec), [(80, false), (150, true)], "{text}");
+    // Bob's executive releases it; the next configuration of the action may take it again.
+    exec.handle(secs(3.0), tuple("hsm", "components.tr1.holders", "", 3));
+    exec.handle(secs(3.5), tuple("astrid", "l1.cause", "laser broke", 3));
+    exec.handle(secs(3.5), tuple("astrid", "l1.status", "error", 3));
+    assert_eq!(costs(&exec)[2..], [(80, true)], "{}", timeline(&exec));
+}
+
 /// A remote set that got no answer, from a PEIS still present: the component is blamed, but
 /// only once the grace has passed without its PEIS leaving or the ecology being lost.
 #[test]
