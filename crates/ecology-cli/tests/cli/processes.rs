@@ -1249,3 +1249,175 @@ fn over_zenoh_a_conditional_plan_branches_on_what_a_peis_observes() {
     );
     assert_eq!(named(&all, "task_done").len(), 1, "{all:#?}");
 }
+
+/// Astrid in the entrance, Bob in the living room, each with a laser (off), odometry, a thinking
+/// cap and self-localisation; hsm with one ceiling camera and one tracking system.
+const TWO_ROBOTS: &str = r#"name = "two-robots"
+seed = 7
+[map]
+rooms = [
+  { name = "living-room", x = [0.0, 3.0], y = [0.0, 3.0] },
+  { name = "kitchen",     x = [3.0, 5.0], y = [0.0, 3.0] },
+  { name = "entrance",    x = [2.5, 5.0], y = [3.0, 5.0] },
+  { name = "bedroom",     x = [0.0, 2.5], y = [3.0, 5.0] },
+]
+doors = [
+  { between = ["living-room", "kitchen"],  at = [3.0, 1.5] },
+  { between = ["living-room", "entrance"], at = [2.75, 3.0] },
+  { between = ["entrance", "bedroom"],     at = [2.5, 4.0] },
+]
+[[robot]]
+name = "astrid"
+at = [3.3, 4.0, 3.14159]
+[[robot]]
+name = "bob"
+at = [2.2, 1.5, 0.0]
+[[peis]]
+name = "astrid"
+components = [
+  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
+  { id = "od1", type = "odomet",   cost = 10,  on = true },
+  { id = "tc1", type = "tc",       cost = 20,  on = true },
+  { id = "s1",  type = "self-loc", cost = 20,  on = true },
+]
+[[peis]]
+name = "bob"
+components = [
+  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
+  { id = "od1", type = "odomet",   cost = 10,  on = true },
+  { id = "tc1", type = "tc",       cost = 20,  on = true },
+  { id = "s1",  type = "self-loc", cost = 20,  on = true },
+]
+[[peis]]
+name = "hsm"
+components = [
+  { id = "ca1", type = "cams",   cost = 20, on = true },
+  { id = "tr1", type = "tr-sys", cost = 20, on = true },
+]
+"#;
+
+/// The issue's two tasks started together in one home, as processes on a secured router: Astrid
+/// to the bedroom (`exec-astrid`) and Bob to the kitchen (`exec-bob`). Both plan the ceiling
+/// cameras; hsm gives its one tracking system to the first request and refuses the other, which
+/// takes its own laser. Nobody is blamed, both arrive, the tracker is never re-aimed while held,
+/// the holder hsm records is the member that asked (its certificate's name), and when both are
+/// done nothing is held any more.
+#[test]
+fn two_tasks_started_together_take_nothing_from_each_other() {
+    let _one = one_at_a_time();
+    let folder = std::env::temp_dir().join(format!("ecology-two-tasks-{}", std::process::id()));
+    std::fs::create_dir_all(&folder).expect("temp folder");
+    let file = |name: &str| folder.join(name).display().to_string();
+    let domain = root().join("domains/peis-home.eco");
+    let task = format!(
+        "[task]\ndomain = \"{}\"\nplan = [{{ action = \"(move astrid entrance bedroom)\", configure = \"(navigate astrid bedroom)\" }}]\n",
+        domain.display()
+    );
+    std::fs::write(file("scenario.toml"), format!("{TWO_ROBOTS}{task}")).expect("scenario");
+    std::fs::write(
+        file("astrid.plan"),
+        "(move astrid entrance bedroom)  ; configure (navigate astrid bedroom)\n",
+    )
+    .expect("plan");
+    std::fs::write(
+        file("bob.plan"),
+        "(move bob living-room kitchen)  ; configure (navigate bob kitchen)\n",
+    )
+    .expect("plan");
+    let keys = file("keys");
+    for args in [
+        vec!["keys", "init", &keys],
+        vec![
+            "keys", "add", &keys, "world", "astrid", "bob", "hsm", "watcher",
+        ],
+        vec!["keys", "add", &keys, "exec-astrid", "--role", "executive"],
+        vec!["keys", "add", &keys, "exec-bob", "--role", "executive"],
+        vec!["keys", "add", &keys, "router", "--role", "router"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_ecology"))
+            .args(&args)
+            .output()
+            .expect("ecology keys");
+        assert!(out.status.success(), "{args:?}: {out:?}");
+    }
+    let endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
+    let _router = Proc::start(
+        "router",
+        &["router", "--listen", &endpoint, "--keys", &keys],
+    )
+    .ready();
+    let through = ["--client", "--connect", endpoint.as_str(), "--keys", &keys];
+    let scenario = file("scenario.toml");
+    let _world = Proc::start("world", &[&["world", &scenario][..], &through].concat()).ready();
+    let _hosts = ["astrid", "bob", "hsm"].map(|name| {
+        Proc::start(
+            name,
+            &[&["peis", scenario.as_str(), "--name", name][..], &through].concat(),
+        )
+        .ready()
+    });
+    let watch = |name: &str, pattern: &str| {
+        let mut args = vec!["tuples"];
+        args.extend(through);
+        args.extend(["--name", name, "watch", pattern, "--json"]);
+        Proc::start(name, &args)
+    };
+    let mut params = watch("watcher", "hsm:*.params");
+    let tasks = [("exec-astrid", "astrid.plan"), ("exec-bob", "bob.plan")].map(|(name, plan)| {
+        let plan = file(plan);
+        let mut args = vec!["task", "--name", name, "--domain", "domains/peis-home.eco"];
+        args.extend([
+            "--plan",
+            &plan,
+            "--json",
+            "--wait-for",
+            "world,astrid,bob,hsm",
+        ]);
+        args.extend(through);
+        Proc::start(name, &args)
+    });
+    let mut ends = Vec::new();
+    for task in tasks {
+        let name = task.name.clone();
+        let (code, lines) = task.finish();
+        let all = events(&lines);
+        assert_eq!(code, Some(0), "{name}: {all:#?}");
+        assert_eq!(
+            all.last().map(|e| e["event"].clone()),
+            Some("task_done".into()),
+            "{name}: {all:#?}"
+        );
+        assert!(named(&all, "failure").is_empty(), "{name}: {all:#?}");
+        ends.push(costs(&all).last().map(|c| c.0));
+    }
+    ends.sort();
+    assert_eq!(ends, [Some(80), Some(170)], "one tracker, one laser");
+
+    // What hsm's params went through: set by an executive (its certificate's name), never
+    // changed to another's while held, and released at the end.
+    let mut seen: Vec<Value> = Vec::new();
+    while let Ok(line) = params.lines.recv_timeout(Duration::from_millis(1500)) {
+        seen.push(event(&line.text));
+    }
+    let tracker: Vec<&Value> = seen.iter().filter(|e| e["key"] == "tr1.params").collect();
+    let values: Vec<&str> = tracker.iter().filter_map(|e| e["value"].as_str()).collect();
+    assert!(values.len() >= 2, "{seen:#?}");
+    for pair in values.windows(2) {
+        assert!(
+            pair[0].is_empty() || pair[1].is_empty() || pair[0] == pair[1],
+            "the tracker was re-aimed while held: {values:?}"
+        );
+    }
+    assert_eq!(values.last(), Some(&""), "{values:?}");
+    let robot = values[0]
+        .trim_end_matches(')')
+        .rsplit(' ')
+        .next()
+        .unwrap_or("");
+    assert_eq!(
+        tracker[0]["set_by"].as_str(),
+        Some(format!("exec-{robot}").as_str()),
+        "{tracker:#?}"
+    );
+    let _ = std::fs::remove_dir_all(&folder);
+}
