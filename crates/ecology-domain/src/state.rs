@@ -201,6 +201,19 @@ impl fmt::Display for EcologyState {
 
 /// Checks a fact with a fixed meaning; returns the problem, if any.
 pub(crate) fn check_fact(fact: &Fact, span: Span) -> Option<Diagnostic> {
+    // Another executive's claim: the component, its holder, and the instance it runs.
+    if &*fact.predicate == "held" && fact.args.len() < 4 {
+        return Some(
+            Diagnostic::error(
+                span,
+                format!(
+                    "wrong arity: `held` takes at least 4 arguments, given {}",
+                    fact.args.len()
+                ),
+            )
+            .with_note("usage: (held PEIS COMPONENT HOLDER FUNCTIONALITY ARG…)"),
+        );
+    }
     let arity = ECOLOGY_PREDICATES
         .iter()
         .find(|(name, _)| *name == &*fact.predicate)

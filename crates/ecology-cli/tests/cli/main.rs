@@ -236,6 +236,47 @@ fn configure_with_exclusions() {
     );
 }
 
+// Several executives: given another executive's claims as `held` facts, the tracking system
+// held for Bob is not available to Astrid (her laser at 170), the cameras held running the same
+// instance are, and the explanation names who holds what.
+#[test]
+fn configure_with_claims_of_another_executive() {
+    let held = |extra: &[&str]| {
+        let mut args = vec![
+            "configure",
+            "--domain",
+            "domains/peis-home.eco",
+            "--state",
+            "domains/peis-home-held.facts",
+            "--goal",
+            "(navigate astrid bedroom)",
+        ];
+        args.extend_from_slice(extra);
+        ecology(&args)
+    };
+    let v = json(&held(&["--json"]));
+    assert_eq!(v["cost"], 170);
+    let out = held(&["--exclude", "astrid:l1", "--exclude", "pippi:ol2"]);
+    assert_eq!(out.status.code(), Some(1));
+    let text = stderr(&out);
+    assert!(
+        text.contains(
+            "(tracking-system hsm tr1 astrid): component hsm:tr1 is held by exec-bob running (tracking-system hsm tr1 bob)"
+        ),
+        "{text}"
+    );
+    let bad = std::env::temp_dir().join(format!("ecology-held-{}.facts", std::process::id()));
+    std::fs::write(&bad, "(peis hsm)\n(held hsm tr1)\n").expect("write");
+    let out = ecology(&["check", &bad.display().to_string()]);
+    let _ = std::fs::remove_file(&bad);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("`held` takes at least 4 arguments, given 2"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 #[test]
 fn configure_dot() {
     let out = configure(&["--dot"]);
