@@ -219,6 +219,14 @@ impl View {
                     format!("deployed: switched on {}", on.join(", "))
                 };
             }
+            "held" => {
+                summary = format!(
+                    "{}:{} is held by {}: done without",
+                    text("peis"),
+                    text("component"),
+                    strings("holders").join(", ")
+                );
+            }
             "failure" => {
                 let id = format!("{}:{}", text("peis"), text("component"));
                 summary = format!("FAILURE {id}: {}", text("cause"));
@@ -262,12 +270,24 @@ impl View {
         };
         for (label, peis, component) in &c.functionalities {
             let id = format!("{peis}:{component}");
-            let state = self.component_field(peis, component, "currState");
+            let state = self
+                .component_field(peis, component, "currState")
+                .unwrap_or_else(|| "in use".into());
+            // Who holds it, when it is shared with other executives' tasks.
+            let holders = self
+                .component_field(peis, component, "holders")
+                .filter(|h| h.split_whitespace().count() > 1);
             drawing.nodes.push(Node {
                 peis: peis.clone(),
                 component: component.clone(),
                 label: label.clone(),
-                detail: state.unwrap_or_else(|| "in use".into()),
+                detail: match holders {
+                    Some(h) => format!(
+                        "{state}, shared: {}",
+                        h.split_whitespace().collect::<Vec<_>>().join(", ")
+                    ),
+                    None => state,
+                },
                 mark: if c.switched_on.contains(&id) {
                     Mark::SwitchedOn
                 } else {
@@ -483,7 +503,29 @@ mod tests {
         ));
         view.log(&entry(r#"{"event":"deployed","channels":["astrid:l1 → astrid:tc1 (range-scan astrid)"],"switched_on":["astrid:l1"],"t":15.5}"#));
 
+        // Several executives: who holds a component shows beside it, and a shared one says so.
+        view.tuple(&tuple(
+            "astrid",
+            "components.l1.holders",
+            "executive exec-bob",
+        ));
+        view.log(&entry(
+            r#"{"event":"held","peis":"hsm","component":"tr1","holders":["exec-bob"],"t":15.6}"#,
+        ));
+
         let snapshot = view.snapshot();
+        let astrid = snapshot["peis"]
+            .as_array()
+            .and_then(|all| all.iter().find(|p| p["name"] == "astrid"))
+            .expect("astrid listed");
+        assert_eq!(astrid["components"][0]["holders"], "executive exec-bob");
+        assert!(
+            snapshot["svg"]
+                .as_str()
+                .is_some_and(|svg| svg.contains("on, shared: executive, exec-bob")),
+            "{}",
+            snapshot["svg"]
+        );
         assert_eq!(snapshot["configuration"]["cost"], 170);
         assert_eq!(snapshot["plan"][0]["state"], "current");
         assert_eq!(snapshot["failed"]["hsm:tr1"], "no images");
@@ -511,6 +553,7 @@ mod tests {
                 "FAILURE hsm:tr1: no images",
                 "reconfigured for (navigate astrid b): cost 170",
                 "deployed: switched on astrid:l1",
+                "hsm:tr1 is held by exec-bob: done without",
             ]
         );
     }

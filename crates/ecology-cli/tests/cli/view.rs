@@ -227,15 +227,17 @@ fn the_view_shows_the_cameras_then_the_laser_after_the_tracking_system_fails() {
               && c.querySelector('g.channel.remote') !== null; })()"#,
         patience,
     );
-    // Step 6: the tracking system fails; the laser is switched on, cost 170.
+    // Step 6: the tracking system fails; the laser is switched on, cost 170, and the page says
+    // who holds it (the executive, by its claim).
     page.wait_until(
-        "the cost-170 configuration with the laser switched on and hsm:tr1 failed",
+        "the cost-170 configuration with the laser switched on, held by the executive, and hsm:tr1 failed",
         r#"(() => { const c = document.getElementById("configuration");
             const laser = document.querySelector('#peis tr[data-component="astrid:l1"]');
             return c.textContent.includes("(navigate astrid bedroom): cost 170")
               && c.querySelector('g.failed[data-component="hsm:tr1"]') !== null
               && c.querySelector('g.switched-on[data-component="astrid:l1"]') !== null
               && laser !== null && laser.children[2].textContent === "on"
+              && laser.children[4].textContent === "executive"
               && document.getElementById("timeline").textContent.includes("FAILURE hsm:tr1"); })()"#,
         patience,
     );
