@@ -261,7 +261,7 @@ class Peis:
         the requester holds it. The same as what runs: shared, only the holders change. Anything else
         while others hold it: refused. A release (reqState off, empty params) removes only its
         requester while others hold; the last holder's release switches off what a request
-        switched on."""
+        switched on and clears the params."""
         holders_key = f"components.{self.c}.holders"
         holders = self.text(holders_key).split()
         others = [h for h in holders if h != requester]
@@ -279,6 +279,8 @@ class Peis:
                                and decode_meta(self.tuples[power][2])["creator"] is not None)
                 if key == params and switched_on:
                     writes.append((power, b"off"))
+                if key == power and self.text(params):
+                    writes.append((params, b""))
                 writes.append((holders_key, b""))
             return writes
         if others:

@@ -516,11 +516,14 @@ async fn wiring_survives_new_params_and_switching_and_the_same_params_restart() 
         .await;
     f.wait_for("s1.cause", "run 3: robot l1", Duration::from_millis(500))
         .await;
-    // Off and on again (a new task would do this): the params and the wiring are still there.
+    // Off and on again (a new task would do this): the wiring is still there. The one who
+    // switched it off held it alone, so its params went with it; given again, it runs them.
     f.set("components.s1.reqState", "off").await;
     f.wait_for("s1.status", "idle", Duration::from_millis(100))
         .await;
+    assert_eq!(f.get("s1.params").await.as_deref(), Some(""));
     f.set("components.s1.reqState", "on").await;
+    f.set("s1.params", "(scan-matching robot s1 again)").await;
     f.wait_for("s1.cause", "run 4: robot l1", Duration::from_secs(2))
         .await;
     assert_eq!(

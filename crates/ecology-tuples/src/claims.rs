@@ -14,8 +14,8 @@
 //!
 //! A release (`reqState` `off`, empty `params`) only removes its requester from the holders
 //! while others still hold the component: nobody releases what another holds. The last holder's
-//! release puts the component back: `reqState` `off` if a request switched it on (and, when
-//! the holder is gone, params cleared). The holders are the tuple `components.C.holders`
+//! release puts the component back the way the first claim found it: `reqState` `off` if a
+//! request switched it on, params cleared (its wiring stays, as harmless as before). The holders are the tuple `components.C.holders`
 //! (names separated by spaces, in the order they claimed), so whoever acquires the ecology's
 //! state sees who holds what. The owner drops a holder that is gone with [`release_holder`].
 //!
@@ -169,8 +169,7 @@ pub fn arbitrate<'a>(
 
 /// The writes that put component `c` back once its last holder is gone, besides the releasing
 /// request's own (`released`): `reqState` `off` if a remote set switched it on, and params
-/// cleared unless the release was switching it off (an executive that switches a component off
-/// and on again keeps what it gave it, as before claims).
+/// cleared, so that nothing a task gave it outlives the task.
 fn put_back<'a>(
     c: &ComponentId,
     released: Claim,
@@ -184,7 +183,7 @@ fn put_back<'a>(
         writes.push((req, Value::text("off")));
     }
     let params = ComponentField::Params.key(c);
-    if released == Claim::Input && !text_of(current(&params)).is_empty() {
+    if released != Claim::Params && !text_of(current(&params)).is_empty() {
         writes.push((params, Value::text("")));
     }
     writes

@@ -410,14 +410,26 @@ enum Topology {
     TwoRouters,
 }
 
+/// Who is in the home across hosts, and what the task is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Cast {
+    /// Astrid and hsm; the fixture's move of Astrid.
+    Astrid,
+    /// The paper's whole task on `scenarios/peis-home.toml` (with Pippi a host too).
+    Whole,
+    /// Astrid, Bob and hsm ([`Fixture::two_robots`]); each robot's move has its own executive
+    /// on a host of its own (`executive` for Astrid, `exec-bob` for Bob).
+    TwoRobots,
+}
+
 /// The small PEIS-Home across hosts: world, astrid, hsm and (for the task) executive, plus a
 /// router when asked for, each on a host of its own. Processes are stopped before the network
 /// is torn down.
 struct Home {
     fixture: Fixture,
     topology: Topology,
-    /// The paper's whole task on `scenarios/peis-home.toml` (with Pippi), not the fixture's move.
-    whole: bool,
+    /// Who is in the home, and what the task is.
+    cast: Cast,
     keys: Option<std::path::PathBuf>,
     /// Every component's tuples before the task.
     before: BTreeMap<(String, String), String>,
@@ -429,16 +441,16 @@ struct Home {
 impl Home {
     /// Starts the hosts and the world and PEIS processes; `None` when the test is skipped.
     fn start(test: &str, topology: Topology, keyed: bool, hsm_extra: &[&str]) -> Option<Home> {
-        Home::start_with(test, topology, keyed, hsm_extra, false)
+        Home::start_with(test, topology, keyed, hsm_extra, Cast::Astrid)
     }
 
-    /// As [`Home::start`]; with `whole`, the paper's scenario and task (Pippi a host too).
+    /// As [`Home::start`], with `cast` in the home.
     fn start_with(
         test: &str,
         topology: Topology,
         keyed: bool,
         hsm_extra: &[&str],
-        whole: bool,
+        cast: Cast,
     ) -> Option<Home> {
         let mut net = Network::new(test)?;
         let wifi = (topology == Topology::Subnets).then(|| net.add_subnet());
@@ -462,7 +474,14 @@ impl Home {
         if topology == Topology::TwoRouters {
             net.host("router2");
         }
-        let fixture = Fixture::new(&format!("netns-{test}"), &[TO_BEDROOM], Variant::Paper);
+        if cast == Cast::TwoRobots {
+            net.host("bob");
+            net.host("exec-bob");
+        }
+        let fixture = match cast {
+            Cast::TwoRobots => Fixture::two_robots(&format!("netns-{test}")),
+            _ => Fixture::new(&format!("netns-{test}"), &[TO_BEDROOM], Variant::Paper),
+        };
         let keys = keyed.then(|| {
             let dir = fixture.folder.join("keys");
             let dir_text = dir.display().to_string();
@@ -479,16 +498,24 @@ impl Home {
             };
             run(&["keys", "init", &dir_text]);
             run(&[
-                "keys", "add", &dir_text, "world", "astrid", "hsm", "pippi", "probe",
+                "keys", "add", &dir_text, "world", "astrid", "bob", "hsm", "pippi", "probe",
             ]);
-            run(&["keys", "add", &dir_text, "executive", "--role", "executive"]);
+            run(&[
+                "keys",
+                "add",
+                &dir_text,
+                "executive",
+                "exec-bob",
+                "--role",
+                "executive",
+            ]);
             run(&["keys", "add", &dir_text, "router", "--role", "router"]);
             dir
         });
         let mut home = Home {
             fixture,
             topology,
-            whole,
+            cast,
             keys,
             before: BTreeMap::new(),
             procs: BTreeMap::new(),
@@ -497,7 +524,7 @@ impl Home {
         if topology != Topology::Peers {
             home.start_router();
         }
-        let scenario = if whole {
+        let scenario = if cast == Cast::Whole {
             crate::support::root()
                 .join("scenarios/peis-home.toml")
                 .display()
@@ -519,10 +546,10 @@ impl Home {
     }
 
     fn peis(&self) -> &'static [&'static str] {
-        if self.whole {
-            &["astrid", "hsm", "pippi"]
-        } else {
-            &["astrid", "hsm"]
+        match self.cast {
+            Cast::Astrid => &["astrid", "hsm"],
+            Cast::Whole => &["astrid", "hsm", "pippi"],
+            Cast::TwoRobots => &["astrid", "bob", "hsm"],
         }
     }
 
@@ -595,20 +622,33 @@ impl Home {
     /// The executive on the fixture's plan, printing JSON lines, with `extra` arguments.
     fn task(&mut self, extra: &[&str]) {
         let plan = self.fixture.plan();
-        let mut base = vec!["task", "--domain", "domains/peis-home.eco", "--json"];
-        if self.whole {
-            base.extend([
+        self.task_as("executive", &plan, extra);
+    }
+
+    /// The executive `name`, on a host of that name, on `plan`, printing JSON lines, with `extra`
+    /// arguments.
+    fn task_as(&mut self, name: &str, plan: &str, extra: &[&str]) {
+        let mut base = vec![
+            "task",
+            "--name",
+            name,
+            "--domain",
+            "domains/peis-home.eco",
+            "--json",
+        ];
+        match self.cast {
+            Cast::Whole => base.extend([
                 "--problem",
                 "domains/peis-home-task.problem",
                 "--wait-for",
                 "world,astrid,hsm,pippi",
-            ]);
-        } else {
-            base.extend(["--plan", &plan, "--wait-for", "world,astrid,hsm"]);
+            ]),
+            Cast::Astrid => base.extend(["--plan", plan, "--wait-for", "world,astrid,hsm"]),
+            Cast::TwoRobots => base.extend(["--plan", plan, "--wait-for", "world,astrid,bob,hsm"]),
         }
         base.extend_from_slice(extra);
-        let args = self.args("executive", &base);
-        self.spawn("executive", args, false);
+        let args = self.args(name, &base);
+        self.spawn(name, args, false);
     }
 
     fn proc(&mut self, name: &str) -> &mut Proc {
@@ -627,7 +667,12 @@ impl Home {
 
     /// Waits for the task to end; its exit code and every event.
     fn finish(&mut self) -> (Option<i32>, Vec<Value>) {
-        let executive = self.procs.remove("executive").expect("a task runs");
+        self.finish_of("executive")
+    }
+
+    /// Waits for the task of executive `name` to end; its exit code and every event.
+    fn finish_of(&mut self, name: &str) -> (Option<i32>, Vec<Value>) {
+        let executive = self.procs.remove(name).expect("a task runs");
         let (code, lines): (Option<i32>, Vec<Line>) = executive.finish();
         (code, events(&lines))
     }
@@ -1125,7 +1170,7 @@ fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
 fn the_papers_whole_task_is_done_with_every_host_dropping_packets() {
     let test = "lossy";
     let _one = one_at_a_time();
-    let Some(mut home) = Home::start_with(test, Topology::Peers, false, &[], true) else {
+    let Some(mut home) = Home::start_with(test, Topology::Peers, false, &[], Cast::Whole) else {
         return;
     };
     let hosts = ["world", "astrid", "hsm", "pippi", "executive"];
@@ -1157,7 +1202,8 @@ fn with_keys_peers_across_hosts_do_the_move() {
 #[test]
 fn with_keys_a_router_forwards_the_papers_whole_task() {
     let _one = one_at_a_time();
-    let Some(mut home) = Home::start_with("keys-router", Topology::Router, true, &[], true) else {
+    let Some(mut home) = Home::start_with("keys-router", Topology::Router, true, &[], Cast::Whole)
+    else {
         return;
     };
     home.task(&[]);
@@ -1240,4 +1286,30 @@ fn a_router_host_lost_mid_move_fails_over_to_the_second_router() {
         "back {:.1} s after the ecology was judged lost: {all:#?}",
         last_back - t(lost[0])
     );
+}
+
+/// The two tasks started together, each executive on a host of its own, with keys:
+/// hsm gives its one tracking system to the first request and refuses the other, which takes
+/// its robot's own laser. Nobody is blamed, both arrive, and when both are done every
+/// component is as before: off or on as it was, idle, with no params.
+#[test]
+fn two_tasks_across_hosts_take_nothing_from_each_other() {
+    let _one = one_at_a_time();
+    let Some(mut home) = Home::start_with("two-tasks", Topology::Peers, true, &[], Cast::TwoRobots)
+    else {
+        return;
+    };
+    home.task(&[]);
+    let bob_plan = home.fixture.plan_of("bob");
+    home.task_as("exec-bob", &bob_plan, &[]);
+    let mut ends = Vec::new();
+    for name in ["executive", "exec-bob"] {
+        let (code, all) = home.finish_of(name);
+        assert_eq!(code, Some(0), "{name}: {all:#?}");
+        assert!(named(&all, "failure").is_empty(), "{name}: {all:#?}");
+        ends.push(costs(&all).last().map(|c| c.0));
+    }
+    ends.sort();
+    assert_eq!(ends, [Some(80), Some(170)], "one tracker, one laser");
+    home.assert_nothing_left_on();
 }

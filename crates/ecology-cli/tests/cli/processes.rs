@@ -1250,52 +1250,6 @@ fn over_zenoh_a_conditional_plan_branches_on_what_a_peis_observes() {
     assert_eq!(named(&all, "task_done").len(), 1, "{all:#?}");
 }
 
-/// Astrid in the entrance, Bob in the living room, each with a laser (off), odometry, a thinking
-/// cap and self-localisation; hsm with one ceiling camera and one tracking system.
-const TWO_ROBOTS: &str = r#"name = "two-robots"
-seed = 7
-[map]
-rooms = [
-  { name = "living-room", x = [0.0, 3.0], y = [0.0, 3.0] },
-  { name = "kitchen",     x = [3.0, 5.0], y = [0.0, 3.0] },
-  { name = "entrance",    x = [2.5, 5.0], y = [3.0, 5.0] },
-  { name = "bedroom",     x = [0.0, 2.5], y = [3.0, 5.0] },
-]
-doors = [
-  { between = ["living-room", "kitchen"],  at = [3.0, 1.5] },
-  { between = ["living-room", "entrance"], at = [2.75, 3.0] },
-  { between = ["entrance", "bedroom"],     at = [2.5, 4.0] },
-]
-[[robot]]
-name = "astrid"
-at = [3.3, 4.0, 3.14159]
-[[robot]]
-name = "bob"
-at = [2.2, 1.5, 0.0]
-[[peis]]
-name = "astrid"
-components = [
-  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
-  { id = "od1", type = "odomet",   cost = 10,  on = true },
-  { id = "tc1", type = "tc",       cost = 20,  on = true },
-  { id = "s1",  type = "self-loc", cost = 20,  on = true },
-]
-[[peis]]
-name = "bob"
-components = [
-  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
-  { id = "od1", type = "odomet",   cost = 10,  on = true },
-  { id = "tc1", type = "tc",       cost = 20,  on = true },
-  { id = "s1",  type = "self-loc", cost = 20,  on = true },
-]
-[[peis]]
-name = "hsm"
-components = [
-  { id = "ca1", type = "cams",   cost = 20, on = true },
-  { id = "tr1", type = "tr-sys", cost = 20, on = true },
-]
-"#;
-
 /// The issue's two tasks started together in one home, as processes on a secured router: Astrid
 /// to the bedroom (`exec-astrid`) and Bob to the kitchen (`exec-bob`). Both plan the ceiling
 /// cameras; hsm gives its one tracking system to the first request and refuses the other, which
@@ -1305,25 +1259,8 @@ components = [
 #[test]
 fn two_tasks_started_together_take_nothing_from_each_other() {
     let _one = one_at_a_time();
-    let folder = std::env::temp_dir().join(format!("ecology-two-tasks-{}", std::process::id()));
-    std::fs::create_dir_all(&folder).expect("temp folder");
-    let file = |name: &str| folder.join(name).display().to_string();
-    let domain = root().join("domains/peis-home.eco");
-    let task = format!(
-        "[task]\ndomain = \"{}\"\nplan = [{{ action = \"(move astrid entrance bedroom)\", configure = \"(navigate astrid bedroom)\" }}]\n",
-        domain.display()
-    );
-    std::fs::write(file("scenario.toml"), format!("{TWO_ROBOTS}{task}")).expect("scenario");
-    std::fs::write(
-        file("astrid.plan"),
-        "(move astrid entrance bedroom)  ; configure (navigate astrid bedroom)\n",
-    )
-    .expect("plan");
-    std::fs::write(
-        file("bob.plan"),
-        "(move bob living-room kitchen)  ; configure (navigate bob kitchen)\n",
-    )
-    .expect("plan");
+    let fixture = Fixture::two_robots("two-tasks");
+    let file = |name: &str| fixture.folder.join(name).display().to_string();
     let keys = file("keys");
     for args in [
         vec!["keys", "init", &keys],
@@ -1347,7 +1284,7 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
     )
     .ready();
     let through = ["--client", "--connect", endpoint.as_str(), "--keys", &keys];
-    let scenario = file("scenario.toml");
+    let scenario = fixture.scenario();
     let _world = Proc::start("world", &[&["world", &scenario][..], &through].concat()).ready();
     let _hosts = ["astrid", "bob", "hsm"].map(|name| {
         Proc::start(
@@ -1363,8 +1300,11 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
         Proc::start(name, &args)
     };
     let mut params = watch("watcher", "hsm:*.params");
-    let tasks = [("exec-astrid", "astrid.plan"), ("exec-bob", "bob.plan")].map(|(name, plan)| {
-        let plan = file(plan);
+    let tasks = [
+        ("exec-astrid", fixture.plan()),
+        ("exec-bob", fixture.plan_of("bob")),
+    ]
+    .map(|(name, plan)| {
         let mut args = vec!["task", "--name", name, "--domain", "domains/peis-home.eco"];
         args.extend([
             "--plan",
@@ -1419,5 +1359,4 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
         Some(format!("exec-{robot}").as_str()),
         "{tracker:#?}"
     );
-    let _ = std::fs::remove_dir_all(&folder);
 }
