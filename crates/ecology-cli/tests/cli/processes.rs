@@ -1299,7 +1299,7 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
         args.extend(["--name", name, "watch", pattern, "--json"]);
         Proc::start(name, &args)
     };
-    let mut params = watch("watcher", "hsm:*.params");
+    let params = watch("watcher", "hsm:*.params");
     let tasks = [
         ("exec-astrid", fixture.plan()),
         ("exec-bob", fixture.plan_of("bob")),
@@ -1359,4 +1359,50 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
         Some(format!("exec-{robot}").as_str()),
         "{tracker:#?}"
     );
+}
+
+/// Astrid's and Bob's executives share hsm's ceiling cameras, each with a tracking system of its
+/// own, when Astrid's is interrupted (SIGINT) mid-move: it releases its own claims only. Its
+/// tracker is put back, the cameras keep running for Bob, whose two moves are done on them with
+/// no failure, and when he is done nothing is held any more.
+#[test]
+fn an_executive_interrupted_while_sharing_releases_only_its_own_claims() {
+    let _one = one_at_a_time();
+    let fixture = Fixture::two_robots_with(
+        "sigint-shared",
+        "  { id = \"tr2\", type = \"tr-sys\", cost = 20, on = true },\n",
+    );
+    let bob_plan = fixture.folder.join("bob-twice.txt");
+    std::fs::write(
+        &bob_plan,
+        "(move bob living-room kitchen)  ; configure (navigate bob kitchen)\n\
+         (move bob kitchen living-room)  ; configure (navigate bob living-room)\n",
+    )
+    .expect("plan");
+    let ecology = Ecology::start_with_bob(&fixture);
+    let mut astrid = ecology.task_as("exec-astrid", &fixture.plan());
+    let bob = ecology.task_as("exec-bob", &bob_plan.display().to_string());
+    astrid.wait_for("running", |l| is_event(l, "running"));
+    astrid.signal(Signal::SIGINT);
+    let (code, lines) = astrid.finish();
+    let all = events(&lines);
+    assert_ne!(code, Some(0), "{all:#?}");
+    assert_eq!(named(&all, "released").len(), 1, "{all:#?}");
+    let (code, lines) = bob.finish();
+    let all = events(&lines);
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert!(costs(&all).iter().all(|c| c.0 == 80), "{all:#?}");
+    let tuples = ecology.read("hsm");
+    for key in [
+        "components.ca1.holders",
+        "components.tr1.holders",
+        "components.tr2.holders",
+    ] {
+        assert_eq!(
+            tuples.get(key).map(String::as_str),
+            Some(""),
+            "{key}: {tuples:#?}"
+        );
+    }
 }

@@ -277,6 +277,12 @@ components = [
     /// Astrid's plan (`plan`) moves her to the bedroom, Bob's (`plan_of("bob")`) him to the
     /// kitchen.
     pub fn two_robots(test: &str) -> Fixture {
+        Fixture::two_robots_with(test, "")
+    }
+
+    /// [`Fixture::two_robots`], with `hsm_more` added to hsm's components (such as a second
+    /// tracking system).
+    pub fn two_robots_with(test: &str, hsm_more: &str) -> Fixture {
         let folder = std::env::temp_dir().join(format!("ecology-{test}-{}", std::process::id()));
         std::fs::create_dir_all(&folder).expect("temp folder");
         let domain = root().join("domains/peis-home.eco");
@@ -286,7 +292,9 @@ components = [
             TO_BEDROOM.0,
             TO_BEDROOM.1
         );
-        std::fs::write(folder.join("scenario.toml"), format!("{TWO_ROBOTS}{task}"))
+        let scenario =
+            TWO_ROBOTS.replace("  { id = \"tr1\"", &format!("{hsm_more}  {{ id = \"tr1\""));
+        std::fs::write(folder.join("scenario.toml"), format!("{scenario}{task}"))
             .expect("write scenario");
         for (file, (action, goal)) in [("plan.txt", TO_BEDROOM), ("bob.txt", BOB_TO_KITCHEN)] {
             std::fs::write(folder.join(file), format!("{action}  ; configure {goal}\n"))
@@ -386,6 +394,8 @@ pub struct Ecology {
     _astrid: Proc,
     pub hsm: Proc,
     pub hsm_args: Vec<String>,
+    /// More PEIS processes (Bob's, [`Ecology::start_with_bob`]).
+    others: Vec<Proc>,
 }
 
 impl Ecology {
@@ -435,7 +445,86 @@ impl Ecology {
             _astrid: astrid,
             hsm,
             hsm_args,
+            others: Vec::new(),
         }
+    }
+
+    /// As [`Ecology::start`] for [`Fixture::two_robots`]: Bob a process too.
+    pub fn start_with_bob(fixture: &Fixture) -> Ecology {
+        let mut ecology = Ecology::start(fixture, &[]);
+        let scenario = fixture.scenario();
+        let listen = free_endpoint();
+        let bob = Proc::start(
+            "bob",
+            &[
+                "peis",
+                &scenario,
+                "--name",
+                "bob",
+                "--listen",
+                &listen,
+                "--connect",
+                &ecology.world_endpoint,
+            ],
+        )
+        .ready();
+        ecology.others.push(bob);
+        ecology
+    }
+
+    /// The executive `name` on `plan`, printing JSON lines, once the world, Astrid, Bob and hsm
+    /// are present.
+    pub fn task_as(&self, name: &str, plan: &str) -> Proc {
+        let listen = free_endpoint();
+        Proc::start(
+            name,
+            &[
+                "task",
+                "--name",
+                name,
+                "--domain",
+                "domains/peis-home.eco",
+                "--plan",
+                plan,
+                "--json",
+                "--wait-for",
+                "world,astrid,bob,hsm",
+                "--listen",
+                &listen,
+                "--connect",
+                &self.world_endpoint,
+            ],
+        )
+    }
+
+    /// The tuples of `owner` as they stand, by key, read by `ecology tuples watch`.
+    pub fn read(&self, owner: &str) -> std::collections::BTreeMap<String, String> {
+        let listen = free_endpoint();
+        let pattern = format!("{owner}:**");
+        let watch = Proc::start(
+            "reader",
+            &[
+                "tuples",
+                "--listen",
+                &listen,
+                "--connect",
+                &self.world_endpoint,
+                "--name",
+                "reader",
+                "watch",
+                &pattern,
+                "--json",
+            ],
+        );
+        let mut seen = std::collections::BTreeMap::new();
+        while let Ok(line) = watch.lines.recv_timeout(Duration::from_millis(1500)) {
+            let v = event(&line.text);
+            if let (Some(key), Some(value)) = (v["key"].as_str(), v["value"].as_str()) {
+                seen.insert(key.to_string(), value.to_string());
+            }
+        }
+        watch.signal(Signal::SIGINT);
+        seen
     }
 
     /// The executive on `plan`, printing JSON lines.

@@ -296,11 +296,56 @@ async fn a_shared_camera_serves_two_trackers_until_its_last_holder_releases_it()
     ran.all_released();
 }
 
-// Astrid's executive holds the only tracker when it is killed mid-move: Bob, on his laser, is
-// not disturbed, and once hsm's dead man's switch has dropped the dead executive's claims
-// (its lease, then a second), Bob's next move takes the tracker.
+// Astrid's and Bob's executives share the ceiling cameras (each with a tracker of its own) when
+// Astrid's is killed mid-move. Her claims lapse with her presence (hsm's dead man's switch, per
+// holder): her tracker is put back, and the cameras keep running for Bob, whose task goes on
+// unharmed on them.
 #[tokio::test(start_paused = true)]
-async fn a_killed_executive_s_claims_lapse_and_another_takes_them() {
+async fn an_executive_killed_while_sharing_takes_nothing_from_the_other() {
+    let facts = format!("{PEIS_HOME_FACTS}{BOB}{SECOND_TRACKER}");
+    let ran = together(
+        &facts,
+        vec![
+            Task {
+                killed_at: Some(Duration::from_secs(2)),
+                ..Task::new("exec-astrid", moves("astrid", &["bedroom", "kitchen"]))
+            },
+            Task::new(
+                "exec-bob",
+                moves("bob", &["kitchen", "bedroom", "entrance"]),
+            ),
+        ],
+    )
+    .await;
+    let bob = ran.exec("exec-bob");
+    assert_eq!(bob.status(), &RunStatus::Done, "{}", timeline(bob));
+    assert_eq!(ran.failures("exec-bob"), 0, "{}", timeline(bob));
+    assert!(
+        ran.costs("exec-bob").iter().all(|&c| c == 80),
+        "{}",
+        timeline(bob)
+    );
+    // The cameras went from both holders to Bob alone (Astrid's claim lapsing), never to none
+    // while Bob moved.
+    let holders = &ran.hsm["components.ca1.holders"];
+    let both = holders
+        .iter()
+        .position(|h| h.split(' ').count() == 2)
+        .expect("shared");
+    assert_eq!(
+        holders[both + 1..],
+        ["exec-bob".to_string(), String::new()],
+        "{holders:?}"
+    );
+    ran.never_re_aimed();
+    ran.all_released();
+}
+
+// Astrid's executive holds the only tracker when it is cut off mid-move (it stops being heard, as
+// in a partition or a crash): Bob, on his laser, is not disturbed, and once hsm's dead man's
+// switch has dropped its claims (its lease, then a second), Bob's next move takes the tracker.
+#[tokio::test(start_paused = true)]
+async fn a_cut_off_executive_s_claims_lapse_and_another_takes_them() {
     let facts = format!("{PEIS_HOME_FACTS}{BOB}");
     let ran = together(
         &facts,
