@@ -25,8 +25,8 @@ use rustc_hash::FxHashMap as HashMap;
 
 use ecology_domain::{EcologyState, Name};
 
-use crate::Exclusion;
 use crate::compile::{CLit, CTerm, Callee, Schema, Symbols};
+use crate::model::Exclusion;
 
 /// How many facts are read between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;

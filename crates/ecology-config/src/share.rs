@@ -39,9 +39,10 @@ use std::hash::{Hash, Hasher};
 use rustc_hash::{FxHashMap as HashMap, FxHasher};
 
 use crate::compile::{GInfo, Sym};
+use crate::explain;
 use crate::ground::{INFEASIBLE, ItemId, ItemKind};
+use crate::model::Configuration;
 use crate::search::Engine;
-use crate::{Configuration, explain};
 
 const NONE: u32 = u32::MAX;
 

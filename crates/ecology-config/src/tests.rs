@@ -1117,7 +1117,9 @@ fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
 
 /// Whether the relaxation proves that `request` has no configuration.
 fn relaxation_proves_none(request: &Request<'_>) -> bool {
-    let (schema, (callee, args)) = crate::schema_and_goal(request, None).expect("valid");
+    let (prepared, (callee, args)) =
+        crate::planner::prepared_and_goal(request, None).expect("valid");
+    let schema = prepared.schema;
     schema.relaxed.proves_none(
         &schema,
         request.state,
