@@ -15,6 +15,7 @@ use crate::cost::CostModel;
 use crate::explain;
 use crate::ground::{self, Ctx, Excluded};
 use crate::model::{Exclusion, Options, Outcome, Request, RequestError, Snapshot, Stats, Status};
+use crate::relaxed::Relaxed;
 use crate::search::Engine;
 use crate::share;
 
@@ -55,7 +56,7 @@ impl<'a> Search<'a> {
         cost_model: &'a dyn CostModel,
         options: &Options,
     ) -> Result<Search<'a>, RequestError> {
-        let (Prepared { schema }, goal) = prepared_and_goal(request, None)?;
+        let (Prepared { schema, .. }, goal) = prepared_and_goal(request, None)?;
         Ok(Search::new_until(
             request,
             schema,
@@ -268,13 +269,18 @@ impl<'a> Search<'a> {
 pub(crate) struct Prepared {
     /// The schemas, shared with every plan's compiled state.
     pub(crate) schema: Arc<Schema>,
+    /// The schemas as the relaxation that proves "none" reads them.
+    pub(crate) relaxed: Arc<Relaxed>,
 }
 
 impl Prepared {
     /// Compiles `domain`.
     pub(crate) fn new(domain: &Domain) -> Prepared {
+        let schema = Schema::new(domain);
+        let relaxed = Relaxed::new(&schema);
         Prepared {
-            schema: Arc::new(Schema::new(domain)),
+            schema: Arc::new(schema),
+            relaxed: Arc::new(relaxed),
         }
     }
 }
@@ -296,9 +302,9 @@ pub(crate) fn plan_prepared<'a>(
             .max_time
             .is_some_and(|t| clock.elapsed() >= t)
     };
-    let (Prepared { schema }, goal) = prepared_and_goal(request, prepared)?;
+    let (Prepared { schema, relaxed }, goal) = prepared_and_goal(request, prepared)?;
     if !options.explain
-        && schema.relaxed.proves_none(
+        && relaxed.proves_none(
             &schema,
             request.state,
             goal.0,

@@ -55,8 +55,8 @@ struct Pred {
     keyed: Vec<(usize, HashMap<Name, Vec<u32>>)>,
 }
 
-/// The domain's schemas as the relaxation reads them; built with the
-/// [`Schema`], once per domain.
+/// The domain's schemas as the relaxation reads them; built from the
+/// [`Schema`], once per domain (see `planner::Prepared`).
 #[derive(Debug, Default)]
 pub(crate) struct Relaxed {
     preds: Vec<Pred>,

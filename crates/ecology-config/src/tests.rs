@@ -1119,9 +1119,8 @@ fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
 fn relaxation_proves_none(request: &Request<'_>) -> bool {
     let (prepared, (callee, args)) =
         crate::planner::prepared_and_goal(request, None).expect("valid");
-    let schema = prepared.schema;
-    schema.relaxed.proves_none(
-        &schema,
+    prepared.relaxed.proves_none(
+        &prepared.schema,
         request.state,
         callee,
         &args,
