@@ -98,10 +98,13 @@ impl<'a> Search<'a> {
             // search; the tree search finishes with the explanation.
             None
         } else {
-            let mut cut = false;
-            let shared = share::Shared::new(&engine, options.count, over, &mut cut);
-            engine.graph.cut = cut;
-            shared
+            match share::Shared::new(&engine, options.count, over) {
+                Ok(shared) => shared,
+                Err(share::Cut) => {
+                    engine.graph.cut = true;
+                    None
+                }
+            }
         };
         Search {
             engine,
