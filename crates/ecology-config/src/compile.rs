@@ -453,8 +453,6 @@ pub(crate) struct Schema {
     /// By task: how often each functionality schema can occur in one
     /// decomposition of it, computed the first time a goal asks.
     multiplicity: Vec<std::sync::OnceLock<std::sync::Arc<[u64]>>>,
-    /// The schemas as the relaxation that proves "none" reads them.
-    pub(crate) relaxed: crate::relaxed::Relaxed,
 }
 
 /// A component held by another executive, from the fact
@@ -492,6 +490,10 @@ impl std::ops::Deref for Compiled {
     }
 }
 
+/// How deep a decomposition goes: guards grounding and the multiplicities
+/// against domains that bypassed validation with a cycle.
+pub(crate) const MAX_DEPTH: usize = 256;
+
 /// How many facts are interned or indexed between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;
 
@@ -523,9 +525,9 @@ impl Schema {
     pub(crate) fn multiplicity(&self, goal: Callee) -> std::sync::Arc<[u64]> {
         match goal {
             Callee::Task(t) => self.multiplicity[t as usize]
-                .get_or_init(|| crate::ground::multiplicity(self, goal).into())
+                .get_or_init(|| multiplicity(self, goal).into())
                 .clone(),
-            Callee::Func(_) => crate::ground::multiplicity(self, goal).into(),
+            Callee::Func(_) => multiplicity(self, goal).into(),
         }
     }
 
@@ -548,7 +550,6 @@ impl Schema {
             multiplicity: (0..domain.tasks.len())
                 .map(|_| std::sync::OnceLock::new())
                 .collect(),
-            relaxed: crate::relaxed::Relaxed::default(),
         };
         for (src, f) in domain.functionalities.iter().enumerate() {
             let mut slots = Slots::new();
@@ -642,7 +643,6 @@ impl Schema {
             }
         }
         schema.indexed = indexed;
-        schema.relaxed = crate::relaxed::Relaxed::new(&schema);
         schema
     }
 
@@ -693,6 +693,54 @@ impl Schema {
 
     fn infos<'a>(&mut self, infos: &'a [Info], slots: &mut Slots<'a>) -> Vec<CInfo> {
         infos.iter().map(|i| self.info(i, slots)).collect()
+    }
+}
+
+/// For each functionality schema, the most times it can occur in one
+/// decomposition of `goal` (computed on schemas, so it holds for every binding).
+fn multiplicity(c: &Schema, goal: Callee) -> Vec<u64> {
+    /// Fills `memo[t]` with task `t`'s counts (left empty past `MAX_DEPTH`,
+    /// which counts as none).
+    fn occ(c: &Schema, t: usize, memo: &mut [Option<Vec<u64>>], depth: usize) {
+        if memo[t].is_some() || depth >= MAX_DEPTH {
+            return;
+        }
+        let mut out = vec![0u64; c.funcs.len()];
+        let mut sum = vec![0u64; c.funcs.len()];
+        for &m in &c.tasks[t].methods {
+            sum.fill(0);
+            for sub in &c.methods[m as usize].subtasks {
+                match sub.callee {
+                    Callee::Func(f) => sum[f as usize] = sum[f as usize].saturating_add(1),
+                    Callee::Task(u) => {
+                        occ(c, u as usize, memo, depth + 1);
+                        if let Some(counts) = &memo[u as usize] {
+                            for (s, o) in sum.iter_mut().zip(counts) {
+                                *s = s.saturating_add(*o);
+                            }
+                        }
+                    }
+                }
+            }
+            for (o, s) in out.iter_mut().zip(&sum) {
+                *o = (*o).max(*s);
+            }
+        }
+        memo[t] = Some(out);
+    }
+    match goal {
+        Callee::Func(f) => {
+            let mut out = vec![0u64; c.funcs.len()];
+            out[f as usize] = 1;
+            out
+        }
+        Callee::Task(t) => {
+            let mut memo = vec![None; c.tasks.len()];
+            occ(c, t as usize, &mut memo, 0);
+            memo[t as usize]
+                .take()
+                .unwrap_or_else(|| vec![0u64; c.funcs.len()])
+        }
     }
 }
 

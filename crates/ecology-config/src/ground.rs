@@ -17,14 +17,11 @@ use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet, FxHasher};
 
 use ecology_domain::{ComponentCost, Domain, Literal, Name, Param, Power, Term};
 
-use crate::compile::{Callee, Compiled, Schema, Sym};
+use crate::compile::{CMethod, CTerm, Callee, Compiled, MAX_DEPTH, Sym};
 use crate::cost::CostModel;
 
 /// "Cannot be provided."
 pub(crate) const INFEASIBLE: u64 = u64::MAX;
-
-/// Guards grounding against domains that bypassed validation with a cycle.
-const MAX_DEPTH: usize = 256;
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub(crate) struct ItemId(pub(crate) u32);
@@ -406,70 +403,19 @@ impl Graph {
 
 /// The method's binding with its task arguments set, or `None` if a constant
 /// in the method's `:task` does not match.
-pub(crate) fn bind_task_args(
-    method: &crate::compile::CMethod,
-    args: &[Sym],
-) -> Option<Vec<Option<Sym>>> {
+pub(crate) fn bind_task_args(method: &CMethod, args: &[Sym]) -> Option<Vec<Option<Sym>>> {
     let mut binding = vec![None; method.nvars];
     for (term, &arg) in method.task_args.iter().zip(args) {
         match *term {
-            crate::compile::CTerm::Const(c) if c != arg => return None,
-            crate::compile::CTerm::Const(_) => {}
-            crate::compile::CTerm::Var(slot) => match binding[slot as usize] {
+            CTerm::Const(c) if c != arg => return None,
+            CTerm::Const(_) => {}
+            CTerm::Var(slot) => match binding[slot as usize] {
                 Some(bound) if bound != arg => return None,
                 _ => binding[slot as usize] = Some(arg),
             },
         }
     }
     Some(binding)
-}
-
-/// For each functionality schema, the most times it can occur in one
-/// decomposition of `goal` (computed on schemas, so it holds for every binding).
-pub(crate) fn multiplicity(c: &Schema, goal: Callee) -> Vec<u64> {
-    /// Fills `memo[t]` with task `t`'s counts (left empty past `MAX_DEPTH`,
-    /// which counts as none).
-    fn occ(c: &Schema, t: usize, memo: &mut [Option<Vec<u64>>], depth: usize) {
-        if memo[t].is_some() || depth >= MAX_DEPTH {
-            return;
-        }
-        let mut out = vec![0u64; c.funcs.len()];
-        let mut sum = vec![0u64; c.funcs.len()];
-        for &m in &c.tasks[t].methods {
-            sum.fill(0);
-            for sub in &c.methods[m as usize].subtasks {
-                match sub.callee {
-                    Callee::Func(f) => sum[f as usize] = sum[f as usize].saturating_add(1),
-                    Callee::Task(u) => {
-                        occ(c, u as usize, memo, depth + 1);
-                        if let Some(counts) = &memo[u as usize] {
-                            for (s, o) in sum.iter_mut().zip(counts) {
-                                *s = s.saturating_add(*o);
-                            }
-                        }
-                    }
-                }
-            }
-            for (o, s) in out.iter_mut().zip(&sum) {
-                *o = (*o).max(*s);
-            }
-        }
-        memo[t] = Some(out);
-    }
-    match goal {
-        Callee::Func(f) => {
-            let mut out = vec![0u64; c.funcs.len()];
-            out[f as usize] = 1;
-            out
-        }
-        Callee::Task(t) => {
-            let mut memo = vec![None; c.tasks.len()];
-            occ(c, t as usize, &mut memo, 0);
-            memo[t as usize]
-                .take()
-                .unwrap_or_else(|| vec![0u64; c.funcs.len()])
-        }
-    }
 }
 
 /// Renders a literal with parameters replaced by values (unknown variables stay).

@@ -11,7 +11,8 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use ecology_domain::{Call, Domain, EcologyState, Info, Literal, Method, Param, Term};
 
-use crate::{CostModel, Exclusion};
+use crate::cost::CostModel;
+use crate::model::Exclusion;
 
 /// One admissible configuration as the oracle sees it.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -25,8 +25,8 @@ use rustc_hash::FxHashMap as HashMap;
 
 use ecology_domain::{EcologyState, Name};
 
-use crate::Exclusion;
 use crate::compile::{CLit, CTerm, Callee, Schema, Symbols};
+use crate::model::Exclusion;
 
 /// How many facts are read between two looks at the budget.
 const FACTS_PER_CHECK: usize = 1024;
@@ -55,8 +55,8 @@ struct Pred {
     keyed: Vec<(usize, HashMap<Name, Vec<u32>>)>,
 }
 
-/// The domain's schemas as the relaxation reads them; built with the
-/// [`Schema`], once per domain.
+/// The domain's schemas as the relaxation reads them; built from the
+/// [`Schema`], once per domain (see `planner::Prepared`).
 #[derive(Debug, Default)]
 pub(crate) struct Relaxed {
     preds: Vec<Pred>,

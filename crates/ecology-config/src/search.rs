@@ -23,7 +23,7 @@ use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use crate::compile::{CInfo, Callee, GInfo, Sym, Symbols};
 use crate::ground::{Ctx, Graph, INFEASIBLE, ItemId, ItemKind};
-use crate::{ChannelInstance, Configuration, FunctionalityInstance};
+use crate::model::{ChannelInstance, Configuration, FunctionalityInstance};
 use ecology_domain::Name;
 
 const NO_PARENT: u32 = u32::MAX;

@@ -8,6 +8,8 @@ use std::fmt::Write;
 
 use ecology_domain::{Call, Domain, EcologyState};
 
+use crate::model::{Exclusion, Request};
+
 /// The seeded generator (SplitMix64), shared with the simulation.
 pub use ecology_core::Rng;
 
@@ -29,13 +31,13 @@ pub struct Instance {
     /// Every component, as `(peis, component)`.
     pub components: Vec<(String, String)>,
     /// Components that have failed: plan with these excluded.
-    pub exclusions: Vec<crate::Exclusion>,
+    pub exclusions: Vec<Exclusion>,
 }
 
 impl Instance {
     /// The request for this instance: its goal, with its failed components excluded.
-    pub fn request(&self) -> crate::Request<'_> {
-        crate::Request {
+    pub fn request(&self) -> Request<'_> {
+        Request {
             domain: &self.domain,
             state: &self.state,
             goal: &self.goal,
@@ -538,7 +540,7 @@ pub fn sharing(shape: Sharing) -> Result<Instance, GeneratorError> {
                 )
                 .ok();
                 if shape.failed > 0.0 && rng.chance(shape.failed) {
-                    exclusions.push(crate::Exclusion::Component {
+                    exclusions.push(Exclusion::Component {
                         peis: format!("q{p}"),
                         component: c.clone(),
                     });

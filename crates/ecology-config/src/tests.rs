@@ -1117,9 +1117,10 @@ fn provider_search_against_the_oracle(seeds: std::ops::Range<u64>) {
 
 /// Whether the relaxation proves that `request` has no configuration.
 fn relaxation_proves_none(request: &Request<'_>) -> bool {
-    let (schema, (callee, args)) = crate::schema_and_goal(request, None).expect("valid");
-    schema.relaxed.proves_none(
-        &schema,
+    let (prepared, (callee, args)) =
+        crate::planner::prepared_and_goal(request, None).expect("valid");
+    prepared.relaxed.proves_none(
+        &prepared.schema,
         request.state,
         callee,
         &args,
