@@ -38,6 +38,9 @@ pub const EXIT_OK: u8 = 0;
 pub const EXIT_NO_SOLUTION: u8 = 1;
 /// Exit code: bad input or usage.
 pub const EXIT_BAD_INPUT: u8 = 2;
+/// Exit code of `ecology tuples`: the tuple or PEIS was not found, or the owner refused (the
+/// code of "no solution").
+pub const EXIT_NOT_FOUND: u8 = EXIT_NO_SOLUTION;
 /// When this environment variable is set, `ecology` only checks its arguments, then exits 0.
 const PARSE_ONLY: &str = "ECOLOGY_PARSE_ONLY";
 
@@ -134,7 +137,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Check(args) => configure::check(&args),
         Command::Configure(args) => configure::configure(&args),
-        Command::Tuples(args) => tuples::run(args).map(|code| u8::try_from(code).unwrap_or(1)),
+        Command::Tuples(args) => tuples::run(args),
         Command::Plan(args) => plan::plan(&args),
         Command::Demo(args) => demo::demo(&args),
         Command::Run(args) => demo::run(&args),

@@ -15,12 +15,7 @@ use ecology_zenoh::ZenohPeis;
 
 use crate::network::{self, JoinFailure, NetArgs};
 
-/// Exit code: success.
-pub const EXIT_OK: i32 = 0;
-/// Exit code: the tuple or PEIS was not found, or the owner refused.
-pub const EXIT_NOT_FOUND: i32 = 1;
-/// Exit code: bad input.
-pub const EXIT_BAD_INPUT: i32 = 2;
+use crate::{EXIT_BAD_INPUT, EXIT_NOT_FOUND, EXIT_OK};
 
 /// `ecology tuples`: options to join an ecology, and what to do there.
 #[derive(clap::Args, Debug)]
@@ -71,16 +66,16 @@ enum TuplesCommand {
 }
 
 /// Runs `ecology tuples` and returns the exit code.
-pub fn run(args: TuplesArgs) -> anyhow::Result<i32> {
+pub fn run(args: TuplesArgs) -> anyhow::Result<u8> {
     network::runtime()?.block_on(run_async(args))
 }
 
-fn bad_input(e: &ValidationError) -> i32 {
+fn bad_input(e: &ValidationError) -> u8 {
     eprintln!("ecology tuples: {e}");
     EXIT_BAD_INPUT
 }
 
-async fn run_async(args: TuplesArgs) -> anyhow::Result<i32> {
+async fn run_async(args: TuplesArgs) -> anyhow::Result<u8> {
     let name = match &args.name {
         Some(name) => PeisId::new(name),
         None => PeisId::new(&format!("tuples-{}", std::process::id())),
@@ -170,7 +165,7 @@ impl Command {
         })
     }
 
-    async fn execute(self, peis: &ZenohPeis) -> anyhow::Result<i32> {
+    async fn execute(self, peis: &ZenohPeis) -> anyhow::Result<u8> {
         let mut out = std::io::stdout().lock();
         match self {
             Self::Get { owner, key } => match peis.get(owner.clone(), key.clone()).await? {
@@ -277,7 +272,7 @@ async fn watch(
     pattern: TuplePattern,
     json: bool,
     count: Option<u64>,
-) -> anyhow::Result<i32> {
+) -> anyhow::Result<u8> {
     // One listener for the whole watch: a SIGINT that came between two
     // changes was lost when each wait made a listener of its own.
     let stop = crate::network::stop_signal();
