@@ -215,7 +215,12 @@ class Peis:
 
     def apply_remote_set(self, query):
         prefix = f"peis/{self.name}/@set/"
-        key = str(query.key_expr)[len(prefix):].replace("/", ".")
+        chunks = str(query.key_expr)[len(prefix):]
+        # One spelling per key, one segment per chunk: `components/c1.reqState` would slip past
+        # an access rule that matches chunks.
+        if "." in chunks:
+            return query.reply_err(f"{chunks} is not one exact key (a remote set needs one exact key)")
+        key = chunks.replace("/", ".")
         if key not in self.remote_settable:
             return query.reply_err(f"remote set of {key} is not allowed by {self.name}")
         data = query.payload.to_bytes() if query.payload is not None else b""

@@ -139,8 +139,18 @@ pub fn parse_tuple_key_expr(ke: &str) -> Result<(PeisId, Key), WireError> {
         .ok_or_else(fail)?;
     let (owner, key) = rest.split_once('/').ok_or_else(fail)?;
     let owner = PeisId::new(owner).map_err(|_| fail())?;
-    let key = Key::new(&key.replace('/', ".")).map_err(|_| fail())?;
+    let key = key_of_chunks(key).ok_or_else(fail)?;
     Ok((owner, key))
+}
+
+/// The key whose segments are `chunks` (`a/b/c` → `a.b.c`), in its one canonical spelling: each
+/// chunk a single segment. `a/b.c` would name the same key as `a/b/c`, but slip past an access
+/// rule that matches chunks (`a/*` takes the chunk `b.c`), so it names nothing.
+fn key_of_chunks(chunks: &str) -> Option<Key> {
+    if chunks.contains('.') {
+        return None;
+    }
+    Key::new(&chunks.replace('/', ".")).ok()
 }
 
 /// Reads a remote set's key expression, given OWNER: the requester it names (`peis/OWNER/@by/REQUESTER/k/e/y`)
@@ -165,7 +175,7 @@ pub fn parse_remote_set_key_expr(
             .ok_or_else(fail)?;
         (Some(PeisId::new(requester).map_err(|_| fail())?), key)
     };
-    let key = Key::new(&key.replace('/', ".")).map_err(|_| fail())?;
+    let key = key_of_chunks(key).ok_or_else(fail)?;
     Ok((requester, key))
 }
 

@@ -10,7 +10,7 @@ whatever credentials it is given (none, or a certificate of its own name):
 - replay:  the victim's own samples, captured by subscribing, published again as they were;
 - reply:   a queryable on the victim's subtree answering every get with forged tuples;
 - set:     remote sets of the victim's keys (switching a component off, new params, fault tuples),
-           unnamed and naming the executive as their requester.
+           unnamed, naming the executive as their requester, and with dots inside one chunk.
 
 It declares its tokens, prints `tokens` and waits for `go` on standard input (the test starts
 the victim in between), waits to be linked to --peers PEIS, then attacks. It prints one JSON line with what it tried and what was accepted *as far as it can tell*
@@ -148,16 +148,17 @@ def main():
     # in our own name, where we may be granted a key, with a creator stamp naming the executive.
     keys = ["@set/components/ca1/reqState", "@set/ca1/params", "@set/ca1/fault",
             "@set/tr1/mi-image", "@by/executive/components/ca1/reqState",
-            "@by/executive/ca1/params", f"@by/{args.name}/ca1/fault"]
+            "@by/executive/ca1/params", f"@by/{args.name}/ca1/fault",
+            "@set/components/ca1.reqState", "@by/executive/ca1.fault/params"]
     values = ["off", "(cameras hsm ca1)", "stall", "(meta mallory x)", "off", "(cameras hsm x)",
-              "stall"]
+              "stall", "off", "(cameras hsm x)"]
     forged_stamp = stamped("executive")
     sent = 0
     for batch in range(0, n, 100):
         pending = []
         for i in range(batch, min(n, batch + 100)):
             k = i % len(keys)
-            attachment = forged_stamp if keys[k].startswith("@by/" + args.name) else request
+            attachment = forged_stamp if keys[k] == f"@by/{args.name}/ca1/fault" else request
             pending.append(s.get(f"peis/{victim}/{keys[k]}", payload=values[k],
                                  attachment=attachment, timeout=1.0))
             sent += 1

@@ -312,12 +312,17 @@ async fn a_plain_put_is_a_tuple_and_malformed_samples_are_counted() {
         .attachment(truncated)
         .await
         .expect("put");
+    // A key has one spelling, one segment per chunk: `sensor/temperature`, never `sensor.temperature`.
+    client
+        .put("peis/robot/sensor.temperature", "99")
+        .await
+        .expect("put");
     client.put("peis/robot/after", "valid").await.expect("put");
     match next_event(&mut sub, PATIENCE).await {
         TupleEvent::Changed(t) => assert_eq!((t.key.as_str(), t.text()), ("after", Ok("valid"))),
         other => panic!("unexpected {other:?}"),
     }
-    assert_eq!(watcher.malformed_samples(), 4);
+    assert_eq!(watcher.malformed_samples(), 5);
     client.delete("peis/robot/after").await.expect("delete");
     assert!(matches!(
         next_event(&mut sub, PATIENCE).await,
@@ -414,6 +419,31 @@ async fn a_stock_client_can_get_and_remote_set() {
         .expect("get")
         .expect("applied");
     assert_eq!((applied.text(), applied.seq), (Ok("on"), 1));
+
+    // A key has one spelling, one segment per chunk: any other is refused, whatever it would
+    // name, and nothing is written.
+    for spelling in [
+        "peis/astrid/@set/components/l1.reqState",
+        "peis/astrid/@set/components.l1/reqState",
+        "peis/astrid/@set/components.l1.reqState",
+        "peis/astrid/@by/exec/components/l1.reqState",
+    ] {
+        let replies = client
+            .get(spelling)
+            .payload("off")
+            .await
+            .expect("remote set");
+        let reply = replies.recv_async().await.expect("one reply");
+        let err = reply.result().expect_err(spelling);
+        let reason = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
+        assert!(reason.contains("one exact key"), "{spelling}: {reason}");
+    }
+    let still = astrid
+        .get(peis("astrid"), key("components.l1.reqState"))
+        .await
+        .expect("get")
+        .expect("applied");
+    assert_eq!((still.text(), still.seq), (Ok("on"), 1));
 
     let replies = client
         .get("peis/astrid/@set/secret")
