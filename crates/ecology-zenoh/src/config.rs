@@ -144,11 +144,7 @@ impl ZenohOptions {
             "scouting/gossip/autoconnect_strategy",
             json!({ "peer": { "to_router": "always", "to_peer": "greater-zid" } }),
         )?;
-        secure(
-            config_ref,
-            &self.security,
-            self.listen.iter().chain(&self.connect),
-        )?;
+        secure(config_ref, &self.security)?;
         Ok(config)
     }
 }
@@ -187,20 +183,35 @@ pub enum Security {
     Authenticated(Box<Identity>),
 }
 
-/// Applies `security` to `config`: mutual TLS with the member's certificate on every link, and the
-/// roster's access rules. Every endpoint must then be `quic/…` (TLS 1.3 over UDP): a `tcp/…` one
-/// would be refused by the access rules anyway and is more likely a mistake than a wish, and
-/// Zenoh 1.10's `tls/` links read and write one TLS stream from two tasks at once (upstream issue
-/// 2557), which drops links now and then under load; its QUIC links keep the two directions apart.
-pub(crate) fn secure<'a>(
-    config: &mut zenoh::Config,
-    security: &Security,
-    endpoints: impl Iterator<Item = &'a String>,
-) -> Result<(), ZenohError> {
+/// Applies `security` to `config`, the final configuration whatever its source (the options, or a
+/// `--zenoh-config` file): mutual TLS with the member's certificate on every link, and the
+/// roster's access rules, over whatever the file said of them. What it cannot override without
+/// guessing, it refuses, saying why:
+///
+/// - every endpoint, listened on or connected to, must be `quic/…` (TLS 1.3 over UDP): a `tcp/…`
+///   one would carry no certificate at all, and Zenoh 1.10's `tls/` links read and write one TLS
+///   stream from two tasks at once (upstream issue 2557), which drops links now and then under
+///   load; its QUIC links keep the two directions apart;
+/// - multicast scouting stays off: it answers anyone on the network with this process's
+///   endpoints, and a secured ecology is joined by the endpoints its members are given.
+pub(crate) fn secure(config: &mut zenoh::Config, security: &Security) -> Result<(), ZenohError> {
     let Security::Authenticated(identity) = security else {
         return Ok(());
     };
-    for endpoint in endpoints {
+    let scouting = config
+        .get_json("scouting/multicast/enabled")
+        .ok()
+        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok());
+    if scouting == Some(json!(true)) {
+        return Err(ZenohError::Config {
+            what: "scouting/multicast/enabled".to_owned(),
+            message: "with keys, multicast scouting stays off (it tells anyone on the network \
+                      where this process listens): leave --multicast out, and set it false in \
+                      a --zenoh-config file"
+                .to_owned(),
+        });
+    }
+    for endpoint in configured_endpoints(config) {
         if !endpoint.starts_with("quic/") {
             return Err(ZenohError::Config {
                 what: format!("endpoint {endpoint}"),
@@ -240,6 +251,30 @@ pub(crate) fn secure<'a>(
         json!(false),
     )?;
     insert(config, "access_control", identity.roster.access_control())
+}
+
+/// Every endpoint `config` listens on or connects to, whichever mode they are given for.
+fn configured_endpoints(config: &zenoh::Config) -> Vec<String> {
+    fn strings(value: &serde_json::Value, out: &mut Vec<String>) {
+        match value {
+            serde_json::Value::String(s) => out.push(s.clone()),
+            serde_json::Value::Array(items) => items.iter().for_each(|v| strings(v, out)),
+            // Endpoints per mode: `{ router: [...], peer: [...], client: [...] }`.
+            serde_json::Value::Object(map) => map.values().for_each(|v| strings(v, out)),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    for key in ["listen/endpoints", "connect/endpoints"] {
+        if let Some(value) = config
+            .get_json(key)
+            .ok()
+            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        {
+            strings(&value, &mut out);
+        }
+    }
+    out
 }
 
 /// The configuration in `file` (JSON5), or Zenoh's defaults.

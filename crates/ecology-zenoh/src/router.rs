@@ -82,11 +82,7 @@ pub async fn run_router(
         "transport/unicast/max_sessions",
         json!(options.max_sessions),
     )?;
-    secure(
-        c,
-        &options.security,
-        options.listen.iter().chain(&options.connect),
-    )?;
+    secure(c, &options.security)?;
     let session = zenoh::open(config).await.map_err(|e| ZenohError::Open {
         message: e.to_string(),
     })?;

@@ -819,6 +819,36 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         Err(e) => assert!(e.to_string().contains("write quic/127.0.0.1:"), "{e}"),
         Ok(_) => panic!("a tcp endpoint was accepted with keys"),
     }
+    // Nor can a Zenoh configuration file undo the keys: a plain TCP endpoint or multicast
+    // scouting there is refused too, saying why, and nothing is opened.
+    let file = keys.dir.join("weak.json5");
+    for (weakening, refusal) in [
+        (
+            format!(r#"{{ listen: {{ endpoints: ["{}"] }} }}"#, free_endpoint()),
+            "every endpoint is QUIC",
+        ),
+        (
+            format!(
+                r#"{{ listen: {{ endpoints: {{ peer: ["{}"] }} }} }}"#,
+                free_endpoint()
+            ),
+            "every endpoint is QUIC",
+        ),
+        (
+            r#"{ scouting: { multicast: { enabled: true } } }"#.to_owned(),
+            "multicast scouting stays off",
+        ),
+    ] {
+        std::fs::write(&file, &weakening).expect("write the file");
+        let mut weak = keys.options("pippi", &free_quic_endpoint(), &[]);
+        weak.name = peis("pippi");
+        weak.listen.clear();
+        weak.zenoh_config = Some(file.clone());
+        match ZenohPeis::open(weak).await {
+            Err(e) => assert!(e.to_string().contains(refusal), "{weakening}: {e}"),
+            Ok(_) => panic!("{weakening} was taken with keys"),
+        }
+    }
     for space in [pippi, executive, hsm] {
         space.close().await;
     }
