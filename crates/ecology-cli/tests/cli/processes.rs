@@ -1362,7 +1362,7 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
         args.extend(["--name", name, "watch", pattern, "--json"]);
         Proc::start(name, &args)
     };
-    let mut params = watch("watcher", "hsm:*.params");
+    let params = watch("watcher", "hsm:*.params");
     let tasks = [("exec-astrid", "astrid.plan"), ("exec-bob", "bob.plan")].map(|(name, plan)| {
         let plan = file(plan);
         let mut args = vec!["task", "--name", name, "--domain", "domains/peis-home.eco"];
