@@ -199,6 +199,9 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         .build()
         .context("cannot start the runtime")?;
     let json = args.json;
+    // With several tasks, each line says whose executive logged it; one task's
+    // output stays as it always was.
+    let several = scenario.tasks.len() > 1;
     let progress = std::io::stderr().is_terminal();
     if !json {
         println!(
@@ -213,8 +216,10 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         }
         if let Some(hub) = &hub {
             match &update {
-                Update::Log(entry) => {
-                    if let Ok(line) = serde_json::from_str(&crate::log_json::json_line(entry)) {
+                Update::Log { executive, entry } => {
+                    let whose = several.then_some(executive.as_str());
+                    let text = crate::log_json::json_line_of(entry, whose);
+                    if let Ok(line) = serde_json::from_str(&text) {
                         hub.update(|v| v.log(&line));
                     }
                 }
@@ -225,10 +230,14 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         }
         match update {
             Update::Tuple(_) | Update::Presence(_) => {}
-            Update::Log(entry) if json => {
-                let _ = writeln!(out, "{}", crate::log_json::json_line(&entry));
+            Update::Log { executive, entry } if json => {
+                let whose = several.then_some(executive.as_str());
+                let _ = writeln!(out, "{}", crate::log_json::json_line_of(&entry, whose));
             }
-            Update::Log(entry) => {
+            Update::Log { executive, entry } if several => {
+                let _ = writeln!(out, "{}", prefixed(&entry, &executive));
+            }
+            Update::Log { entry, .. } => {
                 let _ = writeln!(out, "{entry}");
             }
             Update::Injected { t, what } if !json => {
@@ -259,26 +268,56 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         sim.as_secs_f64() / wall.as_secs_f64().max(1e-9)
     );
     if args.timings {
-        eprint!("{}", timings(&report.log, &report.intake));
+        for task in &report.tasks {
+            let text = timings(&task.log, &task.intake);
+            match text.strip_prefix("executive:") {
+                Some(rest) if several => eprint!("{}:{rest}", task.executive),
+                _ => eprint!("{text}"),
+            }
+        }
     }
     for what in &report.spurious {
         eprintln!("warning: a failure the ground truth does not bear out: {what}");
+    }
+    for what in &report.conflicts {
+        eprintln!("warning: a component served two executives: {what}");
     }
     if let Some(served) = served {
         crate::view::hold(&served)?;
         served.stop();
     }
+    if report.timed_out {
+        let unfinished: Vec<&str> = report
+            .tasks
+            .iter()
+            .filter(|t| matches!(t.status, RunStatus::Idle | RunStatus::Running { .. }))
+            .map(|t| t.executive.as_str())
+            .collect();
+        let which = if several {
+            format!("the task of {}", unfinished.join(" and of "))
+        } else {
+            "the task".to_string()
+        };
+        eprintln!(
+            "error: {which} did not finish within the scenario's time limit ({} s)",
+            scenario.time_limit.as_secs_f64()
+        );
+    }
+    // Exit 0 only when every task is done.
     Ok(match report.status {
         RunStatus::Done => EXIT_OK,
-        RunStatus::Failed { .. } => EXIT_NO_SOLUTION,
-        RunStatus::Idle | RunStatus::Running { .. } => {
-            eprintln!(
-                "error: the task did not finish within the scenario's time limit ({} s)",
-                scenario.time_limit.as_secs_f64()
-            );
-            EXIT_NO_SOLUTION
-        }
+        _ => EXIT_NO_SOLUTION,
     })
+}
+
+/// The timeline line of `entry` with its executive's name after the time:
+/// `   0.200s  [exec-bob] plan: …`.
+fn prefixed(entry: &LogEntry, executive: &str) -> String {
+    let text = entry.to_string();
+    match text.find("s  ") {
+        Some(at) => format!("{}[{executive}] {}", &text[..at + 3], &text[at + 3..]),
+        None => format!("[{executive}] {text}"),
+    }
 }
 
 /// What `--timings` reports: the executive's intake, its state acquisition

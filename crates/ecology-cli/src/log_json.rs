@@ -8,6 +8,12 @@ use serde_json::json;
 
 /// The entry as one line of JSON: `{"t": 12.5, "event": "failure", ...fields}`.
 pub fn json_line(entry: &LogEntry) -> String {
+    json_line_of(entry, None)
+}
+
+/// [`json_line`], with `"executive": NAME` when given: the lines of a run of
+/// several tasks say whose executive logged each.
+pub fn json_line_of(entry: &LogEntry, executive: Option<&str>) -> String {
     let mut object = match &entry.event {
         LogEvent::Plan { actions, branches } => {
             json!({ "actions": actions, "branches": branches })
@@ -128,6 +134,9 @@ pub fn json_line(entry: &LogEntry) -> String {
     if let Some(fields) = object.as_object_mut() {
         fields.insert("t".to_string(), json!(entry.t.as_secs_f64()));
         fields.insert("event".to_string(), json!(entry.event.name()));
+        if let Some(executive) = executive {
+            fields.insert("executive".to_string(), json!(executive));
+        }
     }
     object.to_string()
 }

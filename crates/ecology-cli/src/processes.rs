@@ -16,7 +16,7 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use ecology_sim::{FaultKind, FaultSpec, Scenario, Trigger, WORLD};
+use ecology_sim::{FaultKind, FaultSpec, Scenario, ScenarioTask, Trigger, WORLD};
 use ecology_tuples::{Key, PeisId, TupleEvent, TuplePattern, TupleSpace, Value};
 use ecology_zenoh::security::{GrantPattern, KeysDir, Role};
 use nix::sys::signal::{Signal, kill};
@@ -33,7 +33,7 @@ use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION};
 const READY_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long a process may take to stop after SIGTERM before it is killed.
 const STOP_TIMEOUT: Duration = Duration::from_secs(3);
-/// The executive's PEIS name.
+/// What the launcher calls the executive's process (its PEIS name is the task's).
 const EXECUTIVE: &str = "executive";
 /// The launcher's own PEIS name.
 const LAUNCHER: &str = "launcher";
@@ -151,7 +151,7 @@ fn launch_keys(dir: &Path, scenario: &Scenario) -> anyhow::Result<()> {
     {
         keys.add(PeisId::new(name)?, Role::Peis)?;
     }
-    keys.add(PeisId::new(EXECUTIVE)?, Role::Executive)?;
+    keys.add(PeisId::new(&task(scenario).executive)?, Role::Executive)?;
     keys.grant(
         PeisId::new(LAUNCHER)?,
         None,
@@ -173,12 +173,40 @@ pub fn run(launch: &Launch) -> anyhow::Result<u8> {
             return Ok(EXIT_BAD_INPUT);
         }
     };
-    network::runtime()?.block_on(launch_all(launch, &scenario))
+    // One executive process, started with the others: several tasks, or one that starts
+    // later, run in process only (for now).
+    if let [one] = scenario.tasks.as_slice()
+        && one.start.is_zero()
+    {
+        network::runtime()?.block_on(launch_all(launch, &scenario))
+    } else {
+        let names: Vec<&str> = scenario
+            .tasks
+            .iter()
+            .map(|t| t.executive.as_str())
+            .collect();
+        eprintln!(
+            "error: --processes runs one task that starts at once, and {} has {} ({}): run it in process, without --processes",
+            launch.scenario.display(),
+            if names.len() > 1 {
+                format!("{} tasks", names.len())
+            } else {
+                "a task starting later".to_string()
+            },
+            names.join(", ")
+        );
+        Ok(EXIT_BAD_INPUT)
+    }
+}
+
+/// The scenario's one task (`run` launches no other).
+fn task(scenario: &Scenario) -> &ScenarioTask {
+    &scenario.tasks[0]
 }
 
 /// The scenario's plan as a plan file (the form `ecology plan` prints).
 fn plan_text(scenario: &Scenario) -> String {
-    scenario
+    task(scenario)
         .plan
         .steps
         .iter()
@@ -290,15 +318,15 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
                 return Err(e);
             }
         };
-        let log_pattern = TuplePattern::parse(&format!("{EXECUTIVE}:log"))?;
+        let log_pattern = TuplePattern::parse(&format!("{}:log", task(scenario).executive))?;
         let mut log = launcher.subscribe(log_pattern).await?;
 
         let mut wait_for: Vec<&str> = vec![WORLD];
         wait_for.extend(scenario.peis.iter().map(|p| p.name.as_str()));
         let wait_for = wait_for.join(",");
-        let domain_file = folder.join(&scenario.domain_file).display().to_string();
+        let domain_file = folder.join(&task(scenario).domain_file).display().to_string();
         // A problem lets the executive plan again when an action fails; a plan is run as it is.
-        let (task_flag, task_file) = match &scenario.problem {
+        let (task_flag, task_file) = match &task(scenario).problem {
             Some((_, problem_file)) => ("--problem", folder.join(problem_file).display().to_string()),
             None => ("--plan", plan_file.display().to_string()),
         };
@@ -323,6 +351,9 @@ async fn launch_all(launch: &Launch, scenario: &Scenario) -> anyhow::Result<u8> 
         ]);
         if json {
             executive_args.push("--json".to_string());
+        }
+        if task(scenario).executive != ecology_sim::EXECUTIVE {
+            executive_args.extend(["--name".to_string(), task(scenario).executive.clone()]);
         }
         let mut executive = spawner.spawn(EXECUTIVE, executive_args)?;
         let started = Instant::now();

@@ -1,7 +1,11 @@
 //! `ecology sweep SCENARIO --seeds N`: the scenario under N random fault
 //! schedules (one per seed, as `ecology run SCENARIO --random-faults --seed S`
 //! makes them), in virtual time on every core; a table of how the runs
-//! ended, and the seeds that misbehaved so that they can be replayed.
+//! ended, and the seeds that misbehaved so that they can be replayed. A run
+//! of several tasks is done when every task is, and fails with the first
+//! failed task's reason; a failure the ground truth does not bear out
+//! (spurious) or a component that served two executives at once (a
+//! conflict) makes the sweep fail.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -46,6 +50,7 @@ struct Outcome {
     ending: Ending,
     reconfigurations: usize,
     spurious: Vec<String>,
+    conflicts: Vec<String>,
     wall: Duration,
     sim: Duration,
 }
@@ -69,14 +74,22 @@ fn run_seed(scenario: &Scenario, seed: u64) -> Outcome {
         Ok(report) => Outcome {
             seed,
             ending: match &report.status {
+                _ if report.timed_out => Ending::Stuck,
                 RunStatus::Done => Ending::Done,
                 RunStatus::Failed { .. } => {
-                    // Why the last action failed says more than "no plan remains".
-                    let action = report.log.iter().rev().find_map(|e| match &e.event {
+                    // Why the last action of the (first) failed task failed says more
+                    // than "no plan remains".
+                    let log = report
+                        .tasks
+                        .iter()
+                        .find(|t| matches!(t.status, RunStatus::Failed { .. }))
+                        .map(|t| t.log.as_slice())
+                        .unwrap_or_default();
+                    let action = log.iter().rev().find_map(|e| match &e.event {
                         LogEvent::ActionFailed { reason, .. } => Some(reason.clone()),
                         _ => None,
                     });
-                    let task = report.log.iter().rev().find_map(|e| match &e.event {
+                    let task = log.iter().rev().find_map(|e| match &e.event {
                         LogEvent::TaskFailed { reason } => Some(reason.clone()),
                         _ => None,
                     });
@@ -85,11 +98,13 @@ fn run_seed(scenario: &Scenario, seed: u64) -> Outcome {
                 RunStatus::Idle | RunStatus::Running { .. } => Ending::Stuck,
             },
             reconfigurations: report
-                .log
+                .tasks
                 .iter()
+                .flat_map(|t| &t.log)
                 .filter(|e| e.event.name() == "reconfiguration")
                 .count(),
             spurious: report.spurious,
+            conflicts: report.conflicts,
             wall,
             sim: report.sim_time,
         },
@@ -98,6 +113,7 @@ fn run_seed(scenario: &Scenario, seed: u64) -> Outcome {
             ending: Ending::Error(format!("{e:#}")),
             reconfigurations: 0,
             spurious: Vec::new(),
+            conflicts: Vec::new(),
             wall,
             sim: Duration::ZERO,
         },
@@ -168,9 +184,11 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<u8> {
         .context("collecting the sweep")?;
     outcomes.sort_by_key(|o| o.seed);
     print_table(args, &scenario, &outcomes, jobs, wall);
-    let bad = outcomes
-        .iter()
-        .any(|o| matches!(o.ending, Ending::Stuck | Ending::Error(_)) || !o.spurious.is_empty());
+    let bad = outcomes.iter().any(|o| {
+        matches!(o.ending, Ending::Stuck | Ending::Error(_))
+            || !o.spurious.is_empty()
+            || !o.conflicts.is_empty()
+    });
     Ok(if bad { EXIT_NO_SOLUTION } else { EXIT_OK })
 }
 
@@ -202,6 +220,10 @@ fn print_table(
         .filter(|o| matches!(o.ending, Ending::Error(_)))
         .collect();
     let spurious: Vec<&Outcome> = outcomes.iter().filter(|o| !o.spurious.is_empty()).collect();
+    let conflicts: Vec<&Outcome> = outcomes
+        .iter()
+        .filter(|o| !o.conflicts.is_empty())
+        .collect();
     let reconfigurations: usize = outcomes.iter().map(|o| o.reconfigurations).sum();
     let slowest = outcomes.iter().max_by_key(|o| o.wall);
     println!(
@@ -223,6 +245,10 @@ fn print_table(
     println!(
         "  spurious           {:>7}   (failures the ground truth does not bear out; must be 0)",
         spurious.iter().map(|o| o.spurious.len()).sum::<usize>()
+    );
+    println!(
+        "  conflicts          {:>7}   (components that served two executives at once; must be 0)",
+        conflicts.iter().map(|o| o.conflicts.len()).sum::<usize>()
     );
     println!("  reconfigurations   {reconfigurations:>7}");
     if !errors.is_empty() {
@@ -247,6 +273,9 @@ fn print_table(
     }
     for o in spurious.iter().take(10) {
         println!("  spurious: {}: {}", replay(o.seed), o.spurious.join("; "));
+    }
+    for o in conflicts.iter().take(10) {
+        println!("  conflict: {}: {}", replay(o.seed), o.conflicts.join("; "));
     }
     for o in errors.iter().take(10) {
         if let Ending::Error(e) = &o.ending {

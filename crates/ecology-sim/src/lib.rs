@@ -11,6 +11,7 @@
 //! outputs, so every sensor and actuator goes through the real middleware.
 
 mod components;
+mod conflicts;
 pub mod generate;
 mod host;
 mod planning;
@@ -33,7 +34,8 @@ pub use planning::{PlanError, executive_plan, plan_actions};
 pub use replan::WorldReplanner;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};
 pub use scenario::{
-    ComponentDef, FaultKind, FaultSpec, PeisDef, Place, Scenario, ScenarioError, Trigger,
+    ComponentDef, EXECUTIVE, FaultKind, FaultSpec, PeisDef, Place, Scenario, ScenarioError,
+    ScenarioTask, Trigger,
 };
 pub use schedule::with_random_faults;
 pub use world::{

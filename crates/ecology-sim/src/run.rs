@@ -1,6 +1,6 @@
 //! Running a scenario: the world as a PEIS stepping in virtual time, one host
-//! per PEIS with simulated components, fault injection, and the executive
-//! driving the plan, all in one process on the in-process tuple space.
+//! per PEIS with simulated components, fault injection, and one executive per
+//! task driving its plan, all in one process on the in-process tuple space.
 //!
 //! The simulation loop owns virtual time: each step it lets every task run
 //! until the ecology has settled, applies the motor commands, grasps and
@@ -21,16 +21,17 @@ use ecology_exec::{
 use ecology_peis::{HostError, run_host};
 use ecology_tuples::contract;
 use ecology_tuples::{
-    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceEvent, Timestamp,
-    Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, VirtualClock,
+    Clock, InProcessPeis, InProcessSpace, Key, PeisId, PeisOptions, PresenceEvent, Subscription,
+    Timestamp, Tuple, TupleError, TupleEvent, TuplePattern, TupleSpace, VirtualClock,
 };
 use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinSet};
 
 use crate::components::{Faults, WORLD};
+use crate::conflicts::{Change, ConflictCheck};
 use crate::host::simulated_components;
 use crate::replan::WorldReplanner;
-use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, Trigger};
+use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, ScenarioTask, Trigger};
 use crate::world::World;
 use crate::world_peis::WorldPeis;
 
@@ -80,8 +81,13 @@ impl RunOptions {
 /// What a run reports while it goes.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Update {
-    /// The executive logged this.
-    Log(LogEntry),
+    /// An executive logged this (its time since the run started).
+    Log {
+        /// The executive's PEIS name (`executive` for a scenario's `[task]`).
+        executive: String,
+        /// What it logged.
+        entry: LogEntry,
+    },
     /// A fault was injected at simulated time `t`.
     Injected {
         /// Simulated time since the start.
@@ -103,13 +109,28 @@ pub enum Update {
 /// Receives [`Update`]s as they happen.
 pub type Observer = Box<dyn FnMut(Update) + Send>;
 
+/// How one task of a run ended.
+#[derive(Debug, Clone)]
+pub struct TaskReport {
+    /// Its executive's PEIS name.
+    pub executive: String,
+    /// The executive's final status (`Running` when the time limit hit, `Idle`
+    /// when it never started).
+    pub status: RunStatus,
+    /// The executive's whole log, timed since the run started.
+    pub log: Vec<LogEntry>,
+    /// What the executive took in from the ecology.
+    pub intake: Intake,
+}
+
 /// How a run ended.
 #[derive(Debug, Clone)]
 pub struct Report {
-    /// The executive's final status (`Running` when the time limit hit).
+    /// Every task done: `Done`; else the first task's that failed; else
+    /// (the time limit hit) the first unfinished one's.
     pub status: RunStatus,
-    /// The executive's whole log.
-    pub log: Vec<LogEntry>,
+    /// Each task, in the scenario's order.
+    pub tasks: Vec<TaskReport>,
     /// The faults injected, with their simulated times.
     pub injected: Vec<(Duration, String)>,
     /// Simulated time at the end.
@@ -119,12 +140,15 @@ pub struct Report {
     /// Failures the executive acted on that the ground truth does not bear
     /// out: a component it failed for `error` or `waiting` that reports
     /// something else, a PEIS it took for gone that is present. A duplicate
-    /// or late tuple taken as news would show here.
+    /// or late tuple taken as news would show here. With several tasks, each
+    /// line starts with the executive's name.
     pub spurious: Vec<String>,
+    /// Components that served two executives at once: one's params changed
+    /// to another's while the first ran them, or an input re-pointed away
+    /// from an executive's wiring (see `conflicts.rs`). One line each.
+    pub conflicts: Vec<String>,
     /// The world at the end (ground truth).
     pub world: World,
-    /// What the executive took in from the ecology.
-    pub intake: Intake,
 }
 
 /// Why a run could not take place.
@@ -157,7 +181,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-/// Runs `scenario` to the end of its task (or its time limit), reporting to
+/// Runs `scenario` to the end of its tasks (or its time limit), reporting to
 /// `observer` as it goes. Needs a current-thread tokio runtime for
 /// reproducible runs (any runtime works, but only one thread is deterministic).
 pub async fn run(
@@ -174,6 +198,16 @@ pub async fn run(
         PeisId::new(WORLD).map_err(TupleError::Invalid)?,
         PeisOptions::default(),
     )?;
+    // Watching goes through the world's own handle, so it adds no PEIS to the ecology.
+    let watcher = world_peis.clone();
+    let truth = Arc::new(Mutex::new(GroundTruth {
+        tuples: watcher
+            .subscribe(TuplePattern::parse("*:*.**").map_err(TupleError::Invalid)?)
+            .await?,
+        clock: shared.clone(),
+        start,
+        check: ConflictCheck::default(),
+    }));
 
     let schedule: Schedule = Arc::new(Mutex::new(
         scenario
@@ -201,22 +235,28 @@ pub async fn run(
         step: options.step,
         observer: observer.clone(),
         injected: injected.clone(),
+        truth: truth.clone(),
     };
     let mut tasks = JoinSet::new();
     tasks.spawn(simulation.run(world_peis, stopped));
 
-    let me = space.join(
-        PeisId::new("executive").map_err(TupleError::Invalid)?,
-        PeisOptions::default(),
-    )?;
     let mut watching = JoinSet::new();
     if options.observe_tuples {
-        watch_tuples(&me, &observer, &mut watching).await?;
+        watch_tuples(&watcher, &observer, &mut watching).await?;
     }
-    let (exec, driven, spurious) = drive_scenario(
-        scenario, options, &me, &space, &shared, &schedule, &observer,
-    )
-    .await;
+    let context = Drive {
+        scenario,
+        options,
+        space: &space,
+        shared: &shared,
+        start,
+        schedule: &schedule,
+        observer: &observer,
+        truth: &truth,
+    };
+    // Every task's executive in this task, polled in the scenario's order: reproducible.
+    let driven =
+        futures_util::future::join_all(scenario.tasks.iter().map(|task| context.drive(task))).await;
     let _ = stop.send(true);
     watching.abort_all();
     let mut outcome = Ok(scenario.world_for(options.seed));
@@ -227,28 +267,139 @@ pub async fn run(
         };
     }
     let sim_time = shared.now().saturating_duration_since(start);
-    drop(me);
+    let conflicts = {
+        let mut truth = lock(&truth);
+        truth.take_in();
+        truth.check.conflicts().to_vec()
+    };
+    drop(watcher);
+    drop(truth);
+    let several = scenario.tasks.len() > 1;
+    let mut reports = Vec::new();
+    let mut spurious = Vec::new();
+    let mut failure = None;
+    for driven in driven {
+        let status = match driven.status {
+            Ok(status) => status,
+            Err(e) => {
+                failure.get_or_insert(e);
+                RunStatus::Idle
+            }
+        };
+        for line in driven.spurious {
+            spurious.push(if several {
+                format!("{}: {line}", driven.executive)
+            } else {
+                line
+            });
+        }
+        reports.push(TaskReport {
+            executive: driven.executive,
+            status,
+            log: driven.log,
+            intake: driven.intake,
+        });
+    }
     if let Ok(space) = Arc::try_unwrap(space) {
         space.shutdown().await;
     }
-    let status = driven?;
+    if let Some(e) = failure {
+        return Err(e.into());
+    }
     let world = outcome?;
     let injected = lock(&injected).clone();
+    let unfinished = |s: &RunStatus| matches!(s, RunStatus::Running { .. } | RunStatus::Idle);
+    let status = if reports.iter().all(|r| r.status == RunStatus::Done) {
+        RunStatus::Done
+    } else {
+        reports
+            .iter()
+            .find(|r| matches!(r.status, RunStatus::Failed { .. }))
+            .or_else(|| reports.iter().find(|r| unfinished(&r.status)))
+            .map_or(RunStatus::Idle, |r| r.status.clone())
+    };
     Ok(Report {
-        timed_out: matches!(status, RunStatus::Running { .. } | RunStatus::Idle),
+        timed_out: reports.iter().any(|r| unfinished(&r.status)),
         status,
-        log: exec.log().to_vec(),
+        tasks: reports,
         injected,
         sim_time,
         world,
         spurious,
-        intake: *exec.intake(),
+        conflicts,
     })
 }
 
-/// Reads every tuple change and presence event through the executive's own
-/// handle `me` (so watching adds no PEIS to the ecology) and hands them to
-/// `observer`, in a task `watching` owns.
+/// What the ground-truth check of several executives reads: every tuple
+/// change of the ecology, taken in before each log entry (so both are seen in
+/// the order they happened: the in-process space hands a change to its
+/// subscribers as it makes it) and at every step of the simulation.
+struct GroundTruth {
+    tuples: Subscription,
+    clock: Arc<dyn Clock>,
+    start: Timestamp,
+    check: ConflictCheck,
+}
+
+impl GroundTruth {
+    /// Feeds the check every tuple change not yet taken in.
+    fn take_in(&mut self) {
+        while let Some(event) = self.tuples.try_next() {
+            let (change, at) = match &event {
+                TupleEvent::Changed(tuple) => (
+                    Change {
+                        owner: tuple.owner.as_str(),
+                        key: tuple.key.as_str(),
+                        value: tuple.text().unwrap_or(""),
+                        epoch: tuple.epoch,
+                        creator: tuple.creator.as_ref().map(PeisId::as_str),
+                    },
+                    tuple.ts_write,
+                ),
+                TupleEvent::Removed {
+                    owner, key, epoch, ..
+                } => (
+                    Change {
+                        owner: owner.as_str(),
+                        key: key.as_str(),
+                        value: "",
+                        epoch: *epoch,
+                        creator: None,
+                    },
+                    self.clock.now(),
+                ),
+                _ => continue,
+            };
+            self.check
+                .changed(at.saturating_duration_since(self.start), change);
+        }
+    }
+}
+
+/// What every task's drive shares.
+struct Drive<'a> {
+    scenario: &'a Scenario,
+    options: &'a RunOptions,
+    space: &'a Arc<InProcessSpace>,
+    shared: &'a Arc<dyn Clock>,
+    start: Timestamp,
+    schedule: &'a Schedule,
+    observer: &'a Arc<Mutex<Observer>>,
+    truth: &'a Arc<Mutex<GroundTruth>>,
+}
+
+/// How one task's drive ended.
+struct Driven {
+    executive: String,
+    status: Result<RunStatus, TupleError>,
+    log: Vec<LogEntry>,
+    intake: Intake,
+    spurious: Vec<String>,
+}
+
+/// Reads every tuple change and presence event through the handle `me` of a
+/// PEIS already present (so watching adds no PEIS to the ecology) and hands
+/// them to `observer`, in a task `watching` owns.
 async fn watch_tuples(
     me: &InProcessPeis,
     observer: &Arc<Mutex<Observer>>,
@@ -270,92 +421,141 @@ async fn watch_tuples(
     Ok(())
 }
 
-/// Drives the scenario's plan with the executive as `me` until the task
-/// ends or the time limit passes: faults triggered by executive events are
-/// scheduled as they are logged, and every failure the executive logs is
-/// checked against the ground truth. Returns the executive, how the drive
-/// ended, and the failures the ground truth does not bear out.
-async fn drive_scenario(
-    scenario: &Scenario,
-    options: &RunOptions,
-    me: &InProcessPeis,
-    space: &Arc<InProcessSpace>,
-    shared: &Arc<dyn Clock>,
-    schedule: &Schedule,
-    observer: &Arc<Mutex<Observer>>,
-) -> (Executive, Result<RunStatus, TupleError>, Vec<String>) {
-    let mut exec = Executive::new(
-        scenario.domain.clone(),
-        EcologyState::new(),
-        scenario.plan.clone(),
-        ExecConfig {
-            action_timeout: scenario.action_timeout,
-            ..ExecConfig::default()
-        },
-    );
-    if options.wall_stopwatch {
-        exec = exec.with_stopwatch(Box::new(ecology_core::WallClock::start()));
-    }
-    let config = DriverConfig {
-        limit: Some(scenario.time_limit),
-        acquisition: options.acquisition,
-        ..DriverConfig::default()
-    };
-    let mut triggers: Vec<(FaultSpec, bool)> = scenario
-        .faults
-        .iter()
-        .filter(|f| matches!(f.trigger, Trigger::After { .. }))
-        .map(|f| (f.clone(), false))
-        .collect();
-    let mut current_action: Option<usize> = None;
-    let mut spurious = Vec::new();
-    // Action-level recovery when the scenario has a problem to plan again.
-    let mut replanner = scenario
-        .problem
-        .as_ref()
-        .map(|(problem, _)| WorldReplanner::new(scenario.domain.clone(), problem.clone()));
-    let driven = {
-        let truth = space;
-        let observe = |entry: &LogEntry| {
-            let index = match &entry.event {
-                LogEvent::ActionStarted { index, .. }
-                | LogEvent::ActionDone { index, .. }
-                | LogEvent::ActionFailed { index, .. } => Some(*index),
-                _ => current_action,
-            };
-            if let LogEvent::ActionStarted { index, .. } = entry.event {
-                current_action = Some(index);
-            }
-            for (fault, fired) in &mut triggers {
-                if let Some(delay) = fault.trigger.fired_by(entry.event.name(), index)
-                    && !*fired
-                {
-                    *fired = true;
-                    lock(schedule).push((shared.now().saturating_add(delay), fault.clone()));
-                }
-            }
-            if let Some((peis, component, cause)) = entry.event.failure()
-                && let Some(why) = unfounded(truth, peis, component, cause)
-            {
-                spurious.push(format!(
-                    "{:.3}s {peis}:{component} ({cause}): {why}",
-                    entry.t.as_secs_f64()
-                ));
-            }
-            (lock(observer))(Update::Log(entry.clone()));
+impl Drive<'_> {
+    /// Drives `task`'s plan with its executive, which joins the ecology under
+    /// its name at the task's start, until the task ends or the time limit
+    /// passes: faults triggered by its events are scheduled as they are
+    /// logged, and every failure it logs is checked against the ground truth.
+    async fn drive(&self, task: &ScenarioTask) -> Driven {
+        let Drive {
+            scenario,
+            options,
+            space,
+            shared,
+            start,
+            schedule,
+            observer,
+            truth,
+        } = *self;
+        if !task.start.is_zero() {
+            shared.sleep_until(start.saturating_add(task.start)).await;
+        }
+        // The log is timed from the executive's start; the run's from its own.
+        let offset = shared.now().saturating_duration_since(start);
+        let mut exec = Executive::new(
+            task.domain.clone(),
+            EcologyState::new(),
+            task.plan.clone(),
+            ExecConfig {
+                action_timeout: scenario.action_timeout,
+                ..ExecConfig::default()
+            },
+        );
+        let shifted = |entry: &LogEntry| LogEntry {
+            t: entry.t + offset,
+            event: entry.event.clone(),
         };
-        drive_until(
-            me,
-            shared.clone(),
-            &mut exec,
-            config,
-            observe,
-            std::future::pending(),
-            replanner.as_mut().map(|r| r as &mut dyn Replan),
-        )
-        .await
-    };
-    (exec, driven, spurious)
+        let joined = PeisId::new(&task.executive)
+            .map_err(TupleError::Invalid)
+            .and_then(|id| space.join(id, PeisOptions::default()));
+        let me = match joined {
+            Ok(me) => me,
+            Err(e) => {
+                return Driven {
+                    executive: task.executive.clone(),
+                    status: Err(e),
+                    log: Vec::new(),
+                    intake: *exec.intake(),
+                    spurious: Vec::new(),
+                };
+            }
+        };
+        if options.wall_stopwatch {
+            exec = exec.with_stopwatch(Box::new(ecology_core::WallClock::start()));
+        }
+        let config = DriverConfig {
+            limit: Some(scenario.time_limit.saturating_sub(offset)),
+            acquisition: options.acquisition,
+            ..DriverConfig::default()
+        };
+        let first = scenario.tasks.first().map(|t| t.executive.as_str());
+        let mut triggers: Vec<(FaultSpec, bool)> = scenario
+            .faults
+            .iter()
+            .filter(|f| match &f.trigger {
+                Trigger::After { executive, .. } => {
+                    executive.as_deref().or(first) == Some(task.executive.as_str())
+                }
+                Trigger::At(_) => false,
+            })
+            .map(|f| (f.clone(), false))
+            .collect();
+        let mut current_action: Option<usize> = None;
+        let mut spurious = Vec::new();
+        // Action-level recovery when the task has a problem to plan again.
+        let mut replanner = task
+            .problem
+            .as_ref()
+            .map(|(problem, _)| WorldReplanner::new(task.domain.clone(), problem.clone()));
+        let driven = {
+            let observe = |entry: &LogEntry| {
+                let entry = shifted(entry);
+                let index = match &entry.event {
+                    LogEvent::ActionStarted { index, .. }
+                    | LogEvent::ActionDone { index, .. }
+                    | LogEvent::ActionFailed { index, .. } => Some(*index),
+                    _ => current_action,
+                };
+                if let LogEvent::ActionStarted { index, .. } = entry.event {
+                    current_action = Some(index);
+                }
+                for (fault, fired) in &mut triggers {
+                    if let Some(delay) = fault.trigger.fired_by(entry.event.name(), index)
+                        && !*fired
+                    {
+                        *fired = true;
+                        lock(schedule).push((shared.now().saturating_add(delay), fault.clone()));
+                    }
+                }
+                if let Some((peis, component, cause)) = entry.event.failure()
+                    && let Some(why) = unfounded(space, peis, component, cause)
+                {
+                    spurious.push(format!(
+                        "{:.3}s {peis}:{component} ({cause}): {why}",
+                        entry.t.as_secs_f64()
+                    ));
+                }
+                {
+                    // What changed before the entry was logged is taken in first.
+                    let mut truth = lock(truth);
+                    truth.take_in();
+                    truth.check.logged(&task.executive, &entry.event);
+                }
+                (lock(observer))(Update::Log {
+                    executive: task.executive.clone(),
+                    entry,
+                });
+            };
+            drive_until(
+                &me,
+                shared.clone(),
+                &mut exec,
+                config,
+                observe,
+                std::future::pending(),
+                replanner.as_mut().map(|r| r as &mut dyn Replan),
+            )
+            .await
+        };
+        drop(me);
+        Driven {
+            executive: task.executive.clone(),
+            status: driven,
+            log: exec.log().iter().map(shifted).collect(),
+            intake: *exec.intake(),
+            spurious,
+        }
+    }
 }
 
 /// Why a failure the executive logged is not borne out by the ground truth
@@ -417,6 +617,8 @@ struct Simulation {
     step: Duration,
     observer: Arc<Mutex<Observer>>,
     injected: Arc<Mutex<Vec<(Duration, String)>>>,
+    /// Taken in every step, so that what it buffers stays small.
+    truth: Arc<Mutex<GroundTruth>>,
 }
 
 /// A running PEIS host: its handle (to crash it) and its task.
@@ -652,6 +854,7 @@ impl Simulation {
                     remember(&mut recent, tuple);
                 }
             }
+            lock(&self.truth).take_in();
             // Faults that are due.
             for fault in self.due_faults(now) {
                 if let Err(e) = self.inject(fault, now, t, &recent, &mut hosts) {

@@ -1,5 +1,5 @@
-//! Scenario files (TOML): the PEIS and their components, the map, the task,
-//! and fault injections. TOML and serde stay here, at the edge: the file is
+//! Scenario files (TOML): the PEIS and their components, the map, the task
+//! (or several, each with its own executive), and fault injections. TOML and serde stay here, at the edge: the file is
 //! read into private serde types, checked, and turned into a [`Scenario`]
 //! of plain simulator types. Every error names the file, line and column.
 
@@ -81,6 +81,9 @@ pub enum Trigger {
     /// `delay` after the executive logs `event` (such as `action_started`),
     /// for action `action` (1-based) when given.
     After {
+        /// Whose event: the PEIS name of a task's executive; `None` for the
+        /// first task's.
+        executive: Option<String>,
         /// The executive's event name (JSON-lines name).
         event: String,
         /// Which action's event, 1-based; any when `None`.
@@ -101,6 +104,7 @@ impl Trigger {
                 event: wanted,
                 action,
                 delay,
+                ..
             } if wanted == event && action.is_none_or(|a| index == Some(a - 1)) => Some(*delay),
             _ => None,
         }
@@ -155,6 +159,27 @@ pub struct Place {
     pub probability: f64,
 }
 
+/// One task of a scenario, run by its own executive.
+#[derive(Debug, Clone)]
+pub struct ScenarioTask {
+    /// The PEIS name its executive joins the ecology as (`executive` for a `[task]`).
+    pub executive: String,
+    /// When its executive joins, in simulated time since the start.
+    pub start: Duration,
+    /// The domain the executive configures with.
+    pub domain: Domain,
+    /// The domain file, as the scenario names it (relative to the scenario file's folder).
+    pub domain_file: PathBuf,
+    /// The problem the plan was made for (when the task gives one, not a
+    /// plan), and its file as the scenario names it: for replanning.
+    pub problem: Option<(Problem, PathBuf)>,
+    /// The plan to execute (conditional when the problem is uncertain).
+    pub plan: Plan,
+}
+
+/// The executive's PEIS name for a scenario's single `[task]`.
+pub const EXECUTIVE: &str = "executive";
+
 /// A loaded, checked scenario.
 #[derive(Debug, Clone)]
 pub struct Scenario {
@@ -168,15 +193,8 @@ pub struct Scenario {
     pub time_limit: Duration,
     /// How long one action may take before it fails.
     pub action_timeout: Duration,
-    /// The domain the executive configures with.
-    pub domain: Domain,
-    /// The domain file, as the scenario names it (relative to the scenario file's folder).
-    pub domain_file: PathBuf,
-    /// The problem the plan was made for (when the scenario gives one, not a
-    /// plan), and its file as the scenario names it: for replanning.
-    pub problem: Option<(Problem, PathBuf)>,
-    /// The plan to execute (conditional when the problem is uncertain).
-    pub plan: Plan,
+    /// The tasks, each with its executive (never empty; one for a `[task]`).
+    pub tasks: Vec<ScenarioTask>,
     /// The world at the start (a thing with uncertain `places` lies at its first).
     pub world: World,
     /// Things whose place at the start is uncertain: where each may lie, and
@@ -200,7 +218,8 @@ struct File {
     time_limit: f64,
     #[serde(default = "default_action_timeout")]
     action_timeout: f64,
-    task: TaskFile,
+    task: Option<Spanned<TaskFile>>,
+    tasks: Option<Vec<Spanned<TaskFile>>>,
     map: MapFile,
     #[serde(default, rename = "robot")]
     robots: Vec<Spanned<RobotFile>>,
@@ -225,6 +244,10 @@ fn default_action_timeout() -> f64 {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TaskFile {
+    /// Only in `[[tasks]]`: the PEIS name of the task's executive.
+    executive: Option<Spanned<String>>,
+    /// Only in `[[tasks]]`: seconds of simulated time before the executive joins.
+    start: Option<f64>,
     domain: Spanned<String>,
     problem: Option<Spanned<String>>,
     plan: Option<Vec<Spanned<StepFile>>>,
@@ -334,6 +357,8 @@ struct FaultFile {
 struct AfterFile {
     event: String,
     action: Option<usize>,
+    /// Whose event (a task's executive); the first task's when absent.
+    executive: Option<String>,
 }
 
 /// The executive's event names a fault may follow.
@@ -438,25 +463,22 @@ impl Scenario {
                 .map_err(|e| check.at(p.span(), format!("cannot read {}: {e}", p.get_ref())))
         };
 
-        let (domain, plan, planned_problem) = parse_task(&check, &parsed.task, &read_named)?;
-        let map = parse_map(&check, &parsed.map)?;
-        let (world, places) = parse_world(&check, &parsed, map)?;
-        let peis = check_peis(&check, &parsed.peis)?;
-        let faults = parse_faults(&check, &parsed.faults, &peis, plan.depth())?;
         let time_limit = seconds(parsed.time_limit)
             .ok_or_else(|| check.at(0..0, "time_limit must be a positive number of seconds"))?;
         let action_timeout = seconds(parsed.action_timeout)
             .ok_or_else(|| check.at(0..0, "action_timeout must be a positive number of seconds"))?;
+        let map = parse_map(&check, &parsed.map)?;
+        let (world, places) = parse_world(&check, &parsed, map)?;
+        let peis = check_peis(&check, &parsed.peis)?;
+        let tasks = parse_tasks(&check, &parsed, &peis, time_limit, &read_named)?;
+        let faults = parse_faults(&check, &parsed.faults, &peis, &tasks)?;
         Ok(Scenario {
-            domain_file: PathBuf::from(parsed.task.domain.get_ref()),
-            problem: planned_problem,
             name: parsed.name,
             description: parsed.description,
             seed: parsed.seed,
             time_limit,
             action_timeout,
-            domain,
-            plan,
+            tasks,
             world,
             places,
             peis,
@@ -465,13 +487,113 @@ impl Scenario {
     }
 }
 
-/// What the `[task]` table gives: the domain, the plan, and the problem planned for (if any).
+/// The tasks: one `[task]` (its executive named `executive`, starting at
+/// once), or `[[tasks]]` tables, each naming its executive: a PEIS name of
+/// its own, neither the world's nor one of the scenario's PEIS.
+fn parse_tasks(
+    check: &Checker<'_>,
+    parsed: &File,
+    peis: &[PeisDef],
+    time_limit: Duration,
+    read_named: &ReadNamed<'_>,
+) -> Result<Vec<ScenarioTask>, ScenarioError> {
+    let tables: Vec<(&Spanned<TaskFile>, bool)> = match (&parsed.task, &parsed.tasks) {
+        (Some(task), None) => vec![(task, false)],
+        (None, Some(tasks)) if !tasks.is_empty() => tasks.iter().map(|t| (t, true)).collect(),
+        (None, Some(_)) => {
+            return Err(check.at(
+                0..0,
+                "`tasks` is empty: give each task a [[tasks]] table with its `executive`",
+            ));
+        }
+        (None, None) => {
+            return Err(check.at(
+                0..0,
+                "no task: give one [task] table, or a [[tasks]] table per executive",
+            ));
+        }
+        (Some(_), Some(tasks)) => {
+            let span = tasks.first().map_or(0..0, Spanned::span);
+            return Err(check.at(
+                span,
+                "both [task] and [[tasks]]: give one [task], or every task as [[tasks]]",
+            ));
+        }
+    };
+    let mut tasks: Vec<ScenarioTask> = Vec::new();
+    for (table, named) in tables {
+        let task = table.get_ref();
+        let here = |message: String| check.at(table.span(), message);
+        let executive = match (&task.executive, named) {
+            (Some(name), true) => {
+                let at = |message: String| check.at(name.span(), message);
+                let name = name.get_ref();
+                if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
+                    return Err(at(format!("`{name}` cannot name an executive")));
+                }
+                if peis.iter().any(|p| &p.name == name) {
+                    return Err(at(format!(
+                        "executive {name} has the name of a PEIS of the scenario"
+                    )));
+                }
+                if tasks.iter().any(|t| &t.executive == name) {
+                    return Err(at(format!("executive {name} is named by two tasks")));
+                }
+                name.clone()
+            }
+            (None, true) => {
+                return Err(here(
+                    "a [[tasks]] table needs `executive`, the PEIS name its executive joins as"
+                        .to_string(),
+                ));
+            }
+            (Some(name), false) => {
+                return Err(check.at(
+                    name.span(),
+                    "[task] runs one executive named `executive`: use [[tasks]] tables to name executives",
+                ));
+            }
+            (None, false) => EXECUTIVE.to_string(),
+        };
+        let start = match (task.start, named) {
+            (None, _) => Duration::ZERO,
+            (Some(_), false) => {
+                return Err(here(
+                    "[task] starts at once: use [[tasks]] tables to give start times".to_string(),
+                ));
+            }
+            (Some(s), true) => match seconds(s) {
+                Some(start) if start < time_limit => start,
+                _ => {
+                    return Err(here(format!(
+                        "start of {executive} must be seconds before the time_limit ({} s)",
+                        time_limit.as_secs_f64()
+                    )));
+                }
+            },
+        };
+        let (domain, plan, problem) = parse_task(check, task, named, read_named)?;
+        tasks.push(ScenarioTask {
+            executive,
+            start,
+            domain,
+            domain_file: PathBuf::from(task.domain.get_ref()),
+            problem,
+            plan,
+        });
+    }
+    Ok(tasks)
+}
+
+/// What a task table gives: the domain, the plan, and the problem planned for (if any).
 type ParsedTask = (Domain, Plan, Option<(Problem, PathBuf)>);
 
-/// The task: a domain, and a problem to plan for or a plan.
+/// One task: a domain, and a problem to plan for or a plan (`named`: a
+/// `[[tasks]]` table, not the `[task]`).
 fn parse_task(
     check: &Checker<'_>,
     task: &TaskFile,
+    named: bool,
     read_named: &ReadNamed<'_>,
 ) -> Result<ParsedTask, ScenarioError> {
     let domain_bytes = read_named(&task.domain)?;
@@ -501,9 +623,10 @@ fn parse_task(
             Plan::from(plan)
         }
         _ => {
+            let table = if named { "[[tasks]]" } else { "[task]" };
             return Err(check.at(
                 task.domain.span(),
-                "[task] needs exactly one of `problem` (to plan for) or `plan`",
+                format!("{table} needs exactly one of `problem` (to plan for) or `plan`"),
             ));
         }
     };
@@ -698,12 +821,12 @@ impl Scenario {
 }
 
 /// The faults: known kinds on known PEIS and components, each triggered at
-/// a time or after a known event of an action of the plan (`actions` long).
+/// a time or after a known event of an action of a task's plan.
 fn parse_faults(
     check: &Checker<'_>,
     files: &[Spanned<FaultFile>],
     peis: &[PeisDef],
-    actions: usize,
+    tasks: &[ScenarioTask],
 ) -> Result<Vec<FaultSpec>, ScenarioError> {
     let mut faults = Vec::new();
     for fault in files {
@@ -749,7 +872,7 @@ fn parse_faults(
             }
             _ => {}
         }
-        let trigger = fault_trigger(f, actions).map_err(here)?;
+        let trigger = fault_trigger(f, tasks).map_err(here)?;
         faults.push(FaultSpec {
             kind,
             peis: f.peis.clone(),
@@ -764,9 +887,9 @@ fn parse_faults(
     Ok(faults)
 }
 
-/// When fault `f` fires: at a time, or after an event of the plan's actions
-/// (`actions` of them), plus its delay.
-fn fault_trigger(f: &FaultFile, actions: usize) -> Result<Trigger, String> {
+/// When fault `f` fires: at a time, or after an event of a task's executive
+/// (the first task's unless it names another), plus its delay.
+fn fault_trigger(f: &FaultFile, tasks: &[ScenarioTask]) -> Result<Trigger, String> {
     let delay = seconds(f.delay).ok_or_else(|| "delay must be seconds".to_string())?;
     match (f.at, &f.after) {
         (Some(at), None) => Ok(Trigger::At(
@@ -780,10 +903,29 @@ fn fault_trigger(f: &FaultFile, actions: usize) -> Result<Trigger, String> {
                     EVENTS.join(", ")
                 ));
             }
+            let task = match &after.executive {
+                None => tasks.first(),
+                Some(name) => tasks.iter().find(|t| &t.executive == name),
+            };
+            let Some(task) = task else {
+                let names: Vec<&str> = tasks.iter().map(|t| t.executive.as_str()).collect();
+                return Err(format!(
+                    "no task's executive is named {} (executives: {})",
+                    after.executive.as_deref().unwrap_or_default(),
+                    names.join(", ")
+                ));
+            };
+            let actions = task.plan.depth();
             if after.action.is_some_and(|a| a == 0 || a > actions) {
-                return Err(format!("the plan has actions 1 to {actions}"));
+                let whose = if tasks.len() > 1 {
+                    format!(" of {}", task.executive)
+                } else {
+                    String::new()
+                };
+                return Err(format!("the plan{whose} has actions 1 to {actions}"));
             }
             Ok(Trigger::After {
+                executive: after.executive.clone(),
                 event: after.event.clone(),
                 action: after.action,
                 delay,

@@ -33,7 +33,7 @@ pub(crate) fn timeline(report: &Report) -> String {
     for (t, what) in &report.injected {
         text.push_str(&format!("{:>8.3}s  [sim] {what}\n", t.as_secs_f64()));
     }
-    for entry in &report.log {
+    for entry in &report.tasks[0].log {
         text.push_str(&format!("{entry}\n"));
     }
     text
@@ -41,7 +41,7 @@ pub(crate) fn timeline(report: &Report) -> String {
 
 /// The configurations chosen, in order: (cost, reconfiguration, functionalities).
 fn configurations(report: &Report) -> Vec<(u64, bool, Vec<String>)> {
-    report
+    report.tasks[0]
         .log
         .iter()
         .filter_map(|e| match &e.event {
@@ -217,7 +217,7 @@ async fn the_demo_reproduces_the_papers_experiment() {
     let text = timeline(&report);
     assert_eq!(report.status, RunStatus::Done, "{text}");
     // Step 1: the plan.
-    let Some(LogEvent::Plan { actions, .. }) = report.log.first().map(|e| &e.event) else {
+    let Some(LogEvent::Plan { actions, .. }) = report.tasks[0].log.first().map(|e| &e.event) else {
         panic!("no plan first:\n{text}");
     };
     assert_eq!(
@@ -245,7 +245,7 @@ async fn the_demo_reproduces_the_papers_experiment() {
     );
     assert!(configs[1].2[0].contains("on astrid:gr1"), "{text}");
     assert!(configs[4].2[0].contains("on astrid:sp1"), "{text}");
-    let failures: Vec<&LogEvent> = report
+    let failures: Vec<&LogEvent> = report.tasks[0]
         .log
         .iter()
         .map(|e| &e.event)
@@ -256,12 +256,15 @@ async fn the_demo_reproduces_the_papers_experiment() {
             if peis == "hsm" && component == "tr1" && cause.contains("camera")),
         "{text}"
     );
-    let switched_on_laser = report.log.iter().any(|e| {
+    let switched_on_laser = report.tasks[0].log.iter().any(|e| {
         matches!(&e.event, LogEvent::Deployed { switched_on, .. }
             if switched_on.iter().any(|c| c == "astrid:l1"))
     });
     assert!(switched_on_laser, "{text}");
-    assert_eq!(report.log.last().map(|e| e.event.name()), Some("task_done"));
+    assert_eq!(
+        report.tasks[0].log.last().map(|e| e.event.name()),
+        Some("task_done")
+    );
     // And the world agrees: Astrid is in the bedroom holding the newspaper, Johanna awake.
     assert_eq!(
         room_of(&report, "astrid"),
@@ -303,7 +306,7 @@ async fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
     let report = run_seeded(&scenario, 7).await;
     let text = timeline(&report);
     assert_eq!(report.status, RunStatus::Done, "{text}");
-    let failures: Vec<(&str, &str, &str)> = report
+    let failures: Vec<(&str, &str, &str)> = report.tasks[0]
         .log
         .iter()
         .filter_map(|e| e.event.failure())
@@ -340,7 +343,7 @@ async fn simulated_outputs_are_written_as_the_domain_declares() {
     use std::collections::BTreeMap;
     use std::sync::{Arc, Mutex};
     let scenario = load("peis-home.toml");
-    let formats: BTreeMap<String, ecology_domain::Format> = scenario
+    let formats: BTreeMap<String, ecology_domain::Format> = scenario.tasks[0]
         .domain
         .information
         .iter()
@@ -420,7 +423,7 @@ async fn random_fault_schedules_always_end_and_are_reproducible() {
             }
             other => panic!("seed {seed}: {other:?}\n{text}"),
         }
-        let last = report.log.last().map(|e| e.event.name());
+        let last = report.tasks[0].log.last().map(|e| e.event.name());
         assert!(
             matches!(last, Some("task_done" | "task_failed")),
             "seed {seed}:\n{text}"
@@ -430,7 +433,13 @@ async fn random_fault_schedules_always_end_and_are_reproducible() {
         if seed < 3 {
             let again = run_seeded(&scenario, seed).await;
             // The same events in the same order at the same virtual times.
-            let lines = |r: &Report| r.log.iter().map(|e| format!("{e:?}")).collect::<Vec<_>>();
+            let lines = |r: &Report| {
+                r.tasks[0]
+                    .log
+                    .iter()
+                    .map(|e| format!("{e:?}"))
+                    .collect::<Vec<_>>()
+            };
             let (first, second) = (lines(&report), lines(&again));
             let differ = first.iter().zip(&second).find(|(a, b)| a != b);
             assert!(
@@ -461,7 +470,7 @@ async fn a_failed_action_is_planned_around_and_another_robot_goes() {
     let report = run_seeded(&scenario, scenario.seed).await;
     let text = timeline(&report);
     assert_eq!(report.status, RunStatus::Done, "{text}");
-    let replans: Vec<(String, Vec<String>)> = report
+    let replans: Vec<(String, Vec<String>)> = report.tasks[0]
         .log
         .iter()
         .filter_map(|e| match &e.event {
@@ -498,7 +507,7 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
     let report = run_seeded(&scenario, scenario.seed).await;
     let text = timeline(&report);
     assert!(matches!(report.status, RunStatus::Failed { .. }), "{text}");
-    let names: Vec<&str> = report.log.iter().map(|e| e.event.name()).collect();
+    let names: Vec<&str> = report.tasks[0].log.iter().map(|e| e.event.name()).collect();
     assert_eq!(
         names.iter().filter(|n| **n == "replan").count(),
         1,
@@ -509,7 +518,7 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
         ["released", "task_failed"],
         "{text}"
     );
-    let Some(LogEvent::Released { switched_off, .. }) = report
+    let Some(LogEvent::Released { switched_off, .. }) = report.tasks[0]
         .log
         .iter()
         .map(|e| &e.event)
@@ -518,7 +527,7 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
         panic!("released: {text}");
     };
     assert_eq!(switched_off, &["astrid:l1".to_string()], "{text}");
-    let Some(LogEvent::TaskFailed { reason }) = report.log.last().map(|e| &e.event) else {
+    let Some(LogEvent::TaskFailed { reason }) = report.tasks[0].log.last().map(|e| &e.event) else {
         panic!("task_failed: {text}");
     };
     assert!(
@@ -532,8 +541,8 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
 fn a_replan_starts_from_the_world_as_observed() {
     use ecology_exec::Replan;
     let scenario = load("replan.toml");
-    let (problem, _) = scenario.problem.clone().expect("a problem");
-    let mut replanner = crate::WorldReplanner::new(scenario.domain.clone(), problem);
+    let (problem, _) = scenario.tasks[0].problem.clone().expect("a problem");
+    let mut replanner = crate::WorldReplanner::new(scenario.tasks[0].domain.clone(), problem);
     let tuple = world_tuple;
     // Astrid has already reached the entrance; the problem says the living room.
     let world = vec![
@@ -634,7 +643,7 @@ async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
             timeline(&everything)
         );
         reconfigured += configurations(&on_demand).iter().filter(|c| c.1).count();
-        let (mine, all) = (on_demand.intake, everything.intake);
+        let (mine, all) = (on_demand.tasks[0].intake, everything.tasks[0].intake);
         assert!(
             mine.followed > 3 && mine.followed < peis / 2,
             "{peis} PEIS, {} followed",
@@ -673,4 +682,360 @@ async fn a_generated_home_runs_the_papers_task() {
     assert_eq!(report.status, RunStatus::Done, "{text}");
     let first = configurations(&report)[0].0;
     assert!(first < 80, "a cheaper monitor than hsm's 80: {text}");
+}
+
+// --- several tasks -------------------------------------------------------------
+
+/// The configurations' costs of the task of `executive`, in order.
+fn costs_of(report: &Report, executive: &str) -> Vec<u64> {
+    let task = report
+        .tasks
+        .iter()
+        .find(|t| t.executive == executive)
+        .unwrap_or_else(|| panic!("no task of {executive}"));
+    task.log
+        .iter()
+        .filter_map(|e| match &e.event {
+            LogEvent::Configuration { cost, .. } => Some(*cost),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Every task's timeline, one after the other.
+fn timelines(report: &Report) -> String {
+    let mut text = String::new();
+    for task in &report.tasks {
+        text.push_str(&format!("[{}] {:?}\n", task.executive, task.status));
+        for entry in &task.log {
+            text.push_str(&format!("[{}] {entry}\n", task.executive));
+        }
+    }
+    text
+}
+
+// The paper's two robots each with an executive of its own (its Section VIII
+// has each robot carry its own planners), one tracking system between them:
+// its PEIS gives it to one and refuses the other, which takes its own laser.
+#[tokio::test]
+async fn two_tasks_share_the_home_and_one_tracking_system_serves_one_of_them() {
+    let scenario = load("two-robots.toml");
+    let executives: Vec<&str> = scenario
+        .tasks
+        .iter()
+        .map(|t| t.executive.as_str())
+        .collect();
+    assert_eq!(executives, ["exec-astrid", "exec-bob"]);
+    assert!(scenario.world.robots.contains_key("bob"));
+    let report = run_seeded(&scenario, scenario.seed).await;
+    let text = timelines(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    for task in &report.tasks {
+        assert_eq!(task.status, RunStatus::Done, "{text}");
+    }
+    assert!(report.spurious.is_empty(), "{:?}", report.spurious);
+    assert!(
+        report.conflicts.is_empty(),
+        "{:?}\n{text}",
+        report.conflicts
+    );
+    // One takes the tracker (80); the other is refused it and takes its laser (170),
+    // its first choice held, never failed.
+    let mut last: Vec<u64> = ["exec-astrid", "exec-bob"]
+        .iter()
+        .map(|e| *costs_of(&report, e).last().expect("a configuration"))
+        .collect();
+    last.sort_unstable();
+    assert_eq!(last, [80, 170], "{text}");
+    assert!(text.contains("held"), "{text}");
+    for task in &report.tasks {
+        assert!(
+            !task
+                .log
+                .iter()
+                .any(|e| matches!(e.event, LogEvent::Failure { .. })),
+            "{text}"
+        );
+    }
+    assert_eq!(room_of(&report, "astrid"), Some("bedroom"), "{text}");
+    assert_eq!(room_of(&report, "bob"), Some("kitchen"), "{text}");
+}
+
+// A task's executive joins at its start time, and its log is timed from the
+// start of the run.
+#[tokio::test]
+async fn a_task_starts_at_its_start_time() {
+    let text = std::fs::read_to_string(scenario_path("two-robots.toml")).expect("reads");
+    let later = text.replacen("start = 0.0", "start = 2.0", 1);
+    assert_ne!(text, later);
+    let scenario = parse(&later).expect("parses");
+    assert_eq!(scenario.tasks[0].start, Duration::from_secs(2));
+    let report = run_seeded(&scenario, scenario.seed).await;
+    let text = timelines(&report);
+    assert_eq!(report.status, RunStatus::Done, "{text}");
+    let plan_at = |executive: &str| {
+        let task = report.tasks.iter().find(|t| t.executive == executive);
+        let first = task.and_then(|t| t.log.first()).expect("a log");
+        assert_eq!(first.event.name(), "plan", "{text}");
+        first.t
+    };
+    assert!(plan_at("exec-astrid") >= Duration::from_secs(2), "{text}");
+    assert!(plan_at("exec-bob") < Duration::from_secs(1), "{text}");
+    assert!(report.conflicts.is_empty(), "{:?}", report.conflicts);
+}
+
+#[test]
+fn bad_tasks_are_reported_with_their_line() {
+    let good = std::fs::read_to_string(scenario_path("two-robots.toml")).expect("reads");
+    assert!(parse(&good).is_ok());
+    let twice = good.replacen("\"exec-bob\"", "\"exec-astrid\"", 1);
+    let e = error_of(&twice);
+    let (second, _) = twice
+        .match_indices("executive = \"exec-astrid\"")
+        .nth(1)
+        .expect("twice");
+    let line = twice[..second].lines().count() + 1;
+    assert!(e.starts_with(&format!("bad.toml:{line}:")), "{e}");
+    assert!(
+        e.contains("executive exec-astrid is named by two tasks"),
+        "{e}"
+    );
+
+    let a_peis = good.replacen("\"exec-bob\"", "\"hsm\"", 1);
+    let e = error_of(&a_peis);
+    assert!(
+        e.contains("executive hsm has the name of a PEIS of the scenario"),
+        "{e}"
+    );
+    let world = good.replacen("\"exec-bob\"", "\"world\"", 1);
+    assert!(error_of(&world).contains("`world` cannot name an executive"));
+    let spaced = good.replacen("\"exec-bob\"", "\"exec bob\"", 1);
+    assert!(error_of(&spaced).contains("`exec bob` cannot name an executive"));
+
+    let unnamed = good.replacen("executive = \"exec-bob\"\n", "", 1);
+    let e = error_of(&unnamed);
+    assert!(e.contains("a [[tasks]] table needs `executive`"), "{e}");
+    assert!(e.starts_with("bad.toml:"), "{e}");
+
+    let late = good.replacen("start = 0.0", "start = 500.0", 1);
+    let e = error_of(&late);
+    assert!(
+        e.contains("start of exec-astrid must be seconds before the time_limit (120 s)"),
+        "{e}"
+    );
+
+    let both = good.replacen(
+        "[[tasks]]",
+        "[task]\ndomain = \"../domains/peis-home.eco\"\nplan = []\n\n[[tasks]]",
+        1,
+    );
+    let e = error_of(&both);
+    assert!(e.contains("both [task] and [[tasks]]"), "{e}");
+    let none = good.replace("[[tasks]]", "[[not-tasks]]");
+    assert!(error_of(&none).contains("unknown field `not-tasks`"));
+
+    // `[task]` stays one executive named `executive`, starting at once.
+    let kitchen = std::fs::read_to_string(scenario_path("kitchen.toml")).expect("reads");
+    let scenario = parse(&kitchen).expect("parses");
+    assert_eq!(scenario.tasks.len(), 1);
+    assert_eq!(scenario.tasks[0].executive, "executive");
+    let named = kitchen.replacen("[task]\n", "[task]\nexecutive = \"exec-astrid\"\n", 1);
+    let e = error_of(&named);
+    assert!(
+        e.contains("[task] runs one executive named `executive`"),
+        "{e}"
+    );
+    let e = error_of("name = \"x\"\n[map]\nrooms = []\n");
+    assert!(e.contains("no task: give one [task] table"), "{e}");
+
+    // A fault after an event of an executive keys to the one named, or the first task's.
+    let fault = |after: &str| {
+        format!(
+            "{good}\n[[fault]]\nwhat = \"fail\"\npeis = \"hsm\"\ncomponent = \"tr1\"\nafter = {after}\n"
+        )
+    };
+    let scenario = parse(&fault(
+        "{ event = \"action_started\", action = 1, executive = \"exec-bob\" }",
+    ))
+    .expect("parses");
+    assert!(matches!(
+        &scenario.faults[0].trigger,
+        Trigger::After { executive: Some(e), .. } if e == "exec-bob"
+    ));
+    let e = error_of(&fault(
+        "{ event = \"action_started\", executive = \"exec-carl\" }",
+    ));
+    assert!(
+        e.contains("no task's executive is named exec-carl (executives: exec-astrid, exec-bob)"),
+        "{e}"
+    );
+    let e = error_of(&fault(
+        "{ event = \"action_started\", action = 2, executive = \"exec-bob\" }",
+    ));
+    assert!(e.contains("the plan of exec-bob has actions 1 to 1"), "{e}");
+}
+
+fn refs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+// The ground-truth check of several executives, fed by hand: it fires when a
+// component another executive runs is given other params or re-wired, and
+// not for an executive's own reconfigurations, a lost race, sharing, or a
+// component taken after its user let it go.
+#[test]
+fn the_conflict_check_fires_when_a_component_serves_two_executives() {
+    use crate::conflicts::{Change, ConflictCheck};
+    let configuration = |functionalities: &[&str]| LogEvent::Configuration {
+        goal: "(navigate astrid bedroom)".into(),
+        cost: 80,
+        optimal: true,
+        functionalities: functionalities.iter().map(|f| f.to_string()).collect(),
+        alternatives: vec![80],
+        reconfiguration: false,
+        micros: 0,
+    };
+    let deployed = |channels: &[&str]| LogEvent::Deployed {
+        switched_on: Vec::new(),
+        channels: channels.iter().map(|c| c.to_string()).collect(),
+    };
+    let set = |check: &mut ConflictCheck, s: f64, key: &str, value: &str, by: &str| {
+        let (owner, key) = key.split_once(':').expect("P:KEY");
+        check.changed(
+            Duration::from_secs_f64(s),
+            Change {
+                owner,
+                key,
+                value,
+                epoch: 1,
+                creator: Some(by),
+            },
+        );
+    };
+    let astrid = "(tracking-system hsm tr1 astrid)";
+    let bob = "(tracking-system hsm tr1 bob)";
+    let tracked = |who: &str| {
+        vec![
+            format!("(tracking-system hsm tr1 {who}) on hsm:tr1"),
+            format!("(pose-tracking {who} s1) on {who}:s1"),
+        ]
+    };
+
+    // Without arbitration: Bob's executive re-aims the tracker Astrid's runs.
+    let mut check = ConflictCheck::default();
+    let a = tracked("astrid");
+    let b = tracked("bob");
+    check.logged("exec-astrid", &configuration(&refs(&a)));
+    check.logged("exec-bob", &configuration(&refs(&b)));
+    set(&mut check, 0.2, "hsm:tr1.params", astrid, "exec-astrid");
+    assert!(check.conflicts().is_empty(), "{:?}", check.conflicts());
+    set(&mut check, 0.25, "hsm:tr1.params", bob, "exec-bob");
+    assert_eq!(
+        check.conflicts(),
+        [
+            "0.250s hsm:tr1 ran (tracking-system hsm tr1 astrid) for exec-astrid when exec-bob gave it (tracking-system hsm tr1 bob)"
+        ]
+    );
+
+    // With arbitration: Bob's request is refused and he takes his laser; Astrid's
+    // executive reconfigures its own tracker (make-before-break); she ends and
+    // releases it, and then Bob may take it.
+    let mut check = ConflictCheck::default();
+    check.logged("exec-astrid", &configuration(&refs(&a)));
+    check.logged("exec-bob", &configuration(&refs(&b)));
+    set(&mut check, 0.2, "hsm:tr1.params", astrid, "exec-astrid");
+    check.logged(
+        "exec-bob",
+        &configuration(&[
+            "(laser bob l1) on bob:l1",
+            "(pose-tracking bob s1) on bob:s1",
+        ]),
+    );
+    check.logged(
+        "exec-astrid",
+        &configuration(&["(tracking-system hsm tr1 astrid-again) on hsm:tr1"]),
+    );
+    set(
+        &mut check,
+        3.0,
+        "hsm:tr1.params",
+        "(tracking-system hsm tr1 astrid-again)",
+        "exec-astrid",
+    );
+    check.logged(
+        "exec-astrid",
+        &LogEvent::Released {
+            switched_off: Vec::new(),
+            stopped: vec!["hsm:tr1".into()],
+            unreachable: Vec::new(),
+        },
+    );
+    set(&mut check, 9.0, "hsm:tr1.params", "", "exec-astrid");
+    check.logged("exec-bob", &configuration(&refs(&b)));
+    set(&mut check, 9.5, "hsm:tr1.params", bob, "exec-bob");
+    assert!(check.conflicts().is_empty(), "{:?}", check.conflicts());
+
+    // Shared with the same params: not a conflict; then the input re-pointed
+    // away from what Astrid's executive wired is one.
+    let mut check = ConflictCheck::default();
+    let wiring = ["hsm:tr1 → astrid:s1 (global-pos astrid)"];
+    check.logged("exec-astrid", &configuration(&refs(&a)));
+    check.logged("exec-astrid", &deployed(&wiring));
+    set(
+        &mut check,
+        0.2,
+        "astrid:s1.params",
+        "(pose-tracking astrid s1)",
+        "exec-astrid",
+    );
+    set(&mut check, 0.2, "hsm:tr1.params", astrid, "exec-astrid");
+    check.logged("exec-bob", &configuration(&refs(&a)));
+    set(&mut check, 0.3, "hsm:tr1.params", astrid, "exec-bob");
+    set(
+        &mut check,
+        0.4,
+        "astrid:s1.mi-global-pos",
+        "(meta hsm tr1.out.global-pos)",
+        "exec-astrid",
+    );
+    assert!(check.conflicts().is_empty(), "{:?}", check.conflicts());
+    set(
+        &mut check,
+        0.5,
+        "astrid:s1.mi-global-pos",
+        "(meta bob s1.out.global-pos)",
+        "exec-bob",
+    );
+    assert_eq!(
+        check.conflicts(),
+        [
+            "0.500s astrid:s1's input global-pos was pointed at (meta bob s1.out.global-pos) by exec-bob while exec-astrid wires it to (meta hsm tr1.out.global-pos)"
+        ]
+    );
+
+    // A PEIS that starts again runs nobody's params: taking its tracker then is no conflict.
+    let mut check = ConflictCheck::default();
+    check.logged("exec-astrid", &configuration(&refs(&a)));
+    set(&mut check, 0.2, "hsm:tr1.params", astrid, "exec-astrid");
+    check.changed(
+        Duration::from_secs(5),
+        Change {
+            owner: "hsm",
+            key: "components.tr1.type",
+            value: "tr-sys",
+            epoch: 2,
+            creator: None,
+        },
+    );
+    check.changed(
+        Duration::from_secs(6),
+        Change {
+            owner: "hsm",
+            key: "tr1.params",
+            value: bob,
+            epoch: 2,
+            creator: Some("exec-bob"),
+        },
+    );
+    assert!(check.conflicts().is_empty(), "{:?}", check.conflicts());
 }

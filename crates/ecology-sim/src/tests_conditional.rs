@@ -24,7 +24,11 @@ fn drawn_room(scenario: &Scenario, seed: u64) -> String {
 
 /// What `pick` takes from each entry of the log, in order.
 fn from_log<T>(report: &Report, pick: impl Fn(&LogEvent) -> Option<T>) -> Vec<T> {
-    report.log.iter().filter_map(|e| pick(&e.event)).collect()
+    report.tasks[0]
+        .log
+        .iter()
+        .filter_map(|e| pick(&e.event))
+        .collect()
 }
 
 /// (action, observation) of every `observed` event, in order.
@@ -75,7 +79,7 @@ fn the_seed_draws_where_the_newspaper_lies() {
 
 #[test]
 fn the_plan_looks_at_the_entrance_and_branches_on_what_it_sees() {
-    let plan = &load("newspaper.toml").plan;
+    let plan = &load("newspaper.toml").tasks[0].plan;
     let steps: Vec<&str> = plan.steps.iter().map(|s| s.action.as_str()).collect();
     assert_eq!(
         steps,
@@ -172,6 +176,7 @@ async fn a_failed_look_is_planned_around_from_the_belief() {
         peis: "astrid".to_string(),
         component: Some("ca3".to_string()),
         trigger: Trigger::After {
+            executive: None,
             event: "action_started".to_string(),
             action: Some(2),
             delay: Duration::from_secs_f64(delay),
@@ -225,9 +230,9 @@ fn world_with_astrid_at_the_entrance(scenario: &Scenario) -> Vec<ecology_tuples:
 
 fn replan(observed: &[Observation]) -> Result<Plan, String> {
     let scenario = load("newspaper.toml");
-    let (problem, _) = scenario.problem.clone().expect("a problem");
+    let (problem, _) = scenario.tasks[0].problem.clone().expect("a problem");
     let world = world_with_astrid_at_the_entrance(&scenario);
-    WorldReplanner::new(scenario.domain.clone(), problem).replan(&[], observed, &world)
+    WorldReplanner::new(scenario.tasks[0].domain.clone(), problem).replan(&[], observed, &world)
 }
 
 fn not_at(room: &str) -> Observation {
@@ -288,8 +293,8 @@ fn same(a: &Plan, b: &Plan) -> bool {
 #[test]
 fn a_printed_conditional_plan_reads_back_as_the_same_plan() {
     let scenario = load("newspaper.toml");
-    let (problem, _) = scenario.problem.clone().expect("a problem");
-    let task = ecology_actions::ground(&scenario.domain, &problem).expect("grounds");
+    let (problem, _) = scenario.tasks[0].problem.clone().expect("a problem");
+    let task = ecology_actions::ground(&scenario.tasks[0].domain, &problem).expect("grounds");
     let outcome = ecology_actions::plan_conditional(
         &ecology_actions::ConditionalRequest::new(&task),
         &ecology_actions::ConditionalOptions::default(),
@@ -303,7 +308,7 @@ fn a_printed_conditional_plan_reads_back_as_the_same_plan() {
     let read = ecology_exec::parse_plan(&printed).expect("reads");
     let planned = crate::executive_plan(&task, &plan.graph);
     assert!(same(&read, &planned), "{printed}\n{read:#?}\n{planned:#?}");
-    assert!(same(&read, &scenario.plan), "{printed}");
+    assert!(same(&read, &scenario.tasks[0].plan), "{printed}");
 }
 
 #[test]

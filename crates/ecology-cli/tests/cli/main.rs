@@ -778,6 +778,69 @@ fn run_takes_a_scenario_file_and_reports_bad_ones() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+// Two tasks in one home, each with its executive: one timeline, each line
+// naming its executive; JSON lines carry `executive`; exit 0 when both are done.
+#[test]
+fn run_plays_a_scenario_of_two_tasks_on_one_timeline() {
+    let out = ecology(&["run", "scenarios/two-robots.toml"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    for line in [
+        "[exec-astrid] plan: (move astrid entrance bedroom)",
+        "[exec-bob] plan: (move bob living-room kitchen)",
+        "is held by exec-",
+        "cost 170",
+        "[exec-astrid] task done",
+        "[exec-bob] task done",
+    ] {
+        assert!(text.contains(line), "missing `{line}` in\n{text}");
+    }
+    assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
+
+    let out = ecology(&["run", "scenarios/two-robots.toml", "--json"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let events: Vec<Value> = stdout(&out)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+        .collect();
+    let done: Vec<&str> = events
+        .iter()
+        .filter(|e| e["event"] == "task_done")
+        .filter_map(|e| e["executive"].as_str())
+        .collect();
+    assert_eq!(done.len(), 2, "{events:?}");
+    assert!(
+        done.contains(&"exec-astrid") && done.contains(&"exec-bob"),
+        "{done:?}"
+    );
+
+    // As processes, it is refused with the reason.
+    let out = ecology(&["run", "scenarios/two-robots.toml", "--processes"]);
+    exits(&out, 2, "--processes runs one task that starts at once");
+}
+
+// A sweep of the two tasks: every seed's run checked against the ground truth,
+// conflicts included.
+#[test]
+fn sweep_checks_that_no_component_serves_two_executives() {
+    let out = ecology(&["sweep", "scenarios/two-robots.toml", "--seeds", "4"]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}\n{}",
+        stdout(&out),
+        stderr(&out)
+    );
+    let text = stdout(&out);
+    assert!(text.contains("4 seeds (0..4) of two-robots"), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.trim_start().starts_with("conflicts") && l.contains(" 0   (")),
+        "{text}"
+    );
+    assert!(!text.contains("conflict:"), "{text}");
+}
+
 #[test]
 fn plan_max_millis_bounds_grounding_too() {
     // One action with six parameters over 40 objects and a static precondition
