@@ -1176,15 +1176,20 @@ async fn an_outsider_without_a_certificate_cannot_join() {
     let hsm = ZenohPeis::open(keys.options("hsm", &endpoint, &[]))
         .await
         .expect("hsm joins");
-    // Over QUIC without a certificate, and over plain TCP to the same port.
-    for connect in [endpoint.clone(), endpoint.replacen("quic/", "tcp/", 1)] {
-        let attacker = Attacker::spawn(
-            &python,
-            &["--connect".into(), connect, "--victim".into(), "hsm".into()],
-        );
-        let line = attacker.line(Duration::from_secs(20)).await;
-        assert!(line.contains("\"joined\": false"), "{line}");
-    }
+    // Over QUIC without a certificate. (A secured PEIS has no plain TCP endpoint to try: one
+    // given to it, even in a Zenoh configuration file, is refused before it opens anything;
+    // `authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_remotely` shows it.)
+    let attacker = Attacker::spawn(
+        &python,
+        &[
+            "--connect".into(),
+            endpoint,
+            "--victim".into(),
+            "hsm".into(),
+        ],
+    );
+    let line = attacker.line(Duration::from_secs(20)).await;
+    assert!(line.contains("\"joined\": false"), "{line}");
     hsm.close().await;
 }
 
