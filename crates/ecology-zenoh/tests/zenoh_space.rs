@@ -658,6 +658,14 @@ impl TempKeys {
         Self { dir, keys }
     }
 
+    /// Lets member `who` remote-set hsm's keys matching `pattern`, in its own name.
+    fn grant_on_hsm(&mut self, who: &str, pattern: &str) {
+        let pattern = ecology_zenoh::security::GrantPattern::new(pattern).expect("pattern");
+        self.keys
+            .grant(peis(who), Some(peis("hsm")), vec![pattern])
+            .expect("grant");
+    }
+
     fn options(&self, name: &str, listen: &str, connect: &[String]) -> ZenohOptions {
         let mut options = ZenohOptions::new(peis(name));
         options.listen = vec![listen.to_owned()];
@@ -692,13 +700,7 @@ async fn authenticated_members_talk_over_mutual_tls_and_only_the_executive_sets_
         ],
     );
     let mut keys = keys;
-    keys.keys
-        .grant(
-            peis("operator"),
-            Some(peis("hsm")),
-            vec![ecology_zenoh::security::GrantPattern::new("ca1.fault").expect("pattern")],
-        )
-        .expect("grant");
+    keys.grant_on_hsm("operator", "ca1.fault");
     let hsm_endpoint = free_quic_endpoint();
     let hsm = ZenohPeis::open(keys.options("hsm", &hsm_endpoint, &[]))
         .await
@@ -969,13 +971,7 @@ async fn a_malicious_member_forges_nothing_and_the_victim_joins_and_works() {
     // Mallory may set hsm's `ca1.fault` in her own name: what she sends there naming the
     // executive in its creator stamp must be refused by hsm itself, not by the access rules.
     let mut keys = keys;
-    keys.keys
-        .grant(
-            peis("mallory"),
-            Some(peis("hsm")),
-            vec![ecology_zenoh::security::GrantPattern::new("ca1.fault").expect("pattern")],
-        )
-        .expect("grant");
+    keys.grant_on_hsm("mallory", "ca1.fault");
     let watcher_endpoint = free_quic_endpoint();
     let watcher = ZenohPeis::open(keys.options("watcher", &watcher_endpoint, &[]))
         .await

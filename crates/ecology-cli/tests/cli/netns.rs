@@ -853,9 +853,7 @@ fn a_peis_cut_off_mid_move_is_reconfigured_around_and_puts_back_what_it_ran() {
     // for (its dead man's switch), whatever the executive does.
     for c in ["ca1", "tr1"] {
         home.proc("hsm").wait_for(&format!("{c} put back"), |l| {
-            l.contains(&format!(
-                "{c} stopped: executive, which gave its params, is gone"
-            ))
+            l.contains(&format!("{c} stopped: executive, which held it, is gone"))
         });
     }
     let (code, all) = home.finish();

@@ -272,8 +272,9 @@ components = [
         Fixture { folder }
     }
 
-    /// Astrid in the entrance and Bob in the living room, each with a laser (off), odometry, a
-    /// thinking cap and self-localisation; hsm with one ceiling camera and one tracking system.
+    /// `scenarios/two-robots.toml`: Astrid in the entrance and Bob in the living room, each with
+    /// a laser (off), odometry, a thinking cap and self-localisation; hsm with one ceiling camera
+    /// and one tracking system.
     /// Astrid's plan (`plan`) moves her to the bedroom, Bob's (`plan_of("bob")`) him to the
     /// kitchen.
     pub fn two_robots(test: &str) -> Fixture {
@@ -285,17 +286,14 @@ components = [
     pub fn two_robots_with(test: &str, hsm_more: &str) -> Fixture {
         let folder = std::env::temp_dir().join(format!("ecology-{test}-{}", std::process::id()));
         std::fs::create_dir_all(&folder).expect("temp folder");
-        let domain = root().join("domains/peis-home.eco");
-        let task = format!(
-            "[task]\ndomain = \"{}\"\nplan = [{{ action = \"{}\", configure = \"{}\" }}]\n",
-            domain.display(),
-            TO_BEDROOM.0,
-            TO_BEDROOM.1
-        );
-        let scenario =
-            TWO_ROBOTS.replace("  { id = \"tr1\"", &format!("{hsm_more}  {{ id = \"tr1\""));
-        std::fs::write(folder.join("scenario.toml"), format!("{scenario}{task}"))
-            .expect("write scenario");
+        let shipped = std::fs::read_to_string(root().join("scenarios/two-robots.toml"))
+            .expect("scenarios/two-robots.toml");
+        // Its paths are relative to the scenario's folder, which this copy is not in.
+        let domains = format!("{}/", root().join("domains").display());
+        let scenario = shipped
+            .replace("../domains/", &domains)
+            .replace("  { id = \"tr1\"", &format!("{hsm_more}  {{ id = \"tr1\""));
+        std::fs::write(folder.join("scenario.toml"), scenario).expect("write scenario");
         for (file, (action, goal)) in [("plan.txt", TO_BEDROOM), ("bob.txt", BOB_TO_KITCHEN)] {
             std::fs::write(folder.join(file), format!("{action}  ; configure {goal}\n"))
                 .expect("write plan");
@@ -332,51 +330,6 @@ pub const TO_BEDROOM: (&str, &str) = (
 );
 pub const BOB_TO_KITCHEN: (&str, &str) =
     ("(move bob living-room kitchen)", "(navigate bob kitchen)");
-
-/// The PEIS-Home with two robots ([`Fixture::two_robots`]), without its `[task]`.
-const TWO_ROBOTS: &str = r#"name = "two-robots"
-seed = 7
-[map]
-rooms = [
-  { name = "living-room", x = [0.0, 3.0], y = [0.0, 3.0] },
-  { name = "kitchen",     x = [3.0, 5.0], y = [0.0, 3.0] },
-  { name = "entrance",    x = [2.5, 5.0], y = [3.0, 5.0] },
-  { name = "bedroom",     x = [0.0, 2.5], y = [3.0, 5.0] },
-]
-doors = [
-  { between = ["living-room", "kitchen"],  at = [3.0, 1.5] },
-  { between = ["living-room", "entrance"], at = [2.75, 3.0] },
-  { between = ["entrance", "bedroom"],     at = [2.5, 4.0] },
-]
-[[robot]]
-name = "astrid"
-at = [3.3, 4.0, 3.14159]
-[[robot]]
-name = "bob"
-at = [2.2, 1.5, 0.0]
-[[peis]]
-name = "astrid"
-components = [
-  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
-  { id = "od1", type = "odomet",   cost = 10,  on = true },
-  { id = "tc1", type = "tc",       cost = 20,  on = true },
-  { id = "s1",  type = "self-loc", cost = 20,  on = true },
-]
-[[peis]]
-name = "bob"
-components = [
-  { id = "l1",  type = "laser",    cost = 100, on = false, startup = 0.3 },
-  { id = "od1", type = "odomet",   cost = 10,  on = true },
-  { id = "tc1", type = "tc",       cost = 20,  on = true },
-  { id = "s1",  type = "self-loc", cost = 20,  on = true },
-]
-[[peis]]
-name = "hsm"
-components = [
-  { id = "ca1", type = "cams",   cost = 20, on = true },
-  { id = "tr1", type = "tr-sys", cost = 20, on = true },
-]
-"#;
 
 pub const TO_ENTRANCE: (&str, &str) = (
     "(move astrid bedroom entrance)",

@@ -113,6 +113,20 @@ impl Together {
         }
     }
 
+    /// hsm's cameras were held by both executives, then by Bob's alone, then by nobody.
+    fn cameras_left_to_bob(&self) {
+        let holders = &self.hsm["components.ca1.holders"];
+        let both = holders
+            .iter()
+            .position(|h| h.split(' ').count() == 2)
+            .unwrap_or_else(|| panic!("ca1 was never shared: {holders:?}"));
+        assert_eq!(
+            holders[both + 1..],
+            ["exec-bob".to_string(), String::new()],
+            "{holders:?}"
+        );
+    }
+
     /// Everything the tasks used is put back: no holder left, and no params left.
     fn all_released(&self) {
         for (tuple, value) in &self.end {
@@ -277,21 +291,8 @@ async fn a_shared_camera_serves_two_trackers_until_its_last_holder_releases_it()
             timeline(exec)
         );
     }
-    let holders = &ran.hsm["components.ca1.holders"];
-    assert!(
-        holders.iter().any(|h| h.split(' ').count() == 2),
-        "ca1 was never shared: {holders:?}"
-    );
     // Astrid's release left Bob holding the cameras; his own put them back.
-    let after_both = holders
-        .iter()
-        .position(|h| h.split(' ').count() == 2)
-        .expect("shared");
-    assert_eq!(
-        holders[after_both + 1..],
-        ["exec-bob".to_string(), String::new()],
-        "{holders:?}"
-    );
+    ran.cameras_left_to_bob();
     ran.never_re_aimed();
     ran.all_released();
 }
@@ -325,18 +326,8 @@ async fn an_executive_killed_while_sharing_takes_nothing_from_the_other() {
         "{}",
         timeline(bob)
     );
-    // The cameras went from both holders to Bob alone (Astrid's claim lapsing), never to none
-    // while Bob moved.
-    let holders = &ran.hsm["components.ca1.holders"];
-    let both = holders
-        .iter()
-        .position(|h| h.split(' ').count() == 2)
-        .expect("shared");
-    assert_eq!(
-        holders[both + 1..],
-        ["exec-bob".to_string(), String::new()],
-        "{holders:?}"
-    );
+    // Astrid's claim lapsing left Bob holding the cameras, never nobody while he moved.
+    ran.cameras_left_to_bob();
     ran.never_re_aimed();
     ran.all_released();
 }
