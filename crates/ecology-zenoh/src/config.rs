@@ -253,25 +253,27 @@ pub(crate) fn secure(config: &mut zenoh::Config, security: &Security) -> Result<
     insert(config, "access_control", identity.roster.access_control())
 }
 
-/// Every endpoint `config` listens on or connects to, whichever mode they are given for.
+/// Every endpoint `config` listens on or connects to in its mode. Endpoints may be given per mode
+/// (`{ router: [...], peer: [...], client: [...] }`, as Zenoh's defaults are: a router and a peer
+/// listen on `tcp/[::]` unless told otherwise); only the process's own mode's count.
 fn configured_endpoints(config: &zenoh::Config) -> Vec<String> {
-    fn strings(value: &serde_json::Value, out: &mut Vec<String>) {
-        match value {
-            serde_json::Value::String(s) => out.push(s.clone()),
-            serde_json::Value::Array(items) => items.iter().for_each(|v| strings(v, out)),
-            // Endpoints per mode: `{ router: [...], peer: [...], client: [...] }`.
-            serde_json::Value::Object(map) => map.values().for_each(|v| strings(v, out)),
-            _ => {}
-        }
-    }
-    let mut out = Vec::new();
-    for key in ["listen/endpoints", "connect/endpoints"] {
-        if let Some(value) = config
+    let json = |key: &str| {
+        config
             .get_json(key)
             .ok()
             .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
-        {
-            strings(&value, &mut out);
+    };
+    let mode = json("mode")
+        .and_then(|m| m.as_str().map(str::to_owned))
+        .unwrap_or_else(|| "peer".to_owned());
+    let mut out = Vec::new();
+    for key in ["listen/endpoints", "connect/endpoints"] {
+        let endpoints = match json(key) {
+            Some(serde_json::Value::Object(mut by_mode)) => by_mode.remove(&mode),
+            other => other,
+        };
+        if let Some(serde_json::Value::Array(items)) = endpoints {
+            out.extend(items.iter().filter_map(|v| v.as_str().map(str::to_owned)));
         }
     }
     out
