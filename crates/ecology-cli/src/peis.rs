@@ -331,10 +331,7 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
                         .map
                         .room_at(robot.pose.x, robot.pose.y)
                         .map_or("no room", |r| r.name.as_str());
-                    say(&format!(
-                        "world: {name} ends at {} in {room}",
-                        robot.pose.to_text()
-                    ));
+                    say(&format!("world: {name} ends at {} in {room}", robot.pose));
                 }
                 Ok(EXIT_OK)
             }

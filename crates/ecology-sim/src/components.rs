@@ -3,10 +3,11 @@
 //! DESIGN section 6.
 //!
 //! Sensors read ground truth from the `world` PEIS through the tuple space
-//! (its `robots.NAME.pose`, `map`, `things.…` and `residents.…` tuples) and
-//! add seeded noise; processors read their inputs through `mi-` meta-tuples;
-//! actuators act on the world by publishing outputs the world subscribes to
-//! (`C.out.velocity`, `C.out.grasp`, `C.out.sound`). Each reports its own
+//! (its `robots.NAME.pose`, `map`, `things.…` and `residents.…` tuples, read
+//! through [`ecology_tuples::world`]) and add seeded noise; processors read
+//! their inputs through `mi-` meta-tuples; actuators act on the world by
+//! publishing outputs the world subscribes to (`C.out.velocity`,
+//! `C.out.grasp`, `C.out.sound`). Each reports its own
 //! status: `waiting` naming what is missing, `running`, `done`, or `error`
 //! with a cause. Injected faults make a component fail (`error`) or stall
 //! (stay `running` but fall silent, as a dead camera does).
@@ -17,13 +18,11 @@ use std::time::Duration;
 
 use ecology_peis::{BoxFuture, Component, ComponentError, Context, Inputs};
 use ecology_tuples::contract::{quoted, unreadable_cause};
-use ecology_tuples::{Clock, Subscription, Timestamp, TupleEvent, TuplePattern, TupleSpace, Value};
+use ecology_tuples::world::{AWAKE, Command, Point, WORLD, WorldKey, world_pattern};
+use ecology_tuples::{Clock, Subscription, Timestamp, TupleEvent, TupleSpace, Value};
 
-use crate::world::{MAX_SPEED, MAX_TURN, Map, Pose, wrap_angle};
+use crate::world::{self, MAX_SPEED, MAX_TURN, Map, Pose, ray, wrap_angle};
 use ecology_core::Rng;
-
-/// The name of the PEIS that holds the world's ground truth.
-pub const WORLD: &str = "world";
 
 /// The component types the simulator provides (the `pc` facts' types).
 pub const KINDS: &[&str] = &[
@@ -152,10 +151,8 @@ struct Truth {
 
 impl Truth {
     async fn follow<S: TupleSpace>(ctx: &Context<S>) -> Result<Truth, ComponentError> {
-        let pattern = TuplePattern::parse(&format!("{WORLD}:**"))
-            .map_err(|e| ComponentError::Space(e.to_string()))?;
         Ok(Truth {
-            subscription: ctx.space().subscribe(pattern).await?,
+            subscription: ctx.space().subscribe(world_pattern()).await?,
             latest: BTreeMap::new(),
             clock: ctx.clock().clone(),
             heard: None,
@@ -202,22 +199,25 @@ impl Truth {
     }
 
     fn robot(&self, name: &str) -> Option<Pose> {
-        self.text(&format!("robots.{name}.pose"))
-            .and_then(Pose::parse)
+        self.text(&WorldKey::RobotPose(name).to_string())
+            .and_then(|text| Pose::parse(text).ok())
     }
 
     fn robots(&self) -> Vec<(String, Pose)> {
         self.latest
             .iter()
             .filter_map(|(k, v)| {
-                let name = k.strip_prefix("robots.")?.strip_suffix(".pose")?;
-                Some((name.to_string(), Pose::parse(v)?))
+                let WorldKey::RobotPose(name) = WorldKey::parse(k)? else {
+                    return None;
+                };
+                Some((name.to_string(), Pose::parse(v).ok()?))
             })
             .collect()
     }
 
     fn map(&self) -> Option<Map> {
-        self.text("map").and_then(Map::parse)
+        self.text(&WorldKey::Map.to_string())
+            .and_then(|text| Map::parse(text).ok())
     }
 
     /// Things lying somewhere (not held), with where.
@@ -225,19 +225,19 @@ impl Truth {
         self.latest
             .iter()
             .filter_map(|(k, v)| {
-                let name = k.strip_prefix("things.")?.strip_suffix(".at")?;
-                let mut xy = v.split_whitespace().map(str::parse::<f64>);
-                match (xy.next(), xy.next()) {
-                    (Some(Ok(x)), Some(Ok(y))) => Some((name.to_string(), (x, y))),
-                    _ => None,
-                }
+                let WorldKey::ThingAt(name) = WorldKey::parse(k)? else {
+                    return None;
+                };
+                let at = Point::parse(v).ok()?;
+                Some((name.to_string(), (at.x, at.y)))
             })
             .collect()
     }
 
     /// Whether `name` is a thing of the world (not a robot).
     fn is_thing(&self, name: &str) -> bool {
-        self.latest.contains_key(&format!("things.{name}.holder"))
+        self.latest
+            .contains_key(&WorldKey::ThingHolder(name).to_string())
     }
 }
 
@@ -372,7 +372,7 @@ impl<S: TupleSpace> Body<S> {
                             pose.y + self.rng.gaussian(0.02),
                             wrap_angle(pose.theta + self.rng.gaussian(0.01)),
                         );
-                        image.push(format!("{name} {}", seen.to_text()));
+                        image.push(format!("{name} {seen}"));
                     }
                     self.output("image", image.join("; ")).await?;
                 }
@@ -408,7 +408,7 @@ impl<S: TupleSpace> Body<S> {
                     Some(pose) => {
                         self.report("running", "").await?;
                         if !stalled {
-                            self.output("global-pos", pose.to_text()).await?;
+                            self.output("global-pos", pose.to_string()).await?;
                         }
                     }
                 },
@@ -544,7 +544,7 @@ impl<S: TupleSpace> Body<S> {
             estimate = Some(est);
             self.report("running", "").await?;
             if !stalled {
-                self.output("odometry", est.to_text()).await?;
+                self.output("odometry", est.to_string()).await?;
             }
             self.ctx.sleep(PERIOD).await;
         }
@@ -583,7 +583,9 @@ impl<S: TupleSpace> Body<S> {
                 continue;
             }
             used = seqs;
-            let odometry = self.read(&inputs, "odometry", POSE_FORMAT, Pose::parse);
+            let odometry = self.read(&inputs, "odometry", Pose::FORM, |text| {
+                Pose::parse(text).ok()
+            });
             let ranges = self.read(&inputs, "range-scan", SCAN_FORMAT, parse_ranges);
             let (odometry, ranges) = match (odometry, ranges) {
                 (Ok(Some(odometry)), Ok(Some(ranges))) => (odometry, ranges),
@@ -610,7 +612,7 @@ impl<S: TupleSpace> Body<S> {
             );
             self.report("running", "").await?;
             if !stalled {
-                self.output("position", best.to_text()).await?;
+                self.output("position", best.to_string()).await?;
             }
             self.next(&mut inputs).await;
         }
@@ -623,11 +625,13 @@ impl<S: TupleSpace> Body<S> {
         loop {
             let stalled = self.injected()?;
             inputs.poll();
-            match self.read(&inputs, "global-pos", POSE_FORMAT, Pose::parse) {
+            match self.read(&inputs, "global-pos", Pose::FORM, |text| {
+                Pose::parse(text).ok()
+            }) {
                 Ok(Some(pose)) => {
                     self.report("running", "").await?;
                     if !stalled {
-                        self.output("position", pose.to_text()).await?;
+                        self.output("position", pose.to_string()).await?;
                     }
                 }
                 Ok(None) => self.report("waiting", "global-pos").await?,
@@ -650,10 +654,12 @@ impl<S: TupleSpace> Body<S> {
             let stalled = self.injected()?;
             inputs.poll();
             truth.take_in();
-            let position = self.read(&inputs, "position", POSE_FORMAT, Pose::parse);
+            let position = self.read(&inputs, "position", Pose::FORM, |text| {
+                Pose::parse(text).ok()
+            });
             let Ok(Some(pose)) = position else {
                 if !stalled {
-                    self.output("velocity", "0 0".into()).await?;
+                    self.output(Command::Velocity.info(), "0 0".into()).await?;
                 }
                 let cause = position.err().unwrap_or_else(|| "position".to_string());
                 self.report("waiting", &cause).await?;
@@ -666,11 +672,11 @@ impl<S: TupleSpace> Body<S> {
                 continue;
             };
             if route.is_none() {
-                let here = map.room_at(pose.x, pose.y).ok_or_else(|| {
-                    fault(format!("position {} is outside the map", pose.to_text()))
-                })?;
+                let here = map
+                    .room_at(pose.x, pose.y)
+                    .ok_or_else(|| fault(format!("position {pose} is outside the map")))?;
                 route =
-                    Some(map.route(&here.name, &destination).ok_or_else(|| {
+                    Some(world::route(&map, &here.name, &destination).ok_or_else(|| {
                         fault(format!("no way from {} to {destination}", here.name))
                     })?);
             }
@@ -683,7 +689,7 @@ impl<S: TupleSpace> Body<S> {
             };
             let distance = pose.distance_to(wx, wy);
             if waypoints.len() == 1 && distance < 0.15 {
-                self.output("velocity", "0 0".into()).await?;
+                self.output(Command::Velocity.info(), "0 0".into()).await?;
                 self.report("done", "").await?;
                 return Ok(());
             }
@@ -696,7 +702,8 @@ impl<S: TupleSpace> Body<S> {
             };
             self.report("running", "").await?;
             if !stalled {
-                self.output("velocity", format!("{v:.4} {w:.4}")).await?;
+                self.output(Command::Velocity.info(), format!("{v:.4} {w:.4}"))
+                    .await?;
             }
             self.next(&mut inputs).await;
         }
@@ -730,13 +737,13 @@ impl<S: TupleSpace> Body<S> {
         let me = self.ctx.peis().to_string();
         let mut truth = Truth::follow(&self.ctx).await?;
         self.report("running", "").await?;
-        let holder = format!("things.{thing}.holder");
+        let holder = WorldKey::ThingHolder(&thing).to_string();
         if !self
             .await_world(&mut truth, &holder, &me, Duration::from_secs(1))
             .await?
         {
             if !self.injected()? {
-                self.output("grasp", thing.clone()).await?;
+                self.output(Command::Grasp.info(), thing.clone()).await?;
             }
             if !self
                 .await_world(&mut truth, &holder, &me, Duration::from_secs(2))
@@ -757,11 +764,12 @@ impl<S: TupleSpace> Body<S> {
         self.report("running", "").await?;
         self.ctx.sleep(Duration::from_millis(500)).await;
         if !self.injected()? {
-            self.output("sound", format!("wake up, {person}")).await?;
+            self.output(Command::Sound.info(), format!("wake up, {person}"))
+                .await?;
         }
-        let state = format!("residents.{person}.state");
+        let state = WorldKey::ResidentState(&person).to_string();
         if !self
-            .await_world(&mut truth, &state, "awake", Duration::from_secs(2))
+            .await_world(&mut truth, &state, AWAKE, Duration::from_secs(2))
             .await?
         {
             return Err(fault(format!("{person} did not wake up")));
@@ -797,7 +805,7 @@ fn parse_image(image: &str) -> Option<Vec<(String, Pose)>> {
         .filter(|entry| !entry.is_empty())
         .map(|entry| {
             let (name, pose) = entry.split_once(char::is_whitespace)?;
-            Some((name.to_string(), Pose::parse(pose)?))
+            Some((name.to_string(), Pose::parse(pose).ok()?))
         })
         .collect()
 }
@@ -823,8 +831,6 @@ fn garble(text: &str) -> String {
 
 /// What an `image` looks like, for causes.
 const IMAGE_FORMAT: &str = "NAME X Y THETA entries separated by ;";
-/// What a pose (`global-pos`, `position`, `odometry`) looks like, for causes.
-const POSE_FORMAT: &str = "X Y THETA (three numbers)";
 /// What a `range-scan` looks like, for causes.
 const SCAN_FORMAT: &str = "ranges in metres separated by spaces";
 
@@ -833,7 +839,7 @@ pub fn scan(map: &Map, pose: Pose) -> Vec<f64> {
     (0..8)
         .map(|k| {
             let angle = pose.theta + f64::from(k) * std::f64::consts::FRAC_PI_4;
-            map.ray(pose.x, pose.y, angle)
+            ray(map, pose.x, pose.y, angle)
         })
         .collect()
 }

@@ -6,8 +6,8 @@
 //! virtual time.
 //!
 //! The world is a PEIS of its own (`world`): it publishes ground truth
-//! (`map`, `robots.NAME.pose`, `things.NAME.holder`, `residents.NAME.state`)
-//! and reads the robots' motor commands, grasps and sounds from component
+//! (`map`, `robots.NAME.pose`, `things.NAME.holder`, `residents.NAME.state`:
+//! the contract of [`ecology_tuples::world`]) and reads the robots' motor commands, grasps and sounds from component
 //! outputs, so every sensor and actuator goes through the real middleware.
 
 mod components;
@@ -27,8 +27,9 @@ mod tests;
 #[cfg(test)]
 mod tests_conditional;
 
-pub use components::{FaultState, Faults, KINDS, Simulated, WORLD, match_scan, scan};
+pub use components::{FaultState, Faults, KINDS, Simulated, match_scan, scan};
 pub use ecology_core::Rng;
+pub use ecology_tuples::world::WORLD;
 pub use host::{host_peis, parse_fault, simulated_components};
 pub use planning::{PlanError, executive_plan, plan_actions};
 pub use replan::WorldReplanner;
@@ -40,6 +41,6 @@ pub use scenario::{
 pub use schedule::with_random_faults;
 pub use world::{
     Door, MAX_RANGE, MAX_SPEED, MAX_TURN, Map, Pose, REACH, Resident, Robot, Room, Thing, World,
-    wrap_angle,
+    ray, route, wrap_angle,
 };
 pub use world_peis::{WorldPeis, run_world};

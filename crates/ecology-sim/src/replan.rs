@@ -22,10 +22,8 @@ use ecology_domain::{Domain, Problem, Term, parse_goal};
 use ecology_exec::{Observation, Plan, Replan};
 
 use crate::planning::{run_action_planner, run_conditional_planner};
+use ecology_tuples::world::{AWAKE, Map, Pose, WorldKey, world_pattern};
 use ecology_tuples::{Tuple, TuplePattern};
-
-use crate::components::WORLD;
-use crate::world::{Map, Pose};
 
 /// Plans a problem again from the observed world (see the module documentation).
 #[derive(Debug, Clone)]
@@ -46,33 +44,28 @@ fn observe(world: &[Tuple]) -> Observed {
     let text = |t: &Tuple| t.text().unwrap_or("").trim().to_string();
     let map = world
         .iter()
-        .find(|t| t.key.as_str() == "map")
-        .and_then(|t| Map::parse(&text(t)));
+        .find(|t| WorldKey::parse(t.key.as_str()) == Some(WorldKey::Map))
+        .and_then(|t| Map::parse(&text(t)).ok());
     let mut observed = Observed::default();
     for t in world {
-        let key = t.key.as_str();
-        if let Some(robot) = key
-            .strip_prefix("robots.")
-            .and_then(|k| k.strip_suffix(".pose"))
-            && let (Some(map), Some(pose)) = (&map, Pose::parse(&text(t)))
-            && let Some(room) = map.room_at(pose.x, pose.y)
-        {
-            observed.rooms.insert(robot.to_string(), room.name.clone());
-        } else if let Some(thing) = key
-            .strip_prefix("things.")
-            .and_then(|k| k.strip_suffix(".holder"))
-        {
-            let holder = text(t);
-            observed
-                .holders
-                .insert(thing.to_string(), (!holder.is_empty()).then_some(holder));
-        } else if let Some(person) = key
-            .strip_prefix("residents.")
-            .and_then(|k| k.strip_suffix(".state"))
-        {
-            observed
-                .awake
-                .insert(person.to_string(), text(t) == "awake");
+        match WorldKey::parse(t.key.as_str()) {
+            Some(WorldKey::RobotPose(robot)) => {
+                if let (Some(map), Ok(pose)) = (&map, Pose::parse(&text(t)))
+                    && let Some(room) = map.room_at(pose.x, pose.y)
+                {
+                    observed.rooms.insert(robot.to_string(), room.name.clone());
+                }
+            }
+            Some(WorldKey::ThingHolder(thing)) => {
+                let holder = text(t);
+                observed
+                    .holders
+                    .insert(thing.to_string(), (!holder.is_empty()).then_some(holder));
+            }
+            Some(WorldKey::ResidentState(person)) => {
+                observed.awake.insert(person.to_string(), text(t) == AWAKE);
+            }
+            _ => {}
         }
     }
     observed
@@ -175,7 +168,7 @@ impl WorldReplanner {
 
 impl Replan for WorldReplanner {
     fn observe(&self) -> TuplePattern {
-        TuplePattern::parse(&format!("{WORLD}:**")).unwrap_or_else(|_| TuplePattern::everything())
+        world_pattern()
     }
 
     fn replan(

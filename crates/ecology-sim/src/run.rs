@@ -27,13 +27,14 @@ use ecology_tuples::{
 use tokio::sync::watch;
 use tokio::task::{AbortHandle, JoinSet};
 
-use crate::components::{Faults, WORLD};
+use crate::components::Faults;
 use crate::conflicts::{Change, ConflictCheck};
 use crate::host::simulated_components;
 use crate::replan::WorldReplanner;
 use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, ScenarioTask, Trigger};
 use crate::world::World;
 use crate::world_peis::WorldPeis;
+use ecology_tuples::world::WORLD;
 
 /// How fast simulated time runs.
 #[derive(Debug, Clone, Copy, PartialEq)]

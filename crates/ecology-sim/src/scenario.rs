@@ -528,7 +528,9 @@ fn parse_tasks(
             (Some(name), true) => {
                 let at = |message: String| check.at(name.span(), message);
                 let name = name.get_ref();
-                if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
+                if ecology_tuples::PeisId::new(name).is_err()
+                    || name == ecology_tuples::world::WORLD
+                {
                     return Err(at(format!("`{name}` cannot name an executive")));
                 }
                 if peis.iter().any(|p| &p.name == name) {
@@ -941,7 +943,7 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
     let mut names = BTreeSet::new();
     for p in files {
         let name = p.name.get_ref();
-        if ecology_tuples::PeisId::new(name).is_err() || name == crate::components::WORLD {
+        if ecology_tuples::PeisId::new(name).is_err() || name == ecology_tuples::world::WORLD {
             return Err(check.at(p.name.span(), format!("`{name}` cannot name a PEIS")));
         }
         if !names.insert(name.clone()) {

@@ -221,7 +221,7 @@ async fn a_failed_look_is_planned_around_from_the_belief() {
 /// The world's tuples with Astrid at the entrance and Johanna asleep.
 fn world_with_astrid_at_the_entrance(scenario: &Scenario) -> Vec<ecology_tuples::Tuple> {
     vec![
-        world_tuple("map", &scenario.world.map.to_text()),
+        world_tuple("map", &scenario.world.map.to_string()),
         world_tuple("robots.astrid.pose", "3.750 4.000 0.0000"),
         world_tuple("residents.johanna.state", "asleep"),
         world_tuple("things.newspaper.holder", ""),

@@ -7,51 +7,11 @@
 //! other PEIS' component outputs.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::fmt::Write as _;
 
 use ecology_core::Rng;
-
-/// A 2-D pose: position in metres, heading in radians.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pose {
-    /// x, metres.
-    pub x: f64,
-    /// y, metres.
-    pub y: f64,
-    /// Heading, radians, counter-clockwise from the x axis.
-    pub theta: f64,
-}
-
-impl Pose {
-    /// A pose.
-    pub fn new(x: f64, y: f64, theta: f64) -> Pose {
-        Pose { x, y, theta }
-    }
-
-    /// Distance to the point (x, y).
-    pub fn distance_to(&self, x: f64, y: f64) -> f64 {
-        (self.x - x).hypot(self.y - y)
-    }
-
-    /// As tuple text: `x y theta`.
-    pub fn to_text(&self) -> String {
-        format!("{:.3} {:.3} {:.4}", self.x, self.y, self.theta)
-    }
-
-    /// Parses `x y theta`: exactly three finite numbers.
-    pub fn parse(text: &str) -> Option<Pose> {
-        let mut it = text.split_whitespace().map(str::parse::<f64>);
-        let (Some(Ok(x)), Some(Ok(y)), Some(Ok(theta)), None) =
-            (it.next(), it.next(), it.next(), it.next())
-        else {
-            return None;
-        };
-        [x, y, theta]
-            .iter()
-            .all(|v| v.is_finite())
-            .then_some(Pose { x, y, theta })
-    }
-}
+// The map and poses are the world's tuple contract; the simulator adds their
+// geometry (routes, laser rays) here.
+pub use ecology_tuples::world::{Door, Map, Pose, Room};
 
 /// The angle `a` wrapped into (-π, π].
 pub fn wrap_angle(a: f64) -> f64 {
@@ -65,197 +25,67 @@ pub fn wrap_angle(a: f64) -> f64 {
     a
 }
 
-/// A rectangular room.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Room {
-    /// Its name, as in the domain's problem (`bedroom`).
-    pub name: String,
-    /// Lower-left corner x.
-    pub x0: f64,
-    /// Lower-left corner y.
-    pub y0: f64,
-    /// Upper-right corner x.
-    pub x1: f64,
-    /// Upper-right corner y.
-    pub y1: f64,
-}
-
-impl Room {
-    /// Whether (x, y) lies in the room (borders included).
-    pub fn contains(&self, x: f64, y: f64) -> bool {
-        x >= self.x0 && x <= self.x1 && y >= self.y0 && y <= self.y1
-    }
-
-    /// The room's centre.
-    pub fn centre(&self) -> (f64, f64) {
-        ((self.x0 + self.x1) / 2.0, (self.y0 + self.y1) / 2.0)
-    }
-
-    /// Its area in square metres.
-    pub fn area(&self) -> f64 {
-        (self.x1 - self.x0) * (self.y1 - self.y0)
-    }
-}
-
-/// A door: a passage between two rooms at a point on their common wall.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Door {
-    /// One room.
-    pub a: String,
-    /// The other room.
-    pub b: String,
-    /// The passage point x.
-    pub x: f64,
-    /// The passage point y.
-    pub y: f64,
-}
-
-/// The map: rooms and the doors between them.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Map {
-    /// The rooms.
-    pub rooms: Vec<Room>,
-    /// The doors.
-    pub doors: Vec<Door>,
-}
-
 /// The longest range a simulated laser measures, metres.
 pub const MAX_RANGE: f64 = 8.0;
 
-impl Map {
-    /// The room at (x, y): the first that contains it, or, within 0.2 m of a
-    /// wall (the width of a door frame), the nearest.
-    pub fn room_at(&self, x: f64, y: f64) -> Option<&Room> {
-        // Nowhere is in no room (NaN would read as on every wall).
-        if !x.is_finite() || !y.is_finite() {
-            return None;
+/// Waypoints from room `from` to the centre of room `to` in `map`: each door
+/// on the way (fewest doors first), then the centre.
+pub fn route(map: &Map, from: &str, to: &str) -> Option<Vec<(f64, f64)>> {
+    let target = map.room(to)?;
+    let mut previous: BTreeMap<&str, (&str, &Door)> = BTreeMap::new();
+    let mut seen: BTreeSet<&str> = BTreeSet::from([from]);
+    let mut queue = VecDeque::from([from]);
+    while let Some(room) = queue.pop_front() {
+        if room == to {
+            break;
         }
-        if let Some(room) = self.rooms.iter().find(|r| r.contains(x, y)) {
-            return Some(room);
-        }
-        self.rooms
-            .iter()
-            .map(|r| {
-                let dx = (r.x0 - x).max(x - r.x1).max(0.0);
-                let dy = (r.y0 - y).max(y - r.y1).max(0.0);
-                (dx.hypot(dy), r)
-            })
-            .filter(|(d, _)| *d <= 0.2)
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, r)| r)
-    }
-
-    /// The room called `name`.
-    pub fn room(&self, name: &str) -> Option<&Room> {
-        self.rooms.iter().find(|r| r.name == name)
-    }
-
-    /// Waypoints from room `from` to the centre of room `to`: each door on
-    /// the way (fewest doors first), then the centre.
-    pub fn route(&self, from: &str, to: &str) -> Option<Vec<(f64, f64)>> {
-        let target = self.room(to)?;
-        let mut previous: BTreeMap<&str, (&str, &Door)> = BTreeMap::new();
-        let mut seen: BTreeSet<&str> = BTreeSet::from([from]);
-        let mut queue = VecDeque::from([from]);
-        while let Some(room) = queue.pop_front() {
-            if room == to {
-                break;
-            }
-            for door in &self.doors {
-                let next = if door.a == room {
-                    door.b.as_str()
-                } else if door.b == room {
-                    door.a.as_str()
-                } else {
-                    continue;
-                };
-                if seen.insert(next) {
-                    previous.insert(next, (room, door));
-                    queue.push_back(next);
-                }
-            }
-        }
-        if !seen.contains(to) {
-            return None;
-        }
-        let mut doors = Vec::new();
-        let mut at = to;
-        while let Some((before, door)) = previous.get(at) {
-            doors.push((door.x, door.y));
-            at = before;
-        }
-        doors.reverse();
-        doors.push(target.centre());
-        Some(doors)
-    }
-
-    /// Distance from (x, y) along `angle` to the walls of the room it is in
-    /// (doors are not modelled as openings), at most [`MAX_RANGE`].
-    pub fn ray(&self, x: f64, y: f64, angle: f64) -> f64 {
-        let Some(r) = self.room_at(x, y) else {
-            return MAX_RANGE;
-        };
-        let (dx, dy) = (angle.cos(), angle.sin());
-        let mut best = MAX_RANGE;
-        if dx > 1e-9 {
-            best = best.min((r.x1 - x) / dx);
-        } else if dx < -1e-9 {
-            best = best.min((r.x0 - x) / dx);
-        }
-        if dy > 1e-9 {
-            best = best.min((r.y1 - y) / dy);
-        } else if dy < -1e-9 {
-            best = best.min((r.y0 - y) / dy);
-        }
-        best.max(0.0)
-    }
-
-    /// The map as one tuple's text: `room NAME X0 Y0 X1 Y1; door A B X Y; …`.
-    pub fn to_text(&self) -> String {
-        let mut text = String::new();
-        for r in &self.rooms {
-            let _ = write!(
-                text,
-                "room {} {} {} {} {}; ",
-                r.name, r.x0, r.y0, r.x1, r.y1
-            );
-        }
-        for d in &self.doors {
-            let _ = write!(text, "door {} {} {} {}; ", d.a, d.b, d.x, d.y);
-        }
-        text.trim_end_matches([';', ' ']).to_string()
-    }
-
-    /// Parses [`Map::to_text`]'s form: every item a room or a door, every number finite.
-    pub fn parse(text: &str) -> Option<Map> {
-        let mut map = Map::default();
-        for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
-            let words: Vec<&str> = item.split_whitespace().collect();
-            let num = |i: usize| {
-                words
-                    .get(i)
-                    .and_then(|w| w.parse::<f64>().ok())
-                    .filter(|v| v.is_finite())
+        for door in &map.doors {
+            let next = if door.a == room {
+                door.b.as_str()
+            } else if door.b == room {
+                door.a.as_str()
+            } else {
+                continue;
             };
-            match words.first() {
-                Some(&"room") if words.len() == 6 => map.rooms.push(Room {
-                    name: words[1].to_string(),
-                    x0: num(2)?,
-                    y0: num(3)?,
-                    x1: num(4)?,
-                    y1: num(5)?,
-                }),
-                Some(&"door") if words.len() == 5 => map.doors.push(Door {
-                    a: words[1].to_string(),
-                    b: words[2].to_string(),
-                    x: num(3)?,
-                    y: num(4)?,
-                }),
-                _ => return None,
+            if seen.insert(next) {
+                previous.insert(next, (room, door));
+                queue.push_back(next);
             }
         }
-        Some(map)
     }
+    if !seen.contains(to) {
+        return None;
+    }
+    let mut doors = Vec::new();
+    let mut at = to;
+    while let Some((before, door)) = previous.get(at) {
+        doors.push((door.x, door.y));
+        at = before;
+    }
+    doors.reverse();
+    doors.push(target.centre());
+    Some(doors)
+}
+
+/// Distance from (x, y) along `angle` to the walls of the room of `map` it is
+/// in (doors are not modelled as openings), at most [`MAX_RANGE`].
+pub fn ray(map: &Map, x: f64, y: f64, angle: f64) -> f64 {
+    let Some(r) = map.room_at(x, y) else {
+        return MAX_RANGE;
+    };
+    let (dx, dy) = (angle.cos(), angle.sin());
+    let mut best = MAX_RANGE;
+    if dx > 1e-9 {
+        best = best.min((r.x1 - x) / dx);
+    } else if dx < -1e-9 {
+        best = best.min((r.x0 - x) / dx);
+    }
+    if dy > 1e-9 {
+        best = best.min((r.y1 - y) / dy);
+    } else if dy < -1e-9 {
+        best = best.min((r.y0 - y) / dy);
+    }
+    best.max(0.0)
 }
 
 /// Top speeds of the simulated differential-drive base.
@@ -407,7 +237,15 @@ mod tests {
 
     #[test]
     fn the_map_text_parses_back_into_the_map() {
-        let map = Map::parse(&peis_home().to_text()).expect("parses");
+        let text = peis_home().to_string();
+        // The text the live view's tests and the Python examples read, byte for byte.
+        assert_eq!(
+            text,
+            "room living-room 0 0 3 3; room kitchen 3 0 5 3; room entrance 2.5 3 5 5; \
+             room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+             door living-room entrance 2.75 3; door entrance bedroom 2.5 4"
+        );
+        let map = Map::parse(&text).expect("parses");
         assert_eq!(map, peis_home());
         assert_eq!((map.rooms.len(), map.doors.len()), (4, 3));
         assert_eq!(map.rooms[2].name, "entrance");
@@ -424,9 +262,9 @@ mod tests {
             "window a 1 2",
             "room a 0 0 1 1; junk",
         ] {
-            assert_eq!(Map::parse(bad), None, "{bad:?}");
+            assert!(Map::parse(bad).is_err(), "{bad:?}");
         }
-        assert_eq!(Map::parse(""), Some(Map::default()));
+        assert_eq!(Map::parse(""), Ok(Map::default()));
     }
 
     #[test]

@@ -3,28 +3,21 @@
 //! time, driven by [`crate::run`]) or as a process of its own on any tuple
 //! space in real time ([`run_world`]).
 //!
-//! Tuples of the `world` PEIS: `map` (the rooms and doors, as text),
-//! `robots.NAME.pose` (`X Y THETA`), `things.NAME.at` (`X Y` where it lies,
-//! empty while held), `things.NAME.holder` (the robot holding it, or empty),
-//! `residents.NAME.state` (`asleep` or `awake`) and `residents.NAME.at` (`X Y`). It reads
-//! every component's `C.out.velocity` (`V W`: m/s and rad/s, for the robot
-//! that is the component's PEIS), `C.out.grasp` (the thing to grasp) and
-//! `C.out.sound` (a sound in the robot's room).
+//! The tuples it publishes and the component outputs it reads are the
+//! contract of [`ecology_tuples::world`].
 
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
-use ecology_tuples::{
-    Clock, Key, Subscription, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
-};
+use ecology_tuples::world::{ASLEEP, AWAKE, Command, Point, WORLD, WorldKey};
+use ecology_tuples::{Clock, Key, Subscription, TupleError, TupleEvent, TupleSpace, Value};
 
-use crate::components::WORLD;
 use crate::world::World;
 use ecology_core::Rng;
 
-fn key(text: &str) -> Result<Key, TupleError> {
-    Key::new(text).map_err(TupleError::Invalid)
+fn key(key: WorldKey<'_>) -> Result<Key, TupleError> {
+    key.key().map_err(TupleError::Invalid)
 }
 
 /// The world's ground truth and the subscriptions to what components ask of it.
@@ -45,18 +38,15 @@ impl WorldPeis {
         world: World,
         seed: u64,
     ) -> Result<WorldPeis, TupleError> {
-        let subscribe = |what: &str| {
-            TuplePattern::parse(&format!("*:*.out.{what}")).map_err(TupleError::Invalid)
-        };
         let peis = WorldPeis {
-            velocities: space.subscribe(subscribe("velocity")?).await?,
-            grasps: space.subscribe(subscribe("grasp")?).await?,
-            sounds: space.subscribe(subscribe("sound")?).await?,
+            velocities: space.subscribe(Command::Velocity.pattern()).await?,
+            grasps: space.subscribe(Command::Grasp.pattern()).await?,
+            sounds: space.subscribe(Command::Sound.pattern()).await?,
             world,
             rng: Rng::derive(seed, WORLD),
         };
         space
-            .set(key("map")?, Value::text(peis.world.map.to_text()))
+            .set(key(WorldKey::Map)?, Value::text(peis.world.map.to_string()))
             .await?;
         publish_poses(&peis.world, space).await?;
         publish_things(&peis.world, space).await?;
@@ -128,8 +118,8 @@ async fn publish_poses<S: TupleSpace>(world: &World, space: &S) -> Result<(), Tu
     for (name, robot) in &world.robots {
         space
             .set(
-                key(&format!("robots.{name}.pose"))?,
-                Value::text(robot.pose.to_text()),
+                key(WorldKey::RobotPose(name))?,
+                Value::text(robot.pose.to_string()),
             )
             .await?;
     }
@@ -141,23 +131,23 @@ async fn publish_things<S: TupleSpace>(world: &World, space: &S) -> Result<(), T
         let holder = thing.holder.clone().unwrap_or_default();
         let at = match thing.holder {
             Some(_) => String::new(),
-            None => format!("{:.3} {:.3}", thing.at.0, thing.at.1),
+            None => Point::new(thing.at.0, thing.at.1).to_string(),
         };
         space
-            .set(key(&format!("things.{name}.at"))?, Value::text(at))
+            .set(key(WorldKey::ThingAt(name))?, Value::text(at))
             .await?;
         space
-            .set(key(&format!("things.{name}.holder"))?, Value::text(holder))
+            .set(key(WorldKey::ThingHolder(name))?, Value::text(holder))
             .await?;
     }
     for (name, resident) in &world.residents {
-        let state = if resident.awake { "awake" } else { "asleep" };
+        let state = if resident.awake { AWAKE } else { ASLEEP };
         space
-            .set(key(&format!("residents.{name}.state"))?, Value::text(state))
+            .set(key(WorldKey::ResidentState(name))?, Value::text(state))
             .await?;
-        let at = format!("{:.3} {:.3}", resident.at.0, resident.at.1);
+        let at = Point::new(resident.at.0, resident.at.1).to_string();
         space
-            .set(key(&format!("residents.{name}.at"))?, Value::text(at))
+            .set(key(WorldKey::ResidentAt(name))?, Value::text(at))
             .await?;
     }
     Ok(())

@@ -19,6 +19,7 @@ mod owned;
 mod pattern;
 mod space;
 mod subscription;
+pub mod world;
 
 #[cfg(any(test, feature = "conformance"))]
 pub mod conformance;

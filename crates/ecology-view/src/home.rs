@@ -2,9 +2,9 @@
 //! `room NAME X0 Y0 X1 Y1; door A B X Y; …`), `robots.R.pose` (`X Y THETA`), `things.T.at`
 //! (`X Y`, empty while held), `things.T.holder` (a robot, or empty), `residents.H.state` and
 //! `residents.H.at` (`X Y`).
-//! The map and poses are read as the simulator writes them (`ecology_sim::Map::parse`,
-//! `Pose::parse`): a map that does not parse shows no rooms, a pose that does not parse drops
-//! its robot; nothing panics. Drawn as SVG beside the
+//! The keys, the map and poses are read through the world's contract (`ecology_tuples::world`):
+//! a map that does not parse shows no rooms, a pose that does not parse drops its robot;
+//! nothing panics. Drawn as SVG beside the
 //! configuration: rooms as rectangles, doors on their walls, robots as arrows showing their
 //! heading, things where they lie or beside who holds them, residents where they are (listed
 //! under the map while the world has not said) with their state.
@@ -14,7 +14,7 @@ use std::fmt::Write;
 
 use serde_json::{Value as Json, json};
 
-use ecology_sim::{Map, Pose};
+use ecology_tuples::world::{AWAKE, Map, Point, Pose, WorldKey};
 
 use crate::svg::escape;
 
@@ -37,11 +37,7 @@ struct Thing {
 
 /// A point, `X Y`: exactly two finite numbers.
 fn point(text: &str) -> Option<(f64, f64)> {
-    let mut words = text.split_whitespace().map(|w| w.parse::<f64>().ok());
-    match (words.next(), words.next(), words.next()) {
-        (Some(Some(x)), Some(Some(y)), None) if x.is_finite() && y.is_finite() => Some((x, y)),
-        _ => None,
-    }
+    Point::parse(text).ok().map(|p| (p.x, p.y))
 }
 
 /// A resident: their state (`asleep`, `awake`) and where they are, when the world says.
@@ -70,53 +66,54 @@ impl Home {
     /// Takes in a tuple of the `world` PEIS, `key` = `text` (`None`: removed). Other keys are
     /// ignored.
     pub fn tuple(&mut self, key: &str, text: Option<&str>) {
-        let parts: Vec<&str> = key.split('.').collect();
+        let Some(key) = WorldKey::parse(key) else {
+            return;
+        };
         let fits = |len: usize, has: bool| has || len < MAX_ITEMS;
-        match (parts.as_slice(), text) {
-            (["map"], text) => {
+        match (key, text) {
+            (WorldKey::Map, text) => {
                 // A map that does not parse shows no rooms; a huge one, its first rooms.
                 self.map = Map::parse(text.unwrap_or("")).unwrap_or_default();
                 self.map.rooms.truncate(MAX_ROOMS);
                 self.map.doors.truncate(MAX_ROOMS);
             }
-            (["robots", name, "pose"], Some(text)) => match Pose::parse(text) {
-                Some(pose) if fits(self.robots.len(), self.robots.contains_key(*name)) => {
-                    self.robots.insert((*name).to_owned(), pose);
+            (WorldKey::RobotPose(name), Some(text)) => match Pose::parse(text) {
+                Ok(pose) if fits(self.robots.len(), self.robots.contains_key(name)) => {
+                    self.robots.insert(name.to_owned(), pose);
                 }
-                Some(_) => {}
-                None => {
-                    self.robots.remove(*name);
+                Ok(_) => {}
+                Err(_) => {
+                    self.robots.remove(name);
                 }
             },
-            (["robots", name, "pose"], None) => {
-                self.robots.remove(*name);
+            (WorldKey::RobotPose(name), None) => {
+                self.robots.remove(name);
             }
-            (["things", name, field @ ("at" | "holder")], text) => {
-                let has = self.things.contains_key(*name);
+            (WorldKey::ThingAt(name) | WorldKey::ThingHolder(name), text) => {
+                let has = self.things.contains_key(name);
                 if !fits(self.things.len(), has) {
                     return;
                 }
-                let thing = self.things.entry((*name).to_owned()).or_default();
+                let thing = self.things.entry(name.to_owned()).or_default();
                 let text = text.unwrap_or("");
-                if *field == "at" {
+                if let WorldKey::ThingAt(_) = key {
                     thing.at = point(text);
                 } else {
                     thing.holder = text_or_none(text);
                 }
             }
-            (["residents", name, field @ ("state" | "at")], text) => {
-                if !fits(self.residents.len(), self.residents.contains_key(*name)) {
+            (WorldKey::ResidentState(name) | WorldKey::ResidentAt(name), text) => {
+                if !fits(self.residents.len(), self.residents.contains_key(name)) {
                     return;
                 }
-                let resident = self.residents.entry((*name).to_owned()).or_default();
+                let resident = self.residents.entry(name.to_owned()).or_default();
                 let text = text.unwrap_or("");
-                if *field == "state" {
+                if let WorldKey::ResidentState(_) = key {
                     resident.state = text.trim().to_owned();
                 } else {
                     resident.at = point(text);
                 }
             }
-            _ => return,
         }
         self.seen = true;
     }
@@ -283,7 +280,7 @@ impl Home {
         }
         let mut y = TOP + (by1 - by0) * scale + 16.0;
         for (name, resident) in &self.residents {
-            let fill = if resident.state == "awake" {
+            let fill = if resident.state == AWAKE {
                 "#e74c3c"
             } else {
                 "#aab7b8"
@@ -316,22 +313,22 @@ impl Home {
 pub(crate) mod tests {
     use super::*;
 
-    /// The PEIS-Home's `map` tuple, as its world publishes it.
+    /// The PEIS-Home's `map` tuple, as its world publishes it (`ecology-sim`'s world tests check
+    /// that the simulator writes exactly this text for `scenarios/peis-home.toml`).
+    const PEIS_HOME_MAP: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; \
+        room entrance 2.5 3 5 5; room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+        door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+
+    /// [`PEIS_HOME_MAP`] as a `String`, for the view's tests.
     pub(crate) fn peis_home_map() -> String {
-        let file =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/peis-home.toml");
-        ecology_sim::Scenario::load(&file)
-            .expect("loads")
-            .world_for(1)
-            .map
-            .to_text()
+        PEIS_HOME_MAP.to_owned()
     }
 
     #[test]
     fn the_world_tuples_make_the_home_and_its_drawing() {
         let mut home = Home::default();
         assert_eq!(home.snapshot(), Json::Null);
-        home.tuple("map", Some(&peis_home_map()));
+        home.tuple("map", Some(PEIS_HOME_MAP));
         home.tuple("robots.astrid.pose", Some("1.500 1.500 0.0000"));
         home.tuple("robots.pippi.pose", Some("0.6 0.6 0.8"));
         home.tuple("things.newspaper.at", Some("4.200 4.300"));

@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 
-use ecology_sim::WORLD;
+use ecology_tuples::world::WORLD;
 use ecology_tuples::{PresenceEvent, TupleEvent};
 use serde_json::{Value as Json, json};
 

@@ -1,0 +1,497 @@
+//! The tuple contract of the `world` PEIS (the simulated home's ground truth), spelt once for the
+//! simulator that publishes it and everything that reads it (the simulated components, the
+//! replanner, the live view).
+//!
+//! The world publishes `map` (rooms and doors: `room NAME X0 Y0 X1 Y1; door A B X Y; …`),
+//! `robots.R.pose` (`X Y THETA`), `things.T.at` (`X Y` where it lies, empty while held),
+//! `things.T.holder` (the robot holding it, or empty), `residents.H.state` (`asleep` or `awake`)
+//! and `residents.H.at` (`X Y`). It reads every component's outputs `C.out.velocity` (`V W`: m/s
+//! and rad/s, for the robot that is the component's PEIS), `C.out.grasp` (the thing to grasp) and
+//! `C.out.sound` (a sound in the robot's room).
+//!
+//! The text forms are read by programs outside this workspace too (the Python examples, scenario
+//! tests), so [`Map`], [`Pose`] and [`Point`] write exactly what they always wrote, and their
+//! parsers return an error, never panic, on any input.
+
+use std::fmt;
+
+use crate::contract::quoted;
+use crate::name::{Key, ValidationError};
+use crate::pattern::TuplePattern;
+
+/// The name of the PEIS that holds the world's ground truth.
+pub const WORLD: &str = "world";
+
+/// `residents.H.state` of a resident who is awake.
+pub const AWAKE: &str = "awake";
+/// `residents.H.state` of a resident who is asleep.
+pub const ASLEEP: &str = "asleep";
+
+/// The pattern of every tuple the world publishes (`world:**`).
+pub fn world_pattern() -> TuplePattern {
+    // `WORLD` is a valid PEIS name and `**` a valid key pattern, so this cannot fail; the
+    // fallback only keeps a panic out of the code.
+    TuplePattern::parse(&format!("{WORLD}:**")).unwrap_or_else(|_| TuplePattern::everything())
+}
+
+/// One key the world publishes; names are key segments (a robot's PEIS, a thing or a resident of
+/// the domain's problem).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WorldKey<'a> {
+    /// `map`: the rooms and doors, a [`Map`]'s text.
+    Map,
+    /// `robots.R.pose`: where robot R truly is, a [`Pose`]'s text.
+    RobotPose(&'a str),
+    /// `things.T.at`: where thing T lies, a [`Point`]'s text; empty while a robot holds it.
+    ThingAt(&'a str),
+    /// `things.T.holder`: the robot holding thing T, or empty.
+    ThingHolder(&'a str),
+    /// `residents.H.state`: [`AWAKE`] or [`ASLEEP`].
+    ResidentState(&'a str),
+    /// `residents.H.at`: where resident H is, a [`Point`]'s text.
+    ResidentAt(&'a str),
+}
+
+impl<'a> WorldKey<'a> {
+    /// The key, when the name is a valid key segment.
+    pub fn key(self) -> Result<Key, ValidationError> {
+        Key::new(&self.to_string())
+    }
+
+    /// Which world key `key` is; `None` for any other key, or a name that is not one segment.
+    pub fn parse(key: &'a str) -> Option<WorldKey<'a>> {
+        if key == "map" {
+            return Some(WorldKey::Map);
+        }
+        let (kind, rest) = key.split_once('.')?;
+        let (name, field) = rest.split_once('.')?;
+        if name.is_empty() || field.contains('.') {
+            return None;
+        }
+        match (kind, field) {
+            ("robots", "pose") => Some(WorldKey::RobotPose(name)),
+            ("things", "at") => Some(WorldKey::ThingAt(name)),
+            ("things", "holder") => Some(WorldKey::ThingHolder(name)),
+            ("residents", "state") => Some(WorldKey::ResidentState(name)),
+            ("residents", "at") => Some(WorldKey::ResidentAt(name)),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for WorldKey<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            WorldKey::Map => f.write_str("map"),
+            WorldKey::RobotPose(name) => write!(f, "robots.{name}.pose"),
+            WorldKey::ThingAt(name) => write!(f, "things.{name}.at"),
+            WorldKey::ThingHolder(name) => write!(f, "things.{name}.holder"),
+            WorldKey::ResidentState(name) => write!(f, "residents.{name}.state"),
+            WorldKey::ResidentAt(name) => write!(f, "residents.{name}.at"),
+        }
+    }
+}
+
+/// A command a component gives the world through one of its outputs (`C.out.INFO`); the world
+/// applies it to the robot that is the component's PEIS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Command {
+    /// `C.out.velocity`: `V W`, the linear (m/s) and angular (rad/s) velocity.
+    Velocity,
+    /// `C.out.grasp`: the thing to grasp.
+    Grasp,
+    /// `C.out.sound`: a sound in the robot's room (it wakes who sleeps there).
+    Sound,
+}
+
+impl Command {
+    /// The output's information name (the `INFO` of `C.out.INFO`).
+    pub fn info(self) -> &'static str {
+        match self {
+            Command::Velocity => "velocity",
+            Command::Grasp => "grasp",
+            Command::Sound => "sound",
+        }
+    }
+
+    /// The pattern of this output of every component of every PEIS (`*:*.out.INFO`).
+    pub fn pattern(self) -> TuplePattern {
+        // A constant, valid pattern; the fallback only keeps a panic out of the code.
+        TuplePattern::parse(&format!("*:*.out.{}", self.info()))
+            .unwrap_or_else(|_| TuplePattern::everything())
+    }
+}
+
+/// Why a text of the world's contract could not be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("expected {expected}, found {found}")]
+pub struct TextError {
+    /// The form expected (`X Y THETA`).
+    pub expected: &'static str,
+    /// What was found, quoted and cut short.
+    pub found: String,
+}
+
+impl TextError {
+    fn new(expected: &'static str, found: &str) -> TextError {
+        TextError {
+            expected,
+            found: quoted(found, 40),
+        }
+    }
+}
+
+/// Exactly `N` finite numbers separated by white space.
+fn numbers<const N: usize>(text: &str) -> Option<[f64; N]> {
+    let mut words = text.split_whitespace();
+    let mut out = [0.0; N];
+    for slot in &mut out {
+        *slot = words
+            .next()?
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())?;
+    }
+    words.next().is_none().then_some(out)
+}
+
+/// A 2-D pose: position in metres, heading in radians. Its text is `X Y THETA`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+    /// Heading, radians, counter-clockwise from the x axis.
+    pub theta: f64,
+}
+
+impl Pose {
+    /// The form of a pose's text, for errors and causes.
+    pub const FORM: &'static str = "X Y THETA (three numbers)";
+
+    /// A pose.
+    pub fn new(x: f64, y: f64, theta: f64) -> Pose {
+        Pose { x, y, theta }
+    }
+
+    /// Distance to the point (x, y).
+    pub fn distance_to(&self, x: f64, y: f64) -> f64 {
+        (self.x - x).hypot(self.y - y)
+    }
+
+    /// Parses `X Y THETA`: exactly three finite numbers.
+    pub fn parse(text: &str) -> Result<Pose, TextError> {
+        let [x, y, theta] = numbers(text).ok_or_else(|| TextError::new(Pose::FORM, text))?;
+        Ok(Pose { x, y, theta })
+    }
+}
+
+/// `X Y THETA`: millimetres and tenths of a milliradian.
+impl fmt::Display for Pose {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:.3} {:.3} {:.4}", self.x, self.y, self.theta)
+    }
+}
+
+/// A position in metres. Its text is `X Y`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Point {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+}
+
+impl Point {
+    /// The form of a point's text, for errors and causes.
+    pub const FORM: &'static str = "X Y (two numbers)";
+
+    /// A point.
+    pub fn new(x: f64, y: f64) -> Point {
+        Point { x, y }
+    }
+
+    /// Parses `X Y`: exactly two finite numbers.
+    pub fn parse(text: &str) -> Result<Point, TextError> {
+        let [x, y] = numbers(text).ok_or_else(|| TextError::new(Point::FORM, text))?;
+        Ok(Point { x, y })
+    }
+}
+
+/// `X Y`, in millimetres.
+impl fmt::Display for Point {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:.3} {:.3}", self.x, self.y)
+    }
+}
+
+/// A rectangular room.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Room {
+    /// Its name, as in the domain's problem (`bedroom`).
+    pub name: String,
+    /// Lower-left corner x.
+    pub x0: f64,
+    /// Lower-left corner y.
+    pub y0: f64,
+    /// Upper-right corner x.
+    pub x1: f64,
+    /// Upper-right corner y.
+    pub y1: f64,
+}
+
+impl Room {
+    /// Whether (x, y) lies in the room (borders included).
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        x >= self.x0 && x <= self.x1 && y >= self.y0 && y <= self.y1
+    }
+
+    /// The room's centre.
+    pub fn centre(&self) -> (f64, f64) {
+        ((self.x0 + self.x1) / 2.0, (self.y0 + self.y1) / 2.0)
+    }
+}
+
+/// A door: a passage between two rooms at a point on their common wall.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Door {
+    /// One room.
+    pub a: String,
+    /// The other room.
+    pub b: String,
+    /// The passage point x.
+    pub x: f64,
+    /// The passage point y.
+    pub y: f64,
+}
+
+/// The map: rooms and the doors between them. Its text is `room NAME X0 Y0 X1 Y1; door A B X Y; …`
+/// (rooms first, numbers as Rust writes an `f64`).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Map {
+    /// The rooms.
+    pub rooms: Vec<Room>,
+    /// The doors.
+    pub doors: Vec<Door>,
+}
+
+impl Map {
+    /// The form of a map's item, for errors.
+    pub const FORM: &'static str = "room NAME X0 Y0 X1 Y1 or door A B X Y";
+
+    /// The room called `name`.
+    pub fn room(&self, name: &str) -> Option<&Room> {
+        self.rooms.iter().find(|r| r.name == name)
+    }
+
+    /// The room at (x, y): the first that contains it, or, within 0.2 m of a wall (the width of a
+    /// door frame), the nearest.
+    ///
+    /// This is part of the contract, not of one reader: the simulator's sensors, its replanner
+    /// (a pose as `(at R ROOM)`) and the live view must name the same room for the same pose.
+    pub fn room_at(&self, x: f64, y: f64) -> Option<&Room> {
+        // Nowhere is in no room (NaN would read as on every wall).
+        if !x.is_finite() || !y.is_finite() {
+            return None;
+        }
+        if let Some(room) = self.rooms.iter().find(|r| r.contains(x, y)) {
+            return Some(room);
+        }
+        self.rooms
+            .iter()
+            .map(|r| {
+                let dx = (r.x0 - x).max(x - r.x1).max(0.0);
+                let dy = (r.y0 - y).max(y - r.y1).max(0.0);
+                (dx.hypot(dy), r)
+            })
+            .filter(|(d, _)| *d <= 0.2)
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, r)| r)
+    }
+
+    /// Parses the map's text: every item (between `;`) a room or a door, every number finite.
+    /// The empty text is the empty map.
+    pub fn parse(text: &str) -> Result<Map, TextError> {
+        let mut map = Map::default();
+        for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
+            let bad = || TextError::new(Map::FORM, item);
+            let words: Vec<&str> = item.split_whitespace().collect();
+            match words.as_slice() {
+                ["room", name, rest @ ..] if rest.len() == 4 => {
+                    let [x0, y0, x1, y1] = numbers(&rest.join(" ")).ok_or_else(bad)?;
+                    map.rooms.push(Room {
+                        name: (*name).to_string(),
+                        x0,
+                        y0,
+                        x1,
+                        y1,
+                    });
+                }
+                ["door", a, b, rest @ ..] if rest.len() == 2 => {
+                    let [x, y] = numbers(&rest.join(" ")).ok_or_else(bad)?;
+                    map.doors.push(Door {
+                        a: (*a).to_string(),
+                        b: (*b).to_string(),
+                        x,
+                        y,
+                    });
+                }
+                _ => return Err(bad()),
+            }
+        }
+        Ok(map)
+    }
+}
+
+/// The map's text: items separated by `; `, no separator after the last.
+impl fmt::Display for Map {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut separator = "";
+        for r in &self.rooms {
+            write!(
+                f,
+                "{separator}room {} {} {} {} {}",
+                r.name, r.x0, r.y0, r.x1, r.y1
+            )?;
+            separator = "; ";
+        }
+        for d in &self.doors {
+            write!(f, "{separator}door {} {} {} {}", d.a, d.b, d.x, d.y)?;
+            separator = "; ";
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The PEIS-Home's map as its world publishes it.
+    const PEIS_HOME: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; \
+        room entrance 2.5 3 5 5; room bedroom 0 3 2.5 5; door living-room kitchen 3 1.5; \
+        door living-room entrance 2.75 3; door entrance bedroom 2.5 4";
+
+    #[test]
+    fn every_world_key_reads_back_as_itself() {
+        let keys = [
+            WorldKey::Map,
+            WorldKey::RobotPose("astrid"),
+            WorldKey::ThingAt("newspaper"),
+            WorldKey::ThingHolder("newspaper"),
+            WorldKey::ResidentState("johanna"),
+            WorldKey::ResidentAt("johanna"),
+        ];
+        let texts: Vec<String> = keys.iter().map(ToString::to_string).collect();
+        assert_eq!(
+            texts,
+            [
+                "map",
+                "robots.astrid.pose",
+                "things.newspaper.at",
+                "things.newspaper.holder",
+                "residents.johanna.state",
+                "residents.johanna.at"
+            ]
+        );
+        for (key, text) in keys.iter().zip(&texts) {
+            assert_eq!(WorldKey::parse(text), Some(*key));
+            assert_eq!(key.key().map(|k| k.to_string()).as_ref(), Ok(text));
+        }
+        for other in [
+            "",
+            "maps",
+            "robots.pose",
+            "robots..pose",
+            "robots.a.b.pose",
+            "things.t.where",
+            "people.h.state",
+            "astrid.out.velocity",
+        ] {
+            assert_eq!(WorldKey::parse(other), None, "{other:?}");
+        }
+        assert!(WorldKey::RobotPose("<b>").key().is_err());
+    }
+
+    #[test]
+    fn the_patterns_are_the_world_and_the_commands() {
+        assert_eq!(world_pattern().to_string(), "world:**");
+        let commands = [Command::Velocity, Command::Grasp, Command::Sound];
+        let patterns: Vec<String> = commands.iter().map(|c| c.pattern().to_string()).collect();
+        assert_eq!(
+            patterns,
+            ["*:*.out.velocity", "*:*.out.grasp", "*:*.out.sound"]
+        );
+    }
+
+    #[test]
+    fn a_pose_and_a_point_round_trip_through_their_text() {
+        let pose = Pose::new(3.7, 4.0, std::f64::consts::PI);
+        assert_eq!(pose.to_string(), "3.700 4.000 3.1416");
+        // Millimetres and four decimals of a heading: what is read back is that close.
+        let back = Pose::parse(&pose.to_string()).expect("parses");
+        assert_eq!((back.x, back.y), (3.7, 4.0));
+        assert!((back.theta - pose.theta).abs() < 1e-4, "{back:?}");
+        assert_eq!(back.to_string(), pose.to_string());
+        assert_eq!(Pose::parse("  1 2\t3 "), Ok(Pose::new(1.0, 2.0, 3.0)));
+        assert_eq!(Point::new(4.2, 4.3).to_string(), "4.200 4.300");
+        assert_eq!(Point::parse("4.200 4.300"), Ok(Point::new(4.2, 4.3)));
+        for bad in ["", "here", "1 2", "1 2 3 4", "1 x 3", "NaN 1 1", "1 inf 1"] {
+            let error = Pose::parse(bad).expect_err(bad);
+            assert_eq!(error.expected, Pose::FORM);
+        }
+        for bad in ["", "1", "1 2 3", "1 NaN"] {
+            assert!(Point::parse(bad).is_err(), "{bad:?}");
+        }
+        assert_eq!(
+            Pose::parse("1,2;3").map_err(|e| e.to_string()),
+            Err("expected X Y THETA (three numbers), found \"1,2;3\"".to_string())
+        );
+    }
+
+    #[test]
+    fn the_map_text_round_trips_and_bad_text_is_an_error() {
+        let map = Map::parse(PEIS_HOME).expect("parses");
+        assert_eq!(map.to_string(), PEIS_HOME);
+        assert_eq!((map.rooms.len(), map.doors.len()), (4, 3));
+        assert_eq!(map.rooms[2].name, "entrance");
+        assert_eq!((map.doors[2].x, map.doors[2].y), (2.5, 4.0));
+        assert_eq!(map.room("kitchen").map(Room::centre), Some((4.0, 1.5)));
+        // Rooms come first whatever the order read; the empty map is the empty text.
+        let mixed = Map::parse("door a b 1 2; room a 0 0 1.5 1").expect("parses");
+        assert_eq!(mixed.to_string(), "room a 0 0 1.5 1; door a b 1 2");
+        assert_eq!(Map::parse(""), Ok(Map::default()));
+        assert_eq!(Map::default().to_string(), "");
+        for bad in [
+            "room",
+            "room a 1 2 3",
+            "room a 1 2 3 4 5",
+            "room a x 2 3 4",
+            "room a NaN 0 1 1",
+            "room a inf 0 1 1",
+            "door a b 1",
+            "door a b 1 y",
+            "window a 1 2",
+            "room a 0 0 1 1; junk",
+        ] {
+            assert!(Map::parse(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
+        let map = Map::parse(PEIS_HOME).expect("parses");
+        let name = |x: f64, y: f64| map.room_at(x, y).map(|r| r.name.as_str());
+        assert_eq!(name(1.5, 1.5), Some("living-room"));
+        assert_eq!(name(4.2, 4.3), Some("entrance"));
+        // On a wall: the first room listed that has it.
+        assert_eq!(name(3.0, 1.5), Some("living-room"));
+        // Just outside the home, within a door frame of the bedroom; too far from any room.
+        assert_eq!(name(-0.1, 4.0), Some("bedroom"));
+        assert_eq!(name(-1.0, 4.0), None);
+        assert_eq!(name(f64::NAN, 1.0), None);
+        assert_eq!(name(f64::INFINITY, 1.0), None);
+        assert_eq!(Map::default().room_at(1.0, 1.0), None);
+    }
+}
