@@ -9,6 +9,7 @@ use anyhow::Context;
 use clap::Args;
 use ecology_exec::{Acquisition, Intake, LogEntry, LogEvent, RunStatus};
 use ecology_sim::{Pace, RunOptions, Scenario, Update};
+use ecology_view::log_json;
 
 use crate::{EXIT_BAD_INPUT, EXIT_NO_SOLUTION, EXIT_OK};
 
@@ -218,10 +219,7 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
             match &update {
                 Update::Log { executive, entry } => {
                     let whose = several.then_some(executive.as_str());
-                    let text = crate::log_json::json_line_of(entry, whose);
-                    if let Ok(line) = serde_json::from_str(&text) {
-                        hub.update(|v| v.log(&line));
-                    }
+                    hub.update(|v| v.log(entry, whose));
                 }
                 Update::Tuple(event) => hub.update(|v| v.tuple(event)),
                 Update::Presence(event) => hub.update(|v| v.presence(event)),
@@ -232,7 +230,7 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
             Update::Tuple(_) | Update::Presence(_) => {}
             Update::Log { executive, entry } if json => {
                 let whose = several.then_some(executive.as_str());
-                let _ = writeln!(out, "{}", crate::log_json::json_line_of(&entry, whose));
+                let _ = writeln!(out, "{}", log_json::json_line(&entry, whose));
             }
             Update::Log { executive, entry } if several => {
                 let _ = writeln!(out, "{}", prefixed(&entry, &executive));

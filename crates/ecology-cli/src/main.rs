@@ -15,7 +15,6 @@ mod demo;
 mod generate;
 mod input;
 mod keys;
-mod log_json;
 mod network;
 mod peis;
 mod plan;

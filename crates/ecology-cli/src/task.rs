@@ -251,7 +251,7 @@ async fn execute(
         &mut exec,
         driver,
         |entry| {
-            let line = crate::log_json::json_line(entry);
+            let line = ecology_view::log_json::json_line(entry, None);
             let mut out = std::io::stdout().lock();
             let _ = if json {
                 writeln!(out, "{line}")

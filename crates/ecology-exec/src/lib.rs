@@ -23,7 +23,7 @@ mod tests_conditional;
 pub use driver::{Acquisition, DriverConfig, Replan, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, Timer};
 pub use interest::{Intake, Interest};
-pub use log::{LogEntry, LogEvent};
+pub use log::{LogChannel, LogComponent, LogEntry, LogEvent, LogFunctionality, LogUnavailable};
 pub use mirror::{Change, ComponentView, Mirror, PeisView};
 pub use plan::{
     Observation, Plan, PlanBranch, PlannedAction, observations_text, parse_observations,

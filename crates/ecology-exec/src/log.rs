@@ -1,10 +1,86 @@
-//! The executive's event log: every step, timestamped, printable as a
-//! readable timeline (`Display`). [`LogEvent::name`] names each event for
-//! the JSON-lines form, which `ecology-cli` builds (JSON lives at the edge;
-//! the log types themselves are not serializable).
+//! The executive's event log: every step, timestamped, as typed values (components,
+//! functionalities and channels as data), and its one text rendering, the timeline (`Display`).
+//! [`LogEvent::name`] names each event for the JSON form, whose codec is `ecology_view::log_json`
+//! (JSON lives at the edge; the log types themselves are not serializable).
 
 use std::fmt;
 use std::time::Duration;
+
+use ecology_domain::Name;
+
+/// A component named in the log: its PEIS and its name, shown `peis:component`. Plain names,
+/// not tuple-space ids: a configuration may name components the tuple space cannot.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct LogComponent {
+    /// Its PEIS.
+    pub peis: Name,
+    /// The component's name on its PEIS.
+    pub component: Name,
+}
+
+impl LogComponent {
+    /// The component `component` of PEIS `peis`.
+    pub fn new(peis: impl Into<Name>, component: impl Into<Name>) -> Self {
+        Self {
+            peis: peis.into(),
+            component: component.into(),
+        }
+    }
+}
+
+impl fmt::Display for LogComponent {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.peis, self.component)
+    }
+}
+
+/// A functionality instance of a configuration, shown `(call) on peis:component`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogFunctionality {
+    /// Its call, `(name arg…)`: the params its component is given.
+    pub call: String,
+    /// The component that runs it.
+    pub component: LogComponent,
+}
+
+impl fmt::Display for LogFunctionality {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} on {}", self.call, self.component)
+    }
+}
+
+/// A channel of a configuration, shown `from → to (information)`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogChannel {
+    /// The producer.
+    pub from: LogComponent,
+    /// The consumer.
+    pub to: LogComponent,
+    /// The information, like `(image hsm)`.
+    pub info: Name,
+}
+
+impl fmt::Display for LogChannel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} → {} {}", self.from, self.to, self.info)
+    }
+}
+
+/// A component left out of a configuration because it reports an error, shown
+/// `peis:component reports error (cause)`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogUnavailable {
+    /// The component.
+    pub component: LogComponent,
+    /// The cause it reports.
+    pub cause: String,
+}
+
+impl fmt::Display for LogUnavailable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} reports error ({})", self.component, self.cause)
+    }
+}
 
 /// One logged event with its time.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,8 +123,8 @@ pub enum LogEvent {
         peis: usize,
         /// Components known on them.
         components: usize,
-        /// Components left out, and why (`hsm:tr1 reports error (cause)`).
-        unavailable: Vec<String>,
+        /// Components left out, and why.
+        unavailable: Vec<LogUnavailable>,
         /// How long building the state took (0 without a stopwatch).
         micros: u64,
     },
@@ -60,8 +136,8 @@ pub enum LogEvent {
         cost: u64,
         /// Whether proven optimal.
         optimal: bool,
-        /// Its functionality instances, as `(call) on PEIS:COMPONENT`.
-        functionalities: Vec<String>,
+        /// Its functionality instances.
+        functionalities: Vec<LogFunctionality>,
         /// The costs of the alternatives considered, cheapest first (the chosen one included).
         alternatives: Vec<u64>,
         /// Whether this replaces a failed configuration.
@@ -72,14 +148,14 @@ pub enum LogEvent {
     /// Deploy commands were sent.
     Deployed {
         /// Components asked to switch on.
-        switched_on: Vec<String>,
-        /// Channels wired, as `P:C → P:C (info)`.
-        channels: Vec<String>,
+        switched_on: Vec<LogComponent>,
+        /// Channels wired.
+        channels: Vec<LogChannel>,
     },
     /// Every component of the configuration reports running.
     Running {
         /// Components of the previous configuration switched off.
-        switched_off: Vec<String>,
+        switched_off: Vec<LogComponent>,
     },
     /// A component failed.
     Failure {
@@ -134,12 +210,12 @@ pub enum LogEvent {
     /// The task ended and released what it used.
     Released {
         /// Components the task had switched on, now switched off.
-        switched_off: Vec<String>,
+        switched_off: Vec<LogComponent>,
         /// Components it only borrowed (on before), whose params were cleared.
-        stopped: Vec<String>,
+        stopped: Vec<LogComponent>,
         /// Components on PEIS out of reach, left to them: a PEIS host puts back by itself
         /// what an executive that is gone had asked for.
-        unreachable: Vec<String>,
+        unreachable: Vec<LogComponent>,
     },
     /// A PEIS that had left came back in the same run: what the task had written to it and
     /// no longer uses was put back.
@@ -147,9 +223,9 @@ pub enum LogEvent {
         /// The PEIS.
         peis: String,
         /// Components switched off.
-        switched_off: Vec<String>,
+        switched_off: Vec<LogComponent>,
         /// Components whose params were cleared.
-        stopped: Vec<String>,
+        stopped: Vec<LogComponent>,
     },
     /// Most of the ecology left at once: the executive lost it (its own network, or the
     /// router), rather than those PEIS their components. It acts on nothing while it waits.
@@ -282,19 +358,28 @@ impl LogEvent {
     }
 }
 
-/// `, then by what it observes: A | B` after a conditional plan's first actions.
+/// `items` shown and joined by `separator`.
+fn joined<T: fmt::Display>(items: &[T], separator: &str) -> String {
+    items
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join(separator)
+}
+
 /// "switched off A, B", "stopped C": what a release did, for the timeline.
-fn released_parts(switched_off: &[String], stopped: &[String]) -> Vec<String> {
+fn released_parts(switched_off: &[LogComponent], stopped: &[LogComponent]) -> Vec<String> {
     let mut parts = Vec::new();
     if !switched_off.is_empty() {
-        parts.push(format!("switched off {}", switched_off.join(", ")));
+        parts.push(format!("switched off {}", joined(switched_off, ", ")));
     }
     if !stopped.is_empty() {
-        parts.push(format!("stopped {}", stopped.join(", ")));
+        parts.push(format!("stopped {}", joined(stopped, ", ")));
     }
     parts
 }
 
+/// `, then by what it observes: A | B` after a conditional plan's first actions.
 fn write_branches(f: &mut fmt::Formatter<'_>, branches: &[String]) -> fmt::Result {
     if branches.is_empty() {
         Ok(())
@@ -303,10 +388,18 @@ fn write_branches(f: &mut fmt::Formatter<'_>, branches: &[String]) -> fmt::Resul
     }
 }
 
+/// The entry's line of the timeline: its time, then the event.
 impl fmt::Display for LogEntry {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:>8.3}s  ", self.t.as_secs_f64())?;
-        match &self.event {
+        write!(f, "{:>8.3}s  {}", self.t.as_secs_f64(), self.event)
+    }
+}
+
+/// The event as the timeline says it: steps within an action are indented by two spaces, and
+/// some events take more lines (a configuration's functionalities, a failure's explanation).
+impl fmt::Display for LogEvent {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             LogEvent::Plan { actions, branches } => {
                 write!(f, "plan: {}", actions.join(" → "))?;
                 write_branches(f, branches)
@@ -335,7 +428,7 @@ impl fmt::Display for LogEntry {
             } => {
                 write!(f, "  state acquired: {peis} PEIS, {components} components")?;
                 if !unavailable.is_empty() {
-                    write!(f, "; unavailable: {}", unavailable.join(", "))?;
+                    write!(f, "; unavailable: {}", joined(unavailable, ", "))?;
                 }
                 Ok(())
             }
@@ -376,7 +469,7 @@ impl fmt::Display for LogEntry {
                 let on = if switched_on.is_empty() {
                     "nothing to switch on".to_string()
                 } else {
-                    format!("switch on {}", switched_on.join(", "))
+                    format!("switch on {}", joined(switched_on, ", "))
                 };
                 write!(f, "  deploy: {on}; {} channels", channels.len())
             }
@@ -384,7 +477,7 @@ impl fmt::Display for LogEntry {
                 write!(f, "  running")
             }
             LogEvent::Running { switched_off } => {
-                write!(f, "  running; switched off {}", switched_off.join(", "))
+                write!(f, "  running; switched off {}", joined(switched_off, ", "))
             }
             LogEvent::Failure {
                 peis,
@@ -424,7 +517,7 @@ impl fmt::Display for LogEntry {
                 if !unreachable.is_empty() {
                     parts.push(format!(
                         "left to their PEIS, out of reach: {}",
-                        unreachable.join(", ")
+                        joined(unreachable, ", ")
                     ));
                 }
                 write!(f, "released: {}", parts.join("; "))

@@ -1525,7 +1525,10 @@ mod on_the_tuple_space {
                 switched_off,
                 stopped,
                 ..
-            } => Some((switched_off.clone(), stopped.clone())),
+            } => Some((
+                switched_off.iter().map(ToString::to_string).collect(),
+                stopped.iter().map(ToString::to_string).collect(),
+            )),
             _ => None,
         });
         assert_eq!(

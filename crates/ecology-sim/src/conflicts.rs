@@ -81,16 +81,9 @@ impl ConflictCheck {
             } => {
                 let mut uses = BTreeMap::new();
                 for instance in functionalities {
-                    // `(CALL ARG…) on PEIS:COMPONENT`: the last ` on ` is the separator,
-                    // since names hold no spaces.
-                    let Some((call, at)) = instance.rsplit_once(" on ") else {
-                        continue;
-                    };
-                    let Some((peis, component)) = at.split_once(':') else {
-                        continue;
-                    };
-                    let key = (peis.to_string(), component.to_string());
-                    let params = call.trim().to_string();
+                    let at = &instance.component;
+                    let key = (at.peis.to_string(), at.component.to_string());
+                    let params = instance.call.trim().to_string();
                     let running = self.params.get(&key) == Some(&params);
                     uses.insert(
                         key,
@@ -108,19 +101,9 @@ impl ConflictCheck {
                     return;
                 };
                 for channel in channels {
-                    // `Q:D → P:C (INFO …)`.
-                    let Some((from, rest)) = channel.split_once(" → ") else {
-                        continue;
-                    };
-                    let Some((to, info)) = rest.split_once(' ') else {
-                        continue;
-                    };
-                    let (Some((peis, producer)), Some((consumer_peis, consumer))) =
-                        (from.split_once(':'), to.split_once(':'))
-                    else {
-                        continue;
-                    };
-                    let name = info_name(info);
+                    let (peis, producer) = (&channel.from.peis, &channel.from.component);
+                    let (consumer_peis, consumer) = (&channel.to.peis, &channel.to.component);
+                    let name = info_name(&channel.info);
                     let key = (consumer_peis.to_string(), consumer.to_string());
                     if let Some(used) = uses.get_mut(&key) {
                         used.inputs

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use ecology_exec::{Acquisition, LogEvent, RunStatus};
+use ecology_exec::{Acquisition, LogChannel, LogComponent, LogEvent, LogFunctionality, RunStatus};
 
 use crate::{
     FaultKind, FaultSpec, Map, PeisDef, Pose, Report, Rng, RunOptions, Scenario, ScenarioError,
@@ -50,7 +50,11 @@ fn configurations(report: &Report) -> Vec<(u64, bool, Vec<String>)> {
                 reconfiguration,
                 functionalities,
                 ..
-            } => Some((*cost, *reconfiguration, functionalities.clone())),
+            } => Some((
+                *cost,
+                *reconfiguration,
+                functionalities.iter().map(ToString::to_string).collect(),
+            )),
             _ => None,
         })
         .collect()
@@ -262,7 +266,7 @@ async fn the_demo_reproduces_the_papers_experiment() {
     );
     let switched_on_laser = report.tasks[0].log.iter().any(|e| {
         matches!(&e.event, LogEvent::Deployed { switched_on, .. }
-            if switched_on.iter().any(|c| c == "astrid:l1"))
+            if switched_on.iter().any(|c| c.to_string() == "astrid:l1"))
     });
     assert!(switched_on_laser, "{text}");
     assert_eq!(
@@ -530,7 +534,8 @@ async fn when_no_plan_remains_the_task_fails_and_switches_everything_off() {
     else {
         panic!("released: {text}");
     };
-    assert_eq!(switched_off, &["astrid:l1".to_string()], "{text}");
+    let switched_off: Vec<String> = switched_off.iter().map(ToString::to_string).collect();
+    assert_eq!(switched_off, ["astrid:l1".to_string()], "{text}");
     let Some(LogEvent::TaskFailed { reason }) = report.tasks[0].log.last().map(|e| &e.event) else {
         panic!("task_failed: {text}");
     };
@@ -890,18 +895,44 @@ fn refs(v: &[String]) -> Vec<&str> {
 #[test]
 fn the_conflict_check_fires_when_a_component_serves_two_executives() {
     use crate::conflicts::{Change, ConflictCheck};
+    let component = |at: &str| {
+        let (peis, component) = at.split_once(':').expect("P:C");
+        LogComponent::new(peis, component)
+    };
     let configuration = |functionalities: &[&str]| LogEvent::Configuration {
         goal: "(navigate astrid bedroom)".into(),
         cost: 80,
         optimal: true,
-        functionalities: functionalities.iter().map(|f| f.to_string()).collect(),
+        functionalities: functionalities
+            .iter()
+            .map(|f| {
+                // `(CALL ARG…) on PEIS:COMPONENT`
+                let (call, at) = f.rsplit_once(" on ").expect("CALL on P:C");
+                LogFunctionality {
+                    call: call.to_string(),
+                    component: component(at),
+                }
+            })
+            .collect(),
         alternatives: vec![80],
         reconfiguration: false,
         micros: 0,
     };
     let deployed = |channels: &[&str]| LogEvent::Deployed {
         switched_on: Vec::new(),
-        channels: channels.iter().map(|c| c.to_string()).collect(),
+        channels: channels
+            .iter()
+            .map(|c| {
+                // `Q:D → P:C (INFO …)`
+                let (from, rest) = c.split_once(" → ").expect("Q:D → P:C INFO");
+                let (to, info) = rest.split_once(' ').expect("P:C INFO");
+                LogChannel {
+                    from: component(from),
+                    to: component(to),
+                    info: info.into(),
+                }
+            })
+            .collect(),
     };
     let set = |check: &mut ConflictCheck, s: f64, key: &str, value: &str, by: &str| {
         let (owner, key) = key.split_once(':').expect("P:KEY");
@@ -970,7 +1001,7 @@ fn the_conflict_check_fires_when_a_component_serves_two_executives() {
         "exec-astrid",
         &LogEvent::Released {
             switched_off: Vec::new(),
-            stopped: vec!["hsm:tr1".into()],
+            stopped: vec![LogComponent::new("hsm", "tr1")],
             unreachable: Vec::new(),
         },
     );

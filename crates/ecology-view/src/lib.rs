@@ -4,6 +4,7 @@
 //! shows them as they change ([`serve`]), with nothing outside the binary.
 
 pub mod home;
+pub mod log_json;
 mod server;
 mod state;
 pub mod svg;

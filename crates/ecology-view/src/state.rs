@@ -4,11 +4,13 @@
 
 use std::collections::BTreeMap;
 
+use ecology_exec::{LogChannel, LogComponent, LogEntry, LogEvent, LogFunctionality};
 use ecology_tuples::world::WORLD;
 use ecology_tuples::{PresenceEvent, TupleEvent};
 use serde_json::{Value as Json, json};
 
 use crate::home::Home;
+use crate::log_json;
 use crate::svg::{Drawing, Edge, Mark, Node};
 
 /// The longest value preview kept per tuple.
@@ -29,12 +31,12 @@ struct TupleRow {
 #[derive(Clone, Debug, Default)]
 struct Configuration {
     goal: String,
-    cost: Json,
+    cost: u64,
     optimal: bool,
     reconfiguration: bool,
-    functionalities: Vec<(String, String, String)>,
-    channels: Vec<(String, String, String)>,
-    switched_on: Vec<String>,
+    functionalities: Vec<LogFunctionality>,
+    channels: Vec<LogChannel>,
+    switched_on: Vec<LogComponent>,
 }
 
 /// The ecology as the view sees it.
@@ -49,7 +51,7 @@ pub struct View {
     failed_actions: Vec<usize>,
     timeline: Vec<Json>,
     configuration: Option<Configuration>,
-    failed: BTreeMap<String, String>,
+    failed: BTreeMap<LogComponent, String>,
     status: String,
     changes: u64,
     home: Home,
@@ -76,10 +78,9 @@ impl View {
             TupleEvent::Changed(t) => {
                 let text = String::from_utf8_lossy(&t.data);
                 if t.key.as_str() == "log"
-                    && let Ok(entry) = serde_json::from_str::<Json>(&text)
-                    && entry.get("event").is_some()
+                    && let Some(logged) = log_json::decode_line(&text)
                 {
-                    self.log(&entry);
+                    self.log(&logged.entry, logged.executive.as_deref());
                 }
                 if t.owner.as_str() == WORLD {
                     self.home.tuple(t.key.as_str(), Some(&text));
@@ -123,130 +124,95 @@ impl View {
         }
     }
 
-    /// Takes in one entry of the executive's log, as JSON.
-    pub fn log(&mut self, entry: &Json) {
+    /// Takes in one entry of the executive's log, logged by `executive` when it is named (a run
+    /// of several tasks). The timeline says what the text timeline says.
+    pub fn log(&mut self, entry: &LogEntry, executive: Option<&str>) {
         self.changes += 1;
-        let text = |field: &str| entry[field].as_str().unwrap_or("").to_owned();
-        let strings = |field: &str| -> Vec<String> {
-            entry[field]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|v| v.as_str().map(str::to_owned))
-                        .collect()
-                })
-                .unwrap_or_default()
-        };
-        let index = entry["index"]
-            .as_u64()
-            .and_then(|i| usize::try_from(i).ok());
-        let event = text("event");
-        let mut summary = event.replace('_', " ");
-        match event.as_str() {
-            "plan" | "replan" => {
-                self.plan = strings("actions");
+        let mut cost = Json::Null;
+        match &entry.event {
+            LogEvent::Plan { actions, .. } | LogEvent::Replanned { actions, .. } => {
+                self.plan.clone_from(actions);
                 self.current = None;
                 self.done.clear();
                 self.failed_actions.clear();
-                summary = format!("plan: {}", self.plan.join(" → "));
             }
-            "action_started" => {
-                self.current = index;
-                self.status = format!("action {}: {}", index.map_or(0, |i| i + 1), text("action"));
-                summary = format!("action started: {}", text("action"));
+            LogEvent::ActionStarted { index, action } => {
+                self.current = Some(*index);
+                self.status = format!("action {}: {action}", index + 1);
             }
-            "observed" => {
-                summary = format!("{} observed {}", text("action"), text("observation"));
-            }
-            "branch" => {
+            LogEvent::Branch { actions, .. } => {
                 // The plan goes on with the branch's actions after the current one.
                 let upto = self.current.map_or(self.plan.len(), |i| i + 1);
                 self.plan.truncate(upto);
-                self.plan.extend(strings("actions"));
-                summary = format!(
-                    "branch on {} (probability {}): {}",
-                    text("observation"),
-                    entry["probability"],
-                    strings("actions").join(" → ")
-                );
+                self.plan.extend(actions.iter().cloned());
             }
-            "action_done" => {
-                self.done.extend(index);
-                summary = format!("action done: {}", text("action"));
-            }
-            "action_failed" => {
-                self.failed_actions.extend(index);
-                summary = format!("action failed: {} ({})", text("action"), text("reason"));
-            }
-            "configuration" => {
-                let functionalities = strings("functionalities")
-                    .iter()
-                    .map(|f| split_functionality(f))
-                    .collect();
-                let reconfiguration = entry["reconfiguration"].as_bool().unwrap_or(false);
+            LogEvent::ActionDone { index, .. } => self.done.push(*index),
+            LogEvent::ActionFailed { index, .. } => self.failed_actions.push(*index),
+            LogEvent::Configuration {
+                goal,
+                cost: chosen,
+                optimal,
+                functionalities,
+                reconfiguration,
+                ..
+            } => {
+                cost = json!(chosen);
                 self.configuration = Some(Configuration {
-                    goal: text("goal"),
-                    cost: entry["cost"].clone(),
-                    optimal: entry["optimal"].as_bool().unwrap_or(false),
-                    reconfiguration,
-                    functionalities,
+                    goal: goal.clone(),
+                    cost: *chosen,
+                    optimal: *optimal,
+                    reconfiguration: *reconfiguration,
+                    functionalities: functionalities.clone(),
                     channels: Vec::new(),
                     switched_on: Vec::new(),
                 });
-                summary = format!(
-                    "{} for {}: cost {}",
-                    if reconfiguration {
-                        "reconfigured"
-                    } else {
-                        "configuration"
-                    },
-                    text("goal"),
-                    entry["cost"]
-                );
             }
-            "deployed" => {
+            LogEvent::Deployed {
+                switched_on,
+                channels,
+            } => {
                 if let Some(c) = &mut self.configuration {
-                    c.channels = strings("channels")
-                        .iter()
-                        .filter_map(|ch| split_channel(ch))
-                        .collect();
-                    c.switched_on = strings("switched_on");
+                    c.channels.clone_from(channels);
+                    c.switched_on.clone_from(switched_on);
                 }
-                let on = strings("switched_on");
-                summary = if on.is_empty() {
-                    "deployed".into()
-                } else {
-                    format!("deployed: switched on {}", on.join(", "))
-                };
             }
-            "held" => {
-                summary = format!(
-                    "{}:{} is held by {}: done without",
-                    text("peis"),
-                    text("component"),
-                    strings("holders").join(", ")
+            LogEvent::Failure {
+                peis,
+                component,
+                cause,
+            } => {
+                self.failed.insert(
+                    LogComponent::new(peis.as_str(), component.as_str()),
+                    cause.clone(),
                 );
             }
-            "failure" => {
-                let id = format!("{}:{}", text("peis"), text("component"));
-                summary = format!("FAILURE {id}: {}", text("cause"));
-                self.failed.insert(id, text("cause"));
-            }
-            "task_done" => {
+            LogEvent::TaskDone => {
                 self.status = "task done".into();
                 self.current = None;
             }
-            "task_failed" => {
-                self.status = format!("task failed: {}", text("reason"));
-                summary = self.status.clone();
+            LogEvent::TaskFailed { reason } => {
+                self.status = format!("task failed: {reason}");
             }
             _ => {}
         }
+        // The timeline's text, each line without the indentation that lays it out in a terminal.
+        let text = entry
+            .event
+            .to_string()
+            .lines()
+            .map(str::trim_start)
+            .collect::<Vec<_>>()
+            .join("\n");
+        let text = match executive {
+            Some(executive) => format!("[{executive}] {text}"),
+            None => text,
+        };
         self.timeline.push(json!({
-            "t": entry["t"],
-            "event": event,
-            "text": summary,
-            "cost": if event == "configuration" { entry["cost"].clone() } else { Json::Null },
+            "t": entry.t.as_secs_f64(),
+            "event": entry.event.name(),
+            "executive": executive,
+            "text": text,
+            "cost": cost,
         }));
         if self.timeline.len() > TIMELINE {
             let extra = self.timeline.len() - TIMELINE;
@@ -268,8 +234,8 @@ impl View {
             nodes: Vec::new(),
             edges: Vec::new(),
         };
-        for (label, peis, component) in &c.functionalities {
-            let id = format!("{peis}:{component}");
+        for f in &c.functionalities {
+            let (peis, component) = (&*f.component.peis, &*f.component.component);
             let state = self
                 .component_field(peis, component, "currState")
                 .unwrap_or_else(|| "in use".into());
@@ -278,9 +244,9 @@ impl View {
                 .component_field(peis, component, "holders")
                 .filter(|h| h.split_whitespace().count() > 1);
             drawing.nodes.push(Node {
-                peis: peis.clone(),
-                component: component.clone(),
-                label: label.clone(),
+                peis: peis.to_owned(),
+                component: component.to_owned(),
+                label: f.call.clone(),
                 detail: match holders {
                     Some(h) => format!(
                         "{state}, shared: {}",
@@ -288,35 +254,29 @@ impl View {
                     ),
                     None => state,
                 },
-                mark: if c.switched_on.contains(&id) {
+                mark: if c.switched_on.contains(&f.component) {
                     Mark::SwitchedOn
                 } else {
                     Mark::Normal
                 },
             });
         }
-        for (from, to, info) in &c.channels {
-            let find = |id: &str| {
-                let (p, comp) = id.split_once(':')?;
-                drawing.node(p, comp)
-            };
-            if let (Some(from), Some(to)) = (find(from), find(to)) {
+        for channel in &c.channels {
+            let find = |at: &LogComponent| drawing.node(&at.peis, &at.component);
+            if let (Some(from), Some(to)) = (find(&channel.from), find(&channel.to)) {
                 drawing.edges.push(Edge {
                     from,
                     to,
-                    info: info.clone(),
+                    info: channel.info.to_string(),
                 });
             }
         }
-        for (id, cause) in &self.failed {
-            let Some((peis, component)) = id.split_once(':') else {
-                continue;
-            };
-            if drawing.node(peis, component).is_none() {
+        for (at, cause) in &self.failed {
+            if drawing.node(&at.peis, &at.component).is_none() {
                 drawing.nodes.push(Node {
-                    peis: peis.into(),
-                    component: component.into(),
-                    label: format!("FAILED {id}"),
+                    peis: at.peis.to_string(),
+                    component: at.component.to_string(),
+                    label: format!("FAILED {at}"),
                     detail: cause.clone(),
                     mark: Mark::Failed,
                 });
@@ -351,10 +311,9 @@ impl View {
                     .or_insert_with(|| json!({"id": component}));
                 entry[field] = json!(row.value);
             }
-            for (id, cause) in &self.failed {
-                if let Some((p, c)) = id.split_once(':')
-                    && p == name
-                    && let Some(entry) = components.get_mut(c)
+            for (at, cause) in &self.failed {
+                if *at.peis == **name
+                    && let Some(entry) = components.get_mut(&*at.component)
                 {
                     entry["failed"] = json!(cause);
                 }
@@ -402,30 +361,16 @@ impl View {
             "configuration": configuration,
             "svg": self.drawing().map(|d| d.svg()),
             "home": self.home.snapshot(),
-            "failed": self.failed,
+            "failed": self
+                .failed
+                .iter()
+                .map(|(at, cause)| (at.to_string(), json!(cause)))
+                .collect::<serde_json::Map<_, _>>(),
             "timeline": self.timeline,
             "tuples": tuples,
             "tuples_not_kept": self.dropped_tuples,
         })
     }
-}
-
-/// `(navigation astrid tc1 entrance) on astrid:tc1` → (call, peis, component).
-fn split_functionality(text: &str) -> (String, String, String) {
-    match text.rsplit_once(" on ") {
-        Some((call, at)) => {
-            let (peis, component) = at.split_once(':').unwrap_or((at, ""));
-            (call.to_owned(), peis.to_owned(), component.to_owned())
-        }
-        None => (text.to_owned(), String::new(), String::new()),
-    }
-}
-
-/// `hsm:ca1 → hsm:tr1 (image hsm)` → (from, to, info).
-fn split_channel(text: &str) -> Option<(String, String, String)> {
-    let (from, rest) = text.split_once(" → ")?;
-    let (to, info) = rest.split_once(' ').unwrap_or((rest, ""));
-    Some((from.to_owned(), to.to_owned(), info.to_owned()))
 }
 
 fn preview(text: &str) -> String {
@@ -459,8 +404,9 @@ mod tests {
         })
     }
 
-    fn entry(text: &str) -> Json {
-        serde_json::from_str(text).expect("json")
+    /// An entry as `ecology task --json` writes it, read with the codec.
+    fn entry(text: &str) -> LogEntry {
+        log_json::decode_line(text).expect("a log entry").entry
     }
 
     /// The texts of a snapshot's timeline, in order.
@@ -486,22 +432,24 @@ mod tests {
         ] {
             view.tuple(&tuple(owner, key, value));
         }
-        view.log(&entry(
-            r#"{"event":"plan","actions":["(move astrid a b)"],"t":0.2}"#,
-        ));
-        view.log(&entry(
-            r#"{"event":"action_started","index":0,"action":"(move astrid a b)","t":0.2}"#,
-        ));
+        view.log(
+            &entry(r#"{"event":"plan","actions":["(move astrid a b)"],"t":0.2}"#),
+            None,
+        );
+        view.log(
+            &entry(r#"{"event":"action_started","index":0,"action":"(move astrid a b)","t":0.2}"#),
+            None,
+        );
         view.log(&entry(
             r#"{"event":"failure","peis":"hsm","component":"tr1","cause":"no images","t":15.5}"#,
-        ));
+        ), None);
         // The executive's log tuple counts as a log entry too.
         view.tuple(&tuple(
             "executive",
             "log",
-            r#"{"event":"configuration","goal":"(navigate astrid b)","cost":170,"optimal":true,"reconfiguration":true,"functionalities":["(laser astrid l1) on astrid:l1","(navigation astrid tc1 b) on astrid:tc1"],"t":15.5}"#,
+            r#"{"event":"configuration","goal":"(navigate astrid b)","cost":170,"optimal":true,"reconfiguration":true,"alternatives":[170,180],"functionalities":["(laser astrid l1) on astrid:l1","(navigation astrid tc1 b) on astrid:tc1"],"t":15.5}"#,
         ));
-        view.log(&entry(r#"{"event":"deployed","channels":["astrid:l1 → astrid:tc1 (range-scan astrid)"],"switched_on":["astrid:l1"],"t":15.5}"#));
+        view.log(&entry(r#"{"event":"deployed","channels":["astrid:l1 → astrid:tc1 (range-scan astrid)"],"switched_on":["astrid:l1"],"t":15.5}"#), None);
 
         // Several executives: who holds a component shows beside it, and a shared one says so.
         view.tuple(&tuple(
@@ -511,7 +459,7 @@ mod tests {
         ));
         view.log(&entry(
             r#"{"event":"held","peis":"hsm","component":"tr1","holders":["exec-bob"],"t":15.6}"#,
-        ));
+        ), None);
 
         let snapshot = view.snapshot();
         let astrid = snapshot["peis"]
@@ -549,11 +497,13 @@ mod tests {
             texts,
             [
                 "plan: (move astrid a b)",
-                "action started: (move astrid a b)",
+                "action 1: (move astrid a b)",
                 "FAILURE hsm:tr1: no images",
-                "reconfigured for (navigate astrid b): cost 170",
-                "deployed: switched on astrid:l1",
-                "hsm:tr1 is held by exec-bob: done without",
+                "reconfigured for (navigate astrid b): cost 170 (optimal; alternatives 170, 180)\n\
+                 (laser astrid l1) on astrid:l1\n\
+                 (navigation astrid tc1 b) on astrid:tc1",
+                "deploy: switch on astrid:l1; 1 channels",
+                "hsm:tr1 is held by exec-bob: done without until it is released",
             ]
         );
     }
@@ -570,7 +520,7 @@ mod tests {
             r#"{"event":"action_done","index":1,"action":"(look r x b)","t":2}"#,
             r#"{"event":"branch","observation":"(not (at x b))","probability":0.3,"actions":["(move r b c)","(get r x c)"],"t":2}"#,
         ] {
-            view.log(&entry(line));
+            view.log(&entry(line), None);
         }
         let snapshot = view.snapshot();
         let plan: Vec<&str> = snapshot["plan"]
@@ -589,10 +539,7 @@ mod tests {
             ]
         );
         let texts = timeline_texts(&snapshot);
-        assert!(
-            texts.contains(&"(look r x b) observed (not (at x b))"),
-            "{texts:?}"
-        );
+        assert!(texts.contains(&"observed (not (at x b))"), "{texts:?}");
         assert!(
             texts.contains(
                 &"branch on (not (at x b)) (probability 0.3): (move r b c) → (get r x c)"
@@ -625,13 +572,14 @@ mod tests {
     #[test]
     fn odd_log_entries_and_values_do_not_break_the_view() {
         let mut view = View::new();
-        view.log(&entry(
-            r#"{"event":"configuration","functionalities":[1, "x"],"cost":"?"}"#,
-        ));
-        view.log(&entry(
-            r#"{"event":"deployed","channels":["nonsense", "a → b"]}"#,
-        ));
-        view.log(&entry(r#"[1,2,3]"#));
+        view.log(
+            &entry(r#"{"event":"configuration","functionalities":[1, "x"],"cost":"?"}"#),
+            None,
+        );
+        view.log(
+            &entry(r#"{"event":"deployed","channels":["nonsense", "a → b"]}"#),
+            None,
+        );
         view.tuple(&tuple("p", "x", &"é".repeat(10_000)));
         let snapshot = view.snapshot();
         assert!(

@@ -10,7 +10,7 @@ use ecology_domain::EcologyState;
 use ecology_tuples::contract::{self, ComponentField};
 use ecology_tuples::{ComponentId, Key, PeisId};
 
-use crate::log::LogEvent;
+use crate::log::{LogChannel, LogComponent, LogEvent, LogFunctionality, LogUnavailable};
 
 use super::sequencer::Phase;
 use super::timers::{Timer, start};
@@ -21,6 +21,11 @@ use super::{Command, ComponentKey, Executive};
 /// reads names from facts, which may say anything).
 pub(super) fn component_key(peis: &str, component: &str) -> Option<ComponentKey> {
     Some((PeisId::new(peis).ok()?, ComponentId::new(component).ok()?))
+}
+
+/// `component` as the log names it.
+pub(super) fn logged(component: &ComponentKey) -> LogComponent {
+    LogComponent::new(component.0.as_str(), component.1.as_str())
 }
 
 /// The first component of `config` whose PEIS or name is not valid in the
@@ -187,7 +192,10 @@ impl Executive {
             functionalities: chosen
                 .functionalities
                 .iter()
-                .map(|f| format!("{} on {}:{}", f.call(), f.peis, f.component))
+                .map(|f| LogFunctionality {
+                    call: f.call(),
+                    component: LogComponent::new(f.peis.clone(), f.component.clone()),
+                })
                 .collect(),
             alternatives: outcome.configurations.iter().map(|c| c.cost).collect(),
             reconfiguration,
@@ -203,7 +211,7 @@ impl Executive {
     /// Adds the components that report `error` to `exclusions`: such a component stays out until
     /// it reports something else (its PEIS restarting it counts), whatever action it failed in.
     /// Returns why each one added is unavailable.
-    pub(super) fn add_unavailable(&self, exclusions: &mut Vec<Exclusion>) -> Vec<String> {
+    pub(super) fn add_unavailable(&self, exclusions: &mut Vec<Exclusion>) -> Vec<LogUnavailable> {
         let mut unavailable = Vec::new();
         for (p, c, cause) in self.mirror.in_error() {
             let exclusion = Exclusion::Component {
@@ -212,7 +220,10 @@ impl Executive {
             };
             if !exclusions.contains(&exclusion) {
                 exclusions.push(exclusion);
-                unavailable.push(format!("{p}:{c} reports error ({cause})"));
+                unavailable.push(LogUnavailable {
+                    component: logged(&(p, c)),
+                    cause,
+                });
             }
         }
         unavailable
@@ -261,7 +272,7 @@ impl Executive {
             if !on {
                 out.push(req_state(&key, "on"));
                 self.started.insert(key.clone());
-                switched_on.push(format!("{}:{}", f.peis, f.component));
+                switched_on.push(logged(&key));
             }
             let call = f.call();
             let unchanged = self.params.get(&key) == Some(&call);
@@ -288,10 +299,11 @@ impl Executive {
         let mut channels = Vec::new();
         let mut deferred = Vec::new();
         for c in &config.channels {
-            channels.push(format!(
-                "{}:{} → {}:{} {}",
-                c.from_peis, c.from_component, c.to_peis, c.to_component, c.info
-            ));
+            channels.push(LogChannel {
+                from: LogComponent::new(c.from_peis.clone(), c.from_component.clone()),
+                to: LogComponent::new(c.to_peis.clone(), c.to_component.clone()),
+                info: c.info.clone(),
+            });
             let (Some(producer), Some(consumer)) = (
                 component_key(&c.from_peis, &c.from_component),
                 component_key(&c.to_peis, &c.to_component),
@@ -371,7 +383,7 @@ impl Executive {
                 out.push(req_state(&key, "off"));
                 self.started.remove(&key);
                 self.params.remove(&key);
-                switched_off.push(format!("{}:{}", key.0, key.1));
+                switched_off.push(logged(&key));
             }
         }
         self.running = config;
@@ -389,12 +401,12 @@ impl Executive {
     }
 
     /// Puts back what the task wrote to the components `which` picks: those it switched on go
-    /// off, those it borrowed lose their params. Returns both, named `P:C`.
+    /// off, those it borrowed lose their params. Returns both.
     pub(super) fn put_back(
         &mut self,
         which: impl Fn(&Self, &ComponentKey) -> bool,
         out: &mut Vec<Command>,
-    ) -> (Vec<String>, Vec<String>) {
+    ) -> (Vec<LogComponent>, Vec<LogComponent>) {
         let switched: Vec<ComponentKey> = self
             .started
             .iter()
@@ -412,13 +424,13 @@ impl Executive {
             out.push(req_state(&key, "off"));
             self.started.remove(&key);
             self.params.remove(&key);
-            switched_off.push(format!("{}:{}", key.0, key.1));
+            switched_off.push(logged(&key));
         }
         let mut stopped = Vec::new();
         for key in borrowed {
             out.push(params(&key, String::new()));
             self.params.remove(&key);
-            stopped.push(format!("{}:{}", key.0, key.1));
+            stopped.push(logged(&key));
         }
         (switched_off, stopped)
     }
@@ -439,10 +451,7 @@ impl Executive {
         unreachable.extend(std::mem::take(&mut self.started));
         unreachable.extend(std::mem::take(&mut self.params).into_keys());
         self.running = None;
-        let unreachable: Vec<String> = unreachable
-            .into_iter()
-            .map(|(p, c)| format!("{p}:{c}"))
-            .collect();
+        let unreachable: Vec<LogComponent> = unreachable.iter().map(logged).collect();
         if !switched_off.is_empty() || !stopped.is_empty() || !unreachable.is_empty() {
             self.record(LogEvent::Released {
                 switched_off,
