@@ -113,6 +113,19 @@ impl Together {
         }
     }
 
+    /// `name`'s task is done, no component of it failed, and every configuration it chose
+    /// has a cost `costs` accepts.
+    fn done_unharmed(&self, name: &str, costs: impl Fn(u64) -> bool) {
+        let exec = self.exec(name);
+        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(exec));
+        assert_eq!(self.failures(name), 0, "{}", timeline(exec));
+        assert!(
+            self.costs(name).into_iter().all(costs),
+            "{name}'s costs: {}",
+            timeline(exec)
+        );
+    }
+
     /// hsm's cameras were held by both executives, then by Bob's alone, then by nobody.
     fn cameras_left_to_bob(&self) {
         let holders = &self.hsm["components.ca1.holders"];
@@ -245,9 +258,7 @@ async fn two_robots_needing_the_one_tracker_each_arrive() {
     )
     .await;
     for name in ["exec-astrid", "exec-bob"] {
-        let exec = ran.exec(name);
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(exec));
-        assert_eq!(ran.failures(name), 0, "{}", timeline(exec));
+        ran.done_unharmed(name, |_| true);
     }
     let last = |name| ran.costs(name).last().copied();
     let mut ends = [last("exec-astrid"), last("exec-bob")];
@@ -282,14 +293,7 @@ async fn a_shared_camera_serves_two_trackers_until_its_last_holder_releases_it()
     )
     .await;
     for name in ["exec-astrid", "exec-bob"] {
-        let exec = ran.exec(name);
-        assert_eq!(exec.status(), &RunStatus::Done, "{}", timeline(exec));
-        assert_eq!(ran.failures(name), 0, "{}", timeline(exec));
-        assert!(
-            ran.costs(name).iter().all(|&c| c == 80),
-            "{name} used the cameras throughout: {}",
-            timeline(exec)
-        );
+        ran.done_unharmed(name, |c| c == 80);
     }
     // Astrid's release left Bob holding the cameras; his own put them back.
     ran.cameras_left_to_bob();
@@ -318,14 +322,7 @@ async fn an_executive_killed_while_sharing_takes_nothing_from_the_other() {
         ],
     )
     .await;
-    let bob = ran.exec("exec-bob");
-    assert_eq!(bob.status(), &RunStatus::Done, "{}", timeline(bob));
-    assert_eq!(ran.failures("exec-bob"), 0, "{}", timeline(bob));
-    assert!(
-        ran.costs("exec-bob").iter().all(|&c| c == 80),
-        "{}",
-        timeline(bob)
-    );
+    ran.done_unharmed("exec-bob", |c| c == 80);
     // Astrid's claim lapsing left Bob holding the cameras, never nobody while he moved.
     ran.cameras_left_to_bob();
     ran.never_re_aimed();
@@ -356,9 +353,8 @@ async fn a_cut_off_executive_s_claims_lapse_and_another_takes_them() {
         ],
     )
     .await;
+    ran.done_unharmed("exec-bob", |_| true);
     let bob = ran.exec("exec-bob");
-    assert_eq!(bob.status(), &RunStatus::Done, "{}", timeline(bob));
-    assert_eq!(ran.failures("exec-bob"), 0, "{}", timeline(bob));
     let costs = ran.costs("exec-bob");
     assert_eq!(costs.first(), Some(&170), "{}", timeline(bob));
     assert_eq!(costs.last(), Some(&80), "{}", timeline(bob));
