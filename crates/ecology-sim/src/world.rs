@@ -252,20 +252,4 @@ mod tests {
         assert_eq!((map.doors[2].x, map.doors[2].y), (2.5, 4.0));
         // Bad map texts are the contract's to refuse: `ecology_tuples::world`'s tests.
     }
-
-    #[test]
-    fn the_room_of_a_position_is_the_room_containing_it_or_the_nearest_within_a_door_frame() {
-        let map = peis_home();
-        let name = |x: f64, y: f64| map.room_at(x, y).map(|r| r.name.as_str());
-        assert_eq!(name(1.5, 1.5), Some("living-room"));
-        assert_eq!(name(4.2, 4.3), Some("entrance"));
-        // On a wall: the first room listed that has it.
-        assert_eq!(name(3.0, 1.5), Some("living-room"));
-        // Just outside the home, within a door frame of the bedroom; too far from any room.
-        assert_eq!(name(-0.1, 4.0), Some("bedroom"));
-        assert_eq!(name(-1.0, 4.0), None);
-        assert_eq!(name(f64::NAN, 1.0), None);
-        assert_eq!(name(f64::INFINITY, 1.0), None);
-        assert_eq!(Map::default().room_at(1.0, 1.0), None);
-    }
 }
