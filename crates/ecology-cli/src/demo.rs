@@ -163,7 +163,24 @@ pub fn run(args: &ScenarioArgs) -> anyhow::Result<u8> {
     }
 }
 
+/// Why `scenario` cannot run in simulated time: a component that is a ROS 2 node.
+pub(crate) fn ros2_refusal(scenario: &Scenario) -> Option<String> {
+    scenario.peis.iter().find_map(|p| {
+        let c = p.components.iter().find(|c| c.ros2.is_some())?;
+        Some(format!(
+            "component {}:{} is a ROS 2 node: ROS 2 nodes run in real time, only in `ecology peis` \
+             processes (`ecology run --processes`, or `ecology peis FILE --name {}`), not in the \
+             simulated time of `ecology run`",
+            p.name, c.id, p.name
+        ))
+    })
+}
+
 fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
+    if let Some(refusal) = ros2_refusal(scenario) {
+        eprintln!("error: {refusal}");
+        return Ok(EXIT_BAD_INPUT);
+    }
     let seed = args.seed.unwrap_or(scenario.seed);
     let randomized;
     let scenario = if args.random_faults {

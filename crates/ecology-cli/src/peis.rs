@@ -130,6 +130,15 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
         let stop = network::stop_signal();
         let (stopping, stopped) = tokio::sync::watch::channel(None::<&'static str>);
         tokio::pin!(stop);
+        // ROS 2 nodes are driven through one agent for the whole process, started before anyone
+        // joins: a Python without rclpy is a clear error, not a PEIS whose nodes never start.
+        let agent = match start_agent(&chosen).await {
+            Ok(agent) => agent,
+            Err(e) => {
+                eprintln!("error: {e}");
+                return Ok(EXIT_BAD_INPUT);
+            }
+        };
         // Up to JOINING_AT_ONCE PEIS join at a time (each join waits for the mesh to settle, so
         // not one after the other), in the file's order.
         let total = ids.len();
@@ -188,6 +197,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             ));
             let mut stopped = stopped.clone();
             let seed = args.seed;
+            let agent = agent.clone();
             hosts.spawn(async move {
                 let name = id.clone();
                 let result = ecology_sim::host_peis(
@@ -195,6 +205,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
                     Arc::new(SystemClock),
                     &def,
                     seed,
+                    agent.as_ref(),
                     move |note| say(&format!("{name}: {note}")),
                     async move {
                         let _ = stopped.wait_for(Option::is_some).await;
@@ -235,8 +246,37 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
                 }
             }
         }
+        if let Some(agent) = agent
+            && let Some(trouble) = agent.quit().await
+        {
+            eprintln!("warning: {trouble}");
+        }
         Ok(code)
     })
+}
+
+/// The ROS 2 agent, when any chosen PEIS has a component that is a ROS 2 node.
+async fn start_agent(chosen: &[PeisDef]) -> anyhow::Result<Option<ecology_ros2::Agent>> {
+    let nodes: Vec<String> = chosen
+        .iter()
+        .flat_map(|def| {
+            def.components.iter().filter_map(move |c| {
+                Some(format!("{}:{} ({})", def.name, c.id, c.ros2.as_ref()?.node))
+            })
+        })
+        .collect();
+    if nodes.is_empty() {
+        return Ok(None);
+    }
+    let python = ecology_ros2::default_python();
+    let log: Arc<dyn Fn(String) + Send + Sync> = Arc::new(|line| eprintln!("ros2 agent: {line}"));
+    let agent = ecology_ros2::Agent::start(&python, log).await?;
+    say(&format!(
+        "ROS 2 agent ready on {} ({python}): nodes {}",
+        agent.rmw(),
+        nodes.join(", ")
+    ));
+    Ok(Some(agent))
 }
 
 /// The PEIS of `defs` to run: those named, every one with `all`, or the only one.

@@ -140,6 +140,10 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<u8> {
             return Ok(EXIT_BAD_INPUT);
         }
     };
+    if let Some(refusal) = crate::demo::ros2_refusal(&scenario) {
+        eprintln!("error: {refusal}");
+        return Ok(EXIT_BAD_INPUT);
+    }
     let jobs = args
         .jobs
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, usize::from))

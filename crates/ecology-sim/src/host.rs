@@ -11,12 +11,14 @@ use std::future::Future;
 use std::sync::Arc;
 
 use ecology_peis::{ComponentSpec, HostError, HostOptions, run_host_with};
+use ecology_ros2::{Agent, Ros2Component};
 use ecology_tuples::{Clock, TupleError, TupleEvent, TuplePattern, TupleSpace};
 
 use crate::components::{FaultState, Faults, Simulated};
 use crate::scenario::PeisDef;
 
-/// The component specs of PEIS `def`, with simulated bodies sharing `faults`.
+/// The component specs of PEIS `def`, with simulated bodies sharing `faults`; its ROS 2 nodes
+/// are left out.
 pub fn simulated_components<S: TupleSpace>(
     def: &PeisDef,
     faults: &Faults,
@@ -24,6 +26,7 @@ pub fn simulated_components<S: TupleSpace>(
 ) -> Vec<ComponentSpec<S>> {
     def.components
         .iter()
+        .filter(|c| c.ros2.is_none())
         .filter_map(|c| {
             let body = Simulated::new(&c.kind, faults.clone(), seed)?;
             Some(ComponentSpec {
@@ -63,8 +66,28 @@ pub fn parse_fault(text: &str) -> Option<FaultState> {
     }
 }
 
+/// The component specs of PEIS `def`'s ROS 2 nodes, each driven through `agent`.
+pub fn ros2_components<S: TupleSpace>(def: &PeisDef, agent: &Agent) -> Vec<ComponentSpec<S>> {
+    def.components
+        .iter()
+        .filter_map(|c| {
+            let spec = c.ros2.clone()?;
+            let body = Ros2Component::new(agent.clone(), format!("{}:{}", def.name, c.id), spec);
+            Some(ComponentSpec {
+                name: c.id.clone(),
+                kind: c.kind.clone(),
+                cost: c.cost,
+                on: c.on,
+                startup: c.startup,
+                body: Arc::new(body),
+            })
+        })
+        .collect()
+}
+
 /// Runs PEIS `def` on `space` (which acts as that PEIS) with simulated
-/// components until `shutdown` completes, applying `C.fault` tuples as they
+/// components, and its ROS 2 nodes through `agent` (needed when it has any),
+/// until `shutdown` completes, applying `C.fault` tuples as they
 /// are set and telling `note` about each (`ca1 stalls`), and about what the
 /// host puts back by itself when the PEIS that asked for it is gone.
 pub async fn host_peis<S: TupleSpace>(
@@ -72,6 +95,7 @@ pub async fn host_peis<S: TupleSpace>(
     clock: Arc<dyn Clock>,
     def: &PeisDef,
     seed: u64,
+    agent: Option<&Agent>,
     note: impl Fn(String) + Send + Sync + 'static,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), HostError> {
@@ -85,13 +109,11 @@ pub async fn host_peis<S: TupleSpace>(
         note: note.clone(),
         ..HostOptions::default()
     };
-    let host = run_host_with(
-        space,
-        clock,
-        simulated_components(def, &faults, seed),
-        options,
-        shutdown,
-    );
+    let mut components = simulated_components(def, &faults, seed);
+    if let Some(agent) = agent {
+        components.extend(ros2_components(def, agent));
+    }
+    let host = run_host_with(space, clock, components, options, shutdown);
     tokio::pin!(host);
     loop {
         tokio::select! {

@@ -30,7 +30,7 @@ mod tests_conditional;
 pub use components::{FaultState, Faults, KINDS, Simulated, match_scan, scan};
 pub use ecology_core::Rng;
 pub use ecology_tuples::world::WORLD;
-pub use host::{host_peis, parse_fault, simulated_components};
+pub use host::{host_peis, parse_fault, ros2_components, simulated_components};
 pub use planning::{PlanError, executive_plan, plan_actions};
 pub use replan::WorldReplanner;
 pub use run::{Observer, Pace, Report, RunError, RunOptions, Update, run};

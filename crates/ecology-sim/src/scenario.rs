@@ -139,6 +139,9 @@ pub struct ComponentDef {
     pub on: bool,
     /// How long it takes to switch on.
     pub startup: Duration,
+    /// The ROS 2 lifecycle node it is, if it is one (`ros2` in the file), its topics resolved;
+    /// else it is simulated.
+    pub ros2: Option<ecology_ros2::NodeSpec>,
 }
 
 /// One PEIS of a scenario.
@@ -337,6 +340,73 @@ struct ComponentFile {
     on: bool,
     #[serde(default)]
     startup: f64,
+    ros2: Option<Ros2File>,
+}
+
+/// `ros2 = { node = "/hsm/tr1", … }` of a component: the ROS 2 lifecycle node it is.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Ros2File {
+    node: String,
+    #[serde(default)]
+    arguments: BTreeMap<String, usize>,
+    #[serde(default)]
+    inputs: Vec<PortFile>,
+    #[serde(default)]
+    outputs: Vec<PortFile>,
+    #[serde(default)]
+    feeds: Vec<FeedFile>,
+    status_topic: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PortFile {
+    info: String,
+    topic: String,
+    #[serde(rename = "type")]
+    message: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FeedFile {
+    tuple: String,
+    topic: String,
+    #[serde(rename = "type")]
+    message: String,
+}
+
+impl Ros2File {
+    /// The node's spec, checked and its topics resolved.
+    fn spec(&self) -> Result<ecology_ros2::NodeSpec, String> {
+        let port = |p: &PortFile| ecology_ros2::Port {
+            info: p.info.clone(),
+            topic: p.topic.clone(),
+            message: p.message.clone(),
+        };
+        ecology_ros2::NodeSpec {
+            node: self.node.clone(),
+            arguments: self
+                .arguments
+                .iter()
+                .map(|(k, v)| (k.clone(), *v))
+                .collect(),
+            inputs: self.inputs.iter().map(port).collect(),
+            outputs: self.outputs.iter().map(port).collect(),
+            feeds: self
+                .feeds
+                .iter()
+                .map(|f| ecology_ros2::Feed {
+                    tuple: f.tuple.clone(),
+                    topic: f.topic.clone(),
+                    message: f.message.clone(),
+                })
+                .collect(),
+            status_topic: self.status_topic.clone(),
+        }
+        .resolved()
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -952,11 +1022,19 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
         let mut components: Vec<ComponentDef> = Vec::new();
         for c in &p.components {
             let def = c.get_ref();
-            if !KINDS.contains(&def.kind.as_str()) {
+            let ros2 = def
+                .ros2
+                .as_ref()
+                .map(|r| {
+                    r.spec()
+                        .map_err(|e| check.at(c.span(), format!("component {}: {e}", def.id)))
+                })
+                .transpose()?;
+            if ros2.is_none() && !KINDS.contains(&def.kind.as_str()) {
                 return Err(check.at(
                     c.span(),
                     format!(
-                        "no simulated component of type `{}` (known: {})",
+                        "no simulated component of type `{}` (known: {}; any type may be a ROS 2 node, with `ros2`)",
                         def.kind,
                         KINDS.join(", ")
                     ),
@@ -979,6 +1057,7 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
                 cost: def.cost,
                 on: def.on,
                 startup,
+                ros2,
             });
         }
         peis.push(PeisDef {

@@ -4,6 +4,7 @@ mod netns;
 mod plan_conditional;
 mod processes;
 mod readme;
+mod ros2;
 mod support;
 mod tuples;
 mod tutorial;
