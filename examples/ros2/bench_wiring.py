@@ -78,6 +78,15 @@ def spin_in_background(node):
     return executor
 
 
+def leave(executor):
+    """Stops spinning and exits at once (daemon threads still hold rclpy entities)."""
+    executor.shutdown(timeout_sec=1.0)
+    import rclpy
+    rclpy.try_shutdown()
+    sys.stdout.flush()
+    os._exit(0)
+
+
 def answer(obj):
     sys.stdout.write(json.dumps(obj) + "\n")
     sys.stdout.flush()
@@ -94,7 +103,7 @@ def producer():
     node.declare_parameter("ecology_params", "")
     publishers = {path: node.create_publisher(Pose2D, topic, qos())
                   for path, (topic, _) in PATHS.items()}
-    spin_in_background(node)
+    executor = spin_in_background(node)
     stop_probe = threading.Event()
     answer({"ready": True})
     for line in sys.stdin:
@@ -129,7 +138,7 @@ def producer():
             answer({"sent": count, "seconds": time.monotonic() - began})
         elif command["cmd"] == "quit":
             break
-    rclpy.try_shutdown()
+    leave(executor)
 
 
 def consumer():
@@ -161,7 +170,7 @@ def consumer():
         else:
             # direct: producer and consumer topic are the same; one subscription only.
             pass
-    spin_in_background(node)
+    executor = spin_in_background(node)
     answer({"ready": True})
     for line in sys.stdin:
         command = json.loads(line)
@@ -187,7 +196,7 @@ def consumer():
             answer({"records": got})
         elif command["cmd"] == "quit":
             break
-    rclpy.try_shutdown()
+    leave(executor)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -338,14 +347,17 @@ def run(args):
         agent.expect(20.0, "ready", ev="ready")
         wire(agent)
         results = [measure(path, producer, consumer, args.seconds, args.count)
-                   for path in PATHS]
+                   for path in args.paths]
         agent.send({"op": "quit"})
         agent.proc.wait(timeout=5.0)
         for child in (producer, consumer):
             child.send({"cmd": "quit"})
+        for child in (producer, consumer):
+            child.proc.wait(timeout=5.0)
     finally:
         for child in children:
             child.close()
+    # The first path measured is the baseline (direct, unless --paths says otherwise).
     direct = results[0]
     for r in results:
         r["latency_median_ratio"] = r["latency_median_ms"] / direct["latency_median_ms"]
@@ -379,8 +391,14 @@ def main():
                         help="messages in each throughput burst (default 20000)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--domain", type=int, help="the ROS_DOMAIN_ID (default: random, 1-100)")
+    parser.add_argument("--paths", type=lambda text: text.split(","), default=list(PATHS),
+                        help="the paths to measure, in order, the first the baseline "
+                             "(default direct,relay,bridge)")
     parser.add_argument("--role", choices=("producer", "consumer"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    unknown = [p for p in args.paths if p not in PATHS]
+    if unknown:
+        parser.error(f"unknown paths {', '.join(unknown)} (known: {', '.join(PATHS)})")
     if args.role == "producer":
         return producer()
     if args.role == "consumer":

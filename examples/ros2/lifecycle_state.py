@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Prints the lifecycle state of a ROS 2 node: `python lifecycle_state.py /hsm/tr1`.
+"""Prints the lifecycle state of ROS 2 nodes: `python lifecycle_state.py /hsm/tr1 [/astrid/s1 …]`,
+one line per node, in order.
 
 Prints `unconfigured`, `inactive`, `active`, `finalized` (or a transition state's label), or
 `gone` when the node's `get_state` service does not answer within 2 s (`--timeout`; the time
@@ -29,6 +30,7 @@ def lifecycle_state(node, name, limit=LIMIT):
         # Discovery has no awaitable event in rclpy; spinning drives it until the service shows.
         while not client.service_is_ready():
             if time.monotonic() >= deadline:
+                print("DEBUG no service", file=sys.stderr)
                 return "gone"
             executor.spin_once(timeout_sec=0.02)
         # A request sent just as the service shows may go unanswered (the server's reply writer
@@ -49,16 +51,19 @@ def lifecycle_state(node, name, limit=LIMIT):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("node", help="the node's fully qualified name, e.g. /hsm/tr1")
+    parser.add_argument("nodes", nargs="+", metavar="NODE",
+                        help="a node's fully qualified name, e.g. /hsm/tr1")
     parser.add_argument("--timeout", type=float, default=LIMIT,
                         help=f"seconds to wait for an answer (default {LIMIT:g})")
     args = parser.parse_args(argv)
-    if not args.node.startswith("/"):
-        parser.error(f"the node's name must be fully qualified (start with /), found {args.node}")
+    for name in args.nodes:
+        if not name.startswith("/"):
+            parser.error(f"a node's name must be fully qualified (start with /), found {name}")
     rclpy.init()
     try:
         node = rclpy.create_node(f"lifecycle_state_{threading.get_native_id()}")
-        print(lifecycle_state(node, args.node, args.timeout), flush=True)
+        for name in args.nodes:
+            print(lifecycle_state(node, name, args.timeout), flush=True)
         node.destroy_node()
     finally:
         rclpy.try_shutdown()

@@ -94,6 +94,7 @@ struct Inner {
     python: String,
     rmw: String,
     lines: mpsc::UnboundedSender<String>,
+    log: Arc<dyn Fn(String) + Send + Sync>,
     shared: Arc<Mutex<Shared>>,
     child: tokio::sync::Mutex<Option<Child>>,
     tasks: Mutex<JoinSet<()>>,
@@ -218,11 +219,12 @@ impl Agent {
             }
         });
         let routes = shared.clone();
+        let route_log = log.clone();
         tasks.spawn(async move {
             loop {
                 let line = stdout.next_line().await;
                 let Ok(Some(line)) = line else { break };
-                route(&routes, &line, &*log);
+                route(&routes, &line, &*route_log);
             }
             let mut s = lock(&routes);
             let why = match s.tail.back() {
@@ -239,6 +241,7 @@ impl Agent {
                 python: python.to_string(),
                 rmw,
                 lines,
+                log,
                 shared,
                 child: tokio::sync::Mutex::new(Some(child)),
                 tasks: Mutex::new(tasks),
@@ -308,6 +311,18 @@ impl Agent {
     /// Publishes `text` to component `id`'s input `info`.
     pub(crate) fn input(&self, id: &str, info: &str, text: &str) {
         self.send(json!({"op": "input", "id": id, "info": info, "text": text}));
+    }
+
+    /// Relays topic `from` to component `id`'s input `info`, in DDS.
+    pub(crate) fn relay(&self, id: &str, info: &str, from: &str) {
+        (self.inner.log)(format!("{id} reads {info} from {from}, relayed in DDS"));
+        self.send(json!({"op": "relay", "id": id, "info": info, "from": from}));
+    }
+
+    /// Stops relaying to component `id`'s input `info`.
+    pub(crate) fn unrelay(&self, id: &str, info: &str) {
+        (self.inner.log)(format!("{id} reads {info} as tuples again"));
+        self.send(json!({"op": "unrelay", "id": id, "info": info}));
     }
 
     /// Publishes `text` on component `id`'s feed of tuple `name`.

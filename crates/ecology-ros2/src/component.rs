@@ -7,11 +7,20 @@
 //! node reports `done` (`Ok`), fails or vanishes (`Err`, which the host reports as `error` with
 //! the cause), or the host cancels it (params changed or cleared, switched off): then the node is
 //! deactivated and cleaned up.
+//!
+//! A channel from another ROS 2 node's output stays in DDS: each such output is announced as the
+//! tuple `C.topic.INFO` = `TOPIC TYPE` ([`announce_topics`]), and when an input's meta-tuple points
+//! at an output so announced, of the input's message type, the agent relays that topic to the
+//! input's topic instead of passing on the tuple.
 
 use std::collections::HashMap;
 
 use ecology_peis::{BoxFuture, Component, ComponentError, Context};
-use ecology_tuples::{TupleEvent, TuplePattern, TupleSpace};
+use ecology_tuples::contract::input_key;
+use ecology_tuples::{
+    ComponentId, Key, MetaPointer, Subscription, TupleError, TupleEvent, TuplePattern, TupleSpace,
+    Value,
+};
 
 use crate::agent::{Agent, AgentEvent};
 use crate::spec::NodeSpec;
@@ -31,6 +40,42 @@ impl Ros2Component {
         agent.declare(&id, &spec);
         Ros2Component { agent, id, spec }
     }
+}
+
+/// The key `C.topic.INFO` announcing the topic of component `c`'s output `info`.
+pub fn topic_key(c: &str, info: &str) -> Result<Key, TupleError> {
+    Key::new(&format!("{c}.topic.{info}")).map_err(TupleError::Invalid)
+}
+
+/// Publishes `C.topic.INFO` = `TOPIC TYPE` for each output of component `c`'s node, so that a
+/// ROS 2 node wired to it reads the topic directly (through the agent's relay).
+pub async fn announce_topics<S: TupleSpace>(
+    space: &S,
+    c: &str,
+    spec: &NodeSpec,
+) -> Result<(), TupleError> {
+    for output in &spec.outputs {
+        let text = format!("{} {}", output.topic, output.message);
+        space
+            .set(topic_key(c, &output.info)?, Value::text(text))
+            .await?;
+    }
+    Ok(())
+}
+
+/// The topic to relay to an input of message type `message` whose meta-tuple now reads `meta`:
+/// the announced topic of the output it points at, when that output is a ROS 2 topic of the same
+/// type.
+async fn relayed_topic<S: TupleSpace>(space: &S, meta: &str, message: &str) -> Option<String> {
+    let pointer = MetaPointer::parse(meta).ok()?;
+    let (producer, info) = pointer.key.as_str().split_once(".out.")?;
+    let announced = space
+        .get(pointer.owner.clone(), topic_key(producer, info).ok()?)
+        .await
+        .ok()??;
+    let text = announced.text().ok()?;
+    let (topic, kind) = text.trim().split_once(' ')?;
+    (kind.trim() == message).then(|| topic.to_string())
 }
 
 /// Puts the node back when its run ends, however it ends.
@@ -73,6 +118,18 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
                     .map_err(|e| ComponentError::Fault(format!("feed {}: {e}", feed.tuple)))?;
                 feeds.push((feed.tuple.clone(), ctx.space().subscribe(pattern).await?));
             }
+            // Each input's meta-tuple, to relay what another node publishes in DDS; the inputs
+            // relayed are not passed on as tuples.
+            let me = ComponentId::new(ctx.component())
+                .map_err(|e| ComponentError::Space(e.to_string()))?;
+            let mut wiring = Vec::new();
+            for input in &spec.inputs {
+                let key = input_key(&me, &input.info, &[])
+                    .map_err(|e| ComponentError::Space(e.to_string()))?;
+                let pattern = TuplePattern::exact(ctx.peis().clone(), &key);
+                wiring.push((input.info.clone(), ctx.space().subscribe(pattern).await?));
+            }
+            let mut relayed: HashMap<String, String> = HashMap::new();
             loop {
                 tokio::select! {
                     event = events.recv() => match event {
@@ -88,7 +145,7 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
                             }
                         },
                         Some(AgentEvent::Output { info, text }) => {
-                            ctx.output(&info, ecology_tuples::Value::text(text)).await?;
+                            ctx.output(&info, Value::text(text)).await?;
                         }
                         Some(AgentEvent::Stopped(_)) => {}
                         Some(AgentEvent::Gone(why)) => return Err(ComponentError::Fault(why)),
@@ -99,6 +156,9 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
                     open = inputs.changed(), if inputs_open => {
                         inputs_open = open;
                         for info in &infos {
+                            if relayed.contains_key(*info) {
+                                continue;
+                            }
                             let Some(tuple) = inputs.latest(info) else { continue };
                             let version = (tuple.epoch, tuple.seq);
                             if passed.get(*info) == Some(&version) {
@@ -107,6 +167,29 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
                             passed.insert((*info).to_string(), version);
                             if let Ok(text) = tuple.text() {
                                 agent.input(&id, info, text);
+                            }
+                        }
+                    }
+                    (info, event) = next_feed(&mut wiring), if !wiring.is_empty() => {
+                        let Some(input) = spec.inputs.iter().find(|p| p.info == info) else { continue };
+                        let topic = match &event {
+                            TupleEvent::Changed(meta) => match meta.text() {
+                                Ok(text) => relayed_topic(ctx.space(), text, &input.message).await,
+                                Err(_) => None,
+                            },
+                            _ => None,
+                        };
+                        match topic {
+                            Some(topic) if relayed.get(&info) != Some(&topic) => {
+                                agent.relay(&id, &info, &topic);
+                                relayed.insert(info, topic);
+                            }
+                            Some(_) => {}
+                            None => {
+                                if relayed.remove(&info).is_some() {
+                                    agent.unrelay(&id, &info);
+                                    passed.remove(&info);
+                                }
                             }
                         }
                     }
@@ -123,10 +206,10 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
     }
 }
 
-/// The next change of any feed's tuple; pending while there is none.
-async fn next_feed(feeds: &mut [(String, ecology_tuples::Subscription)]) -> (String, TupleEvent) {
+/// The next change of any of `subscriptions`, with its name; pending while there is none.
+async fn next_feed(subscriptions: &mut [(String, Subscription)]) -> (String, TupleEvent) {
     std::future::poll_fn(|cx| {
-        for (name, sub) in feeds.iter_mut() {
+        for (name, sub) in subscriptions.iter_mut() {
             if let std::task::Poll::Ready(Some(event)) = sub.poll_event(cx) {
                 return std::task::Poll::Ready((name.clone(), event));
             }

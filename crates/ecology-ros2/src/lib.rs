@@ -13,5 +13,5 @@ mod component;
 mod spec;
 
 pub use agent::{AGENT_SOURCE, Agent, AgentError, AgentEvent, PYTHON_VARIABLE, default_python};
-pub use component::Ros2Component;
+pub use component::{Ros2Component, announce_topics, topic_key};
 pub use spec::{Feed, MESSAGES, NodeSpec, Port};

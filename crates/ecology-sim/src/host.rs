@@ -11,7 +11,7 @@ use std::future::Future;
 use std::sync::Arc;
 
 use ecology_peis::{ComponentSpec, HostError, HostOptions, run_host_with};
-use ecology_ros2::{Agent, Ros2Component};
+use ecology_ros2::{Agent, Ros2Component, announce_topics};
 use ecology_tuples::{Clock, TupleError, TupleEvent, TuplePattern, TupleSpace};
 
 use crate::components::{FaultState, Faults, Simulated};
@@ -112,6 +112,11 @@ pub async fn host_peis<S: TupleSpace>(
     let mut components = simulated_components(def, &faults, seed);
     if let Some(agent) = agent {
         components.extend(ros2_components(def, agent));
+        for c in &def.components {
+            if let Some(spec) = &c.ros2 {
+                announce_topics(&space, &c.id, spec).await?;
+            }
+        }
     }
     let host = run_host_with(space, clock, components, options, shutdown);
     tokio::pin!(host);
