@@ -4,12 +4,13 @@ package (pip install eclipse-zenoh==1.10.2), nothing else, and follows docs/comp
 
 - The wire format of a tuple: tuple (OWNER, a.b.c) lives at the Zenoh key expression
   peis/OWNER/a/b/c (`key_expr`); its value is the sample's payload and its metadata the sample's
-  attachment, version 1, little-endian (`encode_meta`, `decode_meta`): version, flags, seq,
-  ts_write, the optional fields the flags name (ts_user, expiry, epoch), the mimetype and, with
-  flag bit 4, the creator. A meta-tuple's value `(meta OWNER KEY)` points at another tuple
+  attachment, little-endian (`encode_meta`, `decode_meta`): version, flags, seq, ts_write, the
+  optional fields the flags name (ts_user, expiry, epoch), the mimetype and, with flag bit 4, the
+  creator (version 2; version 1 without it). A meta-tuple's value `(meta OWNER KEY)` points at another tuple
   (`parse_meta_tuple`). PEIS names match `NAME`, keys `KEY`; a value is at most `MAX_VALUE` bytes.
 - The PEIS's own tuples: `Peis.set` publishes one with the next seq (from 1, per key) and the epoch
-  of this run (none with --no-epoch), and keeps it to answer gets.
+  of this run (none with --no-epoch), and keeps it to answer gets. The first is `contract` = `2`:
+  the attachment version we read, so that writers speak it to us.
 - Queryables: peis/NAME/** answers gets with every tuple of ours the query's key expression
   intersects; peis/NAME/@set/** applies remote sets.
 - Remote sets: only of the keys in `remote_settable` (the component's reqState, params and mi-INFO),
@@ -57,16 +58,18 @@ def logger(program):
     return log
 
 
-# --- Wire format: the metadata attachment, version 1, little-endian -----------------------------
+# --- Wire format: the metadata attachment, versions 1 and 2, little-endian -----------------------
 
 F_TS_USER, F_EXPIRY, F_EXPIRED, F_EPOCH, F_CREATOR = 1, 2, 4, 8, 16
+CONTRACT_KEY, CONTRACT = "contract", 2  # the tuple announcing the highest version we read
 
 
 def encode_meta(seq, ts_write, epoch, mimetype, creator=None):
     """version, flags, seq, ts_write, [epoch if flag bit 3], mimetype length, mimetype,
-    [creator length, creator if flag bit 4]."""
+    [creator length, creator if flag bit 4]. Version 2 when there is a creator, else version 1
+    (the earlier format, which every reader reads)."""
     flags = (F_EPOCH if epoch else 0) | (F_CREATOR if creator else 0)
-    out = struct.pack("<BBQQ", 1, flags, seq, ts_write)
+    out = struct.pack("<BBQQ", 2 if creator else 1, flags, seq, ts_write)
     if epoch:
         out += struct.pack("<Q", epoch)
     mime = mimetype.encode("ascii")
@@ -78,10 +81,15 @@ def encode_meta(seq, ts_write, epoch, mimetype, creator=None):
 
 
 def decode_meta(data):
-    """Reads an attachment; raises ValueError on any deviation from the layout."""
-    if len(data) < 18 or data[0] != 1:
-        raise ValueError("not a version 1 metadata attachment")
-    flags = data[1]
+    """Reads an attachment of any version (docs/tuples.md, "Compatibility"): unknown flag bits are
+    ignored, and from version 2 on so is anything after the fields we know (a later version only
+    appends). Raises ValueError on a truncated field, a bad mimetype or creator, version 0, or
+    bytes after the fields of version 1."""
+    if len(data) < 18:
+        raise ValueError("attachment too short")
+    version, flags = data[0], data[1]
+    if version == 0:
+        raise ValueError("unknown version")
     seq, ts_write = struct.unpack_from("<QQ", data, 2)
     at, fields = 18, {}
     for flag, name in ((F_TS_USER, "ts_user"), (F_EXPIRY, "expiry"), (F_EPOCH, "epoch")):
@@ -97,15 +105,19 @@ def decode_meta(data):
     if not mime or not all(" " <= ch <= "~" for ch in mime):
         raise ValueError("invalid mimetype")
     creator = None
-    if flags & F_CREATOR:
+    # Version 1 knew no creator; executives wrote one under it for a while, after the mimetype.
+    if flags & F_CREATOR and (version >= 2 or len(data) > end):
         if len(data) < end + 1 or len(data) < end + 1 + data[end]:
             raise ValueError("bad creator length")
         creator = data[end + 1:end + 1 + data[end]].decode("ascii")
+        if not NAME.match(creator):
+            raise ValueError("invalid creator")
         end += 1 + data[end]
-    if len(data) != end:
+    if version == 1 and len(data) != end:
         raise ValueError("trailing bytes")
     return dict(seq=seq, ts_write=ts_write, mimetype=mime, epoch=fields.get("epoch", 0),
-                ts_user=fields.get("ts_user"), expiry=fields.get("expiry"), creator=creator)
+                ts_user=fields.get("ts_user"), expiry=fields.get("expiry"),
+                expired=bool(flags & F_EXPIRED), creator=creator)
 
 
 def key_expr(owner, key):
@@ -174,6 +186,7 @@ class Peis:
                 self.session.close()
                 raise SystemExit(f"{program}: PEIS {self.name} is already present")
             time.sleep(0.25)
+        self.set(CONTRACT_KEY, str(CONTRACT))
         self.component = make_component(self)
         self.queryables = [
             self.session.declare_queryable(f"peis/{self.name}/**",

@@ -25,8 +25,10 @@ use crate::{Mode, Notices, ZenohError, ZenohOptions};
 
 /// One PEIS in an ecology over Zenoh: a Zenoh session plus what the PEIS owns.
 ///
-/// Opening declares a queryable on `peis/NAME/**` (answers `get` for its tuples), a queryable on
-/// `peis/NAME/@set/**` (applies remote sets), and the liveliness token `peis/NAME/@alive`.
+/// Opening publishes the tuple `contract` (the attachment version it reads, [`wire::VERSION`]),
+/// declares a queryable on `peis/NAME/**` (answers `get` for its tuples), queryables on
+/// `peis/NAME/@set/**` and `peis/NAME/@by/**` (apply remote sets), and the liveliness token
+/// `peis/NAME/@alive`.
 /// One owned task serves both queryables and removes expired tuples; it stops on
 /// [`ZenohPeis::close`] or when the last clone of the handle is dropped.
 #[derive(Clone, Debug)]
@@ -67,6 +69,18 @@ struct Core {
     route_hints: Arc<RouteHints>,
     /// Whether this PEIS runs in the secured mode: then remote sets name their requester.
     secured: bool,
+    /// The contract version each owner this PEIS remote-sets reads, as learnt.
+    contracts: Arc<Mutex<HashMap<PeisId, u8>>>,
+    /// Keeps `contracts` current; declared at the first remote set to another PEIS.
+    contract_watch: tokio::sync::OnceCell<ContractWatch>,
+}
+
+/// The subscriptions that keep [`Core::contracts`] current: an owner's announcement (put or
+/// removed), and its presence ending, which forgets what it read (its next run may read another
+/// version). Their callbacks only touch the map.
+struct ContractWatch {
+    _announced: zenoh::pubsub::Subscriber<()>,
+    _left: zenoh::pubsub::Subscriber<()>,
 }
 
 /// Key expressions of tuples this PEIS's subscriptions receive, to be declared to Zenoh.
@@ -268,7 +282,19 @@ impl ZenohPeis {
                 declare,
             }),
             secured: matches!(options.security, crate::Security::Authenticated(_)),
+            contracts: Arc::new(Mutex::new(HashMap::new())),
+            contract_watch: tokio::sync::OnceCell::new(),
         });
+        // In the store before the service task answers its first get: whoever sees this PEIS
+        // present and asks what it reads gets the answer.
+        let contract = Key::new(wire::CONTRACT_KEY).map_err(|e| ZenohError::Open {
+            message: e.to_string(),
+        })?;
+        publish(&core, contract, Value::text(wire::VERSION.to_string())).map_err(|e| {
+            ZenohError::Open {
+                message: e.to_string(),
+            }
+        })?;
         let service = tokio::spawn(serve(
             core.clone(),
             get_queryable,
@@ -700,6 +726,9 @@ fn remote_set_value(core: &Core, query: &Query) -> Result<(Key, Value), String> 
         None => Value::bytes(data),
     };
     let value = requester(core, named, value)?;
+    if key.as_str() == wire::CONTRACT_KEY {
+        return Err(format!("{key} is written by {} alone", core.me));
+    }
     if let Err(e) = core.options.limits.check(&key, &value) {
         return Err(e.to_string());
     }
@@ -1089,14 +1118,29 @@ impl TupleSpace for ZenohPeis {
         if owner == core.me {
             return publish(core, key, value);
         }
-        // The owner records who asked (the tuple's creator): a PEIS watches the presence of whoever
-        // switched its components on, and puts them back when that PEIS is gone.
-        let value = value.with_creator(core.me.clone());
-        // Secured, the key expression names the requester, which the owner can trust.
-        let key_expr = if core.secured {
-            wire::requested_set_key_expr(&owner, &core.me, &key)
+        // Spoken in the owner's version: an owner that reads version 2 records who asked (the
+        // tuple's creator), watches the presence of whoever switched its components on, and puts
+        // them back when that PEIS is gone; in the secured mode it takes the requester from the
+        // key expression. One that reads only version 1 gets the earlier request, unnamed.
+        let contract = contract_of(core, &owner).await;
+        let (value, key_expr) = if contract.is_some_and(|version| version < wire::VERSION) {
+            (
+                Value {
+                    creator: None,
+                    ..value
+                },
+                wire::remote_set_key_expr(&owner, &key),
+            )
+        } else if core.secured {
+            (
+                value.with_creator(core.me.clone()),
+                wire::requested_set_key_expr(&owner, &core.me, &key),
+            )
         } else {
-            wire::remote_set_key_expr(&owner, &key)
+            (
+                value.with_creator(core.me.clone()),
+                wire::remote_set_key_expr(&owner, &key),
+            )
         };
         let replies = core
             .session
@@ -1110,6 +1154,16 @@ impl TupleSpace for ZenohPeis {
         let Ok(reply) = replies.recv_async().await else {
             return Err(TupleError::OwnerUnreachable { owner, key });
         };
+        // The owner answered (or refused): what it reads is known until it leaves, unless it
+        // announced something meanwhile.
+        let answered =
+            !matches!(reply.result(), Err(err) if &*err.payload().to_bytes() == ZENOH_TIMEOUT);
+        if let Some(version) = contract.filter(|_| answered && core.contract_watch.get().is_some())
+        {
+            lock(&core.contracts)
+                .entry(owner.clone())
+                .or_insert(version);
+        }
         match reply.result() {
             Ok(sample) => {
                 let meta = sample
@@ -1156,6 +1210,95 @@ impl TupleSpace for ZenohPeis {
     ) -> Result<PresenceSubscription, TupleError> {
         subscribe_alive(&self.inner.core, &wire::alive_key_expr(&peis)).await
     }
+}
+
+/// The contract version `owner` reads: what it announced in its tuple `contract`, version 1 if
+/// it announced none; `None` if it did not answer in time. Learnt once per owner and kept until
+/// its presence ends; the first remote set to an owner asks (at most 1 s), later ones do not.
+async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
+    // Watch before asking, so an announcement or a departure between the two is not missed.
+    if core.contract_watch.get().is_none() {
+        // Without the watch, what an owner reads is asked again at every remote set.
+        if let Ok(watch) = watch_contracts(core).await {
+            let _ = core.contract_watch.set(watch);
+        }
+    }
+    if let Some(&version) = lock(&core.contracts).get(owner) {
+        return Some(version);
+    }
+    let Ok(key) = Key::new(wire::CONTRACT_KEY) else {
+        return None;
+    };
+    let Ok(replies) = core
+        .session
+        .get(wire::tuple_key_expr(owner, &key))
+        .consolidation(ConsolidationMode::None)
+        .timeout(core.query_timeout.min(Duration::from_secs(1)))
+        .await
+    else {
+        return None;
+    };
+    // No reply at all: nobody holds the tuple, so the owner (if it is there) reads version 1.
+    let mut contract = Some(wire::VERSION_1);
+    while let Ok(reply) = replies.recv_async().await {
+        match reply.result() {
+            Ok(sample) => {
+                if let Some(version) = std::str::from_utf8(&sample.payload().to_bytes())
+                    .ok()
+                    .and_then(wire::parse_contract)
+                {
+                    if core.contract_watch.get().is_some() {
+                        lock(&core.contracts).insert(owner.clone(), version);
+                    }
+                    return Some(version);
+                }
+            }
+            Err(_) => contract = None,
+        }
+    }
+    contract
+}
+
+/// Declares the subscriptions of [`ContractWatch`].
+async fn watch_contracts(core: &Core) -> Result<ContractWatch, zenoh::Error> {
+    let contracts = core.contracts.clone();
+    let announced = core
+        .session
+        .declare_subscriber(format!("{}/*/{}", wire::ROOT, wire::CONTRACT_KEY))
+        .callback(move |sample| {
+            let Ok((owner, _)) = wire::parse_tuple_key_expr(sample.key_expr().as_str()) else {
+                return;
+            };
+            let version = match sample.kind() {
+                SampleKind::Put => std::str::from_utf8(&sample.payload().to_bytes())
+                    .ok()
+                    .and_then(wire::parse_contract),
+                SampleKind::Delete => None,
+            };
+            let mut contracts = lock(&contracts);
+            match version {
+                Some(version) => contracts.insert(owner, version),
+                None => contracts.remove(&owner),
+            };
+        })
+        .await?;
+    let contracts = core.contracts.clone();
+    let left = core
+        .session
+        .liveliness()
+        .declare_subscriber(wire::ALL_ALIVE)
+        .callback(move |sample| {
+            if sample.kind() == SampleKind::Delete
+                && let Ok(owner) = wire::parse_alive_key_expr(sample.key_expr().as_str())
+            {
+                lock(&contracts).remove(&owner);
+            }
+        })
+        .await?;
+    Ok(ContractWatch {
+        _announced: announced,
+        _left: left,
+    })
 }
 
 /// A presence subscription to the liveliness tokens matching `key_expr`: every PEIS's, or one's.

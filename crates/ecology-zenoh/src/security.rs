@@ -12,7 +12,10 @@
 //!   only when REQUESTER is the member's own name and a grant lets it set that key of that
 //!   owner: by default the executive may set `components.*.reqState`, `*.params` and `*.mi-*`;
 //!   nobody else anything. So the owner knows who asked (the holder of a claim) from the key
-//!   expression, and refuses the unnamed form `peis/OWNER/@set/KEY` of the open mode;
+//!   expression, and refuses the unnamed form `peis/OWNER/@set/KEY` of the open mode. The same
+//!   grants let a member send that unnamed form, for an owner that reads only the earlier
+//!   contract (version 1) and takes no other; such an owner keeps no claims, so who asked does
+//!   not matter to it;
 //! - a router is trusted to have enforced the same rules on what it forwards.
 //!
 //! A peer that cannot show a certificate of the ecology cannot open a link at all; one whose name
@@ -340,6 +343,16 @@ impl Roster {
 
     /// Zenoh's `access_control` configuration for this roster.
     pub fn access_control(&self) -> Json {
+        // A remote set of `key` by `name`, in both forms: named (`@by/NAME`), and unnamed (`@set`)
+        // for an owner that reads only the earlier contract (version 1), which takes no other.
+        // An owner of today refuses the unnamed form itself, and it announced that it reads
+        // version 2, so no writer of today sends it there.
+        fn requests(owner: &str, name: &str, key: &GrantPattern) -> [String; 2] {
+            [
+                format!("peis/{owner}/@by/{name}/{}", key.chunks()),
+                format!("peis/{owner}/@set/{}", key.chunks()),
+            ]
+        }
         const ALL: [&str; 9] = [
             "put",
             "delete",
@@ -385,8 +398,7 @@ impl Roster {
                         "id": id, "messages": ["query"], "flows": ["ingress"],
                         "permission": "allow",
                         "key_exprs": EXECUTIVE_KEYS.iter()
-                            .map(|k| format!("peis/*/@by/{name}/{}",
-                                             GrantPattern(k.to_string()).chunks()))
+                            .flat_map(|k| requests("*", name, &GrantPattern(k.to_string())))
                             .collect::<Vec<_>>(),
                     }));
                     own_rules.push(json!(id));
@@ -402,7 +414,7 @@ impl Roster {
                 rules.push(json!({
                     "id": id, "messages": ["query"], "flows": ["ingress"], "permission": "allow",
                     "key_exprs": grant.keys.iter()
-                        .map(|k| format!("peis/{owner}/@by/{name}/{}", k.chunks()))
+                        .flat_map(|k| requests(owner, name, k))
                         .collect::<Vec<_>>(),
                 }));
                 own_rules.push(json!(id));
@@ -767,14 +779,24 @@ mod tests {
                 "peis/hsm/@alive"
             ])
         );
+        // A grant in both forms: named, and unnamed for an owner of the earlier contract.
         assert_eq!(
             rule("grant-0")["key_exprs"],
-            json!(["peis/hsm/@by/launcher/*/fault"])
+            json!(["peis/hsm/@by/launcher/*/fault", "peis/hsm/@set/*/fault"])
         );
-        // An executive sets the contract's keys of every PEIS, under its own name only.
+        // An executive sets the contract's keys of every PEIS, naming only itself.
+        let executive = &rule("executive-executive")["key_exprs"];
         assert_eq!(
-            rule("executive-executive")["key_exprs"][0],
+            executive[0],
             json!("peis/*/@by/executive/components/*/reqState")
+        );
+        assert_eq!(executive[1], json!("peis/*/@set/components/*/reqState"));
+        let named = executive.as_array().into_iter().flatten();
+        assert!(
+            named
+                .filter_map(Json::as_str)
+                .all(|k| k.starts_with("peis/*/@by/executive/") || k.starts_with("peis/*/@set/")),
+            "{executive}"
         );
         let policy = |subject: &str| {
             acl["policies"]

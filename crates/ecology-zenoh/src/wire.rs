@@ -2,12 +2,12 @@
 //!
 //! Pure functions with no zenoh types, so the format is tested (and documented in `docs/tuples.md`) on its own.
 //!
-//! Attachment layout, version 1, integers little-endian:
+//! Attachment layout, integers little-endian (`docs/tuples.md`, "Compatibility", is the policy):
 //!
 //! | bytes | field |
 //! | --- | --- |
-//! | 1 | version, `1` |
-//! | 1 | flags: bit 0 `ts_user` present, bit 1 `expiry` present, bit 2 removal by expiry (on deletes), bit 3 `epoch` present; other bits ignored |
+//! | 1 | version: `1`, or `2` when it carries a creator |
+//! | 1 | flags: bit 0 `ts_user` present, bit 1 `expiry` present, bit 2 removal by expiry (on deletes), bit 3 `epoch` present, bit 4 `creator` present (version 2); other bits ignored |
 //! | 8 | `seq` (u64) |
 //! | 8 | `ts_write`, nanoseconds since the UNIX epoch (u64) |
 //! | 8 | `ts_user` (u64), only if flag bit 0 |
@@ -15,10 +15,13 @@
 //! | 8 | `epoch` (u64): the owner's run, only if flag bit 3; absent means 0 |
 //! | 1 | mimetype length `n` |
 //! | n | mimetype, printable ASCII |
-//! | 1 | creator length `m`, only if flag bit 4 |
+//! | 1 | creator length `m`, only if flag bit 4 (version 2) |
 //! | m | creator: the PEIS whose remote set wrote the value (in a remote-set request: the requester), only if flag bit 4 |
 //!
-//! Nothing may follow the creator (or the mimetype, without it).
+//! Version 1 is the earlier format: nothing follows the mimetype (a creator under bit 4 is read,
+//! as executives wrote it for a while under version 1). From version 2 on, a reader ignores what
+//! follows the fields it knows, and reads a version above the ones it knows by the fields of the
+//! highest it knows: a later version may only append.
 
 use std::time::Duration;
 
@@ -29,8 +32,29 @@ use ecology_tuples::{
 
 /// First chunk of every key expression of the tuple space.
 pub const ROOT: &str = "peis";
-/// Version byte of the attachment layout.
-pub const VERSION: u8 = 1;
+/// The attachment's earlier version: no creator, and nothing after the mimetype.
+pub const VERSION_1: u8 = 1;
+/// The highest version of the attachment this implementation reads and writes: version 1 and
+/// the creator (flag bit 4). A writer writes it only when there is a creator to carry.
+pub const VERSION: u8 = 2;
+
+/// The tuple in which every PEIS announces the highest attachment version it reads, as decimal
+/// text (`2`). A PEIS that has not announced one reads version 1.
+pub const CONTRACT_KEY: &str = "contract";
+
+/// The contract version a PEIS announces in its tuple [`CONTRACT_KEY`], read from its text: a
+/// positive decimal number (capped at 255). `None` for anything else.
+pub fn parse_contract(text: &str) -> Option<u8> {
+    let text = text.trim();
+    if text.is_empty() || !text.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    let version = text
+        .trim_start_matches('0')
+        .parse::<u64>()
+        .map_or(u8::MAX, |v| u8::try_from(v).unwrap_or(u8::MAX));
+    (version > 0).then_some(version)
+}
 
 const FLAG_TS_USER: u8 = 1;
 const FLAG_EXPIRY: u8 = 1 << 1;
@@ -254,7 +278,8 @@ impl Metadata {
         }
     }
 
-    /// Serializes the metadata in the layout of the module documentation.
+    /// Serializes the metadata in the layout of the module documentation: version 1 when there
+    /// is no creator (byte for byte the earlier format), version 2 when there is.
     pub fn encode(&self) -> Vec<u8> {
         let mime = self.mimetype.as_str().as_bytes();
         let mut out = Vec::with_capacity(2 + 8 * 5 + 1 + mime.len());
@@ -274,7 +299,11 @@ impl Metadata {
         if self.creator.is_some() {
             flags |= FLAG_CREATOR;
         }
-        out.push(VERSION);
+        out.push(if self.creator.is_some() {
+            VERSION
+        } else {
+            VERSION_1
+        });
         out.push(flags);
         out.extend_from_slice(&self.seq.to_le_bytes());
         out.extend_from_slice(&self.ts_write.as_nanos().to_le_bytes());
@@ -299,7 +328,9 @@ impl Metadata {
         out
     }
 
-    /// Parses an attachment; any deviation from the layout is an error.
+    /// Parses an attachment of any version: unknown flag bits are ignored, and so is anything after
+    /// the known fields from version 2 on. Truncated fields, a bad mimetype or creator, version 0,
+    /// and bytes after the fields of version 1 are errors.
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
         Self::decode_reusing(bytes, None)
     }
@@ -308,7 +339,8 @@ impl Metadata {
     /// attachment names the same one (a subscriber sees the same few mimetypes over and over).
     pub fn decode_reusing(bytes: &[u8], known: Option<&Mimetype>) -> Result<Self, WireError> {
         let mut r = Reader(bytes);
-        if r.u8()? != VERSION {
+        let version = r.u8()?;
+        if version == 0 {
             return Err(WireError::Attachment("unknown version"));
         }
         let flags = r.u8()?;
@@ -327,7 +359,9 @@ impl Metadata {
         let epoch = if flags & FLAG_EPOCH != 0 { r.u64()? } else { 0 };
         let len = usize::from(r.u8()?);
         let mime = r.take(len)?;
-        let creator = if flags & FLAG_CREATOR != 0 {
+        // Version 1 knew no creator; executives wrote one under it for a while, after the mimetype.
+        let has_creator = flags & FLAG_CREATOR != 0 && (version > VERSION_1 || !r.0.is_empty());
+        let creator = if has_creator {
             let len = usize::from(r.u8()?);
             let name = std::str::from_utf8(r.take(len)?)
                 .map_err(|_| WireError::Attachment("creator is not UTF-8"))?;
@@ -335,7 +369,8 @@ impl Metadata {
         } else {
             None
         };
-        if !r.0.is_empty() {
+        // Version 1 said nothing may follow; later versions may append fields we do not know.
+        if version == VERSION_1 && !r.0.is_empty() {
             return Err(WireError::Attachment("trailing bytes"));
         }
         let mimetype = match known {

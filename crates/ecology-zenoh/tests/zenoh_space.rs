@@ -608,10 +608,17 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
     assert_eq!(minimal.len(), 2 + 16 + 1 + Mimetype::OCTET_STREAM.len());
     assert!(Metadata::decode(&minimal).is_ok_and(|m| m.expired && m.seq == 5));
 
-    let mut trailing = encoded.clone();
+    // From version 2 on, what follows the known fields is ignored, and a later version that only
+    // appends reads as this one; version 1 has nothing after its fields (the corpus has the rest).
+    let mut appended = encoded.clone();
+    appended.push(0);
+    assert_eq!(Metadata::decode(&appended), Ok(decoded.clone()));
+    appended[0] = 3;
+    assert_eq!(Metadata::decode(&appended), Ok(decoded.clone()));
+    let mut trailing = minimal.clone();
     trailing.push(0);
     let mut version = encoded.clone();
-    version[0] = 2;
+    version[0] = 0;
     let mut bad_mime = encoded.clone();
     bad_mime[2 + 8 * 5 + 1] = 0xff;
     let mut bad_creator = encoded.clone();
@@ -636,6 +643,129 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
     ] {
         assert_eq!(Metadata::decode(bytes), Err(expected));
     }
+}
+
+/// One entry of the attachment corpus (`tests/corpus/attachments.txt`): its name and fields.
+struct CorpusEntry {
+    name: String,
+    fields: std::collections::BTreeMap<String, String>,
+}
+
+/// The corpus of attachments written to each published version, and malformed ones.
+fn corpus() -> Vec<CorpusEntry> {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/attachments.txt");
+    let text = std::fs::read_to_string(&path).expect("the corpus");
+    let mut entries: Vec<CorpusEntry> = Vec::new();
+    for line in text.lines().map(str::trim) {
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            entries.push(CorpusEntry {
+                name: name.to_owned(),
+                fields: std::collections::BTreeMap::new(),
+            });
+            continue;
+        }
+        let (field, value) = line.split_once('=').expect("`key = value`");
+        let entry = entries.last_mut().expect("a field inside an entry");
+        entry
+            .fields
+            .insert(field.trim().to_owned(), value.trim().to_owned());
+    }
+    entries
+}
+
+fn unhex(text: &str) -> Vec<u8> {
+    let digits: Vec<u8> = text.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
+    digits
+        .chunks(2)
+        .map(|pair| u8::from_str_radix(std::str::from_utf8(pair).expect("ASCII"), 16).expect("hex"))
+        .collect()
+}
+
+/// The metadata an entry of the corpus says a reader reads.
+fn corpus_metadata(entry: &CorpusEntry) -> Metadata {
+    let field = |name: &str| {
+        entry
+            .fields
+            .get(name)
+            .unwrap_or_else(|| panic!("{}: no {name}", entry.name))
+            .as_str()
+    };
+    let number = |name: &str| field(name).parse::<u64>().expect("a number");
+    let optional = |name: &str| (field(name) != "-").then(|| number(name));
+    Metadata {
+        seq: number("seq"),
+        ts_write: Timestamp(number("ts_write")),
+        ts_user: optional("ts_user").map(Timestamp),
+        expiry: optional("expiry"),
+        expired: field("expired") == "yes",
+        epoch: number("epoch"),
+        mimetype: Mimetype::new(field("mimetype")).expect("a valid mimetype"),
+        creator: (field("creator") != "-").then(|| peis(field("creator"))),
+    }
+}
+
+/// Every attachment of the corpus reads as it says (or is refused for its reason), and the
+/// writer writes the entries marked `encodes` byte for byte: version 1 without a creator, 2 with.
+#[test]
+fn the_attachment_corpus_of_every_published_version_is_read_and_written() {
+    let entries = corpus();
+    assert!(entries.len() >= 20, "{} entries", entries.len());
+    let mut encoded = 0;
+    for entry in &entries {
+        let bytes = unhex(&entry.fields["hex"]);
+        let decoded = Metadata::decode(&bytes);
+        if let Some(reason) = entry.fields.get("refused") {
+            assert_eq!(
+                decoded.map_err(|e| e.to_string()),
+                Err(format!("malformed attachment: {reason}")),
+                "{}",
+                entry.name
+            );
+            continue;
+        }
+        let expected = corpus_metadata(entry);
+        assert_eq!(decoded.as_ref(), Ok(&expected), "{}", entry.name);
+        if entry.fields["encodes"] == "yes" {
+            assert_eq!(expected.encode(), bytes, "{}", entry.name);
+            encoded += 1;
+        }
+    }
+    assert!(encoded >= 6, "{encoded} entries written byte for byte");
+}
+
+/// The Python example's reader (`examples/python/ecology_peis.py`) reads the same corpus the same
+/// way, by `examples/python/check_corpus.py`; skipped when no Python with zenoh is at hand.
+#[test]
+fn the_python_example_reads_the_attachment_corpus() {
+    let python = std::env::var("ECOLOGY_PYTHON").unwrap_or_else(|_| "python3".to_owned());
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let has_zenoh = Command::new(&python)
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has_zenoh {
+        println!(
+            "skipped: no Python with the eclipse-zenoh package at `{python}` (set ECOLOGY_PYTHON)"
+        );
+        return;
+    }
+    let out = Command::new(&python)
+        .arg(root.join("examples/python/check_corpus.py"))
+        .arg(root.join("crates/ecology-zenoh/tests/corpus/attachments.txt"))
+        .output()
+        .expect("run check_corpus.py");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let entries = corpus().len();
+    assert!(text.contains(&format!("{entries} entries read")), "{text}");
 }
 
 /// A keys directory in a fresh temporary folder with the given members, removed when dropped.

@@ -16,7 +16,7 @@ use serde_json::Value;
 
 use crate::support::{
     Ecology, Fixture, Line, Proc, TO_BEDROOM, TO_ENTRANCE, Variant, as_strs, event, free_endpoint,
-    is_event, root, task_on,
+    is_event, read_tuples, root, task_on,
 };
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -917,6 +917,86 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     let (code, lines) = Proc::spawn("twin", twin).finish();
     assert_eq!(code, Some(1), "{lines:?}");
     assert!(lines.iter().all(|l| l.text != "ready"), "{lines:?}");
+    ecology.stop_component();
+}
+
+/// A component written to the earlier contract (attachment version 1 only, remote sets on `@set`
+/// only, no claims, no `contract` tuple: `tests/fixtures/peis-v1`, frozen from commit 45bdeba) is
+/// discovered, switched on, given params, wired, run to done and released by today's executive,
+/// which speaks version 1 to it because it announced no other (docs/tuples.md, "Compatibility").
+#[test]
+fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released() {
+    const EARLIER: &str = "crates/ecology-cli/tests/fixtures/peis-v1/robot_counter.py";
+    let python = python();
+    let has_zenoh = Command::new(&python)
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has_zenoh {
+        println!(
+            "skipped: no Python with the eclipse-zenoh package at `{python}` to run {EARLIER}"
+        );
+        return;
+    }
+    // Its reader reads what a writer of today sends a version 1 owner: the corpus's earlier entries.
+    let corpus = Command::new(&python)
+        .arg(root().join("examples/python/check_corpus.py"))
+        .arg(root().join("crates/ecology-zenoh/tests/corpus/attachments.txt"))
+        .args(["--earlier", "--reader"])
+        .arg(root().join(EARLIER))
+        .output()
+        .expect("check_corpus.py");
+    assert!(corpus.status.success(), "{corpus:?}");
+    let _one = one_at_a_time();
+    let ecology = WithPython::start(
+        &python,
+        "scenarios/peis-home.toml",
+        &["hsm"],
+        EARLIER,
+        "counter",
+    );
+    let (code, all) = ecology.task(
+        "examples/python/robot-counter.eco",
+        "examples/python/robot-counter.plan",
+        "world,hsm,counter",
+    );
+    assert_eq!(code, Some(0), "{all:#?}");
+    // Discovered from its init tuples and priced (start-up 5 + default 5), as today's example.
+    assert_eq!(costs(&all), [(30, false)], "{all:#?}");
+    let deployed = named(&all, "deployed");
+    assert_eq!(strings(&deployed[0]["switched_on"]), ["counter:c1"]);
+    assert_eq!(
+        strings(&deployed[0]["channels"]),
+        ["hsm:ca1 → counter:c1 (image hsm)"]
+    );
+    assert!(named(&all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(named(&all, "action_done").len(), 1, "{all:#?}");
+    let released = named(&all, "released");
+    assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
+    // Its tuples: every remote set applied (it refuses any attachment but version 1), the count
+    // done, switched off again; it keeps no holders, records no creator and announces nothing.
+    let tuples = read_tuples(&ecology.world, "counter");
+    let value = |key: &str| tuples.get(key).and_then(|t| t["value"].as_str());
+    assert_eq!(value("components.c1.reqState"), Some("off"), "{tuples:#?}");
+    assert_eq!(value("components.c1.currState"), Some("off"), "{tuples:#?}");
+    assert_eq!(
+        value("c1.params"),
+        Some("(count-robots counter c1 hsm)"),
+        "{tuples:#?}"
+    );
+    assert_eq!(
+        value("c1.mi-image"),
+        Some("(meta hsm ca1.out.image)"),
+        "{tuples:#?}"
+    );
+    assert_eq!(value("c1.status"), Some("idle"), "{tuples:#?}");
+    assert!(value("c1.out.robot-count").is_some(), "{tuples:#?}");
+    assert_eq!(value("components.c1.holders"), None, "{tuples:#?}");
+    assert_eq!(value("contract"), None, "{tuples:#?}");
+    assert!(
+        tuples.values().all(|t| t.get("set_by").is_none()),
+        "{tuples:#?}"
+    );
     ecology.stop_component();
 }
 

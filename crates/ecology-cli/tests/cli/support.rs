@@ -452,38 +452,47 @@ impl Ecology {
 
     /// The tuples of `owner` as they stand, by key, read by `ecology tuples watch`.
     pub fn read(&self, owner: &str) -> std::collections::BTreeMap<String, String> {
-        let listen = free_endpoint();
-        let pattern = format!("{owner}:**");
-        let watch = Proc::start(
-            "reader",
-            &[
-                "tuples",
-                "--listen",
-                &listen,
-                "--connect",
-                &self.world_endpoint,
-                "--name",
-                "reader",
-                "watch",
-                &pattern,
-                "--json",
-            ],
-        );
-        let mut seen = std::collections::BTreeMap::new();
-        while let Ok(line) = watch.lines.recv_timeout(Duration::from_millis(1500)) {
-            let v = event(&line.text);
-            if let (Some(key), Some(value)) = (v["key"].as_str(), v["value"].as_str()) {
-                seen.insert(key.to_string(), value.to_string());
-            }
-        }
-        watch.signal(Signal::SIGINT);
-        seen
+        read_tuples(&self.world_endpoint, owner)
+            .into_iter()
+            .filter_map(|(key, v)| Some((key, v["value"].as_str()?.to_string())))
+            .collect()
     }
 
     /// The executive on `plan`, printing JSON lines.
     pub fn task(&self, fixture: &Fixture, extra: &[&str]) -> Proc {
         task_on(&self.world_endpoint, self.keys.as_deref(), fixture, extra)
     }
+}
+
+/// The tuples of `owner` as they stand, by key, as `ecology tuples watch --json` prints them
+/// (`value`, `set_by`, …), read through a PEIS connected to `endpoint`.
+pub fn read_tuples(endpoint: &str, owner: &str) -> std::collections::BTreeMap<String, Value> {
+    let listen = free_endpoint();
+    let pattern = format!("{owner}:**");
+    let watch = Proc::start(
+        "reader",
+        &[
+            "tuples",
+            "--listen",
+            &listen,
+            "--connect",
+            endpoint,
+            "--name",
+            "reader",
+            "watch",
+            &pattern,
+            "--json",
+        ],
+    );
+    let mut seen = std::collections::BTreeMap::new();
+    while let Ok(line) = watch.lines.recv_timeout(Duration::from_millis(1500)) {
+        let v = event(&line.text);
+        if let (Some(key), Some(_)) = (v["key"].as_str(), v["value"].as_str()) {
+            seen.insert(key.to_string(), v.clone());
+        }
+    }
+    watch.signal(Signal::SIGINT);
+    seen
 }
 
 /// The executive on `fixture`'s plan, connected to the world at `world_endpoint`, printing JSON
