@@ -5,6 +5,8 @@ Starts the three example nodes (ecology_nodes.py) and the agent
 (crates/ecology-ros2/agent/ecology_ros2_agent.py) as processes on one random ROS_DOMAIN_ID, drives
 the agent's JSON-lines protocol and checks what comes back:
 
+- the text forms of the messages read and write as documented, and bad texts are refused (in
+  process, importing the agent's file);
 - bad request lines give `error` events and the agent carries on;
 - a start of a node that is not running fails after 5 s naming it; a parameter the node refuses
   fails the start with the node's reason;
@@ -142,6 +144,65 @@ class Agent(Process):
             return [json.loads(line) for line in self.lines[since:]]
 
 
+def check_conversions():
+    """The agent's text forms, in process: each type both ways, and bad texts refused."""
+    import importlib.util
+    import math
+    import types
+    from rclpy.clock import Clock
+    spec = importlib.util.spec_from_file_location("ecology_ros2_agent", AGENT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    node = types.SimpleNamespace(get_clock=Clock)
+    good = [
+        ("geometry_msgs/msg/Pose2D", "1.5 1.5 0", "1.500 1.500 0.000"),
+        ("geometry_msgs/msg/Pose2D", " -0.25\t3  1e-1 ", "-0.250 3.000 0.100"),
+        ("geometry_msgs/msg/PoseStamped", "1 2 1.5708", "1.000 2.000 1.571"),
+        ("geometry_msgs/msg/PoseStamped", "0 0 -3", "0.000 0.000 -3.000"),
+        ("geometry_msgs/msg/Twist", "0.25 -0.5", "0.250 -0.500"),
+        ("sensor_msgs/msg/LaserScan", "1 2 3.5", "1.000 2.000 3.500"),
+        ("sensor_msgs/msg/LaserScan", "4", "4.000"),
+        ("std_msgs/msg/String", "room a 0 0 1 1; door a b 1 0.5", "room a 0 0 1 1; door a b 1 0.5"),
+        ("std_msgs/msg/String", "", ""),
+        ("std_msgs/msg/Float64", "2.5", "2.500"),
+    ]
+    for name, text, want in good:
+        kind = module.MessageType(name)
+        msg = kind.from_text(text, node)
+        if kind.to_text(msg) != want:
+            fail(f"conversion {name}: {text!r} reads back as {kind.to_text(msg)!r}, not {want!r}")
+    stamped = module.MessageType("geometry_msgs/msg/PoseStamped").from_text("1 2 3", node)
+    scan_kind = module.MessageType("sensor_msgs/msg/LaserScan")
+    scan = scan_kind.from_text("1 2 3", node)
+    if (stamped.header.frame_id, scan.header.frame_id, scan.range_max) != ("map", "laser", 10.0) \
+            or abs(scan.angle_increment - 2 * math.pi / 3) > 1e-6 or scan.angle_min != 0.0 or stamped.header.stamp.sec == 0:
+        fail(f"conversion: PoseStamped {stamped.header} or LaserScan {scan.header} "
+             f"{scan.angle_min} {scan.angle_increment} {scan.range_max} not as documented")
+    scan.ranges = [1.0, float("inf"), float("nan")]
+    if scan_kind.to_text(scan) != "1.000 10.000 10.000":
+        fail(f"conversion: a scan's non-finite ranges read {scan_kind.to_text(scan)!r}")
+    bad = [
+        ("geometry_msgs/msg/Pose2D", t) for t in ("1 2", "1 2 3 4", "1 2 nan", "a b c", "", "1,2;3")
+    ] + [
+        ("geometry_msgs/msg/PoseStamped", "1 2 inf"), ("geometry_msgs/msg/Twist", "1 2 3"),
+        ("geometry_msgs/msg/Twist", "1"), ("sensor_msgs/msg/LaserScan", ""),
+        ("sensor_msgs/msg/LaserScan", "1 x 2"), ("std_msgs/msg/Float64", "inf"),
+        ("std_msgs/msg/Float64", "1 2"),
+    ]
+    for name, text in bad:
+        try:
+            module.MessageType(name).from_text(text, node)
+        except module.BadRequest:
+            continue
+        fail(f"conversion {name}: {text!r} was read, it should be refused")
+    for name in ("nav_msgs/msg/Odometry", None, 3):
+        try:
+            module.MessageType(name)
+        except module.BadRequest:
+            continue
+        fail(f"conversion: message type {name!r} was accepted")
+
+
 def declare(agent):
     agent.send({"op": "declare", "id": "tr1", "node": "/hsm/tr1",
                 "inputs": [{"info": "image", "topic": "/hsm/tr1/image",
@@ -229,6 +290,7 @@ def change_state_by_hand(env, node, transition):
 
 
 def run(env, children):
+    check_conversions()
     nodes = {}
     for kind, name, namespace in (("tracker", "tr1", "hsm"), ("self_loc", "sl1", "astrid"),
                                   ("navigation", "tc1", "astrid")):

@@ -30,7 +30,6 @@ def lifecycle_state(node, name, limit=LIMIT):
         # Discovery has no awaitable event in rclpy; spinning drives it until the service shows.
         while not client.service_is_ready():
             if time.monotonic() >= deadline:
-                print("DEBUG no service", file=sys.stderr)
                 return "gone"
             executor.spin_once(timeout_sec=0.02)
         # A request sent just as the service shows may go unanswered (the server's reply writer

@@ -48,8 +48,9 @@ While a component runs, its worker polls ``/NODE/get_state`` every 0.25 s, each 
 0.5 s. A node that has not answered for 1 s is reported as ``error`` with cause ``ROS 2 node N does
 not answer (its process is gone?)``: a process killed with SIGKILL stays in the DDS graph for its
 participant lease (20 s on Fast DDS), so the graph cannot be trusted for this. The last answer came
-at most 0.25 s before the death, and the check fires 1 s after that answer, so a dead node is
-reported 1.0 to 1.25 s after it died (plus scheduling, about 1.5 s at worst). A node that answers
+at most 0.25 s before the death and the error is reported 1 s after that answer, so a dead node is
+reported 0.75 to 1 s after it died, plus scheduling delays: under 1.5 s (check_agent.py holds 2 s,
+and measures about 0.8-0.9 s). A node that answers
 with a state other than ``active`` is reported as ``error`` with cause ``ROS 2 node N left active:
 now STATE``; ``/NODE/transition_event`` is watched too, so a transition out of active (a hand-made
 deactivate, an ``on_error``) is reported as soon as the node announces it, without waiting for the
@@ -63,25 +64,34 @@ QoS (so the node's publisher must be transient local too: the last status is not
 activation and the agent's subscription), and forwards each change as a status event, starting from
 ``running`` once the node is active.
 
+Threads and QoS
+---------------
+One thread spins rclpy (a SingleThreadedExecutor: no callback blocks, and rclpy's multi-threaded
+executor stalled relays for hundreds of milliseconds); each component has a worker thread that
+runs its lifecycle calls and watch in order; the main thread reads requests. Inputs, outputs and
+relays use reliable, volatile, keep-last-100 QoS (a best-effort publisher does not match them).
+Events are written as they come; a host that stops reading stdout stalls the agent.
+
 Text forms of the messages
 --------------------------
 Numbers are written with 3 decimals. Reading a text never crashes: a text that does not parse is
 reported as an ``error`` event and dropped.
 
-=============================== ============================ =========================================
-Message type                    Text                         Notes
-=============================== ============================ =========================================
-``geometry_msgs/msg/Pose2D``    ``X Y THETA``                metres, radians
-``geometry_msgs/msg/PoseStamped`` ``X Y THETA``              yaw <-> quaternion about z; written with
-                                                             frame_id ``map`` and stamp = now
-``geometry_msgs/msg/Twist``     ``V W``                      linear.x m/s, angular.z rad/s
-``sensor_msgs/msg/LaserScan``   ``R1 R2 ...`` (one or more)  written with angle_min -pi/2, angle_max
-                                                             +pi/2, increment spread evenly, range_max
-                                                             10, frame_id ``laser``; read ranges that
-                                                             are not finite are written as range_max
-``std_msgs/msg/String``         the text as it is
-``std_msgs/msg/Float64``        one number
-=============================== ============================ =========================================
+=============================== =================== ===================================================
+Message type                    Text                Notes
+=============================== =================== ===================================================
+geometry_msgs/msg/Pose2D        X Y THETA           metres, radians
+geometry_msgs/msg/PoseStamped   X Y THETA           yaw <-> quaternion about z; written with frame_id
+                                                    map and stamp = now
+geometry_msgs/msg/Twist         V W                 linear.x m/s, angular.z rad/s
+sensor_msgs/msg/LaserScan       R1 R2 ... (1 or     N rays evenly around the robot, the first along
+                                more ranges)        its heading (as Ecology's simulated laser: 8 rays
+                                                    every 45 degrees): angle_min 0, increment 2pi/N;
+                                                    range_max 10, frame_id laser; non-finite ranges
+                                                    are read as range_max
+std_msgs/msg/String             the text as it is
+std_msgs/msg/Float64            one number
+=============================== =================== ===================================================
 
 Only these types can be declared (relays included), so every declared port has a text form.
 """
@@ -214,8 +224,11 @@ def scan_msg(cls, text, node):
     m = cls()
     m.header.frame_id = "laser"
     m.header.stamp = node.get_clock().now().to_msg()
-    m.angle_min, m.angle_max = -math.pi / 2.0, math.pi / 2.0
-    m.angle_increment = math.pi / (len(ranges) - 1) if len(ranges) > 1 else 0.0
+    # N rays evenly around the robot, the first along its heading: as Ecology's simulated laser
+    # measures them (8 rays every 45 degrees).
+    m.angle_increment = 2.0 * math.pi / len(ranges)
+    m.angle_min = 0.0
+    m.angle_max = m.angle_increment * (len(ranges) - 1)
     m.range_min, m.range_max = 0.0, 10.0
     m.ranges = ranges
     return m
@@ -800,6 +813,23 @@ class Agent:
                 log(f"component {component.id}: not stopped within {QUIT_TIMEOUT:g} s")
 
 
+    def close(self):
+        """Leaves the DDS domain cleanly: a participant that just vanishes (os._exit, SIGKILL)
+        makes the next process to join the domain take about 3 s longer to discover the others
+        (Fast DDS)."""
+        for component in self.components.values():
+            component.queue.put(("exit",))
+        for component in self.components.values():
+            component.worker.join(timeout=1.0)
+        self.executor.shutdown(timeout_sec=1.0)
+        self.spinner.join(timeout=1.0)
+        try:
+            self.node.destroy_node()
+            rclpy.shutdown()
+        except Exception as e:  # noqa: BLE001 - shutting down anyway
+            log(f"rclpy shutdown: {e!r}")
+
+
 class Interrupted(Exception):
     """SIGTERM or SIGINT: quit as the host asked."""
 
@@ -840,18 +870,10 @@ def main():
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     agent.quit()
-    agent.executor.shutdown(timeout_sec=0.5)
-    try:
-        # Destroying the context leaves the DDS domain cleanly: a participant that just vanishes
-        # makes the next process on the domain take seconds longer to discover the others.
-        rclpy.shutdown()
-        rclpy.get_default_context().destroy()
-    except Exception as e:  # noqa: BLE001 - shutting down anyway
-        log(f"rclpy shutdown: {e!r}")
+    agent.close()
     protocol.flush()
-    # Daemon threads may still hold rclpy entities; leave without waiting for them.
-    os._exit(0)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -18,7 +18,10 @@ pub const MESSAGES: &[(&str, &str)] = &[
         "X Y THETA (yaw from the quaternion)",
     ),
     ("geometry_msgs/msg/Twist", "V W (linear.x, angular.z)"),
-    ("sensor_msgs/msg/LaserScan", "R1 R2 … (the ranges)"),
+    (
+        "sensor_msgs/msg/LaserScan",
+        "R1 R2 … (N rays around the robot from its heading)",
+    ),
     ("std_msgs/msg/String", "the text as it is"),
     ("std_msgs/msg/Float64", "a number"),
 ];

@@ -1201,6 +1201,10 @@ impl TupleSpace for ZenohPeis {
     }
 
     async fn subscribe_presence(&self) -> Result<PresenceSubscription, TupleError> {
+        // Whoever follows every PEIS's presence (an executive, the view) is the one that
+        // remote-sets them: it learns now what each reads, and what each newcomer announces, so
+        // that no remote set waits to ask.
+        learn_contracts(&self.inner.core).await;
         subscribe_alive(&self.inner.core, wire::ALL_ALIVE).await
     }
 
@@ -1209,6 +1213,39 @@ impl TupleSpace for ZenohPeis {
         peis: PeisId,
     ) -> Result<PresenceSubscription, TupleError> {
         subscribe_alive(&self.inner.core, &wire::alive_key_expr(&peis)).await
+    }
+}
+
+/// Starts keeping [`Core::contracts`] current, and asks every PEIS present what it reads.
+async fn learn_contracts(core: &Core) {
+    if core.contract_watch.get().is_none() {
+        match watch_contracts(core).await {
+            Ok(watch) => {
+                let _ = core.contract_watch.set(watch);
+            }
+            Err(_) => return,
+        }
+    }
+    let Ok(replies) = core
+        .session
+        .get(format!("{}/*/{}", wire::ROOT, wire::CONTRACT_KEY))
+        .consolidation(ConsolidationMode::None)
+        .timeout(core.query_timeout.min(Duration::from_secs(1)))
+        .await
+    else {
+        return;
+    };
+    while let Ok(reply) = replies.recv_async().await {
+        let Ok(sample) = reply.result() else { continue };
+        let Ok((owner, _)) = wire::parse_tuple_key_expr(sample.key_expr().as_str()) else {
+            continue;
+        };
+        if let Some(version) = std::str::from_utf8(&sample.payload().to_bytes())
+            .ok()
+            .and_then(wire::parse_contract)
+        {
+            lock(&core.contracts).insert(owner, version);
+        }
     }
 }
 

@@ -11,8 +11,9 @@ use crate::support::root;
 
 /// Commands README shows that are not `ecology` itself.
 const OTHERS: &[&str] = &[
-    "scripts/test",         // README's test command: CI runs it
-    "scripts/bench-config", // benchmarks: run by hand, minutes each
+    "scripts/test",                              // README's test command: CI runs it
+    "cargo test -p ecology-cli --test cli ros2", // part of scripts/test
+    "scripts/bench-config",                      // benchmarks: run by hand, minutes each
     "cargo bench -p ecology-config --bench configure",
     "cargo bench -p ecology-config --bench facts",
     "cargo bench -p ecology-cli --bench fuzz",

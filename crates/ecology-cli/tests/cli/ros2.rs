@@ -194,6 +194,26 @@ fn ros2_nodes_are_configured_reconfigured_and_put_back() {
     assert_eq!(code, Some(0));
 }
 
+// The agent alone against the example nodes: every request of its protocol, bad lines, a node
+// that never comes, a refused parameter, a node deactivated by hand, a killed node, the text
+// forms of the messages both ways, and quitting with every node put back.
+#[test]
+fn the_ros2_agent_passes_its_own_check() {
+    let Some(python) = ros_python() else { return };
+    let _one = one_at_a_time();
+    let out = Command::new(&python)
+        .args(["examples/ros2/check_agent.py", "--domain", &ros_domain()])
+        .current_dir(crate::support::root())
+        .output()
+        .expect("runs check_agent.py");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && stdout.contains("check_agent: ok"),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 // A PEIS file's `ros2` tables are checked before anything starts, and a ROS 2 scenario does not
 // run in simulated time.
 #[test]
