@@ -240,26 +240,149 @@ pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
+/// How long a process takes at most to stop once asked (SIGINT or SIGTERM): it releases what it
+/// holds and leaves as well as the network lets it, and exits when this runs out whatever is still
+/// pending, saying what. `ECOLOGY_STOP_WITHIN` (seconds) changes it.
+pub const STOP_WITHIN: Duration = Duration::from_secs(10);
+
+/// The bound on stopping: [`STOP_WITHIN`], or `ECOLOGY_STOP_WITHIN` seconds.
+pub fn stop_within() -> Duration {
+    std::env::var("ECOLOGY_STOP_WITHIN")
+        .ok()
+        .and_then(|s| s.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0 && *s <= 3600.0)
+        .map_or(STOP_WITHIN, Duration::from_secs_f64)
+}
+
+/// What the process is doing while it stops, for the message of a stop that runs out of time.
+static STOPPING: std::sync::Mutex<&'static str> = std::sync::Mutex::new("stopping");
+
+/// Says what the process does now while it stops (`releasing what the task switched on`).
+pub fn stopping(what: &'static str) {
+    *STOPPING
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = what;
+}
+
+/// Prints where the process stands on stderr at every SIGUSR1, without stopping it: its command,
+/// what it is doing (or stopping), its runtime's workers and live tasks, and its threads by name
+/// and state (from `/proc/self/task`); then wakes `more`, for the part only its owner can tell
+/// (the executive's state machine, timers and remote sets). Dropped, it stops listening.
+#[derive(Debug)]
+pub struct Reporter(tokio::task::JoinHandle<()>);
+
+impl Drop for Reporter {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Starts the [`Reporter`] of command `command`.
+pub fn report_on_sigusr1(
+    command: &'static str,
+    more: Option<std::sync::Arc<tokio::sync::Notify>>,
+) -> Reporter {
+    use tokio::signal::unix::{SignalKind, signal};
+    let asked = signal(SignalKind::user_defined1());
+    Reporter(tokio::spawn(async move {
+        let Ok(mut asked) = asked else { return };
+        while asked.recv().await.is_some() {
+            let metrics = tokio::runtime::Handle::current().metrics();
+            let doing = *STOPPING
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            eprintln!(
+                "== ecology {command} (pid {}), asked by SIGUSR1\nstate: {}\nruntime: {} workers, {} tasks alive\nthreads: {}",
+                std::process::id(),
+                if doing == "stopping" {
+                    "running (not asked to stop)"
+                } else {
+                    doing
+                },
+                metrics.num_workers(),
+                metrics.num_alive_tasks(),
+                threads()
+            );
+            if let Some(more) = &more {
+                more.notify_one();
+            }
+        }
+    }))
+}
+
+/// This process's threads, counted by name and state (`R` running, `S` asleep, `D` in the kernel).
+fn threads() -> String {
+    let mut counted: std::collections::BTreeMap<(String, String), usize> =
+        std::collections::BTreeMap::new();
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return "unknown (no /proc/self/task)".to_string();
+    };
+    for task in tasks.flatten() {
+        let path = task.path();
+        let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
+        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
+        // The state follows the name in parentheses, which may itself hold spaces.
+        let state = stat
+            .rsplit_once(") ")
+            .and_then(|(_, rest)| rest.split_whitespace().next())
+            .unwrap_or("?");
+        *counted
+            .entry((name.trim().to_string(), state.to_string()))
+            .or_default() += 1;
+    }
+    let total: usize = counted.values().sum();
+    let each: Vec<String> = counted
+        .iter()
+        .map(|((name, state), n)| format!("{n} {name} ({state})"))
+        .collect();
+    format!("{total}: {}", each.join(", "))
+}
+
 /// Completes on SIGINT or SIGTERM, with the signal's name.
 ///
 /// The handlers are installed when this is called, not when the future is
 /// first polled: from then on the signals are caught (and not lost between
 /// two polls), so call it before saying that the process is ready.
+///
+/// Once it has completed the process is stopping, and stopping is bounded: a second SIGINT or
+/// SIGTERM ends it at once (the signal's default action), and after [`stop_within`] a watchdog
+/// thread, which needs neither the runtime nor the network, says what was still pending and
+/// exits with 1.
 pub fn stop_signal() -> impl std::future::Future<Output = &'static str> {
     use tokio::signal::unix::{SignalKind, signal};
     let handlers = (
         signal(SignalKind::interrupt()),
         signal(SignalKind::terminate()),
     );
+    // Set when the first signal has come: from then on these signals take their default action.
+    let asked = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for second in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        let _ = signal_hook::flag::register_conditional_default(second, asked.clone());
+    }
     async move {
         let (Ok(mut interrupt), Ok(mut terminate)) = handlers else {
             // Without signal handlers the default ones stay: the process still stops, only abruptly.
             return std::future::pending().await;
         };
-        tokio::select! {
+        let which = tokio::select! {
             _ = interrupt.recv() => "SIGINT",
             _ = terminate.recv() => "SIGTERM",
-        }
+        };
+        asked.store(true, std::sync::atomic::Ordering::SeqCst);
+        let bound = stop_within();
+        std::thread::spawn(move || {
+            std::thread::sleep(bound);
+            let what = *STOPPING
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            eprintln!(
+                "error: {which}: not stopped within {:.1} s (still {what}); exiting now, \
+                 without finishing",
+                bound.as_secs_f64()
+            );
+            std::process::exit(i32::from(crate::EXIT_NO_SOLUTION));
+        });
+        which
     }
 }
 

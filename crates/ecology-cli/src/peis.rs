@@ -128,6 +128,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
     network::runtime()?.block_on(async {
         // Installed before any readiness line, so that no signal is lost.
         let stop = network::stop_signal();
+        let _reporter = network::report_on_sigusr1("peis", None);
         let (stopping, stopped) = tokio::sync::watch::channel(None::<&'static str>);
         tokio::pin!(stop);
         // ROS 2 nodes are driven through one agent for the whole process, started before anyone
@@ -225,6 +226,7 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
             tokio::select! {
                 which = &mut stop, if !signalled => {
                     signalled = true;
+                    network::stopping("switching its components off and leaving the ecology");
                     let _ = stopping.send(Some(which));
                 }
                 done = hosts.join_next() => {
@@ -341,6 +343,7 @@ pub fn world(args: &WorldArgs) -> anyhow::Result<u8> {
             Err(failure) => return Ok(join_failed(failure)),
         };
         let stop = network::stop_signal();
+        let _reporter = network::report_on_sigusr1("world", None);
         // A thing whose place is uncertain lies where the seed draws it.
         let world = scenario.world_for(seed);
         let robots: Vec<&str> = world.robots.keys().map(String::as_str).collect();

@@ -53,6 +53,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
     let describe = args.net.describe();
     network::runtime()?.block_on(async {
         let stop = network::stop_signal();
+        let _reporter = network::report_on_sigusr1("router", None);
         let result = ecology_zenoh::run_router(
             options,
             |zid| {

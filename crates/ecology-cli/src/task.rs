@@ -11,7 +11,9 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ecology_domain::EcologyState;
-use ecology_exec::{DriverConfig, ExecConfig, Executive, Plan, Replan, RunStatus, drive_until};
+use ecology_exec::{
+    Controls, DriverConfig, ExecConfig, Executive, Plan, Replan, RunStatus, drive_until,
+};
 use ecology_sim::WorldReplanner;
 use ecology_tuples::{Key, PeisId, SystemClock, TupleSpace, Value};
 
@@ -160,6 +162,7 @@ pub fn task(args: &TaskArgs) -> anyhow::Result<u8> {
             timings: args.timings,
         };
         let code = execute(&space, task, &expected, wait_timeout, args.json).await;
+        network::stopping("leaving the ecology");
         space.close().await;
         code
     })
@@ -196,6 +199,9 @@ async fn execute(
     // One listener for the whole run: no SIGINT is lost between two waits.
     let stop = network::stop_signal();
     tokio::pin!(stop);
+    // SIGUSR1 asks where the process stands: the driver adds the executive's part.
+    let asked = Arc::new(tokio::sync::Notify::new());
+    let _reporter = network::report_on_sigusr1("task", Some(asked.clone()));
     // Wait for the PEIS the task needs, saying which are missing.
     let waited = Instant::now();
     let mut told = false;
@@ -264,8 +270,12 @@ async fn execute(
         async {
             let which = (&mut stop).await;
             eprintln!("{which}: stopping the task and switching off what it switched on");
+            network::stopping("switching off what the task switched on");
         },
-        replanner.as_mut().map(|r| r as &mut dyn Replan),
+        Controls {
+            replan: replanner.as_mut().map(|r| r as &mut dyn Replan),
+            report: Some(&asked),
+        },
     )
     .await;
     drop(log_tx);

@@ -276,6 +276,7 @@ async fn watch(
     // One listener for the whole watch: a SIGINT that came between two
     // changes was lost when each wait made a listener of its own.
     let stop = crate::network::stop_signal();
+    let _reporter = crate::network::report_on_sigusr1("tuples watch", None);
     tokio::pin!(stop);
     let mut tuples = peis.subscribe(pattern).await?;
     let mut presence = peis.subscribe_presence().await?;

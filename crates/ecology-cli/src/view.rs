@@ -130,6 +130,7 @@ pub fn view(args: &ViewArgs) -> anyhow::Result<u8> {
     let net = args.net.clone();
     let code = network::runtime()?.block_on(async move {
         let stop = network::stop_signal();
+        let _reporter = network::report_on_sigusr1("view", None);
         let space = match network::join(name, &net).await {
             Ok(space) => space,
             Err(failure) => return Ok(crate::peis::join_failed(failure)),

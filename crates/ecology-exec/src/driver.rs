@@ -85,9 +85,29 @@ pub async fn drive_observed<S: TupleSpace>(
         config,
         observe,
         std::future::pending(),
-        None,
+        Controls::default(),
     )
     .await
+}
+
+/// What a running task can be asked besides its events: a new plan when an action fails, and where
+/// it stands.
+#[derive(Default)]
+pub struct Controls<'a> {
+    /// Makes a new plan when an action fails (see [`drive_until`]).
+    pub replan: Option<&'a mut dyn Replan>,
+    /// Woken to print on stderr where the executive stands: [`Executive::describe`], its timers
+    /// and the remote sets under way (`ecology task` wakes it on SIGUSR1).
+    pub report: Option<&'a tokio::sync::Notify>,
+}
+
+impl std::fmt::Debug for Controls<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Controls")
+            .field("replan", &self.replan.is_some())
+            .field("report", &self.report.is_some())
+            .finish()
+    }
 }
 
 /// Action-level recovery: a new plan when an action fails (the paper's
@@ -115,7 +135,7 @@ pub trait Replan: Send {
 ///
 /// Remote sets go out concurrently to different PEIS and in order to each
 /// one; one that fails comes back to the executive as
-/// [`Event::RemoteSetFailed`]. When an action fails, `replan` (if any) is
+/// [`Event::RemoteSetFailed`]. When an action fails, the `replan` of `controls` (if any) is
 /// asked for a new plan from the world as observed, and the task goes on
 /// with it ([`Executive::replan`]); without one, or when no plan remains, the
 /// task is abandoned ([`Executive::abandon_because`]). Before returning, the
@@ -128,8 +148,9 @@ pub async fn drive_until<S: TupleSpace>(
     config: DriverConfig,
     mut observe: impl FnMut(&LogEntry),
     stop: impl Future<Output = ()>,
-    mut replan: Option<&mut dyn Replan>,
+    controls: Controls<'_>,
 ) -> Result<RunStatus, TupleError> {
+    let Controls { mut replan, report } = controls;
     exec.acting_as(space.peis().clone());
     let mut observed = exec.log().len();
     let start = clock.now();
@@ -223,6 +244,23 @@ pub async fn drive_until<S: TupleSpace>(
                         Vec::new()
                     }
                 }
+                // Asked where it stands (`ecology task` on SIGUSR1): the executive, its timers
+                // and the remote sets under way, on stderr.
+                () = async {
+                    match report {
+                        Some(asked) => asked.notified().await,
+                        None => std::future::pending().await,
+                    }
+                } => {
+                    let now = clock.now();
+                    eprint!(
+                        "{}{}{}",
+                        exec.describe(),
+                        timers.describe(now),
+                        sets.describe()
+                    );
+                    Vec::new()
+                }
                 Some(outcome) = sets.next_outcome() => exec.handle(elapsed(&clock), outcome),
                 event = presence.next() => match event {
                     // It does not leave its own ecology: through a router, the executive sees
@@ -279,6 +317,26 @@ impl Timers {
     /// Stops `timer`, if it runs.
     pub(crate) fn cancel(&mut self, timer: &Timer) {
         self.running.remove(timer);
+    }
+
+    /// The timers that run and how long until each fires, one line.
+    pub(crate) fn describe(&self, now: Timestamp) -> String {
+        let mut due: Vec<(&Timer, &(Timestamp, u64))> = self.running.iter().collect();
+        due.sort_by_key(|(_, at)| **at);
+        let timers: Vec<String> = due
+            .iter()
+            .map(|(timer, (at, _))| {
+                format!(
+                    "{timer:?} in {:.3} s",
+                    at.saturating_duration_since(now).as_secs_f64()
+                )
+            })
+            .collect();
+        if timers.is_empty() {
+            "timers: none\n".to_string()
+        } else {
+            format!("timers: {}\n", timers.join(", "))
+        }
     }
 
     /// The timer that fires next, and when.
@@ -471,6 +529,27 @@ struct RemoteSets<S: TupleSpace> {
 }
 
 impl<S: TupleSpace> RemoteSets<S> {
+    /// The PEIS a remote set is under way to, and how many wait behind it, one line.
+    fn describe(&self) -> String {
+        let busy: Vec<String> = self
+            .busy
+            .iter()
+            .map(|p| {
+                let queued = self.queued.get(p).map_or(0, VecDeque::len);
+                format!("{p} (+{queued} queued)")
+            })
+            .collect();
+        format!(
+            "remote sets under way: {} ({} tasks)\n",
+            if busy.is_empty() {
+                "none".to_string()
+            } else {
+                busy.join(", ")
+            },
+            self.tasks.len()
+        )
+    }
+
     fn new(space: S) -> Self {
         RemoteSets {
             space,

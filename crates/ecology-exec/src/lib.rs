@@ -20,7 +20,7 @@ mod tests;
 #[cfg(test)]
 mod tests_conditional;
 
-pub use driver::{Acquisition, DriverConfig, Replan, drive, drive_observed, drive_until};
+pub use driver::{Acquisition, Controls, DriverConfig, Replan, drive, drive_observed, drive_until};
 pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, Timer};
 pub use interest::{Intake, Interest};
 pub use log::{LogChannel, LogComponent, LogEntry, LogEvent, LogFunctionality, LogUnavailable};

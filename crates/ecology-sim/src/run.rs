@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use ecology_domain::EcologyState;
 use ecology_exec::{
-    Acquisition, DriverConfig, ExecConfig, Executive, Intake, LogEntry, LogEvent, Replan,
+    Acquisition, Controls, DriverConfig, ExecConfig, Executive, Intake, LogEntry, LogEvent, Replan,
     RunStatus, drive_until,
 };
 use ecology_peis::{HostError, run_host};
@@ -544,7 +544,10 @@ impl Drive<'_> {
                 config,
                 observe,
                 std::future::pending(),
-                replanner.as_mut().map(|r| r as &mut dyn Replan),
+                Controls {
+                    replan: replanner.as_mut().map(|r| r as &mut dyn Replan),
+                    report: None,
+                },
             )
             .await
         };

@@ -5,6 +5,7 @@ mod plan_conditional;
 mod processes;
 mod readme;
 mod ros2;
+mod stopping;
 mod support;
 mod tuples;
 mod tutorial;

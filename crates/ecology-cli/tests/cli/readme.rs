@@ -26,6 +26,7 @@ const OTHERS: &[&str] = &[
     "LOOPBACK_TLS=1 cargo bench -p ecology-zenoh --bench loopback",
     "scripts/bench-actions",
     "scripts/bench-budget",
+    "scripts/soak-executives",
 ];
 
 /// Subcommands and options that start something long-running: checked, not run.

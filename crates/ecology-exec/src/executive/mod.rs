@@ -28,6 +28,7 @@
 mod deployment;
 mod membership;
 mod monitoring;
+mod report;
 mod sequencer;
 mod timers;
 
