@@ -219,14 +219,14 @@ fn a_second_signal_ends_a_process_at_once() {
 }
 
 // The executive is asked to stop mid-move, and the PEIS it must release are gone (killed) as it
-// releases: what it could not release it says, and it ends within its bound.
+// releases: it ends within its bound. Then the world, whose peers are all gone, is stopped too.
 #[test]
 fn an_executive_whose_peis_are_gone_mid_release_stops_within_its_bound() {
     let _one = one_at_a_time();
     let fixture = Fixture::new("gone-mid-release", &[TO_BEDROOM], Variant::Paper);
     let scenario = fixture.scenario();
     let world_at = free_endpoint();
-    let _world = ecology("world", &["world", &scenario, "--listen", &world_at]).ready();
+    let world = ecology("world", &["world", &scenario, "--listen", &world_at]).ready();
     let peis = |name: &'static str| {
         let listen = free_endpoint();
         ecology(
@@ -281,5 +281,10 @@ fn an_executive_whose_peis_are_gone_mid_release_stops_within_its_bound() {
         said.contains("SIGTERM: stopping the task and switching off what it switched on"),
         "{said}"
     );
+    world.signal(Signal::SIGTERM);
+    let asked = Instant::now();
+    let (took, code, said) = ended(world, asked, limit);
+    assert!(took < limit, "took {took:?}:\n{said}");
+    assert_eq!(code, Some(0), "{said}");
 }
 
