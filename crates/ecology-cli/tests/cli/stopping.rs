@@ -287,4 +287,3 @@ fn an_executive_whose_peis_are_gone_mid_release_stops_within_its_bound() {
     assert!(took < limit, "took {took:?}:\n{said}");
     assert_eq!(code, Some(0), "{said}");
 }
-
