@@ -1166,6 +1166,11 @@ impl Grounder<'_> {
             }
             outcomes.push((form.rest(), Vec::new()));
             outcomes.retain(|(p, _)| *p > 0.0);
+            // Outcomes that sum to 1 up to rounding sum to 1 exactly.
+            let total: f64 = outcomes.iter().map(|(p, _)| p).sum();
+            for (p, _) in &mut outcomes {
+                *p /= total;
+            }
             combinations = combinations.saturating_mul(outcomes.len());
             chances.push(outcomes);
         }

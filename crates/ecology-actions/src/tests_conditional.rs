@@ -518,3 +518,75 @@ fn random_problems_searched_with_shared_beliefs_agree_with_the_exhaustive_search
         "{shared} shared, {checked} checked"
     );
 }
+
+/// Plans `problem` in `domain` (both as text) conditionally and checks the
+/// most probable plan's probability and expected cost, that every stop it
+/// reaches is reached with some probability, and that the oracle's
+/// evaluation agrees; returns the plan as text.
+#[track_caller]
+fn check_best(domain: &str, problem: &str, success: f64, expected_cost: f64) -> String {
+    let domain = ecology_domain::parse_domain(domain.as_bytes()).expect("domain");
+    let problem = ecology_domain::parse_problem_for(&domain, problem.as_bytes()).expect("problem");
+    let task = ground(&domain, &problem).expect("ground");
+    let (found, complete) = found_plan(&task, &ConditionalOptions::default());
+    let text = found.display(&task).to_string();
+    assert!(complete, "{text}");
+    assert!(
+        close(found.success, success) && close(found.expected_cost, expected_cost),
+        "({}, {}) instead of ({success}, {expected_cost}):\n{text}",
+        found.success,
+        found.expected_cost
+    );
+    for node in &found.graph.nodes {
+        if let PlanNode::Act { branches, .. } = node {
+            assert!(branches.iter().all(|b| b.probability > EPSILON), "{text}");
+        }
+    }
+    the_oracle_agrees(&domain, &problem, &task, &found);
+    text
+}
+
+/// Three places, one sensing action that looks into one of them and one
+/// that takes what is there.
+const FIND: &str = r#"
+(define (domain find)
+  (:requirements :strips :probabilistic-effects)
+  (:predicates (in ?j) (holding))
+  (:action look :parameters (?j) :precondition (and) :effect (and) :observe (in ?j))
+  (:action take :parameters (?j) :precondition (in ?j) :effect (holding)))
+"#;
+
+#[test]
+fn uncertain_facts_that_sum_to_one_up_to_rounding_make_no_phantom_world() {
+    // 0.7 + 0.2 + 0.1 is 0.9999999999999999 in binary: no fourth world
+    // where the thing is nowhere. Look in a, then in b, then take it from
+    // c without looking: 0.7 * 2 + 0.3 * 3.
+    for init in [
+        "0.7 (in a) 0.2 (in b) 0.1 (in c)",
+        "7/10 (in a) 2/10 (in b) 1/10 (in c)",
+    ] {
+        let problem = format!(
+            "(define (problem find-1) (:domain find) (:objects a b c)
+               (:init (probabilistic {init})) (:goal (holding)))"
+        );
+        let text = check_best(FIND, &problem, 1.0, 2.3);
+        assert!(!text.contains("(look c)"), "{text}");
+    }
+}
+
+#[test]
+fn outcomes_that_sum_to_one_up_to_rounding_make_no_phantom_outcome() {
+    // Every outcome of the roll clears `(blank)`: no fourth one keeps it.
+    let domain = r#"
+(define (domain roll)
+  (:requirements :strips :negative-preconditions :probabilistic-effects)
+  (:predicates (blank) (one) (two) (three) (paid))
+  (:action roll :parameters () :precondition (blank)
+    :effect (probabilistic 0.7 (and (one) (not (blank)))
+                           0.2 (and (two) (not (blank)))
+                           0.1 (and (three) (not (blank)))))
+  (:action cash :parameters () :precondition (not (blank)) :effect (paid)))
+"#;
+    let problem = "(define (problem roll-1) (:domain roll) (:init (blank)) (:goal (paid)))";
+    check_best(domain, problem, 1.0, 2.0);
+}
