@@ -6,8 +6,11 @@
 //! cost.
 //!
 //! The search is AO* over beliefs: a belief is a probability distribution
-//! over the ground [`State`]s, an OR node chooses an action applicable in
-//! every state of its belief (or stops), and an AND node splits the
+//! over the ground [`State`]s, an OR node chooses an action instance that
+//! applies in every state of its belief, each state by its own variant
+//! ([`Task::variants`]: the disjunct of the precondition that holds there,
+//! the `when` effects whose conditions hold there), or stops, and an AND
+//! node splits the
 //! successor belief by observation. A node is first a belief alone, however
 //! many actions led to it; if the beliefs met form a cycle, or the best plan
 //! is deeper than the horizon, the search is run again on nodes (belief,
@@ -181,8 +184,10 @@ type Weighted = Vec<(State, f64)>;
 
 #[derive(Debug, Clone)]
 struct Choice {
+    /// The action instance (its first variant, [`Task::variants`]).
     op: OpId,
-    cost: u64,
+    /// Its expected cost over the belief (each state pays its variant's).
+    cost: f64,
     /// (probability, observation, node).
     children: Vec<(f64, Observation, u32)>,
 }
@@ -406,7 +411,7 @@ impl<'t> Engine<'t> {
             let mut best = None;
             for (k, choice) in node.choices.iter().enumerate() {
                 let mut p = 0.0;
-                let mut c = choice.cost as f64;
+                let mut c = choice.cost;
                 for &(w, _, child) in &choice.children {
                     let n = &self.nodes[child as usize];
                     p += w * n.p;
@@ -429,8 +434,11 @@ impl<'t> Engine<'t> {
         changed
     }
 
-    /// Builds node `id`'s choices: every operator applicable in all its
-    /// states, its successor belief split by what it observes.
+    /// Builds node `id`'s choices: every action instance applicable in all
+    /// its states, its successor belief split by what it observes. An
+    /// instance applies in a state where one of its variants does (a
+    /// disjunct of its precondition holds, its `when` conditions hold or
+    /// fail), and each state takes its own variant's effects.
     fn expand(&mut self, id: u32) {
         self.stats.expanded += 1;
         let (belief, depth) = {
@@ -443,19 +451,36 @@ impl<'t> Engine<'t> {
             depth - 1
         };
         let b = self.beliefs[belief as usize].clone();
-        let mut ops = Vec::new();
-        self.task
-            .for_each_applicable(&b.states[0], |op| ops.push(op));
-        ops.retain(|&op| {
-            !self.excluded[op.index()] && b.states[1..].iter().all(|s| self.task.applicable(s, op))
+        let (task, excluded) = (self.task, &self.excluded);
+        let mut instances = Vec::new();
+        task.for_each_applicable(&b.states[0], |op| {
+            if !excluded[op.index()] {
+                instances.extend(task.variants(op).next());
+            }
         });
+        instances.sort_unstable();
+        instances.dedup();
+        // Each applicable instance with each state's variant.
+        let applicable: Vec<(OpId, Vec<OpId>)> = instances
+            .into_iter()
+            .filter_map(|op| {
+                let variants = b.states.iter().map(|s| {
+                    task.variants(op)
+                        .find(|&v| !excluded[v.index()] && task.applicable(s, v))
+                });
+                Some((op, variants.collect::<Option<Vec<OpId>>>()?))
+            })
+            .collect();
         let mut choices = Vec::new();
-        for op in ops {
-            let o = self.task.operator(op);
+        for (op, variants) in applicable {
+            let o = task.operator(op);
             // Successor states grouped by observation.
             let mut groups: Vec<(Vec<bool>, Weighted)> = Vec::new();
-            for (s, &p) in b.states.iter().zip(&b.probs) {
-                for (q, add, del) in o.each_outcome() {
+            let mut cost = 0.0;
+            for ((s, &p), &v) in b.states.iter().zip(&b.probs).zip(&variants) {
+                let variant = task.operator(v);
+                cost += p * variant.cost as f64;
+                for (q, add, del) in variant.each_outcome() {
                     let mut next = s.clone();
                     next.change(add, del);
                     let seen: Vec<bool> = o.observe.iter().map(|&a| next.holds(a)).collect();
@@ -483,7 +508,6 @@ impl<'t> Engine<'t> {
             {
                 continue;
             }
-            let cost = o.cost;
             let children = children
                 .into_iter()
                 .map(|(w, obs, cb)| (w, obs, self.node(cb, child_depth, Some(id))))

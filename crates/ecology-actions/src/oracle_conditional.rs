@@ -386,14 +386,14 @@ fn best(
         return Some(value);
     }
     'instances: for (action, args) in instances {
-        let mut cost = None;
+        // Each world pays what the action costs there (a `when` may add to it).
+        let mut cost = 0.0;
         let mut groups: Vec<(Vec<(String, bool)>, Vec<(World, f64)>)> = Vec::new();
         for (world, p) in belief {
             let Some((c, outcomes)) = oracle.step(action, args, world) else {
                 continue 'instances;
             };
-            // Costs do not depend on the world (no cost fluent changes).
-            cost = Some(c);
+            cost += p * c as f64;
             for (next, q, observation) in outcomes {
                 match groups.iter_mut().find(|(o, _)| *o == observation) {
                     Some((_, worlds)) => worlds.push((next, p * q)),
@@ -402,7 +402,7 @@ fn best(
             }
         }
         let mut p = 0.0;
-        let mut c = cost.unwrap_or(0) as f64;
+        let mut c = cost;
         for (_, worlds) in groups {
             let w: f64 = worlds.iter().map(|(_, p)| p).sum();
             if w <= 0.0 {

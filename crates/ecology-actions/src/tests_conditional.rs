@@ -590,3 +590,36 @@ fn outcomes_that_sum_to_one_up_to_rounding_make_no_phantom_outcome() {
     let problem = "(define (problem roll-1) (:domain roll) (:init (blank)) (:goal (paid)))";
     check_best(domain, problem, 1.0, 2.0);
 }
+
+#[test]
+fn a_disjunctive_precondition_holds_where_each_world_meets_a_disjunct() {
+    let domain = r#"
+(define (domain lamp)
+  (:requirements :strips :disjunctive-preconditions)
+  (:predicates (red) (green) (off))
+  (:action switch-off :parameters () :precondition (or (red) (green)) :effect (off)))
+"#;
+    let problem =
+        "(define (problem lamp-1) (:domain lamp) (:init (oneof (red) (green))) (:goal (off)))";
+    check_best(domain, problem, 1.0, 1.0);
+}
+
+#[test]
+fn a_when_over_an_uncertain_fact_takes_each_worlds_variant() {
+    let kill = "(:action kill :parameters () :precondition (and)
+                  :effect (and (killed) (when (lit) (not (lit)))))";
+    let look = "(:action look :parameters () :precondition (and) :effect (and) :observe (lit))";
+    let problem = "(define (problem kill-1) (:domain kill)
+                     (:init (probabilistic 0.5 (lit))) (:goal (and (killed) (not (lit)))))";
+    // With a sensing action or without, `(kill)` alone is enough.
+    for actions in [kill.to_string(), format!("{look}\n{kill}")] {
+        let domain = format!(
+            "(define (domain kill)
+               (:requirements :strips :negative-preconditions :conditional-effects)
+               (:predicates (lit) (killed))
+               {actions})"
+        );
+        let text = check_best(&domain, problem, 1.0, 1.0);
+        assert_eq!(text, "(kill)\ndone\n");
+    }
+}
