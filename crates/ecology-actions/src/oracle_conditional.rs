@@ -11,7 +11,9 @@
 
 use std::collections::HashMap;
 
-use ecology_domain::{Action, Domain, Effect, Name, Problem, Term};
+use ecology_domain::{
+    Action, Domain, Effect, Name, PROBABILITY_EPSILON, Probabilistic, Problem, Term,
+};
 
 use crate::conditional::EPSILON;
 use crate::plan_graph::{PlanGraph, PlanNode};
@@ -110,8 +112,8 @@ impl Oracle<'_> {
                     }
                     next.push((w, p * o.probability));
                 }
-                if form.rest() > 0.0 {
-                    next.push((world.clone(), p * form.rest()));
+                if let Some(rest) = rest(form) {
+                    next.push((world.clone(), p * rest));
                 }
             }
             worlds = next;
@@ -141,8 +143,8 @@ impl Oracle<'_> {
                     e.extend(&o.items);
                     next.push((p * o.probability, e));
                 }
-                if form.rest() > 0.0 {
-                    next.push((p * form.rest(), effects.clone()));
+                if let Some(rest) = rest(form) {
+                    next.push((p * rest, effects.clone()));
                 }
             }
             combos = next;
@@ -254,6 +256,15 @@ impl Oracle<'_> {
         memo.insert((id, world.clone()), value);
         Ok(value)
     }
+}
+
+/// The probability that none of `form`'s outcomes happens, if it is more
+/// than rounding: read here from the outcomes as written rather than by
+/// [`Probabilistic::rest`], which grounding uses, so that the oracle judges
+/// that reading too.
+fn rest<T>(form: &Probabilistic<T>) -> Option<f64> {
+    let rest = 1.0 - form.outcomes.iter().map(|o| o.probability).sum::<f64>();
+    (rest > PROBABILITY_EPSILON).then_some(rest)
 }
 
 /// Merges equal worlds, adding their probabilities.

@@ -103,6 +103,7 @@ fn the_deterministic_planner_refuses_nothing_but_the_task_says_it_is_uncertain()
 fn random_uncertain_problems_agree_with_the_oracle() {
     let (mut checked, mut too_large, mut below, mut cheaper) = (0, 0, 0, 0);
     let (mut zero, mut sure, mut branching, mut hull_checks) = (0, 0, 0, 0);
+    let mut varied = 0;
     for seed in 0..200 {
         let inst = problems::random_uncertain(seed).expect("generated");
         let task = ground(&inst.domain, &inst.problem).expect("ground");
@@ -128,6 +129,18 @@ fn random_uncertain_problems_agree_with_the_oracle() {
             ConditionalVerdict::Found(p) | ConditionalVerdict::BelowThreshold(p) => p,
             other => panic!("seed {seed}: {other:?}"),
         };
+        // No branch is a leftover of rounding (0.7 + 0.2 + 0.1 < 1).
+        for node in &found.graph.nodes {
+            if let PlanNode::Act { step, branches } = node {
+                assert!(
+                    branches.iter().all(|b| b.probability > EPSILON),
+                    "seed {seed}: {branches:?}"
+                );
+                if task.variants(step.op).nth(1).is_some() {
+                    varied += 1;
+                }
+            }
+        }
         // The planner's numbers are the oracle's for the plan it returns...
         let named = oracle_conditional::named(&task, &found.graph);
         let (p, c) = oracle_conditional::evaluate(&inst.domain, &inst.problem, &named)
@@ -237,7 +250,8 @@ fn random_uncertain_problems_agree_with_the_oracle() {
         "checked {checked}, too large for the exhaustive search {too_large}, \
          below a threshold {below}, cheaper under a threshold {cheaper}; \
          best probability 0: {zero}, 1: {sure}; plans that branch: {branching}; \
-         hull vertices compared {hull_checks}"
+         hull vertices compared {hull_checks}; actions planned with several \
+         variants (an `or`, a `when`) {varied}"
     );
     assert!(
         checked >= 180,
@@ -247,6 +261,7 @@ fn random_uncertain_problems_agree_with_the_oracle() {
     // plans branch on observations, some thresholds buy cheaper plans.
     assert!(zero < checked / 2 && branching >= 5 && below > 10 && cheaper > 5);
     assert!(hull_checks > 50, "{hull_checks}");
+    assert!(varied > 20, "{varied}");
 }
 
 /// Whether the plan has a node with two branches or more.
