@@ -933,7 +933,9 @@ impl Search<'_> {
                 return Some((ConditionalVerdict::Found(most), true));
             }
             None => return Some((ConditionalVerdict::BelowThreshold(most), true)),
-            Some(t) if most.success < t - EPSILON || most.success <= EPSILON => {
+            // A threshold of 0 is met by stopping at once, even where no
+            // plan reaches the goal.
+            Some(t) if most.success < t - EPSILON || (most.success <= EPSILON && t > EPSILON) => {
                 return Some((ConditionalVerdict::BelowThreshold(most), true));
             }
             Some(t) => t,

@@ -528,6 +528,7 @@ fn random_problems_searched_with_shared_beliefs_agree_with_the_exhaustive_search
         );
         the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
     }
+    eprintln!("{shared} answered by the search that shares beliefs, {checked} checked");
     assert!(
         shared >= 30 && checked >= 30,
         "{shared} shared, {checked} checked"
@@ -636,5 +637,40 @@ fn a_when_over_an_uncertain_fact_takes_each_worlds_variant() {
         );
         let text = check_best(&domain, problem, 1.0, 1.0);
         assert_eq!(text, "(kill)\ndone\n");
+    }
+}
+
+#[test]
+fn a_goal_no_plan_reaches_is_below_any_threshold_but_zero() {
+    let domain = r#"
+(define (domain lamp)
+  (:requirements :strips)
+  (:predicates (red) (green) (off))
+  (:action switch-off :parameters () :precondition (red) :effect (off)))
+"#;
+    let problem = "(define (problem never) (:domain lamp)
+                     (:init (oneof (red) (off))) (:goal (green)))";
+    let domain = ecology_domain::parse_domain(domain.as_bytes()).expect("domain");
+    let problem = ecology_domain::parse_problem_for(&domain, problem.as_bytes()).expect("problem");
+    let task = ground(&domain, &problem).expect("ground");
+    for (threshold, met) in [(None, false), (Some(0.5), false), (Some(0.0), true)] {
+        let options = ConditionalOptions {
+            min_probability: threshold,
+            ..ConditionalOptions::default()
+        };
+        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
+        let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
+            &outcome.verdict
+        else {
+            panic!("{:?}", outcome.verdict);
+        };
+        assert_eq!(
+            matches!(outcome.verdict, ConditionalVerdict::Found(_)),
+            met,
+            "{threshold:?}"
+        );
+        // The plan that stops at once: probability 0, at no cost.
+        assert_eq!((plan.success, plan.expected_cost), (0.0, 0.0));
+        assert_eq!(plan.graph, PlanGraph::stop(0.0));
     }
 }
