@@ -28,7 +28,7 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, HashMap};
 
-use crate::heuristic::{Heuristic, HeuristicKind};
+use crate::heuristic::{Costs, Heuristic, HeuristicKind};
 use crate::plan_graph::{self, GraphBuilder};
 use crate::relevance::Relevance;
 use crate::task::{AtomId, OpId, State, Task};
@@ -160,6 +160,9 @@ struct Belief {
     probs: Vec<f64>,
     /// Each state's heuristic value (`None`: a dead end).
     h: Vec<Option<u64>>,
+    /// Each state's lower bound on the number of actions to the goal
+    /// (`None`: a dead end).
+    steps: Vec<Option<u64>>,
     /// Whether each state is a goal state.
     goal: Vec<bool>,
 }
@@ -246,6 +249,11 @@ struct Engine<'t> {
     relevance: Relevance,
     heuristic: Box<dyn Heuristic + 't>,
     h_cache: HashMap<State, Option<u64>>,
+    /// The heuristic on the determinization with every action costing 1,
+    /// when actions have costs of their own (otherwise `heuristic` counts
+    /// actions already): a lower bound on the actions a state needs.
+    steps: Option<Box<dyn Heuristic + 't>>,
+    steps_cache: HashMap<State, Option<u64>>,
     excluded: Vec<bool>,
     beliefs: Vec<Belief>,
     belief_ids: HashMap<BeliefKey, u32>,
@@ -274,6 +282,19 @@ impl<'t> Engine<'t> {
         h
     }
 
+    /// At least how many actions reach the goal from `state`.
+    fn steps(&mut self, state: &State, h: Option<u64>) -> Option<u64> {
+        let Some(steps) = &mut self.steps else {
+            return h;
+        };
+        if let Some(&n) = self.steps_cache.get(state) {
+            return n;
+        }
+        let n = steps.estimate(state, &mut Vec::new());
+        self.steps_cache.insert(state.clone(), n);
+        n
+    }
+
     /// Interns the belief of `weighted` states (merging equal ones; the
     /// weights need not sum to 1).
     fn belief(&mut self, mut weighted: Vec<(State, f64)>) -> u32 {
@@ -296,13 +317,19 @@ impl<'t> Engine<'t> {
         if let Some(&id) = self.belief_ids.get(&key) {
             return id;
         }
-        let h = states.iter().map(|s| self.h(s)).collect();
+        let h: Vec<Option<u64>> = states.iter().map(|s| self.h(s)).collect();
+        let steps = states
+            .iter()
+            .zip(&h)
+            .map(|(s, &h)| self.steps(s, h))
+            .collect();
         let goal = states.iter().map(|s| self.task.is_goal(s)).collect();
         let id = self.beliefs.len() as u32;
         self.beliefs.push(Belief {
             states,
             probs,
             h,
+            steps,
             goal,
         });
         self.belief_ids.insert(key, id);
@@ -390,15 +417,20 @@ impl<'t> Engine<'t> {
         let (value, best, settled) = if node.depth == 0 {
             (stop, None, true)
         } else if !node.expanded {
-            // The fully observable, all-outcomes bound.
+            // The fully observable, all-outcomes bound. A state that needs
+            // more actions than are left reaches nothing within the horizon.
             let b = &self.beliefs[node.belief as usize];
             let (mut p, mut c) = (0.0, 0.0);
             let mut open = false;
+            let within = |steps: Option<u64>| {
+                node.depth == UNBOUNDED || steps.is_some_and(|n| n <= u64::from(node.depth))
+            };
             for i in 0..b.states.len() {
                 if b.goal[i] {
                     p += b.probs[i];
                 } else if let Some(h) = b.h[i]
                     && lambda.counts(h)
+                    && within(b.steps[i])
                 {
                     p += b.probs[i];
                     c += b.probs[i] * h as f64;
@@ -755,6 +787,10 @@ pub fn plan_conditional_observed(
         relevance: Relevance::new(task, &excluded),
         heuristic: kind.build(&det, &det_excluded),
         h_cache: HashMap::new(),
+        steps: task
+            .has_action_costs()
+            .then(|| kind.build_costed(&det, &det_excluded, Costs::One)),
+        steps_cache: HashMap::new(),
         excluded,
         beliefs: Vec::new(),
         belief_ids: HashMap::new(),

@@ -652,3 +652,52 @@ pub fn tireworld(n: usize) -> Result<Instance, GeneratorError> {
     let _ = writeln!(p, "  (:goal (vehicle-at {})))", loc(1, m));
     instance(format!("tireworld-{n}"), TIREWORLD.to_string(), p, None)
 }
+
+/// A straight corridor of `length` moves, with `facts` independent
+/// uncertain faults (each broken with probability 1/2) that the goal wants
+/// repaired, one action each: planned within a horizon of `length` plus
+/// fewer than `facts` actions, the repairs compete for the actions the
+/// walk leaves, and every belief of a position and a set of repairs is a
+/// candidate.
+pub fn corridor(length: usize, facts: usize) -> Result<Instance, GeneratorError> {
+    let domain = "(define (domain corridor)
+  (:requirements :strips :negative-preconditions :probabilistic-effects)
+  (:predicates (at ?c) (next ?a ?b) (fault ?i) (broken ?i))
+  (:action move :parameters (?a ?b)
+    :precondition (and (at ?a) (next ?a ?b))
+    :effect (and (at ?b) (not (at ?a))))
+  (:action repair :parameters (?i)
+    :precondition (fault ?i)
+    :effect (not (broken ?i))))
+";
+    let mut p = String::new();
+    let _ = writeln!(
+        p,
+        "(define (problem corridor-{length}-{facts}) (:domain corridor)"
+    );
+    p.push_str("  (:objects");
+    for c in 0..=length {
+        let _ = write!(p, " c{c}");
+    }
+    for i in 0..facts {
+        let _ = write!(p, " f{i}");
+    }
+    p.push_str(")\n  (:init (at c0)");
+    for c in 0..length {
+        let _ = write!(p, " (next c{c} c{})", c + 1);
+    }
+    for i in 0..facts {
+        let _ = write!(p, " (fault f{i}) (probabilistic 0.5 (broken f{i}))");
+    }
+    let _ = write!(p, ")\n  (:goal (and (at c{length})");
+    for i in 0..facts {
+        let _ = write!(p, " (not (broken f{i}))");
+    }
+    p.push_str(")))\n");
+    instance(
+        format!("corridor-{length}-{facts}"),
+        domain.to_string(),
+        p,
+        None,
+    )
+}

@@ -674,3 +674,35 @@ fn a_goal_no_plan_reaches_is_below_any_threshold_but_zero() {
         assert_eq!(plan.graph, PlanGraph::stop(0.0));
     }
 }
+
+#[test]
+fn a_corridor_whose_horizon_binds_gets_the_exhaustive_optimum() {
+    // Repairs compete for the actions the walk leaves: the bound of a
+    // belief counts only the states that can reach the goal in the actions
+    // left, which must cut no plan off.
+    let inst = problems::corridor(3, 3).expect("generated");
+    let task = ground(&inst.domain, &inst.problem).expect("ground");
+    for horizon in 2..=7 {
+        let (_, plan) = planned_within(&task, horizon);
+        let Exhaustive::Best { success, cost } =
+            oracle_conditional::most_probable(&inst.domain, &inst.problem, horizon, 2_000_000)
+        else {
+            panic!("horizon {horizon}: too large for the exhaustive search");
+        };
+        assert!(
+            close(plan.success, success) && close(plan.expected_cost, cost),
+            "horizon {horizon}: the planner ({}, {}), the exhaustive search ({success}, {cost})",
+            plan.success,
+            plan.expected_cost
+        );
+        // Each repair that fits doubles the probability.
+        let repairs = horizon.saturating_sub(3).min(3);
+        let expected = if horizon < 3 {
+            0.0
+        } else {
+            0.5f64.powi(3 - repairs as i32)
+        };
+        assert!(close(plan.success, expected), "horizon {horizon}");
+        the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
+    }
+}
