@@ -6,8 +6,11 @@
 //! cost.
 //!
 //! The search is AO* over beliefs: a belief is a probability distribution
-//! over the ground [`State`]s, an OR node chooses an action applicable in
-//! every state of its belief (or stops), and an AND node splits the
+//! over the ground [`State`]s, an OR node chooses an action instance that
+//! applies in every state of its belief, each state by its own variant
+//! ([`Task::variants`]: the disjunct of the precondition that holds there,
+//! the `when` effects whose conditions hold there), or stops, and an AND
+//! node splits the
 //! successor belief by observation. A node is first a belief alone, however
 //! many actions led to it; if the beliefs met form a cycle, or the best plan
 //! is deeper than the horizon, the search is run again on nodes (belief,
@@ -25,7 +28,7 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, HashMap};
 
-use crate::heuristic::{Heuristic, HeuristicKind};
+use crate::heuristic::{Costs, Heuristic, HeuristicKind};
 use crate::plan_graph::{self, GraphBuilder};
 use crate::relevance::Relevance;
 use crate::task::{AtomId, OpId, State, Task};
@@ -157,6 +160,9 @@ struct Belief {
     probs: Vec<f64>,
     /// Each state's heuristic value (`None`: a dead end).
     h: Vec<Option<u64>>,
+    /// Each state's lower bound on the number of actions to the goal
+    /// (`None`: a dead end).
+    steps: Vec<Option<u64>>,
     /// Whether each state is a goal state.
     goal: Vec<bool>,
 }
@@ -181,8 +187,10 @@ type Weighted = Vec<(State, f64)>;
 
 #[derive(Debug, Clone)]
 struct Choice {
+    /// The action instance (its first variant, [`Task::variants`]).
     op: OpId,
-    cost: u64,
+    /// Its expected cost over the belief (each state pays its variant's).
+    cost: f64,
     /// (probability, observation, node).
     children: Vec<(f64, Observation, u32)>,
 }
@@ -241,6 +249,11 @@ struct Engine<'t> {
     relevance: Relevance,
     heuristic: Box<dyn Heuristic + 't>,
     h_cache: HashMap<State, Option<u64>>,
+    /// The heuristic on the determinization with every action costing 1,
+    /// when actions have costs of their own (otherwise `heuristic` counts
+    /// actions already): a lower bound on the actions a state needs.
+    steps: Option<Box<dyn Heuristic + 't>>,
+    steps_cache: HashMap<State, Option<u64>>,
     excluded: Vec<bool>,
     beliefs: Vec<Belief>,
     belief_ids: HashMap<BeliefKey, u32>,
@@ -269,6 +282,19 @@ impl<'t> Engine<'t> {
         h
     }
 
+    /// At least how many actions reach the goal from `state`.
+    fn steps(&mut self, state: &State, h: Option<u64>) -> Option<u64> {
+        let Some(steps) = &mut self.steps else {
+            return h;
+        };
+        if let Some(&n) = self.steps_cache.get(state) {
+            return n;
+        }
+        let n = steps.estimate(state, &mut Vec::new());
+        self.steps_cache.insert(state.clone(), n);
+        n
+    }
+
     /// Interns the belief of `weighted` states (merging equal ones; the
     /// weights need not sum to 1).
     fn belief(&mut self, mut weighted: Vec<(State, f64)>) -> u32 {
@@ -291,13 +317,19 @@ impl<'t> Engine<'t> {
         if let Some(&id) = self.belief_ids.get(&key) {
             return id;
         }
-        let h = states.iter().map(|s| self.h(s)).collect();
+        let h: Vec<Option<u64>> = states.iter().map(|s| self.h(s)).collect();
+        let steps = states
+            .iter()
+            .zip(&h)
+            .map(|(s, &h)| self.steps(s, h))
+            .collect();
         let goal = states.iter().map(|s| self.task.is_goal(s)).collect();
         let id = self.beliefs.len() as u32;
         self.beliefs.push(Belief {
             states,
             probs,
             h,
+            steps,
             goal,
         });
         self.belief_ids.insert(key, id);
@@ -385,15 +417,20 @@ impl<'t> Engine<'t> {
         let (value, best, settled) = if node.depth == 0 {
             (stop, None, true)
         } else if !node.expanded {
-            // The fully observable, all-outcomes bound.
+            // The fully observable, all-outcomes bound. A state that needs
+            // more actions than are left reaches nothing within the horizon.
             let b = &self.beliefs[node.belief as usize];
             let (mut p, mut c) = (0.0, 0.0);
             let mut open = false;
+            let within = |steps: Option<u64>| {
+                node.depth == UNBOUNDED || steps.is_some_and(|n| n <= u64::from(node.depth))
+            };
             for i in 0..b.states.len() {
                 if b.goal[i] {
                     p += b.probs[i];
                 } else if let Some(h) = b.h[i]
                     && lambda.counts(h)
+                    && within(b.steps[i])
                 {
                     p += b.probs[i];
                     c += b.probs[i] * h as f64;
@@ -406,7 +443,7 @@ impl<'t> Engine<'t> {
             let mut best = None;
             for (k, choice) in node.choices.iter().enumerate() {
                 let mut p = 0.0;
-                let mut c = choice.cost as f64;
+                let mut c = choice.cost;
                 for &(w, _, child) in &choice.children {
                     let n = &self.nodes[child as usize];
                     p += w * n.p;
@@ -429,8 +466,11 @@ impl<'t> Engine<'t> {
         changed
     }
 
-    /// Builds node `id`'s choices: every operator applicable in all its
-    /// states, its successor belief split by what it observes.
+    /// Builds node `id`'s choices: every action instance applicable in all
+    /// its states, its successor belief split by what it observes. An
+    /// instance applies in a state where one of its variants does (a
+    /// disjunct of its precondition holds, its `when` conditions hold or
+    /// fail), and each state takes its own variant's effects.
     fn expand(&mut self, id: u32) {
         self.stats.expanded += 1;
         let (belief, depth) = {
@@ -443,19 +483,36 @@ impl<'t> Engine<'t> {
             depth - 1
         };
         let b = self.beliefs[belief as usize].clone();
-        let mut ops = Vec::new();
-        self.task
-            .for_each_applicable(&b.states[0], |op| ops.push(op));
-        ops.retain(|&op| {
-            !self.excluded[op.index()] && b.states[1..].iter().all(|s| self.task.applicable(s, op))
+        let (task, excluded) = (self.task, &self.excluded);
+        let mut instances = Vec::new();
+        task.for_each_applicable(&b.states[0], |op| {
+            if !excluded[op.index()] {
+                instances.extend(task.variants(op).next());
+            }
         });
+        instances.sort_unstable();
+        instances.dedup();
+        // Each applicable instance with each state's variant.
+        let applicable: Vec<(OpId, Vec<OpId>)> = instances
+            .into_iter()
+            .filter_map(|op| {
+                let variants = b.states.iter().map(|s| {
+                    task.variants(op)
+                        .find(|&v| !excluded[v.index()] && task.applicable(s, v))
+                });
+                Some((op, variants.collect::<Option<Vec<OpId>>>()?))
+            })
+            .collect();
         let mut choices = Vec::new();
-        for op in ops {
-            let o = self.task.operator(op);
+        for (op, variants) in applicable {
+            let o = task.operator(op);
             // Successor states grouped by observation.
             let mut groups: Vec<(Vec<bool>, Weighted)> = Vec::new();
-            for (s, &p) in b.states.iter().zip(&b.probs) {
-                for (q, add, del) in o.each_outcome() {
+            let mut cost = 0.0;
+            for ((s, &p), &v) in b.states.iter().zip(&b.probs).zip(&variants) {
+                let variant = task.operator(v);
+                cost += p * variant.cost as f64;
+                for (q, add, del) in variant.each_outcome() {
                     let mut next = s.clone();
                     next.change(add, del);
                     let seen: Vec<bool> = o.observe.iter().map(|&a| next.holds(a)).collect();
@@ -483,7 +540,6 @@ impl<'t> Engine<'t> {
             {
                 continue;
             }
-            let cost = o.cost;
             let children = children
                 .into_iter()
                 .map(|(w, obs, cb)| (w, obs, self.node(cb, child_depth, Some(id))))
@@ -731,6 +787,10 @@ pub fn plan_conditional_observed(
         relevance: Relevance::new(task, &excluded),
         heuristic: kind.build(&det, &det_excluded),
         h_cache: HashMap::new(),
+        steps: task
+            .has_action_costs()
+            .then(|| kind.build_costed(&det, &det_excluded, Costs::One)),
+        steps_cache: HashMap::new(),
         excluded,
         beliefs: Vec::new(),
         belief_ids: HashMap::new(),
@@ -909,7 +969,9 @@ impl Search<'_> {
                 return Some((ConditionalVerdict::Found(most), true));
             }
             None => return Some((ConditionalVerdict::BelowThreshold(most), true)),
-            Some(t) if most.success < t - EPSILON || most.success <= EPSILON => {
+            // A threshold of 0 is met by stopping at once, even where no
+            // plan reaches the goal.
+            Some(t) if most.success < t - EPSILON || (most.success <= EPSILON && t > EPSILON) => {
                 return Some((ConditionalVerdict::BelowThreshold(most), true));
             }
             Some(t) => t,

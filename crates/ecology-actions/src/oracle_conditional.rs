@@ -11,7 +11,9 @@
 
 use std::collections::HashMap;
 
-use ecology_domain::{Action, Domain, Effect, Name, Problem, Term};
+use ecology_domain::{
+    Action, Domain, Effect, Name, PROBABILITY_EPSILON, Probabilistic, Problem, Term,
+};
 
 use crate::conditional::EPSILON;
 use crate::plan_graph::{PlanGraph, PlanNode};
@@ -110,8 +112,8 @@ impl Oracle<'_> {
                     }
                     next.push((w, p * o.probability));
                 }
-                if form.rest() > 0.0 {
-                    next.push((world.clone(), p * form.rest()));
+                if let Some(rest) = rest(form) {
+                    next.push((world.clone(), p * rest));
                 }
             }
             worlds = next;
@@ -141,8 +143,8 @@ impl Oracle<'_> {
                     e.extend(&o.items);
                     next.push((p * o.probability, e));
                 }
-                if form.rest() > 0.0 {
-                    next.push((p * form.rest(), effects.clone()));
+                if let Some(rest) = rest(form) {
+                    next.push((p * rest, effects.clone()));
                 }
             }
             combos = next;
@@ -254,6 +256,15 @@ impl Oracle<'_> {
         memo.insert((id, world.clone()), value);
         Ok(value)
     }
+}
+
+/// The probability that none of `form`'s outcomes happens, if it is more
+/// than rounding: read here from the outcomes as written rather than by
+/// [`Probabilistic::rest`], which grounding uses, so that the oracle judges
+/// that reading too.
+fn rest<T>(form: &Probabilistic<T>) -> Option<f64> {
+    let rest = 1.0 - form.outcomes.iter().map(|o| o.probability).sum::<f64>();
+    (rest > PROBABILITY_EPSILON).then_some(rest)
 }
 
 /// Merges equal worlds, adding their probabilities.
@@ -386,14 +397,14 @@ fn best(
         return Some(value);
     }
     'instances: for (action, args) in instances {
-        let mut cost = None;
+        // Each world pays what the action costs there (a `when` may add to it).
+        let mut cost = 0.0;
         let mut groups: Vec<(Vec<(String, bool)>, Vec<(World, f64)>)> = Vec::new();
         for (world, p) in belief {
             let Some((c, outcomes)) = oracle.step(action, args, world) else {
                 continue 'instances;
             };
-            // Costs do not depend on the world (no cost fluent changes).
-            cost = Some(c);
+            cost += p * c as f64;
             for (next, q, observation) in outcomes {
                 match groups.iter_mut().find(|(o, _)| *o == observation) {
                     Some((_, worlds)) => worlds.push((next, p * q)),
@@ -402,7 +413,7 @@ fn best(
             }
         }
         let mut p = 0.0;
-        let mut c = cost.unwrap_or(0) as f64;
+        let mut c = cost;
         for (_, worlds) in groups {
             let w: f64 = worlds.iter().map(|(_, p)| p).sum();
             if w <= 0.0 {

@@ -389,12 +389,12 @@ impl Reader<'_> {
                 0.0,
             )),
             PlanNode::Act { step, branches } => (|| {
-                let o = task.operator(step.op);
                 let mut split: Vec<Vec<(f64, State)>> = vec![Vec::new(); branches.len()];
+                // Each state pays for and does what its variant of the action does.
+                let mut cost = 0.0;
                 for (p, s) in belief {
-                    if !task.applicable(s, step.op) {
-                        return None;
-                    }
+                    let o = task.operator(task.variant_in(s, step.op)?);
+                    cost += p * o.cost as f64;
                     for (q, add, del) in o.each_outcome() {
                         let mut next = s.clone();
                         next.change(add, del);
@@ -409,7 +409,7 @@ impl Reader<'_> {
                         }
                     }
                 }
-                let (mut p, mut c) = (0.0, step.cost as f64);
+                let (mut p, mut c) = (0.0, cost);
                 for (mut part, b) in split.into_iter().zip(branches) {
                     let w: f64 = part.iter().map(|(p, _)| p).sum();
                     if w <= 0.0 {

@@ -454,14 +454,18 @@ fn write_goal(p: &mut String, rng: &mut Rng, ground: &[impl AsRef<str>], initial
 /// A random small problem with uncertainty, for property tests of the
 /// conditional planner against [`crate::oracle_conditional`]: four actions
 /// over one `t0` and two `t1` objects, some with a `(probabilistic ...)`
-/// effect, some observing an atom (`:observe`), and an uncertain initial
-/// fact.
+/// effect (two outcomes, or three that sum to 1 only up to rounding, such
+/// as 0.7, 0.2 and 0.1), some observing an atom (`:observe`), some with a
+/// disjunctive precondition (`or`) or a conditional effect (`when`), and
+/// uncertain initial facts (two outcomes or three), on which the `or`s and
+/// `when`s often depend: each world may take a different disjunct or
+/// variant of an action.
 pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
     let mut rng = Rng::new(seed ^ 0x5eed_0fc0_ffee);
     let mut d = String::new();
     let _ = writeln!(
         d,
-        "(define (domain runc-{seed})\n  (:requirements :strips :typing :negative-preconditions :probabilistic-effects)"
+        "(define (domain runc-{seed})\n  (:requirements :strips :typing :negative-preconditions :probabilistic-effects :disjunctive-preconditions :conditional-effects)"
     );
     d.push_str(
         "  (:types t0 t1)\n  (:predicates (p0 ?a - t0) (p1 ?a - t0 ?b - t1) (p2 ?b - t1) (flag))\n",
@@ -481,10 +485,38 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
         ("0.2", "0.6"),
         ("1/3", "1/3"),
     ];
+    // Each sums to 1 only up to rounding in binary.
+    const THREE: [(&str, &str, &str); 3] = [
+        ("0.7", "0.2", "0.1"),
+        ("0.1", "0.2", "0.7"),
+        ("7/10", "2/10", "1/10"),
+    ];
     for k in 0..4 {
-        let pre: Vec<String> = (0..rng.index(3)).map(|_| literal(&mut rng)).collect();
+        let mut pre: Vec<String> = (0..rng.index(3)).map(|_| literal(&mut rng)).collect();
+        if rng.chance(0.3) {
+            pre.push(format!("(or {} {})", literal(&mut rng), literal(&mut rng)));
+        }
         let mut eff: Vec<String> = (0..1 + rng.index(3)).map(|_| literal(&mut rng)).collect();
-        if rng.chance(0.6) {
+        if rng.chance(0.3) {
+            eff.push(format!(
+                "(when {} {})",
+                literal(&mut rng),
+                literal(&mut rng)
+            ));
+        }
+        if rng.chance(0.2) {
+            // Every outcome does `common` too (as every roll of a die
+            // leaves a number on top): it happens surely, or not at all if
+            // a rest of rounding were an outcome.
+            let (p, q, r) = THREE[rng.index(THREE.len())];
+            let common = literal(&mut rng);
+            eff.push(format!(
+                "(probabilistic {p} (and {} {common}) {q} (and {} {common}) {r} (and {} {common}))",
+                literal(&mut rng),
+                literal(&mut rng),
+                literal(&mut rng)
+            ));
+        } else if rng.chance(0.6) {
             let (p, q) = PROBABILITIES[rng.index(PROBABILITIES.len())];
             eff.push(format!(
                 "(probabilistic {p} {} {q} (and {}))",
@@ -518,8 +550,18 @@ pub fn random_uncertain(seed: u64) -> Result<Instance, GeneratorError> {
     p.push_str("  (:objects o0 - t0 u0 u1 - t1)\n  (:init");
     let initial = write_initial(&mut p, &mut rng, &ground, 0.4);
     let (a, b) = (rng.index(ground.len()), rng.index(ground.len()));
-    let (pa, pb) = PROBABILITIES[rng.index(PROBABILITIES.len())];
-    let _ = write!(p, " (probabilistic {pa} {} {pb} {})", ground[a], ground[b]);
+    if rng.chance(0.25) {
+        let (pa, pb, pc) = THREE[rng.index(THREE.len())];
+        let c = rng.index(ground.len());
+        let _ = write!(
+            p,
+            " (probabilistic {pa} {} {pb} {} {pc} {})",
+            ground[a], ground[b], ground[c]
+        );
+    } else {
+        let (pa, pb) = PROBABILITIES[rng.index(PROBABILITIES.len())];
+        let _ = write!(p, " (probabilistic {pa} {} {pb} {})", ground[a], ground[b]);
+    }
     write_goal(&mut p, &mut rng, &ground, &initial);
     instance(format!("random-uncertain-{seed}"), d, p, None)
 }
@@ -609,4 +651,53 @@ pub fn tireworld(n: usize) -> Result<Instance, GeneratorError> {
     let _ = writeln!(p, "  (:init {})", facts.join(" "));
     let _ = writeln!(p, "  (:goal (vehicle-at {})))", loc(1, m));
     instance(format!("tireworld-{n}"), TIREWORLD.to_string(), p, None)
+}
+
+/// A straight corridor of `length` moves, with `facts` independent
+/// uncertain faults (each broken with probability 1/2) that the goal wants
+/// repaired, one action each: planned within a horizon of `length` plus
+/// fewer than `facts` actions, the repairs compete for the actions the
+/// walk leaves, and every belief of a position and a set of repairs is a
+/// candidate.
+pub fn corridor(length: usize, facts: usize) -> Result<Instance, GeneratorError> {
+    let domain = "(define (domain corridor)
+  (:requirements :strips :negative-preconditions :probabilistic-effects)
+  (:predicates (at ?c) (next ?a ?b) (fault ?i) (broken ?i))
+  (:action move :parameters (?a ?b)
+    :precondition (and (at ?a) (next ?a ?b))
+    :effect (and (at ?b) (not (at ?a))))
+  (:action repair :parameters (?i)
+    :precondition (fault ?i)
+    :effect (not (broken ?i))))
+";
+    let mut p = String::new();
+    let _ = writeln!(
+        p,
+        "(define (problem corridor-{length}-{facts}) (:domain corridor)"
+    );
+    p.push_str("  (:objects");
+    for c in 0..=length {
+        let _ = write!(p, " c{c}");
+    }
+    for i in 0..facts {
+        let _ = write!(p, " f{i}");
+    }
+    p.push_str(")\n  (:init (at c0)");
+    for c in 0..length {
+        let _ = write!(p, " (next c{c} c{})", c + 1);
+    }
+    for i in 0..facts {
+        let _ = write!(p, " (fault f{i}) (probabilistic 0.5 (broken f{i}))");
+    }
+    let _ = write!(p, ")\n  (:goal (and (at c{length})");
+    for i in 0..facts {
+        let _ = write!(p, " (not (broken f{i}))");
+    }
+    p.push_str(")))\n");
+    instance(
+        format!("corridor-{length}-{facts}"),
+        domain.to_string(),
+        p,
+        None,
+    )
 }

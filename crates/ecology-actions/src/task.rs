@@ -294,6 +294,9 @@ pub enum StateError {
 /// The most operators grounding builds before giving up.
 pub const MAX_OPERATORS: usize = 4_000_000;
 
+/// Ends the list of an instance's variants ([`Task::variants`]).
+const NO_VARIANT: u32 = u32::MAX;
+
 /// A ground planning task: fluent atoms, operators, an initial state, a goal.
 #[derive(Debug, Clone)]
 pub struct Task {
@@ -318,6 +321,12 @@ pub struct Task {
     by_first_pre: Vec<Vec<OpId>>,
     /// Operators without positive preconditions.
     no_pre: Vec<OpId>,
+    /// For each operator, the first operator of its action instance
+    /// ([`Task::variants`]).
+    first_variant: Vec<u32>,
+    /// For each operator, the next operator of its action instance
+    /// ([`NO_VARIANT`] after the last).
+    next_variant: Vec<u32>,
     action_costs: bool,
 }
 
@@ -393,6 +402,8 @@ impl Task {
         (task, origin)
     }
 
+    /// Indexes the operators by first precondition, each its own instance
+    /// (until [`Task::index_variants`]).
     fn index_operators(&mut self) {
         self.by_first_pre = vec![Vec::new(); self.atoms.len()];
         self.no_pre.clear();
@@ -402,6 +413,54 @@ impl Task {
                 None => self.no_pre.push(OpId(i as u32)),
             }
         }
+        self.first_variant = (0..self.operators.len() as u32).collect();
+        self.next_variant = vec![NO_VARIANT; self.operators.len()];
+    }
+
+    /// Links the operators of one instance of the `varied` actions (those
+    /// with several variants); the others' operators are each an instance.
+    fn index_variants(&mut self, varied: &HashSet<&str>) {
+        if varied.is_empty() {
+            return;
+        }
+        let mut last: HashMap<(&str, &[Name]), u32> = HashMap::new();
+        for (i, o) in self.operators.iter().enumerate() {
+            if !varied.contains(&*o.action) {
+                continue;
+            }
+            let i = i as u32;
+            match last.insert((&o.action, &o.args), i) {
+                Some(before) => {
+                    self.next_variant[before as usize] = i;
+                    self.first_variant[i as usize] = self.first_variant[before as usize];
+                }
+                None => self.first_variant[i as usize] = i,
+            }
+        }
+    }
+
+    /// The operators of `op`'s action instance, `op` among them, in
+    /// increasing order: one per variant of the action that grounding kept
+    /// (a disjunct of its precondition, each of its `when` conditions
+    /// holding or failing), so `op` alone for most actions. Where several
+    /// apply they do the same, since each `when` holds or fails alike in
+    /// them; the first stands for the instance in conditional plans.
+    pub fn variants(&self, op: OpId) -> impl Iterator<Item = OpId> + '_ {
+        let mut next = self.first_variant[op.index()];
+        std::iter::from_fn(move || {
+            let here = next;
+            (here != NO_VARIANT).then(|| {
+                next = self.next_variant[here as usize];
+                OpId(here)
+            })
+        })
+    }
+
+    /// The operator of `op`'s action instance that applies in `state` (the
+    /// first, where several do), if any: the instance applies where one of
+    /// its variants does, and does what that variant does.
+    pub fn variant_in(&self, state: &State, op: OpId) -> Option<OpId> {
+        self.variants(op).find(|&v| self.applicable(state, v))
     }
 
     /// Atoms the goal requires to hold.
@@ -846,6 +905,8 @@ pub fn ground_within(
             .collect(),
         by_first_pre: Vec::new(),
         no_pre: Vec::new(),
+        first_variant: Vec::new(),
+        next_variant: Vec::new(),
         action_costs: priced_by_effects(domain, problem),
     };
     let mut g = Grounder {
@@ -956,6 +1017,13 @@ pub fn ground_within(
         .collect();
     task.initial = initial;
     task.index_operators();
+    let varied: HashSet<&str> = domain
+        .actions
+        .iter()
+        .filter(|a| !a.alternatives.is_empty() || !a.conditional.is_empty())
+        .map(|a| &*a.name)
+        .collect();
+    task.index_variants(&varied);
     Ok(task)
 }
 
@@ -1166,6 +1234,11 @@ impl Grounder<'_> {
             }
             outcomes.push((form.rest(), Vec::new()));
             outcomes.retain(|(p, _)| *p > 0.0);
+            // Outcomes that sum to 1 up to rounding sum to 1 exactly.
+            let total: f64 = outcomes.iter().map(|(p, _)| p).sum();
+            for (p, _) in &mut outcomes {
+                *p /= total;
+            }
             combinations = combinations.saturating_mul(outcomes.len());
             chances.push(outcomes);
         }

@@ -103,6 +103,7 @@ fn the_deterministic_planner_refuses_nothing_but_the_task_says_it_is_uncertain()
 fn random_uncertain_problems_agree_with_the_oracle() {
     let (mut checked, mut too_large, mut below, mut cheaper) = (0, 0, 0, 0);
     let (mut zero, mut sure, mut branching, mut hull_checks) = (0, 0, 0, 0);
+    let mut varied = 0;
     for seed in 0..200 {
         let inst = problems::random_uncertain(seed).expect("generated");
         let task = ground(&inst.domain, &inst.problem).expect("ground");
@@ -128,6 +129,18 @@ fn random_uncertain_problems_agree_with_the_oracle() {
             ConditionalVerdict::Found(p) | ConditionalVerdict::BelowThreshold(p) => p,
             other => panic!("seed {seed}: {other:?}"),
         };
+        // No branch is a leftover of rounding (0.7 + 0.2 + 0.1 < 1).
+        for node in &found.graph.nodes {
+            if let PlanNode::Act { step, branches } = node {
+                assert!(
+                    branches.iter().all(|b| b.probability > EPSILON),
+                    "seed {seed}: {branches:?}"
+                );
+                if task.variants(step.op).nth(1).is_some() {
+                    varied += 1;
+                }
+            }
+        }
         // The planner's numbers are the oracle's for the plan it returns...
         let named = oracle_conditional::named(&task, &found.graph);
         let (p, c) = oracle_conditional::evaluate(&inst.domain, &inst.problem, &named)
@@ -237,7 +250,8 @@ fn random_uncertain_problems_agree_with_the_oracle() {
         "checked {checked}, too large for the exhaustive search {too_large}, \
          below a threshold {below}, cheaper under a threshold {cheaper}; \
          best probability 0: {zero}, 1: {sure}; plans that branch: {branching}; \
-         hull vertices compared {hull_checks}"
+         hull vertices compared {hull_checks}; actions planned with several \
+         variants (an `or`, a `when`) {varied}"
     );
     assert!(
         checked >= 180,
@@ -247,6 +261,7 @@ fn random_uncertain_problems_agree_with_the_oracle() {
     // plans branch on observations, some thresholds buy cheaper plans.
     assert!(zero < checked / 2 && branching >= 5 && below > 10 && cheaper > 5);
     assert!(hull_checks > 50, "{hull_checks}");
+    assert!(varied > 20, "{varied}");
 }
 
 /// Whether the plan has a node with two branches or more.
@@ -513,8 +528,181 @@ fn random_problems_searched_with_shared_beliefs_agree_with_the_exhaustive_search
         );
         the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
     }
+    eprintln!("{shared} answered by the search that shares beliefs, {checked} checked");
     assert!(
         shared >= 30 && checked >= 30,
         "{shared} shared, {checked} checked"
     );
+}
+
+/// Plans `problem` in `domain` (both as text) conditionally and checks the
+/// most probable plan's probability and expected cost, that every stop it
+/// reaches is reached with some probability, and that the oracle's
+/// evaluation agrees; returns the plan as text.
+#[track_caller]
+fn check_best(domain: &str, problem: &str, success: f64, expected_cost: f64) -> String {
+    let domain = ecology_domain::parse_domain(domain.as_bytes()).expect("domain");
+    let problem = ecology_domain::parse_problem_for(&domain, problem.as_bytes()).expect("problem");
+    let task = ground(&domain, &problem).expect("ground");
+    let (found, complete) = found_plan(&task, &ConditionalOptions::default());
+    let text = found.display(&task).to_string();
+    assert!(complete, "{text}");
+    assert!(
+        close(found.success, success) && close(found.expected_cost, expected_cost),
+        "({}, {}) instead of ({success}, {expected_cost}):\n{text}",
+        found.success,
+        found.expected_cost
+    );
+    for node in &found.graph.nodes {
+        if let PlanNode::Act { branches, .. } = node {
+            assert!(branches.iter().all(|b| b.probability > EPSILON), "{text}");
+        }
+    }
+    the_oracle_agrees(&domain, &problem, &task, &found);
+    text
+}
+
+/// Three places, one sensing action that looks into one of them and one
+/// that takes what is there.
+const FIND: &str = r#"
+(define (domain find)
+  (:requirements :strips :probabilistic-effects)
+  (:predicates (in ?j) (holding))
+  (:action look :parameters (?j) :precondition (and) :effect (and) :observe (in ?j))
+  (:action take :parameters (?j) :precondition (in ?j) :effect (holding)))
+"#;
+
+#[test]
+fn uncertain_facts_that_sum_to_one_up_to_rounding_make_no_phantom_world() {
+    // 0.7 + 0.2 + 0.1 is 0.9999999999999999 in binary: no fourth world
+    // where the thing is nowhere. Look in a, then in b, then take it from
+    // c without looking: 0.7 * 2 + 0.3 * 3.
+    for init in [
+        "0.7 (in a) 0.2 (in b) 0.1 (in c)",
+        "7/10 (in a) 2/10 (in b) 1/10 (in c)",
+    ] {
+        let problem = format!(
+            "(define (problem find-1) (:domain find) (:objects a b c)
+               (:init (probabilistic {init})) (:goal (holding)))"
+        );
+        let text = check_best(FIND, &problem, 1.0, 2.3);
+        assert!(!text.contains("(look c)"), "{text}");
+    }
+}
+
+#[test]
+fn outcomes_that_sum_to_one_up_to_rounding_make_no_phantom_outcome() {
+    // Every outcome of the roll clears `(blank)`: no fourth one keeps it.
+    let domain = r#"
+(define (domain roll)
+  (:requirements :strips :negative-preconditions :probabilistic-effects)
+  (:predicates (blank) (one) (two) (three) (paid))
+  (:action roll :parameters () :precondition (blank)
+    :effect (probabilistic 0.7 (and (one) (not (blank)))
+                           0.2 (and (two) (not (blank)))
+                           0.1 (and (three) (not (blank)))))
+  (:action cash :parameters () :precondition (not (blank)) :effect (paid)))
+"#;
+    let problem = "(define (problem roll-1) (:domain roll) (:init (blank)) (:goal (paid)))";
+    check_best(domain, problem, 1.0, 2.0);
+}
+
+#[test]
+fn a_disjunctive_precondition_holds_where_each_world_meets_a_disjunct() {
+    let domain = r#"
+(define (domain lamp)
+  (:requirements :strips :disjunctive-preconditions)
+  (:predicates (red) (green) (off))
+  (:action switch-off :parameters () :precondition (or (red) (green)) :effect (off)))
+"#;
+    let problem =
+        "(define (problem lamp-1) (:domain lamp) (:init (oneof (red) (green))) (:goal (off)))";
+    check_best(domain, problem, 1.0, 1.0);
+}
+
+#[test]
+fn a_when_over_an_uncertain_fact_takes_each_worlds_variant() {
+    let kill = "(:action kill :parameters () :precondition (and)
+                  :effect (and (killed) (when (lit) (not (lit)))))";
+    let look = "(:action look :parameters () :precondition (and) :effect (and) :observe (lit))";
+    let problem = "(define (problem kill-1) (:domain kill)
+                     (:init (probabilistic 0.5 (lit))) (:goal (and (killed) (not (lit)))))";
+    // With a sensing action or without, `(kill)` alone is enough.
+    for actions in [kill.to_string(), format!("{look}\n{kill}")] {
+        let domain = format!(
+            "(define (domain kill)
+               (:requirements :strips :negative-preconditions :conditional-effects)
+               (:predicates (lit) (killed))
+               {actions})"
+        );
+        let text = check_best(&domain, problem, 1.0, 1.0);
+        assert_eq!(text, "(kill)\ndone\n");
+    }
+}
+
+#[test]
+fn a_goal_no_plan_reaches_is_below_any_threshold_but_zero() {
+    let domain = r#"
+(define (domain lamp)
+  (:requirements :strips)
+  (:predicates (red) (green) (off))
+  (:action switch-off :parameters () :precondition (red) :effect (off)))
+"#;
+    let problem = "(define (problem never) (:domain lamp)
+                     (:init (oneof (red) (off))) (:goal (green)))";
+    let domain = ecology_domain::parse_domain(domain.as_bytes()).expect("domain");
+    let problem = ecology_domain::parse_problem_for(&domain, problem.as_bytes()).expect("problem");
+    let task = ground(&domain, &problem).expect("ground");
+    for (threshold, met) in [(None, false), (Some(0.5), false), (Some(0.0), true)] {
+        let options = ConditionalOptions {
+            min_probability: threshold,
+            ..ConditionalOptions::default()
+        };
+        let outcome = plan_conditional(&ConditionalRequest::new(&task), &options, &NoClock);
+        let (ConditionalVerdict::Found(plan) | ConditionalVerdict::BelowThreshold(plan)) =
+            &outcome.verdict
+        else {
+            panic!("{:?}", outcome.verdict);
+        };
+        assert_eq!(
+            matches!(outcome.verdict, ConditionalVerdict::Found(_)),
+            met,
+            "{threshold:?}"
+        );
+        // The plan that stops at once: probability 0, at no cost.
+        assert_eq!((plan.success, plan.expected_cost), (0.0, 0.0));
+        assert_eq!(plan.graph, PlanGraph::stop(0.0));
+    }
+}
+
+#[test]
+fn a_corridor_whose_horizon_binds_gets_the_exhaustive_optimum() {
+    // Repairs compete for the actions the walk leaves: the bound of a
+    // belief counts only the states that can reach the goal in the actions
+    // left, which must cut no plan off.
+    let inst = problems::corridor(3, 3).expect("generated");
+    let task = ground(&inst.domain, &inst.problem).expect("ground");
+    for horizon in 2..=7 {
+        let (_, plan) = planned_within(&task, horizon);
+        let Exhaustive::Best { success, cost } =
+            oracle_conditional::most_probable(&inst.domain, &inst.problem, horizon, 2_000_000)
+        else {
+            panic!("horizon {horizon}: too large for the exhaustive search");
+        };
+        assert!(
+            close(plan.success, success) && close(plan.expected_cost, cost),
+            "horizon {horizon}: the planner ({}, {}), the exhaustive search ({success}, {cost})",
+            plan.success,
+            plan.expected_cost
+        );
+        // Each repair that fits doubles the probability.
+        let repairs = horizon.saturating_sub(3).min(3);
+        let expected = if horizon < 3 {
+            0.0
+        } else {
+            0.5f64.powi(3 - repairs as i32)
+        };
+        assert!(close(plan.success, expected), "horizon {horizon}");
+        the_oracle_agrees(&inst.domain, &inst.problem, &task, &plan);
+    }
 }

@@ -347,9 +347,17 @@ pub struct Probabilistic<T> {
 }
 
 impl<T> Probabilistic<T> {
-    /// The probability that no outcome happens.
+    /// The probability that no outcome happens: 0 when the outcomes sum to
+    /// 1 up to [`crate::PROBABILITY_EPSILON`] (0.7 + 0.2 + 0.1 is
+    /// 0.9999999999999999 in binary, and its leftover is rounding, not an
+    /// outcome).
     pub fn rest(&self) -> f64 {
-        (1.0 - self.outcomes.iter().map(|o| o.probability).sum::<f64>()).max(0.0)
+        let rest = 1.0 - self.outcomes.iter().map(|o| o.probability).sum::<f64>();
+        if rest <= crate::PROBABILITY_EPSILON {
+            0.0
+        } else {
+            rest
+        }
     }
 }
 

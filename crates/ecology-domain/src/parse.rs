@@ -9,7 +9,9 @@ use crate::format::Information;
 use crate::model::*;
 use crate::syntax::Sexp;
 
-/// How far above 1 a sum of probabilities may go (decimal rounding, `1/3`).
+/// How far from 1 a sum of probabilities may be and still be 1 (decimal
+/// rounding, `1/3`): above it is an error, below it leaves no rest
+/// ([`Probabilistic::rest`]).
 pub const PROBABILITY_EPSILON: f64 = 1e-6;
 
 /// Requirements read as declarations only, as other PDDL readers take them (IPC domains declare

@@ -71,6 +71,30 @@ fn oneof_is_uniform() {
             .iter()
             .all(|o| (o.probability - 1.0 / 3.0).abs() < 1e-12)
     );
+    assert_eq!(problem.uncertain[0].rest(), 0.0);
+}
+
+#[test]
+fn outcomes_that_sum_to_one_up_to_rounding_leave_no_rest() {
+    // 0.7 + 0.2 + 0.1 is 0.9999999999999999: its leftover is rounding.
+    let rest = |init: &str| {
+        let text = format!(
+            "(define (problem p) (:domain news) (:objects a b c - room)
+              (:init (probabilistic {init})) (:goal (robot-at a)))"
+        );
+        parse_problem(text.as_bytes()).expect("valid").uncertain[0].rest()
+    };
+    assert_eq!(
+        rest("0.7 (robot-at a) 0.2 (robot-at b) 0.1 (robot-at c)"),
+        0.0
+    );
+    assert_eq!(
+        rest("7/10 (robot-at a) 2/10 (robot-at b) 1/10 (robot-at c)"),
+        0.0
+    );
+    assert_eq!(rest("0.6 (robot-at a) 0.4000001 (robot-at b)"), 0.0);
+    assert!((rest("0.7 (robot-at a) 0.2 (robot-at b)") - 0.1).abs() < 1e-12);
+    assert!((rest("0.999 (robot-at a)") - 0.001).abs() < 1e-12);
 }
 
 #[test]
