@@ -690,6 +690,17 @@ impl Home {
         let deadline = Instant::now() + Duration::from_secs(15);
         let mut quiet_since = Instant::now();
         while Instant::now() < deadline {
+            // Settled once every PEIS (and every tuple read before the task) was heard from and
+            // no PEIS tuple changed for a second. Judged at every line: the world's poses come 20
+            // times a second, so a wait for a line never times out.
+            let heard = self
+                .peis()
+                .iter()
+                .all(|p| seen.keys().any(|(owner, _): &(String, String)| owner == p))
+                && self.before.keys().all(|k| seen.contains_key(k));
+            if heard && quiet_since.elapsed() > Duration::from_secs(1) {
+                break;
+            }
             match watch.lines.recv_timeout(Duration::from_millis(200)) {
                 Ok(line) => {
                     let Ok(v) = serde_json::from_str::<Value>(&line.text) else {
@@ -704,9 +715,6 @@ impl Home {
                         let value = v["value"].as_str().unwrap_or_default().to_string();
                         seen.insert((owner.to_string(), key.to_string()), value);
                     }
-                }
-                Err(_) if !seen.is_empty() && quiet_since.elapsed() > Duration::from_secs(1) => {
-                    break;
                 }
                 Err(_) => {}
             }
