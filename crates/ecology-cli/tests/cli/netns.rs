@@ -701,22 +701,19 @@ impl Home {
             if heard && quiet_since.elapsed() > Duration::from_secs(1) {
                 break;
             }
-            match watch.lines.recv_timeout(Duration::from_millis(200)) {
-                Ok(line) => {
-                    let Ok(v) = serde_json::from_str::<Value>(&line.text) else {
-                        continue;
-                    };
-                    // The world's robots move all the time; the PEIS settle.
-                    if v["event"] == "changed"
-                        && let (Some(owner), Some(key)) = (v["owner"].as_str(), v["key"].as_str())
-                        && self.peis().contains(&owner)
-                    {
-                        quiet_since = Instant::now();
-                        let value = v["value"].as_str().unwrap_or_default().to_string();
-                        seen.insert((owner.to_string(), key.to_string()), value);
-                    }
+            if let Ok(line) = watch.lines.recv_timeout(Duration::from_millis(200)) {
+                let Ok(v) = serde_json::from_str::<Value>(&line.text) else {
+                    continue;
+                };
+                // The world's robots move all the time; the PEIS settle.
+                if v["event"] == "changed"
+                    && let (Some(owner), Some(key)) = (v["owner"].as_str(), v["key"].as_str())
+                    && self.peis().contains(&owner)
+                {
+                    quiet_since = Instant::now();
+                    let value = v["value"].as_str().unwrap_or_default().to_string();
+                    seen.insert((owner.to_string(), key.to_string()), value);
                 }
-                Err(_) => {}
             }
         }
         // A clean exit: a client killed outright stays a member of a secured router's routes

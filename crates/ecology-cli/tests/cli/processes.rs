@@ -892,19 +892,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         "examples/python/robot-counter.plan",
         "world,hsm,counter",
     );
-    assert_eq!(code, Some(0), "{all:#?}");
-    // Discovered (its init tuples priced it: start-up 5 + default 5), switched on, wired, done.
-    assert_eq!(costs(&all), [(30, false)], "{all:#?}");
-    let deployed = named(&all, "deployed");
-    assert_eq!(strings(&deployed[0]["switched_on"]), ["counter:c1"]);
-    assert_eq!(
-        strings(&deployed[0]["channels"]),
-        ["hsm:ca1 → counter:c1 (image hsm)"]
-    );
-    assert_eq!(named(&all, "action_done").len(), 1, "{all:#?}");
-    // The counter this task switched on is switched off again.
-    let released = named(&all, "released");
-    assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
+    assert_the_counter_ran(code, &all);
     // A second Python `counter` joining through hsm, one hop from the first, is refused.
     let mut twin = Command::new(&python);
     twin.arg(root().join("examples/python/robot_counter.py"))
@@ -918,6 +906,24 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     assert_eq!(code, Some(1), "{lines:?}");
     assert!(lines.iter().all(|l| l.text != "ready"), "{lines:?}");
     ecology.stop_component();
+}
+
+/// The task on the Python counter was done: the counter discovered (its init tuples priced it:
+/// start-up 5 + default 5), switched on, wired to hsm's cameras, its step done without a failure,
+/// and switched off again.
+fn assert_the_counter_ran(code: Option<i32>, all: &[Value]) {
+    assert_eq!(code, Some(0), "{all:#?}");
+    assert_eq!(costs(all), [(30, false)], "{all:#?}");
+    let deployed = named(all, "deployed");
+    assert_eq!(strings(&deployed[0]["switched_on"]), ["counter:c1"]);
+    assert_eq!(
+        strings(&deployed[0]["channels"]),
+        ["hsm:ca1 → counter:c1 (image hsm)"]
+    );
+    assert!(named(all, "failure").is_empty(), "{all:#?}");
+    assert_eq!(named(all, "action_done").len(), 1, "{all:#?}");
+    let released = named(all, "released");
+    assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
 }
 
 /// A component written to the earlier contract (attachment version 1 only, remote sets on `@set`
@@ -960,19 +966,7 @@ fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released
         "examples/python/robot-counter.plan",
         "world,hsm,counter",
     );
-    assert_eq!(code, Some(0), "{all:#?}");
-    // Discovered from its init tuples and priced (start-up 5 + default 5), as today's example.
-    assert_eq!(costs(&all), [(30, false)], "{all:#?}");
-    let deployed = named(&all, "deployed");
-    assert_eq!(strings(&deployed[0]["switched_on"]), ["counter:c1"]);
-    assert_eq!(
-        strings(&deployed[0]["channels"]),
-        ["hsm:ca1 → counter:c1 (image hsm)"]
-    );
-    assert!(named(&all, "failure").is_empty(), "{all:#?}");
-    assert_eq!(named(&all, "action_done").len(), 1, "{all:#?}");
-    let released = named(&all, "released");
-    assert_eq!(strings(&released[0]["switched_off"]), ["counter:c1"]);
+    assert_the_counter_ran(code, &all);
     // Its tuples: every remote set applied (it refuses any attachment but version 1), the count
     // done, switched off again; it keeps no holders, records no creator and announces nothing.
     let tuples = read_tuples(&ecology.world, "counter");
