@@ -405,19 +405,18 @@ class Component:
     # -- requests from the host (any thread) ---------------------------------------------------
 
     def input(self, info, text):
-        port = self.port(self.inputs, info, "input")
-        try:
-            msg = port.type.from_text(text, self.agent.node)
-        except BadRequest as e:
-            raise BadRequest(f"input {self.id} {info}: {e}") from None
-        port.publisher.publish(msg)
+        self.publish(self.inputs, info, "input", text)
 
     def feed(self, name, text):
-        port = self.port(self.feeds, name, "feed")
+        self.publish(self.feeds, name, "feed", text)
+
+    def publish(self, ports, name, kind, text):
+        """TEXT converted to the message type of the `kind` port `name`, published on its topic."""
+        port = self.port(ports, name, kind)
         try:
             msg = port.type.from_text(text, self.agent.node)
         except BadRequest as e:
-            raise BadRequest(f"feed {self.id} {name}: {e}") from None
+            raise BadRequest(f"{kind} {self.id} {name}: {e}") from None
         port.publisher.publish(msg)
 
     def relay(self, info, source):

@@ -1216,15 +1216,28 @@ impl TupleSpace for ZenohPeis {
     }
 }
 
+/// Whether [`Core::contracts`] is kept current, starting to keep it if it is not yet. Without the
+/// watch, what an owner reads is asked again at every remote set.
+async fn watching_contracts(core: &Core) -> bool {
+    if core.contract_watch.get().is_none()
+        && let Ok(watch) = watch_contracts(core).await
+    {
+        let _ = core.contract_watch.set(watch);
+    }
+    core.contract_watch.get().is_some()
+}
+
+/// The contract version a sample of a PEIS's `contract` tuple announces.
+fn announced(sample: &zenoh::sample::Sample) -> Option<u8> {
+    std::str::from_utf8(&sample.payload().to_bytes())
+        .ok()
+        .and_then(wire::parse_contract)
+}
+
 /// Starts keeping [`Core::contracts`] current, and asks every PEIS present what it reads.
 async fn learn_contracts(core: &Core) {
-    if core.contract_watch.get().is_none() {
-        match watch_contracts(core).await {
-            Ok(watch) => {
-                let _ = core.contract_watch.set(watch);
-            }
-            Err(_) => return,
-        }
+    if !watching_contracts(core).await {
+        return;
     }
     let Ok(replies) = core
         .session
@@ -1240,10 +1253,7 @@ async fn learn_contracts(core: &Core) {
         let Ok((owner, _)) = wire::parse_tuple_key_expr(sample.key_expr().as_str()) else {
             continue;
         };
-        if let Some(version) = std::str::from_utf8(&sample.payload().to_bytes())
-            .ok()
-            .and_then(wire::parse_contract)
-        {
+        if let Some(version) = announced(sample) {
             lock(&core.contracts).insert(owner, version);
         }
     }
@@ -1254,12 +1264,7 @@ async fn learn_contracts(core: &Core) {
 /// its presence ends; the first remote set to an owner asks (at most 1 s), later ones do not.
 async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     // Watch before asking, so an announcement or a departure between the two is not missed.
-    if core.contract_watch.get().is_none() {
-        // Without the watch, what an owner reads is asked again at every remote set.
-        if let Ok(watch) = watch_contracts(core).await {
-            let _ = core.contract_watch.set(watch);
-        }
-    }
+    let watching = watching_contracts(core).await;
     if let Some(&version) = lock(&core.contracts).get(owner) {
         return Some(version);
     }
@@ -1280,11 +1285,8 @@ async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
             Ok(sample) => {
-                if let Some(version) = std::str::from_utf8(&sample.payload().to_bytes())
-                    .ok()
-                    .and_then(wire::parse_contract)
-                {
-                    if core.contract_watch.get().is_some() {
+                if let Some(version) = announced(sample) {
+                    if watching {
                         lock(&core.contracts).insert(owner.clone(), version);
                     }
                     return Some(version);
@@ -1307,9 +1309,7 @@ async fn watch_contracts(core: &Core) -> Result<ContractWatch, zenoh::Error> {
                 return;
             };
             let version = match sample.kind() {
-                SampleKind::Put => std::str::from_utf8(&sample.payload().to_bytes())
-                    .ok()
-                    .and_then(wire::parse_contract),
+                SampleKind::Put => announced(&sample),
                 SampleKind::Delete => None,
             };
             let mut contracts = lock(&contracts);

@@ -850,6 +850,14 @@ fn make_keys(dir: &str, peis: &[&str], routers: &[&str]) {
 
 /// The Python to run the examples with: `ECOLOGY_PYTHON` (set by `scripts/test`
 /// to its virtual environment), else the repository's `.venv`, else `python3`.
+/// Whether `python` can import `modules` (`"rclpy, lifecycle_msgs"`).
+pub(crate) fn imports(python: &str, modules: &str) -> bool {
+    Command::new(python)
+        .args(["-c", &format!("import {modules}")])
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
 pub(crate) fn python() -> String {
     if let Ok(python) = std::env::var("ECOLOGY_PYTHON") {
         return python;
@@ -871,10 +879,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
             return;
         }
     }
-    let has_zenoh = Command::new(&python)
-        .args(["-c", "import zenoh"])
-        .status()
-        .is_ok_and(|s| s.success());
+    let has_zenoh = imports(&python, "zenoh");
     assert!(
         has_zenoh,
         "{python} has no `zenoh` module: run scripts/test, which installs eclipse-zenoh into .venv"
@@ -934,10 +939,7 @@ fn assert_the_counter_ran(code: Option<i32>, all: &[Value]) {
 fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released() {
     const EARLIER: &str = "crates/ecology-cli/tests/fixtures/peis-v1/robot_counter.py";
     let python = python();
-    let has_zenoh = Command::new(&python)
-        .args(["-c", "import zenoh"])
-        .status()
-        .is_ok_and(|s| s.success());
+    let has_zenoh = imports(&python, "zenoh");
     if !has_zenoh {
         println!(
             "skipped: no Python with the eclipse-zenoh package at `{python}` to run {EARLIER}"
@@ -1110,10 +1112,7 @@ fn over_zenoh_a_failed_action_is_planned_around_until_no_plan_remains() {
 #[test]
 fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     let python = python();
-    let has_zenoh = Command::new(&python)
-        .args(["-c", "import zenoh"])
-        .status()
-        .is_ok_and(|s| s.success());
+    let has_zenoh = imports(&python, "zenoh");
     if !has_zenoh {
         println!("skipped: no Python with the eclipse-zenoh package at `{python}`");
         return;

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
 
-use crate::processes::{costs, events, named, one_at_a_time, python, strings};
+use crate::processes::{costs, events, imports, named, one_at_a_time, python, strings};
 use crate::support::{Fixture, Proc, TO_BEDROOM, Variant, event, free_endpoint, is_event, task_on};
 
 const SCENARIO: &str = "scenarios/peis-home-ros2.toml";
@@ -24,13 +24,7 @@ fn ros_python() -> Option<String> {
         println!("skipped: no Python at `{python}` to run the ROS 2 nodes of examples/ros2");
         return None;
     }
-    let has_rclpy = Command::new(&python)
-        .args([
-            "-c",
-            "import rclpy, lifecycle_msgs, geometry_msgs, sensor_msgs",
-        ])
-        .status()
-        .is_ok_and(|s| s.success());
+    let has_rclpy = imports(&python, "rclpy, lifecycle_msgs, geometry_msgs, sensor_msgs");
     assert!(
         has_rclpy,
         "{python} has no rclpy: run scripts/test, which installs ROS 2 from PyPI into .venv \

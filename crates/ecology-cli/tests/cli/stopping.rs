@@ -35,29 +35,13 @@ fn ecology_within(name: &str, args: &[&str], within: &str) -> Proc {
     Proc::spawn(name, command)
 }
 
-/// Waits for `proc` to exit; how long it took from `since`, its exit code (`None`: killed by a
-/// signal) and what it printed.
-fn ended(mut proc: Proc, since: Instant, limit: Duration) -> (Duration, Option<i32>, String) {
-    loop {
-        if let Some(status) = proc.child.try_wait().expect("try_wait") {
-            let took = since.elapsed();
-            while let Ok(line) = proc.lines.recv_timeout(Duration::from_millis(200)) {
-                proc.seen.push(line);
-            }
-            return (took, status.code(), proc.transcript());
-        }
-        assert!(
-            since.elapsed() < limit,
-            "{} still runs {:.1} s after it was asked to stop:\n{}",
-            proc.name,
-            since.elapsed().as_secs_f64(),
-            proc.transcript()
-        );
-        while let Ok(line) = proc.lines.try_recv() {
-            proc.seen.push(line);
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+/// Waits for `proc` to exit, at most `limit` after `since`; how long it took from `since`, its exit
+/// code (`None`: killed by a signal) and what it printed.
+fn ended(proc: Proc, since: Instant, limit: Duration) -> (Duration, Option<i32>, String) {
+    let (code, lines) = proc.finish_by(since + limit);
+    let took = since.elapsed();
+    let said: Vec<&str> = lines.iter().map(|l| l.text.as_str()).collect();
+    (took, code, said.join("\n"))
 }
 
 /// A home whose every process is a client of one router, the task mid-move.

@@ -170,8 +170,12 @@ impl Proc {
     }
 
     /// Waits for the process to exit; returns its exit code and every line it printed.
-    pub fn finish(mut self) -> (Option<i32>, Vec<Line>) {
-        let deadline = Instant::now() + PATIENCE;
+    pub fn finish(self) -> (Option<i32>, Vec<Line>) {
+        self.finish_by(Instant::now() + PATIENCE)
+    }
+
+    /// [`Proc::finish`], failing the test if the process still runs at `deadline`.
+    pub fn finish_by(mut self, deadline: Instant) -> (Option<i32>, Vec<Line>) {
         loop {
             match self.child.try_wait().expect("try_wait") {
                 Some(status) => {

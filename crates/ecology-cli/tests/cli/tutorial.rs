@@ -3,17 +3,12 @@
 //! executive configures the whole `(go-through rex door1 office)` with it: the door is wired to
 //! rex's position, opens for rex, and the step is done.
 
-use std::process::Command;
-
-use crate::processes::{WithPython, costs, named, one_at_a_time, python, strings};
+use crate::processes::{WithPython, costs, imports, named, one_at_a_time, python, strings};
 
 #[test]
 fn the_tutorials_door_in_python_opens_for_the_robot() {
     let python = python();
-    let has_zenoh = Command::new(&python)
-        .args(["-c", "import zenoh"])
-        .status()
-        .is_ok_and(|s| s.success());
+    let has_zenoh = imports(&python, "zenoh");
     if !has_zenoh {
         println!(
             "skipped: no Python with the eclipse-zenoh package at `{python}` to run examples/tutorial/door.py (scripts/test sets up .venv)"
