@@ -338,10 +338,10 @@ fn prefixed(entry: &LogEntry, executive: &str) -> String {
 /// What `--timings` reports: the executive's intake, its state acquisition
 /// and planning by the wall clock, and the process's peak memory.
 pub(crate) fn timings(log: &[LogEntry], intake: &Intake) -> String {
-    let followed = if intake.followed == 0 {
-        "every PEIS followed".to_string()
+    let followed = if intake.everything {
+        "everything followed"
     } else {
-        format!("{} PEIS followed", intake.followed)
+        "the contract followed, no outputs"
     };
     let mut out = format!(
         "executive: state acquired in {:.1} ms ({followed}); took in {} tuples, {} bytes\n",

@@ -14,10 +14,9 @@ use futures_util::StreamExt;
 use futures_util::stream::SelectAll;
 use tokio::task::JoinSet;
 
-use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, Key, KeyPattern, OwnerPattern, PeisId, PresenceEvent, Timestamp, Tuple, TupleError,
-    TupleEvent, TuplePattern, TupleSpace, Value,
+    Clock, Key, PeisId, PresenceEvent, Timestamp, Tuple, TupleError, TupleEvent, TuplePattern,
+    TupleSpace, Value,
 };
 
 use crate::executive::{Command, Event, Executive, RunStatus, Timer};
@@ -271,11 +270,7 @@ pub async fn drive_until<S: TupleSpace>(
                     None => Vec::new(),
                 },
                 event = tuples.next() => match event {
-                    Some(TupleEvent::Changed(t)) => {
-                        let mut commands = exec.handle(elapsed(&clock), tuple_event(&t));
-                        commands.extend(tuples.follow_if_new(exec, elapsed(&clock), &t).await?);
-                        commands
-                    }
+                    Some(TupleEvent::Changed(t)) => exec.handle(elapsed(&clock), tuple_event(&t)),
                     Some(_) => Vec::new(),
                     None => return Ok(exec.status().clone()),
                 },
@@ -348,14 +343,22 @@ impl Timers {
     }
 }
 
-/// The subscriptions that bring the executive its tuples: everything, or a
-/// directory of component types and the PEIS followed on demand.
+/// The subscriptions that bring the executive its tuples: everything, or the
+/// component contract of every PEIS without the outputs (on demand).
+///
+/// On demand is two wildcard subscriptions whatever the number of PEIS: the
+/// directory (`*:components.**`) and each component's own fields (`*:*.*`:
+/// `C.status`, `.cause`, `.params`, `.observed` and the input pointers
+/// `C.mi-INFO`, but not the outputs `C.out.INFO`, which are three segments).
+/// The contract's keys do not name a component's type, so a key expression
+/// cannot select by type; selecting PEIS by type meant one subscription per
+/// PEIS of interest, each with its own round trips through a router, which
+/// made acquiring on demand slower than reading everything. What the data
+/// streams carry, the outputs and the world, is what on demand leaves out.
 struct Follow<S: TupleSpace> {
     space: S,
-    /// What is followed so far: the directory is subscribed once a type is.
+    /// What is followed so far: nothing, the contract, or everything.
     interest: Interest,
-    /// The PEIS whose contract tuples are followed.
-    followed: BTreeSet<PeisId>,
     subs: SelectAll<ecology_tuples::Subscription>,
 }
 
@@ -364,7 +367,6 @@ impl<S: TupleSpace> Follow<S> {
         Follow {
             space,
             interest: Interest::Types(BTreeSet::new()),
-            followed: BTreeSet::new(),
             subs: SelectAll::new(),
         }
     }
@@ -380,82 +382,25 @@ impl<S: TupleSpace> Follow<S> {
         let Interest::Types(have) = &mut self.interest else {
             return Ok(Vec::new());
         };
-        let Interest::Types(types) = more else {
-            let mut all = self.space.subscribe(TuplePattern::everything()).await?;
-            // The new subscription brings all of it again; the mirror drops what it has.
-            let out = take_in(exec, now, &mut all);
-            self.subs = SelectAll::new();
-            self.subs.push(all);
-            self.interest = Interest::Everything;
-            exec.note_followed(0);
-            return Ok(out);
+        let patterns = match more {
+            Interest::Everything => vec![TuplePattern::everything()],
+            // The contract of every PEIS covers every type: it is subscribed once.
+            Interest::Types(types) if have.is_empty() && !types.is_empty() => contract(),
+            Interest::Types(types) => {
+                have.extend(types.iter().cloned());
+                return Ok(Vec::new());
+            }
         };
-        if types.is_subset(have) {
-            return Ok(Vec::new());
+        // Subscribed together: the queries behind them go out at once.
+        let subscribed =
+            futures_util::future::join_all(patterns.into_iter().map(|p| self.space.subscribe(p)))
+                .await;
+        if *more == Interest::Everything {
+            // The new subscription brings all of it again; the mirror drops what it has.
+            self.subs = SelectAll::new();
         }
-        let first = have.is_empty();
-        have.extend(types.iter().cloned());
-        let mut out = Vec::new();
-        if first {
-            let mut directory = self.space.subscribe(directory()).await?;
-            out.extend(take_in(exec, now, &mut directory));
-            self.subs.push(directory);
-        }
-        let listed: Vec<PeisId> = exec
-            .mirror()
-            .peis()
-            .iter()
-            .filter(|(peis, view)| {
-                !self.followed.contains(*peis)
-                    && view
-                        .components
-                        .values()
-                        .any(|c| c.ty.as_deref().is_some_and(|ty| self.interest.covers(ty)))
-            })
-            .map(|(peis, _)| peis.clone())
-            .collect();
-        out.extend(self.follow(exec, now, listed).await?);
-        Ok(out)
-    }
-
-    /// After the executive took in `t`: when it names a component of a type
-    /// of interest on a PEIS not followed yet, follows that PEIS.
-    async fn follow_if_new(
-        &mut self,
-        exec: &mut Executive,
-        now: Duration,
-        t: &Tuple,
-    ) -> Result<Vec<Command>, TupleError> {
-        if self.interest == Interest::Everything || self.followed.contains(&t.owner) {
-            return Ok(Vec::new());
-        }
-        let typed = matches!(
-            ComponentField::parse(&t.key),
-            Some((_, ComponentField::Type))
-        );
-        if !typed || !t.text().is_ok_and(|ty| self.interest.covers(ty.trim())) {
-            return Ok(Vec::new());
-        }
-        self.follow(exec, now, vec![t.owner.clone()]).await
-    }
-
-    /// Subscribes to the contract tuples of `peis` (all at once), and hands
-    /// the executive what they hold now.
-    async fn follow(
-        &mut self,
-        exec: &mut Executive,
-        now: Duration,
-        peis: Vec<PeisId>,
-    ) -> Result<Vec<Command>, TupleError> {
-        let patterns: Vec<TuplePattern> = peis.iter().flat_map(contract_patterns).collect();
-        let subscribed = futures_util::future::join_all(
-            patterns
-                .into_iter()
-                .map(|pattern| self.space.subscribe(pattern)),
-        )
-        .await;
-        self.followed.extend(peis);
-        exec.note_followed(self.followed.len());
+        self.interest = more.clone();
+        exec.note_everything(*more == Interest::Everything);
         let mut out = Vec::new();
         for sub in subscribed {
             let mut sub = sub?;
@@ -474,20 +419,15 @@ impl<S: TupleSpace> Follow<S> {
     }
 }
 
-/// Every PEIS's directory: its init component's tuples, `components.C.type`,
-/// `.cost`, `.currState` and `.reqState` of each of its components.
-fn directory() -> TuplePattern {
-    TuplePattern::parse("*:components.**").expect("a valid pattern")
-}
-
-/// The rest of the component contract of `peis`, beyond its directory: each
-/// component's `C.status`, `.cause`, `.params` and `.observed` (with its input
-/// pointers, `C.mi-INFO`, but not its outputs, `C.out.INFO`).
-fn contract_patterns(peis: &PeisId) -> [TuplePattern; 1] {
-    [TuplePattern {
-        owner: OwnerPattern::Exact(peis.clone()),
-        key: KeyPattern::new("*.*").expect("a valid pattern"),
-    }]
+/// The component contract of every PEIS, without the outputs: the directory
+/// (the init component's `components.C.type`, `.cost`, `.currState`,
+/// `.reqState`, `.holders`) and each component's `C.status`, `.cause`,
+/// `.params`, `.observed` and input pointers `C.mi-INFO`.
+fn contract() -> Vec<TuplePattern> {
+    ["*:components.**", "*:*.*"]
+        .into_iter()
+        .map(|p| TuplePattern::parse(p).expect("a valid pattern"))
+        .collect()
 }
 
 /// Hands the executive every event `sub` holds now; returns its commands.

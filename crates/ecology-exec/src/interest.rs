@@ -5,9 +5,9 @@
 //! The configuration planner reads `(pc P TYPE C)`, `(cost P C N on|off)` and
 //! `(status P C S)` of the PEIS it may use. A plan whose configuration goals
 //! name the types of the components they can use ([`component_types`]) needs
-//! only the PEIS that have a component of one of those types: the driver
-//! reads every PEIS's directory (`components.C.type`), then follows the
-//! contract tuples of the PEIS that have such a component, and of no other.
+//! the component contract, not the data the components stream: the driver
+//! follows every PEIS's directory and its components' own fields, and no
+//! outputs. A goal that could use a component of any type needs everything.
 
 use std::collections::{BTreeSet, HashSet};
 use std::sync::Arc;
@@ -55,14 +55,6 @@ impl Interest {
     pub fn of(domain: &Domain, plan: &Plan) -> Interest {
         Interest::of_plan(domain, &plan.steps, &plan.branches)
     }
-
-    /// Whether a component of type `ty` is of interest.
-    pub fn covers(&self, ty: &str) -> bool {
-        match self {
-            Interest::Everything => true,
-            Interest::Types(types) => types.contains(ty),
-        }
-    }
 }
 
 /// What the executive took in from the ecology.
@@ -72,8 +64,9 @@ pub struct Intake {
     pub tuples: u64,
     /// Their bytes: owner, key and value.
     pub bytes: u64,
-    /// PEIS whose tuples were followed (on demand), or 0 when every tuple was.
-    pub followed: usize,
+    /// Whether every tuple was followed; otherwise the component contract of
+    /// every PEIS, without the outputs (on demand).
+    pub everything: bool,
     /// How long the driver took to acquire the state before the task
     /// started (its directory and the followed PEIS's tuples), by the wall clock.
     pub acquisition: Duration,

@@ -6,6 +6,7 @@
 //! The tuples it publishes and the component outputs it reads are the
 //! contract of [`ecology_tuples::world`].
 
+use std::collections::BTreeMap;
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
@@ -28,6 +29,10 @@ pub struct WorldPeis {
     velocities: Subscription,
     grasps: Subscription,
     sounds: Subscription,
+    /// Each robot's pose as last published.
+    shown: BTreeMap<String, String>,
+    /// The still robot whose pose the next quiet step publishes again.
+    beat: usize,
 }
 
 impl WorldPeis {
@@ -38,17 +43,20 @@ impl WorldPeis {
         world: World,
         seed: u64,
     ) -> Result<WorldPeis, TupleError> {
-        let peis = WorldPeis {
+        let mut peis = WorldPeis {
             velocities: space.subscribe(Command::Velocity.pattern()).await?,
             grasps: space.subscribe(Command::Grasp.pattern()).await?,
             sounds: space.subscribe(Command::Sound.pattern()).await?,
             world,
             rng: Rng::derive(seed, WORLD),
+            shown: BTreeMap::new(),
+            beat: 0,
         };
         space
             .set(key(WorldKey::Map)?, Value::text(peis.world.map.to_string()))
             .await?;
-        publish_poses(&peis.world, space).await?;
+        let poses = peis.poses_to_publish();
+        publish(space, poses).await?;
         publish_things(&peis.world, space).await?;
         Ok(peis)
     }
@@ -104,24 +112,47 @@ impl WorldPeis {
     pub async fn step<S: TupleSpace>(&mut self, space: &S, dt: Duration) -> Result<(), TupleError> {
         let changed = self.take_commands();
         self.world.step(dt.as_secs_f64(), &mut self.rng);
-        publish_poses(&self.world, space).await?;
+        let poses = self.poses_to_publish();
+        publish(space, poses).await?;
         if changed {
             publish_things(&self.world, space).await?;
         }
         Ok(())
     }
+
+    /// The poses that changed since they were last published; when none did, one still robot's
+    /// pose again, in turn. A robot standing still costs its readers nothing, and the world
+    /// is still heard from every step (its readers take a silence of a second for a world
+    /// that left or froze).
+    fn poses_to_publish(&mut self) -> Vec<(Key, String)> {
+        let mut out = Vec::new();
+        for (name, robot) in &self.world.robots {
+            let text = robot.pose.to_string();
+            if self.shown.get(name) != Some(&text) {
+                out.push((name.clone(), text));
+            }
+        }
+        if out.is_empty() && !self.world.robots.is_empty() {
+            self.beat = (self.beat + 1) % self.world.robots.len();
+            if let Some((name, robot)) = self.world.robots.iter().nth(self.beat) {
+                out.push((name.clone(), robot.pose.to_string()));
+            }
+        }
+        out.into_iter()
+            .filter_map(|(name, text)| {
+                let at = key(WorldKey::RobotPose(&name)).ok()?;
+                self.shown.insert(name, text.clone());
+                Some((at, text))
+            })
+            .collect()
+    }
 }
 
 // Free functions of the world alone: a `&WorldPeis` held across an await would
 // not be `Send`, since subscriptions are not `Sync`.
-async fn publish_poses<S: TupleSpace>(world: &World, space: &S) -> Result<(), TupleError> {
-    for (name, robot) in &world.robots {
-        space
-            .set(
-                key(WorldKey::RobotPose(name))?,
-                Value::text(robot.pose.to_string()),
-            )
-            .await?;
+async fn publish<S: TupleSpace>(space: &S, tuples: Vec<(Key, String)>) -> Result<(), TupleError> {
+    for (at, text) in tuples {
+        space.set(at, Value::text(text)).await?;
     }
     Ok(())
 }

@@ -337,9 +337,9 @@ impl Executive {
         self.intake.acquisition = took;
     }
 
-    /// The driver's part of the intake: how many PEIS it follows on demand.
-    pub fn note_followed(&mut self, followed: usize) {
-        self.intake.followed = followed;
+    /// The driver's part of the intake: whether it follows every tuple.
+    pub fn note_everything(&mut self, everything: bool) {
+        self.intake.everything = everything;
     }
 
     /// The configuration running now, if any.
