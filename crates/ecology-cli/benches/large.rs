@@ -200,11 +200,41 @@ impl Home {
             let ready = format!("{} PEIS ready", chunk.len());
             process.wait_for(&ready, |l| l == ready);
         }
-        Home {
+        let home = Home {
             routers: started,
             world,
             parts: processes,
+        };
+        home.settle();
+        home
+    }
+
+    /// Waits until the routers are idle: a home of a thousand PEIS is ready (every PEIS
+    /// joined) seconds before its routers have passed on everything the joins started, and an
+    /// executive started then would measure the joins, not itself.
+    fn settle(&self) {
+        let busy = || -> f64 {
+            self.routers
+                .iter()
+                .map(|(p, _)| usage(p.pid().as_raw() as u32).1)
+                .sum()
+        };
+        let started = Instant::now();
+        let mut before = busy();
+        while started.elapsed().as_secs() < 60 {
+            std::thread::sleep(std::time::Duration::from_millis(500));
+            let now = busy();
+            // Below a tenth of a core over the half second: settled.
+            if now - before < 0.05 {
+                break;
+            }
+            before = now;
         }
+        eprintln!(
+            "a home of {} processes settled {:.1} s after it was ready",
+            self.parts.len(),
+            started.elapsed().as_secs_f64()
+        );
     }
 
     /// The paper's task by an executive connected to the first router.

@@ -11,7 +11,7 @@ use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
-use ecology_tuples::world::{ASLEEP, AWAKE, Command, Point, WORLD, WorldKey};
+use ecology_tuples::world::{ASLEEP, AWAKE, Command, Point, Pose, WORLD, WorldKey};
 use ecology_tuples::{Clock, Key, Subscription, TupleError, TupleEvent, TupleSpace, Value};
 
 use crate::world::World;
@@ -30,7 +30,7 @@ pub struct WorldPeis {
     grasps: Subscription,
     sounds: Subscription,
     /// Each robot's pose as last published.
-    shown: BTreeMap<String, String>,
+    shown: BTreeMap<String, Pose>,
     /// The still robot whose pose the next quiet step publishes again.
     beat: usize,
 }
@@ -125,26 +125,25 @@ impl WorldPeis {
     /// is still heard from every step (its readers take a silence of a second for a world
     /// that left or froze).
     fn poses_to_publish(&mut self) -> Vec<(Key, String)> {
-        let mut out = Vec::new();
+        let mut moved: Vec<&String> = Vec::new();
         for (name, robot) in &self.world.robots {
-            let text = robot.pose.to_string();
-            if self.shown.get(name) != Some(&text) {
-                out.push((name.clone(), text));
+            if self.shown.get(name) != Some(&robot.pose) {
+                moved.push(name);
             }
         }
-        if out.is_empty() && !self.world.robots.is_empty() {
+        if moved.is_empty() && !self.world.robots.is_empty() {
             self.beat = (self.beat + 1) % self.world.robots.len();
-            if let Some((name, robot)) = self.world.robots.iter().nth(self.beat) {
-                out.push((name.clone(), robot.pose.to_string()));
+            moved.extend(self.world.robots.keys().nth(self.beat));
+        }
+        let mut out = Vec::with_capacity(moved.len());
+        for name in moved {
+            let pose = self.world.robots[name].pose;
+            if let Ok(at) = key(WorldKey::RobotPose(name)) {
+                self.shown.insert(name.clone(), pose);
+                out.push((at, pose.to_string()));
             }
         }
-        out.into_iter()
-            .filter_map(|(name, text)| {
-                let at = key(WorldKey::RobotPose(&name)).ok()?;
-                self.shown.insert(name, text.clone());
-                Some((at, text))
-            })
-            .collect()
+        out
     }
 }
 
