@@ -164,13 +164,16 @@ struct Home {
 }
 
 impl Home {
-    fn start(file: &str, parts: usize, routers: usize) -> Home {
+    fn start(file: &str, parts: usize, routers: usize, hold_contract: bool) -> Home {
         let mut started: Vec<(Proc, String)> = Vec::new();
         for _ in 0..routers {
             let endpoint = free_endpoint();
             let mut args = vec!["router".to_string(), "--listen".into(), endpoint.clone()];
             if let Some((_, first)) = started.first() {
                 args.extend(["--connect".to_string(), first.clone()]);
+            }
+            if !hold_contract {
+                args.push("--no-contract-cache".into());
             }
             // `ready` waits for a line that starts with the process's name.
             let router = Proc::start("router", &support::as_strs(&args)).ready();
@@ -281,8 +284,8 @@ impl Home {
     }
 }
 
-fn over_zenoh(file: &str, acquire: &str) -> Measured {
-    Home::start(file, 1, 1).task(acquire)
+fn over_zenoh(file: &str, acquire: &str, hold_contract: bool) -> Measured {
+    Home::start(file, 1, 1, hold_contract).task(acquire)
 }
 
 fn row(where_: &str, peis: usize, acquire: &str, m: &Measured) {
@@ -327,18 +330,23 @@ fn main() {
         }
     }
     let mut acquisitions = Vec::new();
+    let mut uncached = Vec::new();
     for peis in [10, 100, 300, 1000] {
         let file = generate(&dir, peis);
         for acquire in ["on-demand", "everything"] {
-            let m = over_zenoh(&file, acquire);
+            let m = over_zenoh(&file, acquire, true);
             row("Zenoh", peis, acquire, &m);
             acquisitions.push((peis, acquire, m.acquisition));
         }
+        // Side by side: the same, with routers that hold nothing (every PEIS answers).
+        let m = over_zenoh(&file, "on-demand", false);
+        row("Zenoh, router holds nothing", peis, "on-demand", &m);
+        uncached.push((peis, m.acquisition));
     }
     let file = generate(&dir, 1000);
     let mut usages = Vec::new();
     for routers in [1, 2] {
-        let home = Home::start(&file, 4, routers);
+        let home = Home::start(&file, 4, routers, true);
         let where_ = format!(
             "4 processes, {routers} router{}",
             if routers > 1 { "s" } else { "" }
@@ -379,6 +387,14 @@ fn main() {
             let r = mine / everything.max(1e-9);
             println!(
                 "over Zenoh, {peis} PEIS: acquisition on demand is {r:.2}x that of reading everything (target: at most 1x)"
+            );
+        }
+    }
+    for (peis, without) in &uncached {
+        if let Some((_, with)) = on_demand.iter().find(|(n, _)| n == peis) {
+            println!(
+                "over Zenoh, {peis} PEIS: on demand, a router that holds the contract takes {:.2}x the time of one that holds nothing",
+                with / without.max(1e-9)
             );
         }
     }

@@ -344,33 +344,32 @@ fn threads() -> String {
 /// first polled: from then on the signals are caught (and not lost between
 /// two polls), so call it before saying that the process is ready.
 ///
-/// Once it has completed the process is stopping, and stopping is bounded: a second SIGINT or
-/// SIGTERM ends it at once (the signal's default action), and after [`stop_within`] a watchdog
-/// thread, which needs neither the runtime nor the network, says what was still pending and
-/// exits with 1.
+/// Stopping is bounded, whatever the process is doing: a thread of its own waits for the first
+/// SIGINT or SIGTERM, so that from then on a second one ends the process at once (the signal's
+/// default action), and after [`stop_within`] it says what was still pending and exits with 1.
+/// Neither needs this future to be polled: a process stuck in a wait that does not also wait for
+/// it (as an executive once was, inside Zenoh, before its task began) still stops.
 pub fn stop_signal() -> impl std::future::Future<Output = &'static str> {
-    use tokio::signal::unix::{SignalKind, signal};
-    let handlers = (
-        signal(SignalKind::interrupt()),
-        signal(SignalKind::terminate()),
-    );
+    use signal_hook::consts::{SIGINT, SIGTERM};
     // Set when the first signal has come: from then on these signals take their default action.
     let asked = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    for second in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+    for second in [SIGINT, SIGTERM] {
         let _ = signal_hook::flag::register_conditional_default(second, asked.clone());
     }
-    async move {
-        let (Ok(mut interrupt), Ok(mut terminate)) = handlers else {
-            // Without signal handlers the default ones stay: the process still stops, only abruptly.
-            return std::future::pending().await;
-        };
-        let which = tokio::select! {
-            _ = interrupt.recv() => "SIGINT",
-            _ = terminate.recv() => "SIGTERM",
-        };
-        asked.store(true, std::sync::atomic::Ordering::SeqCst);
-        let bound = stop_within();
+    let (told, first) = tokio::sync::oneshot::channel::<&'static str>();
+    let watching = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]).map(|mut signals| {
         std::thread::spawn(move || {
+            let Some(signal) = signals.forever().next() else {
+                return;
+            };
+            asked.store(true, std::sync::atomic::Ordering::SeqCst);
+            let which = if signal == SIGINT {
+                "SIGINT"
+            } else {
+                "SIGTERM"
+            };
+            let _ = told.send(which);
+            let bound = stop_within();
             std::thread::sleep(bound);
             let what = *STOPPING
                 .lock()
@@ -381,8 +380,14 @@ pub fn stop_signal() -> impl std::future::Future<Output = &'static str> {
                 bound.as_secs_f64()
             );
             std::process::exit(i32::from(crate::EXIT_NO_SOLUTION));
-        });
-        which
+        })
+    });
+    async move {
+        match (watching, first.await) {
+            (Ok(_), Ok(which)) => which,
+            // Without a handler the default ones stay: the process still stops, only abruptly.
+            _ => std::future::pending().await,
+        }
     }
 }
 

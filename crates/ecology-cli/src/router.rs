@@ -21,6 +21,10 @@ pub struct RouterArgs {
     #[arg(long, value_name = "N", default_value_t = ecology_zenoh::DEFAULT_MAX_SESSIONS as u32,
           value_parser = clap::value_parser!(u32).range(1..))]
     pub max_sessions: u32,
+    /// Do not hold the component contract of every PEIS: every query that covers all PEIS is
+    /// then answered by each of them, as it was before routers held it.
+    #[arg(long)]
+    pub no_contract_cache: bool,
     #[command(flatten)]
     pub net: NetArgs,
 }
@@ -37,6 +41,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
         multicast_scouting: args.net.multicast,
         zenoh_config: args.net.zenoh_config.clone(),
         max_sessions: args.max_sessions as usize,
+        hold_contract: !args.no_contract_cache,
         ..RouterOptions::default()
     };
     if let Some(lease) = args.net.lease {

@@ -6,6 +6,7 @@
 //! with a queryable, remote sets are queries to `peis/OWNER/@set/KEY` that the owner applies,
 //! and presence is the liveliness token `peis/OWNER/@alive`, whose lease is the transport lease.
 
+mod cache;
 mod config;
 mod peis;
 mod relink;

@@ -16,7 +16,7 @@ use zenoh::Wait;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
-use zenoh::query::{ConsolidationMode, Query};
+use zenoh::query::{ConsolidationMode, Query, QueryTarget};
 use zenoh::sample::{Sample, SampleKind};
 
 use crate::relink;
@@ -150,6 +150,7 @@ async fn flush(core: &Core) {
         .get(format!("{}/*/{FLUSH}", wire::ROOT))
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout.min(Duration::from_millis(500)))
+        .with(flume::unbounded())
         .await
     else {
         return;
@@ -439,11 +440,26 @@ async fn query_tuples_answered(
     core: &Core,
     pattern: &TuplePattern,
 ) -> Result<(Vec<Tuple>, bool), TupleError> {
+    let key_expr = wire::pattern_key_expr(pattern);
+    // Replies of every query go into an unbounded channel: with Zenoh's default (256), a query of
+    // a thousand PEIS filled it, and Zenoh's thread delivering the rest blocked holding the
+    // session's lock, while the task that drains it waited, on the same thread, for that lock in
+    // a second query begun beside the first (a liveliness query takes it at once): deadlock.
+    // A question of every PEIS that a router holds the answer to (the contract's keys) is asked of
+    // the router alone; otherwise of every PEIS that matches, each answering for itself.
+    let target = match pattern.owner {
+        ecology_tuples::OwnerPattern::Any if held_for_all(core, &key_expr).await => {
+            QueryTarget::AllComplete
+        }
+        _ => QueryTarget::BestMatching,
+    };
     let replies = core
         .session
-        .get(wire::pattern_key_expr(pattern))
+        .get(key_expr)
+        .target(target)
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout)
+        .with(flume::unbounded())
         .await
         .map_err(transport("get"))?;
     let mut tuples = Vec::new();
@@ -465,6 +481,44 @@ async fn query_tuples_answered(
     tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
     tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
     Ok((tuples, answered))
+}
+
+/// Whether a router holds the component contract of every PEIS (see the module `cache`): then a
+/// question of every PEIS that the contract's key expressions cover is asked of it alone, as a
+/// query of complete queryables. Routers that hold it say so with a liveliness token, and a
+/// liveliness query has a definite end, so the answer is known in one round trip (a querier's
+/// matching status is not, right after it is declared). Without one (peers, routers started with
+/// `--no-contract-cache`, earlier routers), every PEIS is asked as before.
+async fn held_for_all(core: &Core, key_expr: &str) -> bool {
+    // Among peers there is no router to hold anything.
+    if core.answers_lag_presence {
+        return false;
+    }
+    let Ok(asked) = KeyExpr::try_from(key_expr) else {
+        return false;
+    };
+    if !crate::cache::HELD
+        .iter()
+        .filter_map(|held| KeyExpr::try_from(*held).ok())
+        .any(|held| held.includes(&asked))
+    {
+        return false;
+    }
+    let Ok(replies) = core
+        .session
+        .liveliness()
+        .get(crate::cache::HOLDERS)
+        .timeout(core.query_timeout)
+        .with(flume::unbounded())
+        .await
+    else {
+        return false;
+    };
+    let mut held = false;
+    while let Ok(reply) = replies.recv_async().await {
+        held |= reply.result().is_ok();
+    }
+    held
 }
 
 /// How each tuple this PEIS has published and not removed goes out: its first value by a plain
@@ -1244,6 +1298,7 @@ async fn learn_contracts(core: &Core) {
         .get(format!("{}/*/{}", wire::ROOT, wire::CONTRACT_KEY))
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout.min(Duration::from_secs(1)))
+        .with(flume::unbounded())
         .await
     else {
         return;
@@ -1419,7 +1474,12 @@ async fn ask_alive(
     key_expr: &str,
     timeout: Duration,
 ) -> zenoh::Result<Vec<Result<PeisId, String>>> {
-    let replies = session.liveliness().get(key_expr).timeout(timeout).await?;
+    let replies = session
+        .liveliness()
+        .get(key_expr)
+        .timeout(timeout)
+        .with(flume::unbounded())
+        .await?;
     let mut got = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {

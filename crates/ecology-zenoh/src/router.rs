@@ -1,8 +1,9 @@
 //! A Zenoh router for PEIS that cannot reach each other directly (other
 //! subnets, NAT, a robot on Wi-Fi that only reaches a base station): each
 //! PEIS connects to the router, which routes tuples, queries and presence
-//! between them. It is plain Zenoh in router mode; it is no PEIS and holds
-//! no tuples.
+//! between them. It is Zenoh in router mode; it is no PEIS. It holds the
+//! component contract of every PEIS (not their outputs) and answers the
+//! queries that cover it, so that asking all PEIS is one round trip to it.
 
 use std::future::Future;
 use std::path::PathBuf;
@@ -32,6 +33,9 @@ pub struct RouterOptions {
     pub security: Security,
     /// How many sessions (PEIS, other routers) it holds at once; past that it refuses new ones.
     pub max_sessions: usize,
+    /// Whether it holds the component contract of every PEIS and answers queries on it
+    /// (see the module `cache`): on by default.
+    pub hold_contract: bool,
 }
 
 /// [`RouterOptions::max_sessions`] by default: room for a building of PEIS, each its own session
@@ -48,6 +52,7 @@ impl Default for RouterOptions {
             lease: Duration::from_secs(2),
             security: Security::Open,
             max_sessions: DEFAULT_MAX_SESSIONS,
+            hold_contract: true,
         }
     }
 }
@@ -108,6 +113,16 @@ pub async fn run_router(
         .map_err(|e| ZenohError::Open {
             message: e.to_string(),
         })?;
+    let _held = match options.hold_contract {
+        true => Some(
+            crate::cache::start(&session)
+                .await
+                .map_err(|e| ZenohError::Open {
+                    message: e.to_string(),
+                })?,
+        ),
+        false => None,
+    };
     ready(session.zid().to_string());
     shutdown.await;
     let _ = session.close().await;

@@ -365,12 +365,19 @@ impl Roster {
             "liveliness_query",
         ];
         // `**` does not cover chunks that start with `@`, so the verbatim ones are listed.
-        let everything = json!(["**", "peis/*/@set/**", "peis/*/@by/**", "peis/*/@alive"]);
+        // The routers that hold the contract say so at `@ecology/holds-contract/ZID`.
+        let everything = json!([
+            "**",
+            "peis/*/@set/**",
+            "peis/*/@by/**",
+            "peis/*/@alive",
+            "@ecology/holds-contract/*"
+        ]);
         let mut rules = vec![
             json!({"id": "read", "messages": ["declare_subscriber", "query",
                     "declare_liveliness_subscriber", "liveliness_query"],
                    "flows": ["ingress"], "permission": "allow",
-                   "key_exprs": ["peis/**", "peis/*/@alive"]}),
+                   "key_exprs": ["peis/**", "peis/*/@alive", "@ecology/holds-contract/*"]}),
             json!({"id": "send", "messages": ALL, "flows": ["egress"], "permission": "allow",
                    "key_exprs": everything}),
             json!({"id": "relay", "messages": ALL, "flows": ["ingress"], "permission": "allow",

@@ -1325,11 +1325,23 @@ fn start_router(
     max_sessions: usize,
     full: impl Fn(usize) + Send + Sync + 'static,
 ) -> (String, tokio::sync::oneshot::Sender<()>) {
+    start_router_with(
+        ecology_zenoh::RouterOptions {
+            max_sessions,
+            ..ecology_zenoh::RouterOptions::default()
+        },
+        full,
+    )
+}
+
+fn start_router_with(
+    options: ecology_zenoh::RouterOptions,
+    full: impl Fn(usize) + Send + Sync + 'static,
+) -> (String, tokio::sync::oneshot::Sender<()>) {
     let endpoint = free_endpoint();
     let options = ecology_zenoh::RouterOptions {
         listen: vec![endpoint.clone()],
-        max_sessions,
-        ..ecology_zenoh::RouterOptions::default()
+        ..options
     };
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     tokio::spawn(ecology_zenoh::run_router(options, |_| {}, full, async {
@@ -1396,7 +1408,13 @@ async fn a_full_router_says_so_and_takes_a_session_again_once_one_leaves() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
     use std::sync::atomic::{AtomicUsize, Ordering};
-    let (endpoint, _stop) = start_router(ecology_zenoh::DEFAULT_MAX_SESSIONS, |_| {});
+    // A router that holds nothing: every PEIS answers for itself (the router that holds the
+    // contract is `a_router_answers_for_the_contract_of_every_peis_until_it_goes`).
+    let options = ecology_zenoh::RouterOptions {
+        hold_contract: false,
+        ..ecology_zenoh::RouterOptions::default()
+    };
+    let (endpoint, _stop) = start_router_with(options, |_| {});
     tokio::time::sleep(Duration::from_millis(300)).await;
     let spy = stock_router_client(&endpoint, PATIENCE).await.expect("spy");
     let count = |key_expr: &str| {
@@ -1446,4 +1464,114 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
         "the spy, present and silent, is asked once by the snapshot and at most once more: {asked}"
     );
     a.close().await;
+}
+
+/// A router holds the component contract of every PEIS and answers for it: a stock client that
+/// writes `ghost`'s tuples and answers no query at all is still read through the router, its
+/// directory and its component's status (not its outputs, which the router does not hold), until
+/// its token goes. A router told not to hold the contract answers nothing for it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
+    for hold_contract in [true, false] {
+        let options = ecology_zenoh::RouterOptions {
+            hold_contract,
+            ..ecology_zenoh::RouterOptions::default()
+        };
+        let (endpoint, _stop) = start_router_with(options, |_| {});
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let ghost = stock_router_client(&endpoint, PATIENCE)
+            .await
+            .expect("ghost");
+        // It answers no query, and counts those asked of every PEIS (`peis/*/…`).
+        let asked = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let counter = asked.clone();
+        let _queryable = ghost
+            .declare_queryable("peis/ghost/**")
+            .callback(move |query| {
+                if query.key_expr().as_str().starts_with("peis/*/") {
+                    counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            })
+            .await
+            .expect("queryable");
+        // A new client sends a put only once it knows of a subscriber: the router's, here.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let token = ghost
+            .liveliness()
+            .declare_token("peis/ghost/@alive")
+            .await
+            .expect("token");
+        for (seq, (key_expr, text)) in [
+            ("peis/ghost/components/c1/type", "cams"),
+            ("peis/ghost/c1/status", "running"),
+            ("peis/ghost/c1/out/image", "astrid 1 1 0"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let meta = Metadata {
+                seq: seq as u64 + 1,
+                ts_write: Timestamp(1),
+                ts_user: None,
+                expiry: None,
+                expired: false,
+                epoch: 7,
+                mimetype: Mimetype::text(),
+                creator: None,
+            };
+            ghost
+                .put(key_expr, text)
+                .attachment(meta.encode())
+                .await
+                .expect("put");
+        }
+        let a = router_client_peis("a", &endpoint).await;
+        let read = |pattern: &'static str| {
+            let a = a.clone();
+            async move {
+                a.get_matching(TuplePattern::parse(pattern).expect("pattern"))
+                    .await
+                    .expect("get")
+                    .into_iter()
+                    .filter(|t| t.owner.as_str() == "ghost")
+                    .map(|t| (t.key.to_string(), t.text().unwrap_or("").to_string()))
+                    .collect::<Vec<_>>()
+            }
+        };
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+        let mut contract = read("*:*.*").await;
+        while hold_contract && contract.is_empty() && tokio::time::Instant::now() < deadline {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            contract = read("*:*.*").await;
+        }
+        if !hold_contract {
+            assert_eq!(contract, [], "nobody answers for ghost");
+            a.close().await;
+            continue;
+        }
+        assert_eq!(contract, [("c1.status".to_string(), "running".to_string())]);
+        // Once the router is known to hold the contract, a question of every PEIS is its alone.
+        let before = asked.load(std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(read("*:*.*").await.len(), 1);
+        assert_eq!(
+            asked.load(std::sync::atomic::Ordering::Relaxed),
+            before,
+            "ghost was asked what the router holds"
+        );
+        assert_eq!(
+            read("*:components.**").await,
+            [("components.c1.type".to_string(), "cams".to_string())]
+        );
+        assert_eq!(read("*:*.out.*").await, [], "outputs are not held");
+        token.undeclare().await.expect("undeclare");
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+        while !read("*:*.*").await.is_empty() {
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "ghost's tuples outlived its token"
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        a.close().await;
+    }
 }

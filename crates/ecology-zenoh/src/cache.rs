@@ -1,0 +1,339 @@
+//! The component contract of every PEIS, held by a router so that an executive's question about
+//! all of them is one round trip to the router, not a query every PEIS answers.
+//!
+//! A router keeps the latest value of every tuple under the contract's two key expressions
+//! ([`HELD`]: each PEIS's directory, `components/C/…`, and each component's own fields, `C/FIELD`),
+//! and answers queries on them as a *complete* queryable: Zenoh then sends a query these key
+//! expressions cover to the router alone, instead of to every PEIS. It never holds outputs
+//! (`C/out/INFO`), nor anything outside the contract.
+//!
+//! What it holds stays true to the owners:
+//! - it takes every put and delete of those keys (the owner's `(epoch, seq)` orders them);
+//! - a PEIS's tuples are forgotten when its liveliness token goes;
+//! - when a PEIS's token appears (it joined, or it was there before this router, or beyond another
+//!   router), the router asks that PEIS for its tuples; until it has the answer, a query that
+//!   covers that PEIS is passed on to it, so that an answer is never short of a PEIS present;
+//! - an expired tuple is not given out.
+
+use std::collections::{HashMap, HashSet};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use tokio::sync::mpsc;
+use zenoh::Session;
+use zenoh::bytes::{Encoding, ZBytes};
+use zenoh::key_expr::KeyExpr;
+use zenoh::query::{ConsolidationMode, Query, QueryTarget};
+use zenoh::sample::{Locality, Sample, SampleKind};
+
+use ecology_tuples::PeisId;
+
+use crate::wire::{self, Metadata};
+
+/// The key expressions a router holds: each PEIS's directory and its components' own fields.
+pub const HELD: [&str; 2] = ["peis/*/components/**", "peis/*/*/*"];
+
+/// The liveliness tokens of the routers that hold the contract (`@ecology/holds-contract/ZID`):
+/// a PEIS asks for them to know whether to ask a router alone.
+pub const HOLDERS: &str = "@ecology/holds-contract/*";
+
+/// How long the router waits for a PEIS's tuples when it asks for them.
+const ASK_WITHIN: Duration = Duration::from_secs(5);
+
+/// One tuple as its owner last sent it.
+struct Held {
+    key_expr: KeyExpr<'static>,
+    payload: ZBytes,
+    encoding: Encoding,
+    attachment: Option<ZBytes>,
+    /// The owner's `(epoch, seq)`: a value older than the one held is not taken.
+    order: (u64, u64),
+    /// When it expires, in ns since the Unix epoch.
+    expiry: Option<u64>,
+}
+
+#[derive(Default)]
+struct State {
+    /// Per PEIS, its tuples by key expression.
+    tuples: HashMap<PeisId, HashMap<String, Held>>,
+    /// PEIS present whose tuples were asked for and not yet received: a query that covers one of
+    /// them is passed on to it.
+    asking: HashSet<PeisId>,
+    /// PEIS present: their tokens are alive.
+    present: HashSet<PeisId>,
+}
+
+type Shared = Arc<Mutex<State>>;
+
+fn lock(state: &Shared) -> std::sync::MutexGuard<'_, State> {
+    state.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The owner of a key expression `peis/OWNER/…`.
+fn owner_of(key_expr: &str) -> Option<PeisId> {
+    let rest = key_expr.strip_prefix(wire::ROOT)?.strip_prefix('/')?;
+    let owner = rest.split('/').next()?;
+    PeisId::new(owner).ok()
+}
+
+fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// Takes in one sample of a held key.
+fn take(state: &Shared, sample: &Sample) {
+    let Some(owner) = owner_of(sample.key_expr().as_str()) else {
+        return;
+    };
+    let key = sample.key_expr().as_str().to_owned();
+    let mut state = lock(state);
+    let tuples = state.tuples.entry(owner).or_default();
+    match sample.kind() {
+        SampleKind::Delete => {
+            tuples.remove(&key);
+        }
+        SampleKind::Put => {
+            let meta = sample
+                .attachment()
+                .and_then(|a| Metadata::decode(&a.to_bytes()).ok());
+            let order = meta.as_ref().map_or((0, 0), |m| (m.epoch, m.seq));
+            if tuples.get(&key).is_some_and(|held| held.order > order) {
+                return;
+            }
+            tuples.insert(
+                key,
+                Held {
+                    key_expr: sample.key_expr().clone().into_owned(),
+                    payload: sample.payload().clone(),
+                    encoding: sample.encoding().clone(),
+                    attachment: sample.attachment().cloned(),
+                    order,
+                    expiry: meta.and_then(|m| m.expiry),
+                },
+            );
+        }
+    }
+}
+
+/// What the router holds for the contract; dropping it stops holding.
+pub struct ContractCache {
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    _tokens: zenoh::pubsub::Subscriber<()>,
+    _holder: zenoh::liveliness::LivelinessToken,
+}
+
+impl Drop for ContractCache {
+    fn drop(&mut self) {
+        for task in &self.tasks {
+            task.abort();
+        }
+    }
+}
+
+/// Starts holding the contract's tuples on the router's `session`.
+pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
+    let state: Shared = Arc::default();
+    let mut tasks = Vec::new();
+    let mut subscribers = Vec::new();
+    for held in HELD {
+        let into = state.clone();
+        // Taken in as the router routes it, before anything the owner sends after it (such as
+        // its answer to the remote set that wrote it): a read that follows sees it.
+        subscribers.push(
+            session
+                .declare_subscriber(held)
+                .callback(move |sample| take(&into, &sample))
+                .await?,
+        );
+    }
+    // Presence: a PEIS that appears is asked for its tuples; one that goes is forgotten.
+    let (appeared, mut to_ask) = mpsc::unbounded_channel::<PeisId>();
+    let watched = state.clone();
+    let tokens = session
+        .liveliness()
+        .declare_subscriber(wire::ALL_ALIVE)
+        .history(true)
+        .callback(move |sample| {
+            let Ok(peis) = wire::parse_alive_key_expr(sample.key_expr().as_str()) else {
+                return;
+            };
+            let mut state = lock(&watched);
+            if sample.kind() == SampleKind::Put {
+                state.present.insert(peis.clone());
+                state.asking.insert(peis.clone());
+                drop(state);
+                let _ = appeared.send(peis);
+            } else {
+                state.present.remove(&peis);
+                state.asking.remove(&peis);
+                state.tuples.remove(&peis);
+            }
+        })
+        .await?;
+    let asker = session.clone();
+    let filled = state.clone();
+    tasks.push(tokio::spawn(async move {
+        // Each PEIS asked at once; owned here, so that stopping the cache stops them.
+        let mut asking = tokio::task::JoinSet::new();
+        while let Some(peis) = to_ask.recv().await {
+            while asking.try_join_next().is_some() {}
+            let session = asker.clone();
+            let state = filled.clone();
+            asking.spawn(async move {
+                let mut answered = true;
+                for held in HELD {
+                    let Some(rest) = held.strip_prefix("peis/*/") else {
+                        continue;
+                    };
+                    let Ok(replies) = session
+                        .get(format!("{}/{peis}/{rest}", wire::ROOT))
+                        .target(QueryTarget::All)
+                        .allowed_destination(Locality::Remote)
+                        .consolidation(ConsolidationMode::None)
+                        .timeout(ASK_WITHIN)
+                        .with(flume::unbounded())
+                        .await
+                    else {
+                        answered = false;
+                        continue;
+                    };
+                    while let Ok(reply) = replies.recv_async().await {
+                        match reply.result() {
+                            Ok(sample)
+                                if owner_of(sample.key_expr().as_str()) == Some(peis.clone()) =>
+                            {
+                                take(&state, sample)
+                            }
+                            Ok(_) => {}
+                            Err(_) => answered = false,
+                        }
+                    }
+                }
+                let mut state = lock(&state);
+                // What is left of an earlier run of the PEIS (written while it was away) goes.
+                if let Some(tuples) = state.tuples.get_mut(&peis) {
+                    let run = tuples.values().map(|h| h.order.0).max().unwrap_or(0);
+                    tuples.retain(|_, held| held.order.0 == run);
+                }
+                // A PEIS that did not answer in full stays passed on to, until it appears again.
+                if answered {
+                    state.asking.remove(&peis);
+                }
+            });
+        }
+    }));
+    for held in HELD {
+        let queryable = session
+            .declare_queryable(held)
+            .complete(true)
+            .allowed_origin(Locality::Remote)
+            .await?;
+        let state = state.clone();
+        let session = session.clone();
+        let held = KeyExpr::try_from(held)?;
+        tasks.push(tokio::spawn(async move {
+            let mut answering = tokio::task::JoinSet::new();
+            while let Ok(query) = queryable.recv_async().await {
+                while answering.try_join_next().is_some() {}
+                // Zenoh asks this queryable alone only for a question its key expression covers
+                // whole; one it merely meets (`peis/*/*/out/image` meets `peis/*/components/**`)
+                // also goes to every PEIS, which answer it.
+                if !held.includes(query.key_expr()) {
+                    continue;
+                }
+                let state = state.clone();
+                let session = session.clone();
+                answering.spawn(async move { answer(&session, &state, query).await });
+            }
+        }));
+    }
+    // Declared last: whoever sees it can ask the queryables above.
+    let holder = session
+        .liveliness()
+        .declare_token(format!("@ecology/holds-contract/{}", session.zid()))
+        .await?;
+    Ok(ContractCache {
+        tasks,
+        _holder: holder,
+        _subscribers: subscribers,
+        _tokens: tokens,
+    })
+}
+
+/// Answers `query` from what is held, and passes it on to the PEIS still being asked.
+async fn answer(session: &Session, state: &Shared, query: Query) {
+    let asked = query.key_expr().clone().into_owned();
+    let now = now_ns();
+    let (replies, pass_on) = {
+        let state = lock(state);
+        let mut replies = Vec::new();
+        for (peis, tuples) in &state.tuples {
+            if !state.present.contains(peis) || state.asking.contains(peis) {
+                continue;
+            }
+            for held in tuples.values() {
+                if held.expiry.is_some_and(|at| at <= now) || !asked.intersects(&held.key_expr) {
+                    continue;
+                }
+                replies.push((
+                    held.key_expr.clone(),
+                    held.payload.clone(),
+                    held.encoding.clone(),
+                    held.attachment.clone(),
+                ));
+            }
+        }
+        let pass_on: Vec<PeisId> = state.asking.iter().cloned().collect();
+        (replies, pass_on)
+    };
+    for (key, payload, encoding, attachment) in replies {
+        let mut reply = query.reply(key, payload).encoding(encoding);
+        if let Some(attachment) = attachment {
+            reply = reply.attachment(attachment);
+        }
+        let _ = reply.await;
+    }
+    // `peis/OWNER/REST`: the same question, of each PEIS still being asked that OWNER covers.
+    let Some(rest) = asked
+        .as_str()
+        .strip_prefix(wire::ROOT)
+        .and_then(|r| r.strip_prefix('/'))
+        .and_then(|r| r.split_once('/'))
+        .map(|(_, rest)| rest.to_owned())
+    else {
+        return;
+    };
+    for peis in pass_on {
+        let Ok(theirs) = KeyExpr::try_from(format!("{}/{peis}/{rest}", wire::ROOT)) else {
+            continue;
+        };
+        if !asked.intersects(&theirs) {
+            continue;
+        }
+        let Ok(replies) = session
+            .get(theirs)
+            .target(QueryTarget::All)
+            .allowed_destination(Locality::Remote)
+            .consolidation(ConsolidationMode::None)
+            .timeout(ASK_WITHIN)
+            .with(flume::unbounded())
+            .await
+        else {
+            continue;
+        };
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                let mut reply = query
+                    .reply(sample.key_expr().clone(), sample.payload().clone())
+                    .encoding(sample.encoding().clone());
+                if let Some(attachment) = sample.attachment() {
+                    reply = reply.attachment(attachment.clone());
+                }
+                let _ = reply.await;
+            }
+        }
+    }
+}
