@@ -37,6 +37,10 @@ pub const HELD: [&str; 2] = ["peis/*/components/**", "peis/*/*/*"];
 /// a PEIS asks for them to know whether to ask a router alone.
 pub const HOLDERS: &str = "@ecology/holds-contract/*";
 
+/// The parameter of the questions a router asks the PEIS themselves: other routers' holdings
+/// leave them unanswered.
+const FROM_A_HOLDER: &str = "ecology_holder";
+
 /// How long the router waits for a PEIS's tuples when it asks for them.
 const ASK_WITHIN: Duration = Duration::from_secs(5);
 
@@ -189,7 +193,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                         continue;
                     };
                     let Ok(replies) = session
-                        .get(format!("{}/{peis}/{rest}", wire::ROOT))
+                        .get(format!("{}/{peis}/{rest}?{FROM_A_HOLDER}", wire::ROOT))
                         .target(QueryTarget::All)
                         .allowed_destination(Locality::Remote)
                         .consolidation(ConsolidationMode::None)
@@ -242,6 +246,11 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                 // whole; one it merely meets (`peis/*/*/out/image` meets `peis/*/components/**`)
                 // also goes to every PEIS, which answer it.
                 if !held.includes(query.key_expr()) {
+                    continue;
+                }
+                // Another router's holding asking a PEIS: the PEIS answers, not this one (two
+                // routers that passed such questions on to each other asked each other forever).
+                if query.parameters().contains_key(FROM_A_HOLDER) {
                     continue;
                 }
                 let state = state.clone();
@@ -314,7 +323,7 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
             continue;
         }
         let Ok(replies) = session
-            .get(theirs)
+            .get(format!("{theirs}?{FROM_A_HOLDER}"))
             .target(QueryTarget::All)
             .allowed_destination(Locality::Remote)
             .consolidation(ConsolidationMode::None)
