@@ -41,6 +41,12 @@ pub const HOLDERS: &str = "@ecology/holds-contract/*";
 /// leave them unanswered.
 const FROM_A_HOLDER: &str = "ecology_holder";
 
+/// How many PEIS a router asks for their tuples at once.
+const ASKED_AT_ONCE: usize = 32;
+
+/// How long after a PEIS did not answer in full a router asks it again.
+const ASK_AGAIN_AFTER: Duration = Duration::from_secs(1);
+
 /// How long the router waits for a PEIS's tuples when it asks for them.
 const ASK_WITHIN: Duration = Duration::from_secs(5);
 
@@ -155,6 +161,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
     }
     // Presence: a PEIS that appears is asked for its tuples; one that goes is forgotten.
     let (appeared, mut to_ask) = mpsc::unbounded_channel::<PeisId>();
+    let appeared_again = appeared.clone();
     let watched = state.clone();
     let tokens = session
         .liveliness()
@@ -184,8 +191,13 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
         let mut asking = tokio::task::JoinSet::new();
         while let Some(peis) = to_ask.recv().await {
             while asking.try_join_next().is_some() {}
+            // A thousand PEIS joining at once are asked a few at a time, so that none times out.
+            while asking.len() >= ASKED_AT_ONCE {
+                asking.join_next().await;
+            }
             let session = asker.clone();
             let state = filled.clone();
+            let again = appeared_again.clone();
             asking.spawn(async move {
                 let mut answered = true;
                 for held in HELD {
@@ -216,15 +228,22 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                         }
                     }
                 }
-                let mut state = lock(&state);
-                // What is left of an earlier run of the PEIS (written while it was away) goes.
-                if let Some(tuples) = state.tuples.get_mut(&peis) {
-                    let run = tuples.values().map(|h| h.order.0).max().unwrap_or(0);
-                    tuples.retain(|_, held| held.order.0 == run);
-                }
-                // A PEIS that did not answer in full stays passed on to, until it appears again.
-                if answered {
-                    state.asking.remove(&peis);
+                let ask_again = {
+                    let mut state = lock(&state);
+                    // What is left of an earlier run of the PEIS (written while it was away) goes.
+                    if let Some(tuples) = state.tuples.get_mut(&peis) {
+                        let run = tuples.values().map(|h| h.order.0).max().unwrap_or(0);
+                        tuples.retain(|_, held| held.order.0 == run);
+                    }
+                    if answered {
+                        state.asking.remove(&peis);
+                    }
+                    !answered && state.present.contains(&peis)
+                };
+                // Not answered in full: passed on to meanwhile, and asked again a little later.
+                if ask_again {
+                    tokio::time::sleep(ASK_AGAIN_AFTER).await;
+                    let _ = again.send(peis);
                 }
             });
         }
@@ -295,7 +314,7 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
                 ));
             }
         }
-        let pass_on: Vec<PeisId> = state.asking.iter().cloned().collect();
+        let pass_on: HashSet<PeisId> = state.asking.clone();
         (replies, pass_on)
     };
     for (key, payload, encoding, attachment) in replies {
@@ -305,44 +324,35 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
         }
         let _ = reply.await;
     }
-    // `peis/OWNER/REST`: the same question, of each PEIS still being asked that OWNER covers.
-    let Some(rest) = asked
-        .as_str()
-        .strip_prefix(wire::ROOT)
-        .and_then(|r| r.strip_prefix('/'))
-        .and_then(|r| r.split_once('/'))
-        .map(|(_, rest)| rest.to_owned())
+    // The PEIS still being asked answer for themselves: the same question, asked of every PEIS
+    // at once (one query, as if nobody held anything), with only their answers passed on.
+    if pass_on.is_empty() {
+        return;
+    }
+    let Ok(replies) = session
+        .get(format!("{asked}?{FROM_A_HOLDER}"))
+        .target(QueryTarget::All)
+        .allowed_destination(Locality::Remote)
+        .consolidation(ConsolidationMode::None)
+        .timeout(ASK_WITHIN)
+        .with(flume::unbounded())
+        .await
     else {
         return;
     };
-    for peis in pass_on {
-        let Ok(theirs) = KeyExpr::try_from(format!("{}/{peis}/{rest}", wire::ROOT)) else {
+    while let Ok(reply) = replies.recv_async().await {
+        let Ok(sample) = reply.result() else {
             continue;
         };
-        if !asked.intersects(&theirs) {
+        if !owner_of(sample.key_expr().as_str()).is_some_and(|o| pass_on.contains(&o)) {
             continue;
         }
-        let Ok(replies) = session
-            .get(format!("{theirs}?{FROM_A_HOLDER}"))
-            .target(QueryTarget::All)
-            .allowed_destination(Locality::Remote)
-            .consolidation(ConsolidationMode::None)
-            .timeout(ASK_WITHIN)
-            .with(flume::unbounded())
-            .await
-        else {
-            continue;
-        };
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                let mut reply = query
-                    .reply(sample.key_expr().clone(), sample.payload().clone())
-                    .encoding(sample.encoding().clone());
-                if let Some(attachment) = sample.attachment() {
-                    reply = reply.attachment(attachment.clone());
-                }
-                let _ = reply.await;
-            }
+        let mut reply = query
+            .reply(sample.key_expr().clone(), sample.payload().clone())
+            .encoding(sample.encoding().clone());
+        if let Some(attachment) = sample.attachment() {
+            reply = reply.attachment(attachment.clone());
         }
+        let _ = reply.await;
     }
 }
