@@ -204,14 +204,8 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                     let Some(rest) = held.strip_prefix("peis/*/") else {
                         continue;
                     };
-                    let Ok(replies) = session
-                        .get(format!("{}/{peis}/{rest}?{FROM_A_HOLDER}", wire::ROOT))
-                        .target(QueryTarget::All)
-                        .allowed_destination(Locality::Remote)
-                        .consolidation(ConsolidationMode::None)
-                        .timeout(ASK_WITHIN)
-                        .with(flume::unbounded())
-                        .await
+                    let Ok(replies) =
+                        ask_the_peis(&session, format!("{}/{peis}/{rest}", wire::ROOT)).await
                     else {
                         answered = false;
                         continue;
@@ -329,15 +323,7 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
     if pass_on.is_empty() {
         return;
     }
-    let Ok(replies) = session
-        .get(format!("{asked}?{FROM_A_HOLDER}"))
-        .target(QueryTarget::All)
-        .allowed_destination(Locality::Remote)
-        .consolidation(ConsolidationMode::None)
-        .timeout(ASK_WITHIN)
-        .with(flume::unbounded())
-        .await
-    else {
+    let Ok(replies) = ask_the_peis(session, asked.to_string()).await else {
         return;
     };
     while let Ok(reply) = replies.recv_async().await {
@@ -355,4 +341,20 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
         }
         let _ = reply.await;
     }
+}
+
+/// Asks the PEIS themselves for what `key_expr` covers: every queryable but this router's own,
+/// marked so that other routers' holdings leave it unanswered.
+async fn ask_the_peis(
+    session: &Session,
+    key_expr: String,
+) -> zenoh::Result<flume::Receiver<zenoh::query::Reply>> {
+    session
+        .get(format!("{key_expr}?{FROM_A_HOLDER}"))
+        .target(QueryTarget::All)
+        .allowed_destination(Locality::Remote)
+        .consolidation(ConsolidationMode::None)
+        .timeout(ASK_WITHIN)
+        .with(flume::unbounded())
+        .await
 }
