@@ -357,16 +357,25 @@ impl Timers {
 /// streams carry, the outputs and the world, is what on demand leaves out.
 struct Follow<S: TupleSpace> {
     space: S,
-    /// What is followed so far: nothing, the contract, or everything.
-    interest: Interest,
+    /// What is followed so far.
+    followed: Followed,
     subs: SelectAll<ecology_tuples::Subscription>,
+}
+
+/// What [`Follow`] subscribes to: each step covers the one before.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Followed {
+    Nothing,
+    /// The component contract of every PEIS ([`contract`]): what any type of interest needs.
+    Contract,
+    Everything,
 }
 
 impl<S: TupleSpace> Follow<S> {
     fn new(space: S) -> Self {
         Follow {
             space,
-            interest: Interest::Types(BTreeSet::new()),
+            followed: Followed::Nothing,
             subs: SelectAll::new(),
         }
     }
@@ -379,28 +388,28 @@ impl<S: TupleSpace> Follow<S> {
         now: Duration,
         more: &Interest,
     ) -> Result<Vec<Command>, TupleError> {
-        let Interest::Types(have) = &mut self.interest else {
-            return Ok(Vec::new());
+        let wanted = match more {
+            Interest::Everything => Followed::Everything,
+            Interest::Types(types) if types.is_empty() => Followed::Nothing,
+            Interest::Types(_) => Followed::Contract,
         };
-        let patterns = match more {
-            Interest::Everything => vec![TuplePattern::everything()],
-            // The contract of every PEIS covers every type: it is subscribed once.
-            Interest::Types(types) if have.is_empty() && !types.is_empty() => contract(),
-            Interest::Types(types) => {
-                have.extend(types.iter().cloned());
-                return Ok(Vec::new());
-            }
+        if wanted <= self.followed {
+            return Ok(Vec::new());
+        }
+        let patterns = match wanted {
+            Followed::Everything => vec![TuplePattern::everything()],
+            _ => contract(),
         };
         // Subscribed together: the queries behind them go out at once.
         let subscribed =
             futures_util::future::join_all(patterns.into_iter().map(|p| self.space.subscribe(p)))
                 .await;
-        if *more == Interest::Everything {
+        if wanted == Followed::Everything {
             // The new subscription brings all of it again; the mirror drops what it has.
             self.subs = SelectAll::new();
         }
-        self.interest = more.clone();
-        exec.note_everything(*more == Interest::Everything);
+        self.followed = wanted;
+        exec.note_everything(wanted == Followed::Everything);
         let mut out = Vec::new();
         for sub in subscribed {
             let mut sub = sub?;

@@ -17,7 +17,7 @@
 
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use tokio::sync::mpsc;
 use zenoh::Session;
@@ -26,7 +26,7 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::{ConsolidationMode, Query, QueryTarget};
 use zenoh::sample::{Locality, Sample, SampleKind};
 
-use ecology_tuples::PeisId;
+use ecology_tuples::{Clock, PeisId, SystemClock};
 
 use crate::wire::{self, Metadata};
 
@@ -84,12 +84,6 @@ fn owner_of(key_expr: &str) -> Option<PeisId> {
     let rest = key_expr.strip_prefix(wire::ROOT)?.strip_prefix('/')?;
     let owner = rest.split('/').next()?;
     PeisId::new(owner).ok()
-}
-
-fn now_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 /// Takes in one sample of a held key.
@@ -288,7 +282,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
 /// Answers `query` from what is held, and passes it on to the PEIS still being asked.
 async fn answer(session: &Session, state: &Shared, query: Query) {
     let asked = query.key_expr().clone().into_owned();
-    let now = now_ns();
+    let now = SystemClock.now().as_nanos();
     let (replies, pass_on) = {
         let state = lock(state);
         let mut replies = Vec::new();
