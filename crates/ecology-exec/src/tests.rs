@@ -1460,6 +1460,9 @@ mod on_the_tuple_space {
         async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
             self.inner.set(key, value).await
         }
+        fn is_read(&self, key: &Key) -> bool {
+            self.inner.is_read(key)
+        }
         async fn delete(&self, key: Key) -> Result<bool, TupleError> {
             self.inner.delete(key).await
         }

@@ -7,7 +7,7 @@
 //! `waiting` with the missing inputs in `C.cause`, `done`) itself. Returning an
 //! error reports `error` with the error as the cause; the host does that.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::future::Future;
 use std::pin::Pin;
 use std::sync::Arc;
@@ -65,6 +65,8 @@ pub struct Context<S: TupleSpace> {
     component: String,
     params: String,
     clock: Arc<dyn Clock>,
+    /// The outputs written and not deleted since, so that one going unread is deleted once.
+    written: Arc<std::sync::Mutex<BTreeSet<String>>>,
 }
 
 impl<S: TupleSpace> std::fmt::Debug for Context<S> {
@@ -89,6 +91,7 @@ impl<S: TupleSpace> Context<S> {
             component,
             params,
             clock,
+            written: Arc::default(),
         }
     }
 
@@ -168,11 +171,31 @@ impl<S: TupleSpace> Context<S> {
         Ok(())
     }
 
-    /// Publishes output `info` as `C.out.INFO`.
-    pub async fn output(&self, info: &str, value: Value) -> Result<Tuple, ComponentError> {
+    /// Whether anyone reads output `info` (`C.out.INFO`) now: a consumer whose input the
+    /// executive pointed at it, or anyone else subscribed to it ([`TupleSpace::is_read`]). A body
+    /// asks before it does the work of an output, so that an output nobody reads costs nothing.
+    pub fn is_read(&self, info: &str) -> Result<bool, ComponentError> {
         let key = output_key(&self.component_id()?, info)
             .map_err(|e| ComponentError::Space(e.to_string()))?;
-        Ok(self.space.set(key, value).await?)
+        Ok(self.space.is_read(&key))
+    }
+
+    /// Publishes output `info` as `C.out.INFO` while someone reads it ([`Context::is_read`]),
+    /// returning the tuple written; `None` when nobody reads it. An output that goes unread is
+    /// deleted, once: a reader who comes later gets the next value, never an old one as if new.
+    pub async fn output(&self, info: &str, value: Value) -> Result<Option<Tuple>, ComponentError> {
+        let key = output_key(&self.component_id()?, info)
+            .map_err(|e| ComponentError::Space(e.to_string()))?;
+        if self.space.is_read(&key) {
+            let tuple = self.space.set(key, value).await?;
+            lock(&self.written).insert(info.to_string());
+            return Ok(Some(tuple));
+        }
+        let was_written = lock(&self.written).remove(info);
+        if was_written {
+            self.space.delete(key).await?;
+        }
+        Ok(None)
     }
 
     /// Follows the inputs `infos` through their `C.mi-INFO` meta-tuples.
@@ -196,6 +219,12 @@ impl<S: TupleSpace> Context<S> {
         let deadline = self.clock.now().saturating_add(d);
         self.clock.sleep_until(deadline).await;
     }
+}
+
+fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// A component's inputs: the latest value of each, as it arrives.

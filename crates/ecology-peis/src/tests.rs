@@ -182,6 +182,69 @@ async fn the_init_component_publishes_and_starts_components() {
     f.stop().await;
 }
 
+/// An output goes out only while someone reads it: nothing is written while nobody subscribes,
+/// the next value once someone does, and the value is deleted once they go, so a later reader
+/// is never handed an old one. Status goes out whether or not anyone reads it.
+#[tokio::test(start_paused = true)]
+async fn an_output_goes_out_only_while_someone_reads_it() {
+    let counter: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|ctx: Context<InProcessPeis>| async move {
+            ctx.status("running", None).await?;
+            for n in 0.. {
+                let read = ctx.is_read("range-scan")?;
+                let written = ctx.output("range-scan", Value::text(n.to_string())).await?;
+                assert_eq!(written.is_some(), read);
+                ctx.sleep(Duration::from_millis(100)).await;
+            }
+            Ok(())
+        });
+    let f = start(vec![spec("l1", false, counter)]).await;
+    f.set("l1.params", "(laser robot l1)").await;
+    f.set("components.l1.reqState", "on").await;
+    f.wait_for("l1.status", "running", Duration::from_millis(1100))
+        .await;
+    f.clock.advance(Duration::from_secs(1));
+    tokio::time::sleep(STEP).await;
+    assert_eq!(f.get("l1.out.range-scan").await, None, "nobody reads it");
+
+    let robot = PeisId::new("robot").expect("name");
+    let mut reader = f
+        .other
+        .subscribe(TuplePattern::exact(
+            robot.clone(),
+            &key("l1.out.range-scan"),
+        ))
+        .await
+        .expect("subscribe");
+    let first = loop {
+        tokio::select! {
+            biased;
+            event = reader.next() => match event {
+                Some(TupleEvent::Changed(t)) => break t,
+                other => panic!("unexpected {other:?}"),
+            },
+            () = tokio::time::sleep(STEP) => f.clock.advance(STEP),
+        }
+    };
+    let n: u64 = first.text().expect("text").parse().expect("a count");
+    assert!(
+        n >= 1,
+        "the first value read is a new one, not the first taken: {n}"
+    );
+    drop(reader);
+    for _ in 0..20 {
+        f.clock.advance(STEP);
+        tokio::time::sleep(STEP).await;
+    }
+    assert_eq!(
+        f.get("l1.out.range-scan").await,
+        None,
+        "once unread, it is deleted"
+    );
+    assert_eq!(f.get("l1.status").await.as_deref(), Some("running"));
+    f.stop().await;
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
     let failing: Arc<dyn Component<InProcessPeis>> =

@@ -11,6 +11,10 @@
 //! status: `waiting` naming what is missing, `running`, `done`, or `error`
 //! with a cause. Injected faults make a component fail (`error`) or stall
 //! (stay `running` but fall silent, as a dead camera does).
+//!
+//! An output goes out only while someone reads it (`Context::output`), and the
+//! cameras and the laser take no image or scan that nobody reads; status flows
+//! whether or not anyone reads it.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -355,7 +359,8 @@ impl<S: TupleSpace> Body<S> {
                 self.report("waiting", "ground truth").await?;
             } else {
                 self.report("running", "").await?;
-                if !stalled {
+                // An image nobody reads is not taken.
+                if !stalled && self.ctx.is_read("image")? {
                     let map = truth.map().unwrap_or_default();
                     let viewpoint = truth.robot(&me);
                     let mut image = Vec::new();
@@ -495,7 +500,7 @@ impl<S: TupleSpace> Body<S> {
             match (truth.robot(&me), truth.map()) {
                 (Some(pose), Some(map)) => {
                     self.report("running", "").await?;
-                    if !stalled {
+                    if !stalled && self.ctx.is_read("range-scan")? {
                         let scan: Vec<String> = scan(&map, pose)
                             .into_iter()
                             .map(|r| format!("{:.3}", r + self.rng.gaussian(0.01)))

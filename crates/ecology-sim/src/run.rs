@@ -202,9 +202,7 @@ pub async fn run(
     // Watching goes through the world's own handle, so it adds no PEIS to the ecology.
     let watcher = world_peis.clone();
     let truth = Arc::new(Mutex::new(GroundTruth {
-        tuples: watcher
-            .subscribe(TuplePattern::parse("*:*.**").map_err(TupleError::Invalid)?)
-            .await?,
+        tuples: GroundTruth::follow(&watcher, scenario)?,
         clock: shared.clone(),
         start,
         check: ConflictCheck::default(),
@@ -343,6 +341,26 @@ struct GroundTruth {
 }
 
 impl GroundTruth {
+    /// Follows what the check reads, and nothing more, so that it reads no component's output
+    /// (an output nobody else reads is not published): every two-segment key (`C.params`,
+    /// `C.mi-INFO`, …) and `C.mi-INFO.ARG` for each information of the tasks' domains.
+    fn follow(watcher: &InProcessPeis, scenario: &Scenario) -> Result<Subscription, TupleError> {
+        let mut infos = std::collections::BTreeSet::new();
+        for task in &scenario.tasks {
+            for f in &task.domain.functionalities {
+                infos.extend(f.inputs.iter().map(|i| i.name.to_string()));
+            }
+        }
+        let mut patterns = vec![TuplePattern::parse("*:*.*").map_err(TupleError::Invalid)?];
+        // An information whose name is no key segment has no `mi-` tuple to follow.
+        patterns.extend(
+            infos
+                .iter()
+                .filter_map(|info| TuplePattern::parse(&format!("*:*.mi-{info}.*")).ok()),
+        );
+        watcher.subscribe_any(patterns)
+    }
+
     /// Feeds the check every tuple change not yet taken in.
     fn take_in(&mut self) {
         while let Some(event) = self.tuples.try_next() {

@@ -62,7 +62,7 @@ macro_rules! conformance_tests {
             meta_tuple_refollows_pointer, remote_set_is_applied_by_owner, claims_are_arbitrated_by_the_owner,
             non_owner_cannot_publish,
             expiry_removes_tuples, presence_join_and_leave, presence_of_one_peis, vanished_peis_left_within_lease,
-            a_rejoining_peis_starts_a_later_epoch);
+            a_rejoining_peis_starts_a_later_epoch, readers_are_known);
     };
     (@tests $make:expr; $($name:ident),*) => {
         $(
@@ -895,4 +895,93 @@ pub async fn a_rejoining_peis_starts_a_later_epoch<H: Harness>(h: &mut H) {
         }
         other => panic!("unexpected {other:?}"),
     }
+}
+
+/// Waits until `condition` holds, failing the test with `what` if it does not within `patience`.
+/// For what no event announces (who reads a tuple): asked again every 10 ms.
+pub async fn until(patience: Duration, what: &str, condition: impl Fn() -> bool) {
+    let deadline = Instant::now() + patience;
+    while !condition() {
+        assert!(Instant::now() < deadline, "not within {patience:?}: {what}");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+/// Whether anyone reads a tuple: nobody at first; then a subscriber of another PEIS to exactly it,
+/// to a wildcard matching it, or through a meta-tuple pointing at it, each until it is dropped.
+/// A subscription to another key does not read it. An implementation may count a tuple as read
+/// while it cannot know yet, for at most a second of its clock from the first time it is asked.
+pub async fn readers_are_known<H: Harness>(h: &mut H) {
+    let cam = h.join("cam", PeisOptions::default()).await;
+    let tracker = h.join("tracker", PeisOptions::default()).await;
+    let patience = h.patience();
+    let image = key("c1.out.image");
+    publish(&cam, "c1.out.image", "robot 1 2 0").await;
+    let _ = cam.is_read(&image);
+    h.advance(Duration::from_secs(2));
+    until(patience, "nobody reads it at first", || {
+        !cam.is_read(&image)
+    })
+    .await;
+
+    let exact = watch(&tracker, "cam:c1.out.image").await;
+    until(patience, "an exact subscriber reads it", || {
+        cam.is_read(&image)
+    })
+    .await;
+    drop(exact);
+    until(
+        patience,
+        "nobody reads it once the subscriber is gone",
+        || !cam.is_read(&image),
+    )
+    .await;
+
+    let other = watch(&tracker, "cam:c1.status").await;
+    let wildcard = watch(&tracker, "*:*.out.*").await;
+    until(patience, "a wildcard subscriber reads it", || {
+        cam.is_read(&image)
+    })
+    .await;
+    drop(wildcard);
+    until(
+        patience,
+        "a subscriber to another key does not read it",
+        || !cam.is_read(&image),
+    )
+    .await;
+    drop(other);
+
+    let pointer = MetaPointer {
+        owner: peis("cam"),
+        key: image.clone(),
+    };
+    tracker
+        .set_meta(key("t1.mi-image"), &pointer)
+        .await
+        .expect("set meta");
+    let mut through_meta = tracker
+        .subscribe_meta(peis("tracker"), key("t1.mi-image"))
+        .await
+        .expect("subscribe meta");
+    // The meta-tuple is followed once its pointer has been read: its target's value comes next.
+    loop {
+        if let TupleEvent::Changed(t) = next_event(&mut through_meta, patience).await {
+            assert_eq!(t.text(), Ok("robot 1 2 0"));
+            break;
+        }
+    }
+    until(
+        patience,
+        "a subscriber through a meta-tuple reads it",
+        || cam.is_read(&image),
+    )
+    .await;
+    drop(through_meta);
+    until(
+        patience,
+        "nobody reads it once that subscriber is gone",
+        || !cam.is_read(&image),
+    )
+    .await;
 }

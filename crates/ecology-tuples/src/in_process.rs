@@ -14,7 +14,7 @@ use crate::name::{Key, PeisId};
 use crate::owned::OwnedTuples;
 use crate::pattern::{OwnerPattern, TuplePattern};
 use crate::space::{PeisOptions, TupleSpace};
-use crate::subscription::{PresenceSubscription, Subscription};
+use crate::subscription::{self, EventSender, PresenceSubscription, Subscription};
 
 /// An ecology in one process. PEIS join it with [`InProcessSpace::join`] and get an [`InProcessPeis`] handle.
 ///
@@ -62,8 +62,15 @@ struct Peer {
 #[derive(Debug)]
 struct Subscriber {
     id: u64,
-    pattern: TuplePattern,
-    events: mpsc::UnboundedSender<TupleEvent>,
+    /// What it follows: one pattern, or several for [`InProcessPeis::subscribe_any`].
+    patterns: Vec<TuplePattern>,
+    events: EventSender,
+}
+
+impl Subscriber {
+    fn matches(&self, owner: &PeisId, key: &Key) -> bool {
+        self.patterns.iter().any(|p| p.matches(owner, key))
+    }
 }
 
 /// The tuple subscriptions, those of one owner apart from those of any owner, so that a change
@@ -80,9 +87,12 @@ struct Subscribers {
 
 impl Subscribers {
     fn push(&mut self, subscriber: Subscriber) {
-        let owner = match &subscriber.pattern.owner {
-            OwnerPattern::Exact(id) => Some(id.clone()),
-            OwnerPattern::Any => None,
+        let owner = match subscriber.patterns.as_slice() {
+            [one] => match &one.owner {
+                OwnerPattern::Exact(id) => Some(id.clone()),
+                OwnerPattern::Any => None,
+            },
+            _ => None,
         };
         self.owner_of.insert(subscriber.id, owner.clone());
         match owner {
@@ -106,6 +116,15 @@ impl Subscribers {
         }
     }
 
+    /// Whether a live subscription matches tuple (`owner`, `key`).
+    fn any_matching(&self, owner: &PeisId, key: &Key) -> bool {
+        let exact = self.by_owner.get(owner).map_or(&[][..], Vec::as_slice);
+        exact
+            .iter()
+            .chain(&self.any_owner)
+            .any(|s| !s.events.is_closed() && s.matches(owner, key))
+    }
+
     /// Sends `event` to every subscription it matches, in the order they were made; drops those
     /// whose receiver is gone.
     fn broadcast(&mut self, event: &TupleEvent) {
@@ -122,7 +141,7 @@ impl Subscribers {
                 j += 1;
                 &any[j - 1]
             };
-            if s.pattern.matches(owner, key) && s.events.send(event.clone()).is_err() {
+            if s.matches(owner, key) && !s.events.send(event.clone()) {
                 closed.push(s.id);
             }
         }
@@ -439,6 +458,50 @@ impl InProcessPeis {
         self.membership.generation
     }
 
+    /// Subscribes to the tuples matching any of `patterns` as one subscription: the current ones
+    /// first, then every change in the order the space makes them, whichever pattern it matches
+    /// (separate subscriptions would each keep their own order).
+    pub fn subscribe_any(&self, patterns: Vec<TuplePattern>) -> Result<Subscription, TupleError> {
+        let now = self.shared.clock.now();
+        let mut state = self.shared.lock();
+        self.check_live(&mut state)?;
+        let (tx, rx) = subscription::events();
+        // Under the lock, the snapshot and the registration are one step: nothing falls in between.
+        // By owner, then key; a tuple that several patterns match, once.
+        let mut current: BTreeMap<(&PeisId, &Key), &Tuple> = BTreeMap::new();
+        for pattern in &patterns {
+            let owners: Box<dyn Iterator<Item = &Peer>> = match &pattern.owner {
+                OwnerPattern::Exact(id) => Box::new(state.peers.get(id).into_iter()),
+                OwnerPattern::Any => Box::new(state.peers.values()),
+            };
+            for peer in owners {
+                for tuple in peer.tuples.matching(&pattern.key, now) {
+                    if patterns.len() == 1 {
+                        tx.send(TupleEvent::Changed(tuple.clone()));
+                    } else {
+                        current.insert((&tuple.owner, &tuple.key), tuple);
+                    }
+                }
+            }
+        }
+        for tuple in current.into_values() {
+            tx.send(TupleEvent::Changed(tuple.clone()));
+        }
+        let id = state.next_subscriber;
+        state.next_subscriber += 1;
+        state.subscribers.push(Subscriber {
+            id,
+            patterns,
+            events: tx,
+        });
+        let guard = SubscriberGuard {
+            shared: Arc::downgrade(&self.shared),
+            id,
+            kind: Watched::Tuples,
+        };
+        Ok(Subscription::from_channel(rx, guard))
+    }
+
     fn check_live(&self, state: &mut State) -> Result<(), TupleError> {
         state.live_peer(&self.me, self.generation()).map(|_| ())
     }
@@ -463,6 +526,10 @@ impl TupleSpace for InProcessPeis {
 
     async fn set(&self, key: Key, value: Value) -> Result<Tuple, TupleError> {
         self.set_now(key, value)
+    }
+
+    fn is_read(&self, key: &Key) -> bool {
+        self.shared.lock().subscribers.any_matching(&self.me, key)
     }
 
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {
@@ -513,33 +580,7 @@ impl TupleSpace for InProcessPeis {
     }
 
     async fn subscribe(&self, pattern: TuplePattern) -> Result<Subscription, TupleError> {
-        let now = self.shared.clock.now();
-        let mut state = self.shared.lock();
-        self.check_live(&mut state)?;
-        let (tx, rx) = mpsc::unbounded_channel();
-        // Under the lock, the snapshot and the registration are one step: nothing falls in between.
-        let owners: Box<dyn Iterator<Item = &Peer>> = match &pattern.owner {
-            OwnerPattern::Exact(id) => Box::new(state.peers.get(id).into_iter()),
-            OwnerPattern::Any => Box::new(state.peers.values()),
-        };
-        for peer in owners {
-            for tuple in peer.tuples.matching(&pattern.key, now) {
-                let _ = tx.send(TupleEvent::Changed(tuple.clone()));
-            }
-        }
-        let id = state.next_subscriber;
-        state.next_subscriber += 1;
-        state.subscribers.push(Subscriber {
-            id,
-            pattern,
-            events: tx,
-        });
-        let guard = SubscriberGuard {
-            shared: Arc::downgrade(&self.shared),
-            id,
-            kind: Watched::Tuples,
-        };
-        Ok(Subscription::from_channel(rx, guard))
+        self.subscribe_any(vec![pattern])
     }
 
     async fn set_remote(&self, owner: PeisId, key: Key, value: Value) -> Result<Tuple, TupleError> {

@@ -39,4 +39,7 @@ pub use name::{
 pub use owned::OwnedTuples;
 pub use pattern::{KeyPattern, OwnerPattern, Segment, TuplePattern};
 pub use space::{PeisOptions, RemoteSetPolicy, TupleSpace};
-pub use subscription::{PresenceSubscription, Resubscribe, SubscribeFuture, Subscription};
+pub use subscription::{
+    EventReceiver, EventSender, PresenceSubscription, Resubscribe, SubscribeFuture, Subscription,
+    events,
+};

@@ -24,6 +24,13 @@ pub trait TupleSpace: Clone + Send + Sync + 'static {
     fn set(&self, key: Key, value: Value)
     -> impl Future<Output = Result<Tuple, TupleError>> + Send;
 
+    /// Whether anyone subscribes to this PEIS's tuple `key` now: a subscription of any PEIS (this
+    /// one included) whose pattern matches it, directly or through a meta-tuple pointing at it.
+    /// A component asks before it computes and publishes an output, so that an output nobody
+    /// reads costs nothing (see `ecology_peis::Context::output`). An implementation that cannot
+    /// know yet says `true`: a value published in vain costs less than one withheld from a reader.
+    fn is_read(&self, key: &Key) -> bool;
+
     /// Deletes this PEIS's tuple `key`; returns whether it existed.
     fn delete(&self, key: Key) -> impl Future<Output = Result<bool, TupleError>> + Send;
 

@@ -11,6 +11,37 @@ use crate::error::TupleError;
 use crate::model::{MetaPointer, PresenceEvent, TupleEvent};
 use crate::name::{Key, PeisId};
 
+/// The sending half of a subscription's events, made by [`events`].
+#[derive(Debug)]
+pub struct EventSender(futures_channel::mpsc::UnboundedSender<TupleEvent>);
+
+/// The receiving half of a subscription's events, for [`Subscription::from_channel`].
+#[derive(Debug)]
+pub struct EventReceiver(futures_channel::mpsc::UnboundedReceiver<TupleEvent>);
+
+/// A channel of tuple events for one subscription, unbounded.
+///
+/// It holds nothing until an event is sent, and each event in its own allocation: a PEIS host
+/// keeps a few subscriptions open that seldom see an event, and a thousand hosts in one process
+/// would otherwise hold a block of 32 events' room for each (tokio's channel) whether or not any
+/// came.
+pub fn events() -> (EventSender, EventReceiver) {
+    let (tx, rx) = futures_channel::mpsc::unbounded();
+    (EventSender(tx), EventReceiver(rx))
+}
+
+impl EventSender {
+    /// Sends `event`; `false` if the subscription is gone.
+    pub fn send(&self, event: TupleEvent) -> bool {
+        self.0.unbounded_send(event).is_ok()
+    }
+
+    /// Whether the subscription is gone.
+    pub fn is_closed(&self) -> bool {
+        self.0.is_closed()
+    }
+}
+
 /// A future that opens a subscription on the target of a meta-tuple.
 pub type SubscribeFuture = Pin<Box<dyn Future<Output = Result<Subscription, TupleError>> + Send>>;
 
@@ -28,7 +59,7 @@ pub struct Subscription {
 
 enum Kind {
     Channel {
-        events: mpsc::UnboundedReceiver<TupleEvent>,
+        events: EventReceiver,
         // Dropped with the subscription; implementations use it to unsubscribe.
         _guard: Box<dyn Send>,
     },
@@ -47,10 +78,7 @@ struct MetaFollow {
 
 impl Subscription {
     /// A subscription fed by `events`; `guard` is dropped when the subscription is (to unsubscribe).
-    pub fn from_channel(
-        events: mpsc::UnboundedReceiver<TupleEvent>,
-        guard: impl Send + 'static,
-    ) -> Self {
+    pub fn from_channel(events: EventReceiver, guard: impl Send + 'static) -> Self {
         Self {
             kind: Kind::Channel {
                 events,
@@ -94,13 +122,12 @@ impl Subscription {
     /// The next event if one is ready now, without waiting.
     ///
     /// Every event that has arrived is returned, however many: a channel is read with
-    /// `try_recv`, which tokio's cooperative budget does not limit. Polling it instead would
-    /// return nothing once the calling task had used its budget (128 operations a turn), and a
-    /// subscriber that receives more than that between turns (a sensor following the poses of
-    /// 150 robots) would fall further behind with every turn.
+    /// `try_recv`, which no cooperative budget limits (tokio's limits a task to 128 operations a
+    /// turn; a subscriber that receives more than that between turns, such as a sensor following
+    /// the poses of 150 robots, would fall further behind with every turn).
     pub fn try_next(&mut self) -> Option<TupleEvent> {
         if let Kind::Channel { events, .. } = &mut self.kind {
-            return events.try_recv().ok();
+            return events.0.try_recv().ok();
         }
         let waker = std::task::Waker::noop();
         let mut cx = Context::from_waker(waker);
@@ -113,7 +140,9 @@ impl Subscription {
     /// Polls for the next event.
     pub fn poll_event(&mut self, cx: &mut Context<'_>) -> Poll<Option<TupleEvent>> {
         match &mut self.kind {
-            Kind::Channel { events, .. } => events.poll_recv(cx),
+            Kind::Channel { events, .. } => {
+                futures_core::Stream::poll_next(Pin::new(&mut events.0), cx)
+            }
             Kind::Meta(follow) => follow.poll_event(cx),
         }
     }
@@ -195,7 +224,10 @@ impl fmt::Debug for Subscription {
         match &self.kind {
             Kind::Channel { events, .. } => f
                 .debug_struct("Subscription")
-                .field("queued", &events.len())
+                .field(
+                    "open",
+                    &!futures_core::stream::FusedStream::is_terminated(&events.0),
+                )
                 .finish_non_exhaustive(),
             Kind::Meta(follow) => f
                 .debug_struct("Subscription")

@@ -190,7 +190,39 @@ impl Pose {
 /// `X Y THETA`: millimetres and tenths of a milliradian.
 impl fmt::Display for Pose {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:.3} {:.3} {:.4}", self.x, self.y, self.theta)
+        write!(
+            f,
+            "{} {} {}",
+            Fixed::<3>(self.x),
+            Fixed::<3>(self.y),
+            Fixed::<4>(self.theta)
+        )
+    }
+}
+
+/// A number with `D` decimals, rounded half away from zero; what `{:.D}` writes, but through
+/// integers: the exact float-to-decimal conversion behind `{:.D}` was a tenth of a large
+/// simulation's time, whose ceiling cameras write the poses of every robot 20 times a second.
+/// A value too large for that (over 10^15 scaled) is written by `{:.D}`; zero is never negative.
+struct Fixed<const D: u32>(f64);
+
+impl<const D: u32> fmt::Display for Fixed<D> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let unit = 10u64.pow(D);
+        let scaled = (self.0 * unit as f64).round();
+        if !scaled.is_finite() || scaled.abs() >= 1e15 {
+            return write!(f, "{:.*}", D as usize, self.0);
+        }
+        let n = scaled as i64;
+        let sign = if n < 0 { "-" } else { "" };
+        let m = n.unsigned_abs();
+        write!(
+            f,
+            "{sign}{}.{:0width$}",
+            m / unit,
+            m % unit,
+            width = D as usize
+        )
     }
 }
 
@@ -222,7 +254,7 @@ impl Point {
 /// `X Y`, in millimetres.
 impl fmt::Display for Point {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:.3} {:.3}", self.x, self.y)
+        write!(f, "{} {}", Fixed::<3>(self.x), Fixed::<3>(self.y))
     }
 }
 
@@ -493,5 +525,54 @@ mod tests {
         assert_eq!(name(f64::NAN, 1.0), None);
         assert_eq!(name(f64::INFINITY, 1.0), None);
         assert_eq!(Map::default().room_at(1.0, 1.0), None);
+    }
+
+    #[test]
+    fn numbers_are_written_with_their_decimals() {
+        assert_eq!(Pose::new(1.0, 2.0, 0.0).to_string(), "1.000 2.000 0.0000");
+        assert_eq!(
+            Pose::new(-0.25, 12.3456, -2.5).to_string(),
+            "-0.250 12.346 -2.5000"
+        );
+        assert_eq!(
+            Pose::new(-0.0001, 0.0, -0.00001).to_string(),
+            "0.000 0.000 0.0000"
+        );
+        assert_eq!(
+            Point::new(1e20, -2.0).to_string(),
+            format!("{:.3} -2.000", 1e20)
+        );
+    }
+
+    proptest::proptest! {
+        /// The text is `{:.3}`'s but for the rounding of a last digit (half away from zero, of the
+        /// scaled value), and reads back within half a unit of that digit.
+        #[test]
+        fn a_pose_is_written_as_format_writes_it(
+            x in -1e6f64..1e6,
+            y in -1e6f64..1e6,
+            theta in -7.0f64..7.0,
+        ) {
+            let text = Pose::new(x, y, theta).to_string();
+            let back = Pose::parse(&text).expect("reads back");
+            proptest::prop_assert!((back.x - x).abs() <= 0.0005 + 1e-9);
+            proptest::prop_assert!((back.y - y).abs() <= 0.0005 + 1e-9);
+            proptest::prop_assert!((back.theta - theta).abs() <= 0.00005 + 1e-9);
+            let words: Vec<&str> = text.split(' ').collect();
+            let exact = [
+                (format!("{x:.3}"), 0.001),
+                (format!("{y:.3}"), 0.001),
+                (format!("{theta:.4}"), 0.0001),
+            ];
+            proptest::prop_assert_eq!(words.len(), 3);
+            for (word, (exact, unit)) in words.iter().zip(&exact) {
+                proptest::prop_assert_eq!(
+                    word.split_once('.').map(|(_, d)| d.len()),
+                    exact.split_once('.').map(|(_, d)| d.len())
+                );
+                let (a, b): (f64, f64) = (word.parse().expect("a number"), exact.parse().expect("a number"));
+                proptest::prop_assert!((a - b).abs() <= unit + 1e-9, "{word} against {exact}");
+            }
+        }
     }
 }

@@ -57,6 +57,8 @@ struct Core {
     // A plain mutex: Zenoh's put is synchronous (its future is `ready(wait())`), so nothing awaits
     // while it is held; it blocks only while another set hands its sample over.
     publishers: Mutex<Publishers>,
+    /// Who reads each tuple this PEIS was asked about ([`TupleSpace::is_read`]).
+    readers: Mutex<HashMap<Key, Readers>>,
     expiry_changed: Notify,
     malformed: Arc<AtomicU64>,
     query_timeout: Duration,
@@ -273,6 +275,7 @@ impl ZenohPeis {
             runtime,
             clock: options.clock,
             publishers: Mutex::new(Publishers::default()),
+            readers: Mutex::new(HashMap::new()),
             expiry_changed: Notify::new(),
             malformed: Arc::new(AtomicU64::new(0)),
             query_timeout: options.query_timeout,
@@ -572,6 +575,44 @@ impl Publishers {
                 Ok(Route::First(key_expr))
             }
         }
+    }
+}
+
+/// How long a tuple's readers are taken to be unknown after this PEIS first asks: a Zenoh client
+/// learns who subscribes to a key expression by asking its router, when it declares a publisher
+/// for it, and counts no subscriber until the answer is in. Until then the tuple counts as read.
+const READERS_ANSWER: Duration = Duration::from_secs(1);
+
+/// Whether anyone subscribes to one tuple of this PEIS: a publisher declared only for its matching
+/// status (it never puts), kept up to date by a callback of Zenoh's.
+struct Readers {
+    _publisher: Publisher<'static>,
+    matching: Arc<std::sync::atomic::AtomicBool>,
+    since: ecology_tuples::Timestamp,
+}
+
+impl Readers {
+    fn declare(core: &Core, key: &Key) -> Result<Readers, TupleError> {
+        let key_expr =
+            KeyExpr::try_from(wire::tuple_key_expr(&core.me, key)).map_err(transport("readers"))?;
+        let publisher = core
+            .session
+            .declare_publisher(key_expr)
+            .wait()
+            .map_err(transport("readers"))?;
+        let matching = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let seen = matching.clone();
+        publisher
+            .matching_listener()
+            .callback(move |status| seen.store(status.matching(), Ordering::Relaxed))
+            .background()
+            .wait()
+            .map_err(transport("readers"))?;
+        Ok(Readers {
+            _publisher: publisher,
+            matching,
+            since: core.clock.now(),
+        })
     }
 }
 
@@ -909,7 +950,7 @@ fn default_mimetype(sample: &Sample) -> Mimetype {
 /// Merges a subscription's snapshots with live samples: the snapshot taken
 /// when it starts, and one of each PEIS that links to this one later.
 struct Merge {
-    events: mpsc::UnboundedSender<TupleEvent>,
+    events: ecology_tuples::EventSender,
     recent: Recent,
     snapshot_done: bool,
     buffered: Vec<TupleEvent>,
@@ -946,7 +987,7 @@ impl Merge {
             }
             self.delivered.insert(id, (epoch, seq));
         }
-        let _ = self.events.send(event);
+        self.events.send(event);
     }
 
     fn finish_snapshot(&mut self, tuples: Vec<Tuple>) {
@@ -991,6 +1032,21 @@ impl TupleSpace for ZenohPeis {
         publish(&self.inner.core, key, value)
     }
 
+    fn is_read(&self, key: &Key) -> bool {
+        let core = &self.inner.core;
+        let mut readers = lock(&core.readers);
+        let readers = match readers.entry(key.clone()) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => match Readers::declare(core, key) {
+                Ok(declared) => e.insert(declared),
+                // Not knowing, publish.
+                Err(_) => return true,
+            },
+        };
+        readers.matching.load(Ordering::Relaxed)
+            || core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER
+    }
+
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {
         let core = &self.inner.core;
         let mut publishers = lock(&core.publishers);
@@ -1028,7 +1084,7 @@ impl TupleSpace for ZenohPeis {
 
     async fn subscribe(&self, pattern: TuplePattern) -> Result<Subscription, TupleError> {
         let core = &self.inner.core;
-        let (tx, rx) = mpsc::unbounded_channel();
+        let (tx, rx) = ecology_tuples::events();
         let merge = Arc::new(Mutex::new(Merge {
             events: tx,
             recent: Recent {

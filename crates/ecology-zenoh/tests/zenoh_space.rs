@@ -6,7 +6,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::Duration;
 
-use ecology_tuples::conformance::{Harness, next_event, wait_presence};
+use ecology_tuples::conformance::{Harness, next_event, until, wait_presence};
 use ecology_tuples::{
     Key, KeyPattern, Mimetype, PeisId, PeisOptions, PresenceEvent, PresenceSubscription,
     RemovalReason, Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
@@ -1464,6 +1464,58 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
         "the spy, present and silent, is asked once by the snapshot and at most once more: {asked}"
     );
     a.close().await;
+}
+
+/// Through a router that holds the contract, a PEIS knows who reads its outputs: nobody, once its
+/// router has answered (the router's own holding does not read an output); a client subscribed
+/// through the router, until it unsubscribes or goes. Until the router has answered, an output
+/// counts as read.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn through_a_router_a_peis_knows_who_reads_its_outputs() {
+    let (endpoint, _stop) = start_router(8, |_| {});
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let cam = router_client_peis("cam", &endpoint).await;
+    let image = key("c1.out.image");
+    cam.set(image.clone(), Value::text("robot 1 2 0"))
+        .await
+        .expect("set");
+    assert!(
+        cam.is_read(&image),
+        "before the router can have answered, an output counts as read"
+    );
+    until(Duration::from_secs(3), "nobody reads it", || {
+        !cam.is_read(&image)
+    })
+    .await;
+    let tracker = router_client_peis("tracker", &endpoint).await;
+    let mut reading = tracker
+        .subscribe(TuplePattern::parse("cam:c1.out.image").expect("pattern"))
+        .await
+        .expect("subscribe");
+    until(PATIENCE, "the tracker reads it", || cam.is_read(&image)).await;
+    match next_event(&mut reading, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!(t.text(), Ok("robot 1 2 0")),
+        other => panic!("unexpected {other:?}"),
+    }
+    drop(reading);
+    until(PATIENCE, "nobody reads it once the tracker stops", || {
+        !cam.is_read(&image)
+    })
+    .await;
+    let _reading = tracker
+        .subscribe(TuplePattern::parse("*:*.out.*").expect("pattern"))
+        .await
+        .expect("subscribe");
+    until(PATIENCE, "the tracker reads it by a wildcard", || {
+        cam.is_read(&image)
+    })
+    .await;
+    tracker.close().await;
+    until(PATIENCE, "nobody reads it once the tracker is gone", || {
+        !cam.is_read(&image)
+    })
+    .await;
+    cam.close().await;
 }
 
 /// A router holds the component contract of every PEIS and answers for it: a stock client that
