@@ -9,8 +9,11 @@ package (pip install eclipse-zenoh==1.10.2), nothing else, and follows docs/comp
   creator (version 2; version 1 without it). A meta-tuple's value `(meta OWNER KEY)` points at another tuple
   (`parse_meta_tuple`). PEIS names match `NAME`, keys `KEY`; a value is at most `MAX_VALUE` bytes.
 - The PEIS's own tuples: `Peis.set` publishes one with the next seq (from 1, per key) and the epoch
-  of this run (none with --no-epoch), and keeps it to answer gets. The first is `contract` = `2`:
-  the attachment version we read, so that writers speak it to us.
+  of this run (none with --no-epoch), and keeps it to answer gets; `Peis.delete` removes one. The
+  first is `contract` = `2`: the attachment version we read, so that writers speak it to us.
+- Outputs only while read: `Peis.is_read(key)` says whether anyone subscribes to our tuple `key`
+  (Zenoh's matching status of a publisher declared for it), so that a component publishes an
+  output only while someone reads it and deletes it once nobody does.
 - Queryables: peis/NAME/** answers gets with every tuple of ours the query's key expression
   intersects; peis/NAME/@set/** applies remote sets.
 - Remote sets: only of the keys in `remote_settable` (the component's reqState, params and mi-INFO),
@@ -154,6 +157,7 @@ class Peis:
         self.epoch = 0 if no_epoch else time.time_ns()  # identifies this run of the PEIS
         self.tuples = {}   # key -> (KeyExpr, payload bytes, attachment bytes)
         self.seqs = {}     # key -> last seq
+        self.readers = {}  # key -> a publisher declared for its matching status
         self.events = queue.Queue()  # everything Zenoh delivers, handled by the main thread
         self.stop = threading.Event()
         conf = zenoh.Config()
@@ -220,6 +224,23 @@ class Peis:
         self.tuples[key] = (zenoh.KeyExpr(ke), data, meta)
         self.session.put(ke, data, attachment=meta, congestion_control=zenoh.CongestionControl.BLOCK)
         return data, meta
+
+    def delete(self, key):
+        """Removes our tuple `key`, if we have it, with the next seq."""
+        if self.tuples.pop(key, None) is None:
+            return
+        seq = self.seqs[key] = self.seqs.get(key, 0) + 1
+        meta = encode_meta(seq, time.time_ns(), self.epoch, "text/plain")
+        self.session.delete(key_expr(self.name, key), attachment=meta,
+                            congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def is_read(self, key):
+        """Whether anyone subscribes to our tuple `key` now: the matching status of a publisher
+        declared for it (never used to put). A Zenoh peer, as this PEIS is, is told of its peers'
+        subscribers as they are declared, so it knows at once."""
+        if key not in self.readers:
+            self.readers[key] = self.session.declare_publisher(key_expr(self.name, key))
+        return self.readers[key].matching_status.matching
 
     def answer_get(self, query):
         for ke, data, meta in list(self.tuples.values()):
@@ -349,6 +370,8 @@ class Peis:
             for _ in self.session.get("peis/*/leaving", timeout=0.5):
                 pass
             self.token.undeclare()
+            for publisher in self.readers.values():
+                publisher.undeclare()
         finally:
             self.session.close()
 

@@ -9,7 +9,8 @@ The PEIS part lives in ecology_peis.py next to it, which the tutorial's door use
   components.c1.reqState (on after a 0.2 s start-up, off at once);
 - as component c1 it runs `(count-robots Q C P)`: it follows its input through the meta-tuple
   c1.mi-image, counts the robots in every image (`NAME X Y THETA; ...`), publishes the count as
-  c1.out.robot-count and reports c1.status (waiting / running / done, error with c1.cause);
+  c1.out.robot-count while someone reads it (deleting it once nobody does) and reports c1.status
+  (waiting / running / done, error with c1.cause) whether or not anyone reads it;
 - as a PEIS (ecology_peis.py) it declares presence, answers gets for its tuples and applies remote
   sets.
 
@@ -171,7 +172,11 @@ class Counter:
         self.last_image, self.problem = time.monotonic(), "image"
         self.counted += 1
         self.report("running")
-        self.peis.set(f"{C}.out.robot-count", str(len(robots)))
+        output = f"{C}.out.robot-count"
+        if self.peis.is_read(output):
+            self.peis.set(output, str(len(robots)))
+        else:
+            self.peis.delete(output)
         if self.counted >= IMAGES_TO_COUNT:
             self.done = True
             self.unfollow()

@@ -10,7 +10,8 @@ the agent's JSON-lines protocol and checks what comes back:
 - bad request lines give `error` events and the agent carries on;
 - a start of a node that is not running fails after 5 s naming it; a parameter the node refuses
   fails the start with the node's reason;
-- the tracker, started with target astrid, turns image inputs into global-pos outputs;
+- the tracker, started with target astrid, turns image inputs into global-pos outputs, forwarded
+  only while the host says someone reads them (`read`, `unread`);
 - a relay of the tracker's global_pos into self_loc's input gives self_loc's position outputs,
   with no input sent to self_loc, and self_loc's own statuses are forwarded;
 - navigation, given the map as a feed and positions along its route, steers (velocity outputs
@@ -251,6 +252,15 @@ def check_bad_lines(agent):
                      text=lambda t, w=words: w in t)
 
 
+def expect_none(agent, what, since, **fields):
+    """Fails if an event from line `since` on has `fields`."""
+    try:
+        _, event = agent.expect(what, timeout=0.01, since=since, **fields)
+    except CheckFailed:
+        return
+    fail(f"agent: {what}: {event}")
+
+
 def send_until(agent, request, what, timeout=5.0, **fields):
     """Sends `request` every 50 ms until the expected event comes: the first messages on a new
     topic may go before discovery has matched the two ends."""
@@ -327,9 +337,25 @@ def run(env, children):
                 "parameters": {"target": "astrid"}})
     agent.expect("tr1 running", timeout=10.0, since=since, ev="status", id="tr1",
                  status="running")
+    agent.send({"op": "read", "id": "tr1", "info": "global-pos"})
     send_until(agent, {"op": "input", "id": "tr1", "info": "image",
                        "text": "pippi 4.0 1.0 0.5; astrid 1.5 1.5 0.0"},
                "tr1 global-pos output", ev="output", id="tr1", info="global-pos",
+               text="1.500 1.500 0.000")
+    # Nobody reads it: the node still publishes (its input is matched now), the agent forwards
+    # nothing; read again, it forwards again.
+    agent.send({"op": "unread", "id": "tr1", "info": "global-pos"})
+    time.sleep(0.2)
+    since = agent.mark()
+    for _ in range(10):
+        agent.send({"op": "input", "id": "tr1", "info": "image", "text": "astrid 1.0 1.0 0.0"})
+        time.sleep(0.05)
+    time.sleep(0.3)
+    expect_none(agent, "an output nobody reads was forwarded", since, ev="output", id="tr1")
+    agent.send({"op": "read", "id": "tr1", "info": "global-pos"})
+    send_until(agent, {"op": "input", "id": "tr1", "info": "image",
+                       "text": "astrid 1.5 1.5 0.0"},
+               "tr1 global-pos output read again", ev="output", id="tr1", info="global-pos",
                text="1.500 1.500 0.000")
     since = agent.mark()
     agent.send({"op": "input", "id": "tr1", "info": "image", "text": "pippi 4 1 0"})
@@ -341,6 +367,7 @@ def run(env, children):
 
     # self_loc fed by a relay from the tracker's topic, DDS to DDS.
     since = agent.mark()
+    agent.send({"op": "read", "id": "sl1", "info": "position"})
     agent.send({"op": "start", "id": "sl1", "params": "(pose-tracking astrid hsm)",
                 "parameters": {}})
     agent.expect("sl1 running", timeout=10.0, since=since, ev="status", id="sl1",
@@ -358,6 +385,7 @@ def run(env, children):
     # navigation: the map as a feed, positions along the route, done in the bedroom.
     agent.send({"op": "feed", "id": "tc1", "name": "map", "text": MAP})
     since = agent.mark()
+    agent.send({"op": "read", "id": "tc1", "info": "velocity"})
     agent.send({"op": "start", "id": "tc1", "params": "(navigation astrid tc1 bedroom)",
                 "parameters": {"goal_room": "bedroom"}})
     agent.expect("tc1 running", timeout=10.0, since=since, ev="status", id="tc1",

@@ -191,11 +191,19 @@ impl<S: TupleSpace> Context<S> {
             lock(&self.written).insert(info.to_string());
             return Ok(Some(tuple));
         }
-        let was_written = lock(&self.written).remove(info);
-        if was_written {
+        self.withdraw(info).await?;
+        Ok(None)
+    }
+
+    /// Deletes output `info` if this run wrote it and has not withdrawn it since: what a body
+    /// does that stops producing an output nobody reads (`Context::output` does it itself).
+    pub async fn withdraw(&self, info: &str) -> Result<(), ComponentError> {
+        if lock(&self.written).remove(info) {
+            let key = output_key(&self.component_id()?, info)
+                .map_err(|e| ComponentError::Space(e.to_string()))?;
             self.space.delete(key).await?;
         }
-        Ok(None)
+        Ok(())
     }
 
     /// Follows the inputs `infos` through their `C.mi-INFO` meta-tuples.

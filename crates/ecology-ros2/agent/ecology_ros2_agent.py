@@ -18,8 +18,13 @@ Requests (host -> agent)
   node's lifecycle services, brings it back to unconfigured (deactivate if active, cleanup if
   inactive), sets every entry of ``parameters`` and ``ecology_params`` = TEXT as string parameters,
   then configures and activates it. Events: ``initializing``, then ``running`` (or ``error`` with
-  a cause naming the step that failed). While started its output topics are forwarded as
-  ``output`` events and its status topic, if any, as ``status`` events.
+  a cause naming the step that failed). While started its status topic, if any, is forwarded as
+  ``status`` events, and each output someone reads (``read``) as ``output`` events.
+- ``{"op":"read","id":C,"info":I}`` / ``{"op":"unread","id":C,"info":I}``: someone reads, or
+  nobody reads any more, output I of C. The agent subscribes to an output's topic only while it
+  is read and C is started, so an output nobody reads costs nothing: its node sees no
+  subscriber (``get_subscription_count``), and no message is taken in or converted. Outputs
+  start unread and stay as last said across runs (the host says it again at each start).
 - ``{"op":"stop","id":C}``: deactivate (if active), cleanup (if inactive), drop its output, status
   and relay subscriptions; event ``{"ev":"stopped","id":C,"state":S}`` with the lifecycle state it
   ended in (``gone`` when the node does not answer within 1 s).
@@ -346,6 +351,9 @@ class Port:
         self.type = MessageType(spec.get("type"))
         self.publisher = None
         self.relay = None
+        # An output: whether someone reads it, and the subscription forwarding it while so.
+        self.read = False
+        self.subscription = None
 
 
 class Component:
@@ -381,6 +389,9 @@ class Component:
         self.pending_status = None
         self.last_status = None
         self.subscriptions = []
+        # Whether the node's subscriptions are up (between subscribe and drop_subscriptions);
+        # outputs read are subscribed to only then. Guarded by `lock`.
+        self.listening = False
         self.queue = queue.Queue()
         self.stopped = threading.Event()
         self.worker = threading.Thread(target=self.work, name=f"component-{cid}", daemon=True)
@@ -420,6 +431,29 @@ class Component:
         except BadRequest as e:
             raise BadRequest(f"{kind} {self.id} {name}: {e}") from None
         port.publisher.publish(msg)
+
+    def set_read(self, info, read):
+        """Someone reads output `info`, or nobody does any more."""
+        port = self.port(self.outputs, info, "output")
+        with self.lock:
+            port.read = read
+            if read and self.listening:
+                self.forward(port)
+            elif not read:
+                self.unforward(port)
+
+    def forward(self, port):
+        """Subscribes to output `port`'s topic, if not yet; the caller holds `lock`."""
+        if port.subscription is None:
+            port.subscription = self.agent.node.create_subscription(
+                port.type.cls, port.topic, self.output_callback(port), DATA_QOS,
+                callback_group=self.agent.group)
+
+    def unforward(self, port):
+        """Drops output `port`'s subscription, if any; the caller holds `lock`."""
+        if port.subscription is not None:
+            self.agent.node.destroy_subscription(port.subscription)
+            port.subscription = None
 
     def relay(self, info, source):
         port = self.port(self.inputs, info, "input")
@@ -649,10 +683,11 @@ class Component:
     def subscribe(self):
         node = self.agent.node
         group = self.agent.group
-        for port in self.outputs.values():
-            self.subscriptions.append(node.create_subscription(
-                port.type.cls, port.topic, self.output_callback(port), DATA_QOS,
-                callback_group=group))
+        with self.lock:
+            self.listening = True
+            for port in self.outputs.values():
+                if port.read:
+                    self.forward(port)
         if self.status_topic is not None:
             from std_msgs.msg import String
             self.subscriptions.append(node.create_subscription(
@@ -663,6 +698,10 @@ class Component:
             callback_group=group))
 
     def drop_subscriptions(self):
+        with self.lock:
+            self.listening = False
+            for port in self.outputs.values():
+                self.unforward(port)
         for subscription in self.subscriptions:
             self.agent.node.destroy_subscription(subscription)
         self.subscriptions = []
@@ -742,7 +781,8 @@ class Agent:
             self.declare(request)
             return True
         handlers = {"start": self.start, "stop": self.stop, "input": self.input,
-                    "relay": self.relay, "unrelay": self.unrelay, "feed": self.feed}
+                    "relay": self.relay, "unrelay": self.unrelay, "feed": self.feed,
+                    "read": self.read, "unread": self.unread}
         if op not in handlers:
             raise BadRequest(f"unknown op {quoted(str(op))} (known: declare, "
                              f"{', '.join(handlers)}, quit)")
@@ -799,6 +839,12 @@ class Agent:
 
     def unrelay(self, component, request):
         component.unrelay(component.port(component.inputs, field(request, "info"), "input"))
+
+    def read(self, component, request):
+        component.set_read(field(request, "info"), True)
+
+    def unread(self, component, request):
+        component.set_read(field(request, "info"), False)
 
     def quit(self):
         """Stops every started component, all at once, within QUIT_TIMEOUT."""

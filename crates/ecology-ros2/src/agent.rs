@@ -325,6 +325,13 @@ impl Agent {
         self.send(json!({"op": "unrelay", "id": id, "info": info}));
     }
 
+    /// Tells the agent whether anyone reads component `id`'s output `info`: it forwards the
+    /// output's topic only while someone does.
+    pub(crate) fn read(&self, id: &str, info: &str, read: bool) {
+        let op = if read { "read" } else { "unread" };
+        self.send(json!({"op": op, "id": id, "info": info}));
+    }
+
     /// Publishes `text` on component `id`'s feed of tuple `name`.
     pub(crate) fn feed(&self, id: &str, name: &str, text: &str) {
         self.send(json!({"op": "feed", "id": id, "name": name, "text": text}));

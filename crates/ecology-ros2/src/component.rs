@@ -12,8 +12,13 @@
 //! tuple `C.topic.INFO` = `TOPIC TYPE` ([`announce_topics`]), and when an input's meta-tuple points
 //! at an output so announced, of the input's message type, the agent relays that topic to the
 //! input's topic instead of passing on the tuple.
+//!
+//! An output goes out only while someone reads it: the run asks who reads each output every
+//! [`READERS_EVERY`] and tells the agent, which subscribes to the output's topic only while
+//! someone does. The node then sees no subscriber on a topic nobody reads.
 
 use std::collections::HashMap;
+use std::time::Duration;
 
 use ecology_peis::{BoxFuture, Component, ComponentError, Context};
 use ecology_tuples::contract::input_key;
@@ -24,6 +29,9 @@ use ecology_tuples::{
 
 use crate::agent::{Agent, AgentEvent};
 use crate::spec::NodeSpec;
+
+/// How often a run asks whether anyone reads each output of its node.
+pub const READERS_EVERY: Duration = Duration::from_millis(250);
 
 /// Component `id` (`PEIS:C`) backed by the node of `spec`.
 #[derive(Debug, Clone)]
@@ -130,8 +138,24 @@ impl<S: TupleSpace> Component<S> for Ros2Component {
                 wiring.push((input.info.clone(), ctx.space().subscribe(pattern).await?));
             }
             let mut relayed: HashMap<String, String> = HashMap::new();
+            // Whether each output was read when last asked; said to the agent at the first ask
+            // and at every change, so that it forwards only outputs someone reads.
+            let mut read: HashMap<String, bool> = HashMap::new();
+            let mut ask_readers = ctx.clock().now();
             loop {
                 tokio::select! {
+                    () = ctx.clock().sleep_until(ask_readers), if !spec.outputs.is_empty() => {
+                        for output in &spec.outputs {
+                            let now_read = ctx.is_read(&output.info)?;
+                            if read.insert(output.info.clone(), now_read) != Some(now_read) {
+                                agent.read(&id, &output.info, now_read);
+                                if !now_read {
+                                    ctx.withdraw(&output.info).await?;
+                                }
+                            }
+                        }
+                        ask_readers = ask_readers.saturating_add(READERS_EVERY);
+                    }
                     event = events.recv() => match event {
                         Some(AgentEvent::Status { status, cause }) => match status.as_str() {
                             "error" => return Err(ComponentError::Fault(cause)),

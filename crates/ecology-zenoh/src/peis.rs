@@ -63,7 +63,8 @@ struct Core {
     malformed: Arc<AtomicU64>,
     query_timeout: Duration,
     /// Whether a PEIS can be seen present before it can be asked (peers, which link through
-    /// gossip): then one that answers nothing is asked again. Through a router, a PEIS declares
+    /// gossip): then one that answers nothing is asked again. Also: whether it is a peer, which
+    /// knows who reads its tuples at once ([`READERS_ANSWER`]). Through a router, a PEIS declares
     /// its queryables before its token (and a Zenoh client declares them again in that order when
     /// it reconnects), so its first full answer is all it has.
     answers_lag_presence: bool,
@@ -578,10 +579,12 @@ impl Publishers {
     }
 }
 
-/// How long a tuple's readers are taken to be unknown after this PEIS first asks: a Zenoh client
-/// learns who subscribes to a key expression by asking its router, when it declares a publisher
-/// for it, and counts no subscriber until the answer is in. Until then the tuple counts as read.
-const READERS_ANSWER: Duration = Duration::from_secs(1);
+/// How long a tuple's readers are taken to be unknown after a client PEIS first asks: a Zenoh
+/// client learns who subscribes to a key expression by asking its router, when it declares a
+/// publisher for it, and counts no subscriber until the answer is in (about 1 ms on loopback).
+/// Until then the tuple counts as read, so a one-off output is not lost. A peer is told of its
+/// peers' subscribers as they are declared, and knows at once.
+const READERS_ANSWER: Duration = Duration::from_millis(100);
 
 /// Whether anyone subscribes to one tuple of this PEIS: a publisher declared only for its matching
 /// status (it never puts), kept up to date by a callback of Zenoh's.
@@ -1044,7 +1047,8 @@ impl TupleSpace for ZenohPeis {
             },
         };
         readers.matching.load(Ordering::Relaxed)
-            || core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER
+            || (!core.answers_lag_presence
+                && core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER)
     }
 
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {

@@ -898,6 +898,50 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         "world,hsm,counter",
     );
     assert_the_counter_ran(code, &all);
+    // Nobody read its count: it was never written. It counted all the same (done).
+    let tuples = read_tuples(&ecology.world, "counter");
+    assert_eq!(
+        tuples.get("c1.out.robot-count"),
+        None,
+        "an output nobody reads is not written: {tuples:#?}"
+    );
+    assert!(tuples.contains_key("c1.status"), "{tuples:#?}");
+    // Read while the task runs again, the count goes out.
+    let listen = free_endpoint();
+    let watcher = Proc::start(
+        "watcher",
+        &[
+            "tuples",
+            "--listen",
+            &listen,
+            "--connect",
+            &ecology.world,
+            "--name",
+            "watcher",
+            "watch",
+            "counter:c1.out.robot-count",
+            "--json",
+        ],
+    );
+    let (code, all) = ecology.task(
+        "examples/python/robot-counter.eco",
+        "examples/python/robot-counter.plan",
+        "world,hsm,counter",
+    );
+    assert_the_counter_ran(code, &all);
+    let counted = watcher
+        .lines
+        .recv_timeout(Duration::from_secs(2))
+        .map(|line| event(&line.text));
+    watcher.signal(Signal::SIGINT);
+    let counted = counted.expect("the watcher saw the count");
+    assert_eq!(counted["key"], "c1.out.robot-count", "{counted}");
+    assert!(
+        counted["value"]
+            .as_str()
+            .is_some_and(|v| v.parse::<u32>().is_ok()),
+        "{counted}"
+    );
     // A second Python `counter` joining through hsm, one hop from the first, is refused.
     let mut twin = Command::new(&python);
     twin.arg(root().join("examples/python/robot_counter.py"))
