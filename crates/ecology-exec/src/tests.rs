@@ -1463,6 +1463,9 @@ mod on_the_tuple_space {
         fn is_read(&self, key: &Key) -> bool {
             self.inner.is_read(key)
         }
+        fn watch_readers(&self, key: &Key) -> tokio::sync::watch::Receiver<bool> {
+            self.inner.watch_readers(key)
+        }
         async fn delete(&self, key: Key) -> Result<bool, TupleError> {
             self.inner.delete(key).await
         }

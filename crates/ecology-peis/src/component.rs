@@ -67,6 +67,9 @@ pub struct Context<S: TupleSpace> {
     clock: Arc<dyn Clock>,
     /// The outputs written and not deleted since, so that one going unread is deleted once.
     written: Arc<std::sync::Mutex<BTreeSet<String>>>,
+    /// The last value of each output withheld because nobody read it, to publish when a reader
+    /// comes ([`Context::readers_came`]).
+    withheld: Arc<std::sync::Mutex<BTreeMap<String, Value>>>,
 }
 
 impl<S: TupleSpace> std::fmt::Debug for Context<S> {
@@ -92,6 +95,7 @@ impl<S: TupleSpace> Context<S> {
             params,
             clock,
             written: Arc::default(),
+            withheld: Arc::default(),
         }
     }
 
@@ -182,22 +186,64 @@ impl<S: TupleSpace> Context<S> {
 
     /// Publishes output `info` as `C.out.INFO` while someone reads it ([`Context::is_read`]),
     /// returning the tuple written; `None` when nobody reads it. An output that goes unread is
-    /// deleted, once: a reader who comes later gets the next value, never an old one as if new.
+    /// deleted, once: a reader who comes later never gets an old value as if new. Its last value
+    /// is kept back instead, and published the moment a reader comes if the body waits on
+    /// [`Context::readers_came`].
     pub async fn output(&self, info: &str, value: Value) -> Result<Option<Tuple>, ComponentError> {
         let key = output_key(&self.component_id()?, info)
             .map_err(|e| ComponentError::Space(e.to_string()))?;
         if self.space.is_read(&key) {
+            lock(&self.withheld).remove(info);
             let tuple = self.space.set(key, value).await?;
             lock(&self.written).insert(info.to_string());
             return Ok(Some(tuple));
         }
         self.withdraw(info).await?;
+        lock(&self.withheld).insert(info.to_string(), value);
         Ok(None)
+    }
+
+    /// Waits until someone reads output `info` (at once if someone does now).
+    pub async fn until_read(&self, info: &str) -> Result<(), ComponentError> {
+        let key = output_key(&self.component_id()?, info)
+            .map_err(|e| ComponentError::Space(e.to_string()))?;
+        let mut readers = self.space.watch_readers(&key);
+        if readers.wait_for(|read| *read).await.is_err() {
+            // The space cannot tell: never.
+            std::future::pending::<()>().await;
+        }
+        Ok(())
+    }
+
+    /// Waits until a reader comes for an output kept back because nobody read it, and publishes
+    /// its last value then; pending while nothing is kept back. A body waits on it beside its
+    /// inputs and its period, so that a consumer wired to it gets a value at once rather than at
+    /// the body's next output.
+    pub async fn readers_came(&self) -> Result<(), ComponentError> {
+        let infos: Vec<String> = lock(&self.withheld).keys().cloned().collect();
+        if infos.is_empty() {
+            std::future::pending::<()>().await;
+        }
+        let waits = infos.into_iter().map(|info| {
+            Box::pin(async move {
+                self.until_read(&info).await?;
+                Ok::<String, ComponentError>(info)
+            })
+        });
+        let (came, _, _) = futures_util::future::select_all(waits).await;
+        let info = came?;
+        let value = lock(&self.withheld).remove(&info);
+        if let Some(value) = value {
+            self.output(&info, value).await?;
+        }
+        Ok(())
     }
 
     /// Deletes output `info` if this run wrote it and has not withdrawn it since: what a body
     /// does that stops producing an output nobody reads (`Context::output` does it itself).
+    /// Nothing of it is kept back.
     pub async fn withdraw(&self, info: &str) -> Result<(), ComponentError> {
+        lock(&self.withheld).remove(info);
         if lock(&self.written).remove(info) {
             let key = output_key(&self.component_id()?, info)
                 .map_err(|e| ComponentError::Space(e.to_string()))?;

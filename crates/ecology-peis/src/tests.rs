@@ -245,6 +245,42 @@ async fn an_output_goes_out_only_while_someone_reads_it() {
     f.stop().await;
 }
 
+/// An output kept back because nobody read it goes out the moment a reader comes, while the body
+/// waits on `readers_came`: the reader does not wait for the body's next output.
+#[tokio::test(start_paused = true)]
+async fn a_kept_back_output_goes_out_when_a_reader_comes() {
+    let slow: Arc<dyn Component<InProcessPeis>> =
+        Arc::new(|ctx: Context<InProcessPeis>| async move {
+            ctx.status("running", None).await?;
+            for n in 0.. {
+                ctx.output("range-scan", Value::text(n.to_string())).await?;
+                let deadline = ctx.clock().now().saturating_add(Duration::from_secs(60));
+                loop {
+                    tokio::select! {
+                        () = ctx.clock().sleep_until(deadline) => break,
+                        came = ctx.readers_came() => came?,
+                    }
+                }
+            }
+            Ok(())
+        });
+    let f = start(vec![spec("l1", false, slow)]).await;
+    f.set("l1.params", "(laser robot l1)").await;
+    f.set("components.l1.reqState", "on").await;
+    f.wait_for("l1.status", "running", Duration::from_millis(1100))
+        .await;
+    assert_eq!(f.get("l1.out.range-scan").await, None, "nobody reads it");
+    let asked = f.clock.now();
+    let got = f
+        .wait_for("l1.out.range-scan", "0", Duration::from_millis(10))
+        .await;
+    assert!(
+        got.ts_write.saturating_duration_since(asked) < Duration::from_secs(1),
+        "the value kept back went out as the reader came, not a minute later"
+    );
+    f.stop().await;
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_failing_or_panicking_body_is_reported_and_the_peis_goes_on() {
     let failing: Arc<dyn Component<InProcessPeis>> =

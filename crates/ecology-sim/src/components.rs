@@ -12,11 +12,13 @@
 //! with a cause. Injected faults make a component fail (`error`) or stall
 //! (stay `running` but fall silent, as a dead camera does).
 //!
-//! An output goes out only while someone reads it (`Context::output`), and the
-//! cameras and the laser take no image or scan that nobody reads; status flows
-//! whether or not anyone reads it.
+//! An output goes out only while someone reads it (`Context::output`, which
+//! keeps the last value back and publishes it the moment a reader comes while
+//! a body waits on `Body::next` or `Body::pause`); the cameras do not even
+//! write out an image nobody reads. Status flows whether or not anyone reads.
 
 use std::collections::BTreeMap;
+use std::fmt::Write;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -315,12 +317,35 @@ impl<S: TupleSpace> Body<S> {
         })
     }
 
-    /// Waits for the next input update, or one period.
-    async fn next(&self, inputs: &mut Inputs) {
-        tokio::select! {
-            biased;
-            open = inputs.changed() => if !open { self.ctx.sleep(PERIOD).await },
-            () = self.ctx.sleep(PERIOD) => {}
+    /// Waits for the next input update, or one period; an output kept back because nobody
+    /// read it is published meanwhile as soon as a reader comes.
+    async fn next(&self, inputs: &mut Inputs) -> Result<(), ComponentError> {
+        let deadline = self.ctx.clock().now().saturating_add(PERIOD);
+        loop {
+            tokio::select! {
+                biased;
+                open = inputs.changed() => {
+                    if !open {
+                        self.ctx.clock().sleep_until(deadline).await;
+                    }
+                    return Ok(());
+                }
+                () = self.ctx.clock().sleep_until(deadline) => return Ok(()),
+                came = self.ctx.readers_came() => came?,
+            }
+        }
+    }
+
+    /// Waits one period; an output kept back because nobody read it is published meanwhile as
+    /// soon as a reader comes.
+    async fn pause(&self) -> Result<(), ComponentError> {
+        let deadline = self.ctx.clock().now().saturating_add(PERIOD);
+        loop {
+            tokio::select! {
+                biased;
+                () = self.ctx.clock().sleep_until(deadline) => return Ok(()),
+                came = self.ctx.readers_came() => came?,
+            }
         }
     }
 
@@ -345,6 +370,8 @@ impl<S: TupleSpace> Body<S> {
     async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
         let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
+        // What the last image nobody read would have shown.
+        let mut kept: Option<Vec<(String, Pose)>> = None;
         loop {
             let stalled = self.injected()?;
             truth.poll()?;
@@ -359,11 +386,14 @@ impl<S: TupleSpace> Body<S> {
                 self.report("waiting", "ground truth").await?;
             } else {
                 self.report("running", "").await?;
-                // An image nobody reads is not taken.
-                if !stalled && self.ctx.is_read("image")? {
+                if !stalled {
+                    // An image nobody reads is not written out, but what it would show is kept
+                    // (its noise drawn as for one written, so that a seeded run does not change
+                    // with who watches it) and written out the moment a reader comes.
+                    let taken = self.ctx.is_read("image")?;
                     let map = truth.map().unwrap_or_default();
                     let viewpoint = truth.robot(&me);
-                    let mut image = Vec::new();
+                    let mut seen = Vec::new();
                     for (name, pose) in robots {
                         if let (Some(range), Some(eye)) = (range, viewpoint) {
                             let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
@@ -372,17 +402,31 @@ impl<S: TupleSpace> Body<S> {
                                 continue;
                             }
                         }
-                        let seen = Pose::new(
+                        let noisy = Pose::new(
                             pose.x + self.rng.gaussian(0.02),
                             pose.y + self.rng.gaussian(0.02),
                             wrap_angle(pose.theta + self.rng.gaussian(0.01)),
                         );
-                        image.push(format!("{name} {seen}"));
+                        seen.push((name, noisy));
                     }
-                    self.output("image", image.join("; ")).await?;
+                    if taken {
+                        self.output("image", image_text(&seen)).await?;
+                    } else {
+                        self.ctx.withdraw("image").await?;
+                        kept = Some(seen);
+                    }
                 }
             }
-            self.ctx.sleep(PERIOD).await;
+            let deadline = self.ctx.clock().now().saturating_add(PERIOD);
+            if let Some(seen) = kept.take() {
+                tokio::select! {
+                    biased;
+                    () = self.ctx.clock().sleep_until(deadline) => continue,
+                    read = self.ctx.until_read("image") => read?,
+                }
+                self.output("image", image_text(&seen)).await?;
+            }
+            self.ctx.clock().sleep_until(deadline).await;
         }
     }
 
@@ -418,7 +462,7 @@ impl<S: TupleSpace> Body<S> {
                     }
                 },
             }
-            self.next(&mut inputs).await;
+            self.next(&mut inputs).await?;
         }
     }
 
@@ -458,12 +502,12 @@ impl<S: TupleSpace> Body<S> {
                 Ok(Some(image)) => image,
                 Ok(None) => {
                     self.report("waiting", "image").await?;
-                    self.next(&mut inputs).await;
+                    self.next(&mut inputs).await?;
                     continue;
                 }
                 Err(cause) => {
                     self.report("waiting", &cause).await?;
-                    self.next(&mut inputs).await;
+                    self.next(&mut inputs).await?;
                     continue;
                 }
             };
@@ -486,7 +530,7 @@ impl<S: TupleSpace> Body<S> {
             if !stalled && !literals.is_empty() {
                 self.ctx.observed(&literals.join(" ")).await?;
             }
-            self.next(&mut inputs).await;
+            self.next(&mut inputs).await?;
         }
     }
 
@@ -500,7 +544,7 @@ impl<S: TupleSpace> Body<S> {
             match (truth.robot(&me), truth.map()) {
                 (Some(pose), Some(map)) => {
                     self.report("running", "").await?;
-                    if !stalled && self.ctx.is_read("range-scan")? {
+                    if !stalled {
                         let scan: Vec<String> = scan(&map, pose)
                             .into_iter()
                             .map(|r| format!("{:.3}", r + self.rng.gaussian(0.01)))
@@ -510,7 +554,7 @@ impl<S: TupleSpace> Body<S> {
                 }
                 _ => self.report("waiting", "ground truth").await?,
             }
-            self.ctx.sleep(PERIOD).await;
+            self.pause().await?;
         }
     }
 
@@ -551,7 +595,7 @@ impl<S: TupleSpace> Body<S> {
             if !stalled {
                 self.output("odometry", est.to_string()).await?;
             }
-            self.ctx.sleep(PERIOD).await;
+            self.pause().await?;
         }
     }
 
@@ -571,12 +615,12 @@ impl<S: TupleSpace> Body<S> {
             let missing = inputs.missing(STALE);
             let Some(map) = truth.map() else {
                 self.report("waiting", "map").await?;
-                self.next(&mut inputs).await;
+                self.next(&mut inputs).await?;
                 continue;
             };
             if !missing.is_empty() {
                 self.report("waiting", &missing.join(" ")).await?;
-                self.next(&mut inputs).await;
+                self.next(&mut inputs).await?;
                 continue;
             }
             let seqs = (
@@ -584,7 +628,7 @@ impl<S: TupleSpace> Body<S> {
                 inputs.latest("odometry").map_or(0, |t| t.seq),
             );
             if seqs.0 == used.0 || seqs.1 == used.1 {
-                self.next(&mut inputs).await;
+                self.next(&mut inputs).await?;
                 continue;
             }
             used = seqs;
@@ -596,11 +640,11 @@ impl<S: TupleSpace> Body<S> {
                 (Ok(Some(odometry)), Ok(Some(ranges))) => (odometry, ranges),
                 (Err(cause), _) | (_, Err(cause)) => {
                     self.report("waiting", &cause).await?;
-                    self.next(&mut inputs).await;
+                    self.next(&mut inputs).await?;
                     continue;
                 }
                 _ => {
-                    self.next(&mut inputs).await;
+                    self.next(&mut inputs).await?;
                     continue;
                 }
             };
@@ -619,7 +663,7 @@ impl<S: TupleSpace> Body<S> {
             if !stalled {
                 self.output("position", best.to_string()).await?;
             }
-            self.next(&mut inputs).await;
+            self.next(&mut inputs).await?;
         }
     }
 
@@ -642,7 +686,7 @@ impl<S: TupleSpace> Body<S> {
                 Ok(None) => self.report("waiting", "global-pos").await?,
                 Err(cause) => self.report("waiting", &cause).await?,
             }
-            self.next(&mut inputs).await;
+            self.next(&mut inputs).await?;
         }
     }
 
@@ -668,12 +712,12 @@ impl<S: TupleSpace> Body<S> {
                 }
                 let cause = position.err().unwrap_or_else(|| "position".to_string());
                 self.report("waiting", &cause).await?;
-                self.next(&mut inputs).await;
+                self.next(&mut inputs).await?;
                 continue;
             };
             let Some(map) = truth.map() else {
                 self.report("waiting", "map").await?;
-                self.next(&mut inputs).await;
+                self.next(&mut inputs).await?;
                 continue;
             };
             if route.is_none() {
@@ -710,7 +754,7 @@ impl<S: TupleSpace> Body<S> {
                 self.output(Command::Velocity.info(), format!("{v:.4} {w:.4}"))
                     .await?;
             }
-            self.next(&mut inputs).await;
+            self.next(&mut inputs).await?;
         }
     }
 
@@ -794,6 +838,18 @@ impl<S: TupleSpace> Body<S> {
 }
 
 /// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
+/// An image's text: `NAME X Y THETA; …`.
+fn image_text(seen: &[(String, Pose)]) -> String {
+    let mut text = String::new();
+    for (i, (name, pose)) in seen.iter().enumerate() {
+        if i > 0 {
+            text.push_str("; ");
+        }
+        let _ = write!(text, "{name} {pose}");
+    }
+    text
+}
+
 fn seen_in_image(image: &[(String, Pose)], name: &str) -> Option<Pose> {
     image
         .iter()

@@ -48,6 +48,8 @@ struct State {
     /// asked it for something, so with N PEIS a join reaches a few subscribers, not N.
     presence_of: HashMap<PeisId, Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>>,
     next_subscriber: u64,
+    /// Who reads the tuples components asked about ([`TupleSpace::watch_readers`]), by owner.
+    read_watches: HashMap<PeisId, HashMap<Key, watch::Sender<bool>>>,
 }
 
 #[derive(Debug)]
@@ -311,6 +313,19 @@ impl State {
         self.subscribers.broadcast(event);
     }
 
+    /// Brings every watch of who reads a tuple up to date after subscriptions came or went.
+    fn update_read_watches(&mut self) {
+        let subscribers = &self.subscribers;
+        self.read_watches.retain(|owner, keys| {
+            keys.retain(|key, watch| {
+                let read = subscribers.any_matching(owner, key);
+                watch.send_if_modified(|now| std::mem::replace(now, read) != read);
+                !watch.is_closed()
+            });
+            !keys.is_empty()
+        });
+    }
+
     fn broadcast_presence(&mut self, event: &PresenceEvent) {
         self.presence
             .retain(|(_, tx)| tx.send(event.clone()).is_ok());
@@ -409,7 +424,12 @@ impl Drop for SubscriberGuard {
         if let Some(shared) = self.shared.upgrade() {
             let mut state = shared.lock();
             match &self.kind {
-                Watched::Tuples => state.subscribers.remove(self.id),
+                Watched::Tuples => {
+                    state.subscribers.remove(self.id);
+                    if !state.read_watches.is_empty() {
+                        state.update_read_watches();
+                    }
+                }
                 Watched::Presence => state.presence.retain(|(id, _)| *id != self.id),
                 Watched::PresenceOf(peis) => {
                     state.retain_presence_of(peis, |(id, _)| *id != self.id);
@@ -494,6 +514,9 @@ impl InProcessPeis {
             patterns,
             events: tx,
         });
+        if !state.read_watches.is_empty() {
+            state.update_read_watches();
+        }
         let guard = SubscriberGuard {
             shared: Arc::downgrade(&self.shared),
             id,
@@ -530,6 +553,18 @@ impl TupleSpace for InProcessPeis {
 
     fn is_read(&self, key: &Key) -> bool {
         self.shared.lock().subscribers.any_matching(&self.me, key)
+    }
+
+    fn watch_readers(&self, key: &Key) -> watch::Receiver<bool> {
+        let mut state = self.shared.lock();
+        let read = state.subscribers.any_matching(&self.me, key);
+        state
+            .read_watches
+            .entry(self.me.clone())
+            .or_default()
+            .entry(key.clone())
+            .or_insert_with(|| watch::Sender::new(read))
+            .subscribe()
     }
 
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {

@@ -31,6 +31,12 @@ pub trait TupleSpace: Clone + Send + Sync + 'static {
     /// know yet says `true`: a value published in vain costs less than one withheld from a reader.
     fn is_read(&self, key: &Key) -> bool;
 
+    /// Whether anyone subscribes to this PEIS's tuple `key`, kept current as readers come and
+    /// go: a component that withholds an output nobody reads waits on it to produce at once when
+    /// a reader comes (`ecology_peis::Context::readers_came`). Unlike [`TupleSpace::is_read`], it
+    /// says only what is known: `false` while an implementation cannot know yet.
+    fn watch_readers(&self, key: &Key) -> tokio::sync::watch::Receiver<bool>;
+
     /// Deletes this PEIS's tuple `key`; returns whether it existed.
     fn delete(&self, key: Key) -> impl Future<Output = Result<bool, TupleError>> + Send;
 

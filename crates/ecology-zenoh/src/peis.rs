@@ -590,7 +590,7 @@ const READERS_ANSWER: Duration = Duration::from_millis(100);
 /// status (it never puts), kept up to date by a callback of Zenoh's.
 struct Readers {
     _publisher: Publisher<'static>,
-    matching: Arc<std::sync::atomic::AtomicBool>,
+    matching: Arc<watch::Sender<bool>>,
     since: ecology_tuples::Timestamp,
 }
 
@@ -603,11 +603,13 @@ impl Readers {
             .declare_publisher(key_expr)
             .wait()
             .map_err(transport("readers"))?;
-        let matching = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let matching = Arc::new(watch::Sender::new(false));
         let seen = matching.clone();
         publisher
             .matching_listener()
-            .callback(move |status| seen.store(status.matching(), Ordering::Relaxed))
+            .callback(move |status| {
+                seen.send_replace(status.matching());
+            })
             .background()
             .wait()
             .map_err(transport("readers"))?;
@@ -1046,9 +1048,22 @@ impl TupleSpace for ZenohPeis {
                 Err(_) => return true,
             },
         };
-        readers.matching.load(Ordering::Relaxed)
+        *readers.matching.borrow()
             || (!core.answers_lag_presence
                 && core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER)
+    }
+
+    fn watch_readers(&self, key: &Key) -> watch::Receiver<bool> {
+        let core = &self.inner.core;
+        let mut readers = lock(&core.readers);
+        match readers.entry(key.clone()) {
+            std::collections::hash_map::Entry::Occupied(e) => e.get().matching.subscribe(),
+            std::collections::hash_map::Entry::Vacant(e) => match Readers::declare(core, key) {
+                Ok(declared) => e.insert(declared).matching.subscribe(),
+                // Not knowing, never wake: the component goes on asking `is_read`.
+                Err(_) => watch::Sender::new(false).subscribe(),
+            },
+        }
     }
 
     async fn delete(&self, key: Key) -> Result<bool, TupleError> {

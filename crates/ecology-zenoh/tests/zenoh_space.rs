@@ -1468,8 +1468,8 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
 
 /// Through a router that holds the contract, a PEIS knows who reads its outputs: nobody, once its
 /// router has answered (the router's own holding does not read an output); a client subscribed
-/// through the router, until it unsubscribes or goes. Until the router has answered, an output
-/// counts as read.
+/// through the router, until it unsubscribes or goes; a watch of its readers is told when one
+/// comes. Until the router has answered, an output counts as read.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn through_a_router_a_peis_knows_who_reads_its_outputs() {
     let (endpoint, _stop) = start_router(8, |_| {});
@@ -1487,12 +1487,18 @@ async fn through_a_router_a_peis_knows_who_reads_its_outputs() {
         !cam.is_read(&image)
     })
     .await;
+    let mut readers = cam.watch_readers(&image);
+    assert!(!*readers.borrow());
     let tracker = router_client_peis("tracker", &endpoint).await;
     let mut reading = tracker
         .subscribe(TuplePattern::parse("cam:c1.out.image").expect("pattern"))
         .await
         .expect("subscribe");
-    until(PATIENCE, "the tracker reads it", || cam.is_read(&image)).await;
+    tokio::time::timeout(PATIENCE, readers.wait_for(|read| *read))
+        .await
+        .expect("told when the tracker came")
+        .expect("watching");
+    assert!(cam.is_read(&image));
     match next_event(&mut reading, PATIENCE).await {
         TupleEvent::Changed(t) => assert_eq!(t.text(), Ok("robot 1 2 0")),
         other => panic!("unexpected {other:?}"),
