@@ -150,6 +150,8 @@ impl<S: TupleSpace> Component<S> for Simulated {
 struct Truth {
     subscription: Subscription,
     latest: BTreeMap<String, String>,
+    /// The map, read once each time it changes (not at every look: a building's map is long).
+    map: Option<Arc<Map>>,
     clock: Arc<dyn Clock>,
     /// When the last tuple of the world arrived.
     heard: Option<Timestamp>,
@@ -160,6 +162,7 @@ impl Truth {
         Ok(Truth {
             subscription: ctx.space().subscribe(world_pattern()).await?,
             latest: BTreeMap::new(),
+            map: None,
             clock: ctx.clock().clone(),
             heard: None,
         })
@@ -188,10 +191,16 @@ impl Truth {
             match event {
                 TupleEvent::Changed(t) => {
                     if let Ok(text) = t.text() {
+                        if WorldKey::parse(t.key.as_str()) == Some(WorldKey::Map) {
+                            self.map = Map::parse(text).ok().map(Arc::new);
+                        }
                         self.latest.insert(t.key.to_string(), text.to_string());
                     }
                 }
                 TupleEvent::Removed { key, .. } => {
+                    if WorldKey::parse(key.as_str()) == Some(WorldKey::Map) {
+                        self.map = None;
+                    }
                     self.latest.remove(key.as_str());
                 }
                 TupleEvent::Retargeted { .. } => {}
@@ -221,9 +230,8 @@ impl Truth {
             .collect()
     }
 
-    fn map(&self) -> Option<Map> {
-        self.text(&WorldKey::Map.to_string())
-            .and_then(|text| Map::parse(text).ok())
+    fn map(&self) -> Option<Arc<Map>> {
+        self.map.clone()
     }
 
     /// Things lying somewhere (not held), with where.
