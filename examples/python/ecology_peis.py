@@ -11,9 +11,9 @@ package (pip install eclipse-zenoh==1.10.2), nothing else, and follows docs/comp
 - The PEIS's own tuples: `Peis.set` publishes one with the next seq (from 1, per key) and the epoch
   of this run (none with --no-epoch), and keeps it to answer gets; `Peis.delete` removes one. The
   first is `contract` = `2`: the attachment version we read, so that writers speak it to us.
-- Outputs only while read: `Peis.is_read(key)` says whether anyone subscribes to our tuple `key`
-  (Zenoh's matching status of a publisher declared for it), so that a component publishes an
-  output only while someone reads it and deletes it once nobody does.
+- Outputs only while read: `Peis.output(key, text)` publishes an output only while someone
+  subscribes to it (`Peis.is_read`: Zenoh's matching status of a publisher declared for it), deletes
+  it once nobody does, and keeps the last value back to publish the moment a reader comes.
 - Queryables: peis/NAME/** answers gets with every tuple of ours the query's key expression
   intersects; peis/NAME/@set/** applies remote sets.
 - Remote sets: only of the keys in `remote_settable` (the component's reqState, params and mi-INFO),
@@ -158,6 +158,7 @@ class Peis:
         self.tuples = {}   # key -> (KeyExpr, payload bytes, attachment bytes)
         self.seqs = {}     # key -> last seq
         self.readers = {}  # key -> a publisher declared for its matching status
+        self.kept = {}     # key -> the last value of an output held back while nobody read it
         self.events = queue.Queue()  # everything Zenoh delivers, handled by the main thread
         self.stop = threading.Event()
         conf = zenoh.Config()
@@ -236,11 +237,25 @@ class Peis:
 
     def is_read(self, key):
         """Whether anyone subscribes to our tuple `key` now: the matching status of a publisher
-        declared for it (never used to put). A Zenoh peer, as this PEIS is, is told of its peers'
-        subscribers as they are declared, so it knows at once."""
+        declared for it (never used to put), whose matching listener says when a reader comes. A
+        Zenoh peer, as this PEIS is, is told of its peers' subscribers as they are declared, so it
+        knows at once."""
         if key not in self.readers:
-            self.readers[key] = self.session.declare_publisher(key_expr(self.name, key))
+            publisher = self.session.declare_publisher(key_expr(self.name, key))
+            publisher.declare_matching_listener(
+                lambda status: status.matching and self.events.put(("readers", key)))
+            self.readers[key] = publisher
         return self.readers[key].matching_status.matching
+
+    def output(self, key, text):
+        """Publishes output `key` while someone reads it; otherwise deletes it and keeps `text`
+        back, published the moment a reader comes."""
+        if self.is_read(key):
+            self.kept.pop(key, None)
+            self.set(key, text)
+        else:
+            self.delete(key)
+            self.kept[key] = text
 
     def answer_get(self, query):
         for ke, data, meta in list(self.tuples.values()):
@@ -353,6 +368,8 @@ class Peis:
                         (self.answer_get if kind == "get" else self.apply_remote_set)(item)
                 elif kind == "input":
                     self.component.on_input(*item)
+                elif kind == "readers" and item in self.kept and self.is_read(item):
+                    self.set(item, self.kept.pop(item))
                 self.component.tick(time.monotonic())
             except Exception as e:  # a bug or a Zenoh error must not take the PEIS down
                 self.log(f"error handling {kind}: {e!r}")

@@ -9,7 +9,8 @@ The PEIS part lives in ecology_peis.py next to it, which the tutorial's door use
   components.c1.reqState (on after a 0.2 s start-up, off at once);
 - as component c1 it runs `(count-robots Q C P)`: it follows its input through the meta-tuple
   c1.mi-image, counts the robots in every image (`NAME X Y THETA; ...`), publishes the count as
-  c1.out.robot-count while someone reads it (deleting it once nobody does) and reports c1.status
+  c1.out.robot-count while someone reads it (`Peis.output`: deleted once nobody does, the last
+  count kept back and published the moment a reader comes) and reports c1.status
   (waiting / running / done, error with c1.cause) whether or not anyone reads it;
 - as a PEIS (ecology_peis.py) it declares presence, answers gets for its tuples and applies remote
   sets.
@@ -29,6 +30,7 @@ KIND, COST = "counter", 5     # its type (the `pc` fact) and cost
 STARTUP = 0.2                 # seconds from reqState `on` to currState `on`
 STALE = 0.5                   # an input older than this is missing: report `waiting`
 IMAGES_TO_COUNT = 10          # report `done` after counting this many images
+OUTPUT = f"{C}.out.robot-count"
 REMOTE_SETTABLE = {f"components.{C}.reqState", f"{C}.params", f"{C}.mi-image"}
 log = logger("robot_counter")
 
@@ -111,6 +113,7 @@ class Counter:
     def stop_body(self):
         self.active = False
         self.unfollow()
+        self.peis.kept.pop(OUTPUT, None)  # a count held back is not published once stopped
 
     def follow(self):
         """Subscribes to the tuple c1.mi-image points at (and gets its current value)."""
@@ -172,14 +175,11 @@ class Counter:
         self.last_image, self.problem = time.monotonic(), "image"
         self.counted += 1
         self.report("running")
-        output = f"{C}.out.robot-count"
-        if self.peis.is_read(output):
-            self.peis.set(output, str(len(robots)))
-        else:
-            self.peis.delete(output)
+        self.peis.output(OUTPUT, str(len(robots)))
         if self.counted >= IMAGES_TO_COUNT:
             self.done = True
             self.unfollow()
+            self.peis.kept.pop(OUTPUT, None)
             self.report("done")
 
     def tick(self, now):

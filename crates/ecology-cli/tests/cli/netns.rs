@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use nix::sys::signal::Signal;
 use serde_json::Value;
 
-use crate::processes::{costs, events, named, one_at_a_time, strings};
+use crate::processes::{costs, events, named, process_slot, strings};
 use crate::support::{Fixture, Line, Proc, TO_BEDROOM, Variant, event, is_event};
 
 /// Bridges and cables are named `ecb<pid>x<n>` and `ecv<pid>x<n>h<host>`, namespaces
@@ -828,7 +828,7 @@ fn across_hosts_a_move_is_done_and_nothing_is_left_on() {
 
 /// Peers across hosts, with keys or without: the move done on hsm's cameras, nothing left on.
 fn a_move_across_hosts(test: &str, keyed: bool) {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start(test, Topology::Peers, keyed, &[]) else {
         return;
     };
@@ -837,7 +837,7 @@ fn a_move_across_hosts(test: &str, keyed: bool) {
 
 #[test]
 fn a_peis_cut_off_mid_move_is_reconfigured_around_and_puts_back_what_it_ran() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("partition", Topology::Peers, false, &["--lease", "1"]) else {
         return;
     };
@@ -881,7 +881,7 @@ fn a_peis_cut_off_mid_move_is_reconfigured_around_and_puts_back_what_it_ran() {
 /// uses), nothing of the old configuration runs after the task.
 #[test]
 fn a_peis_cut_off_and_healed_mid_move_runs_nothing_after_the_task() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start(
         "partition-healed",
         Topology::Peers,
@@ -914,7 +914,7 @@ fn a_peis_cut_off_and_healed_mid_move_runs_nothing_after_the_task() {
 
 #[test]
 fn an_executive_cut_off_mid_move_waits_for_the_ecology_and_goes_on() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("executive-cut", Topology::Peers, false, &[]) else {
         return;
     };
@@ -957,7 +957,7 @@ fn an_executive_cut_off_mid_move_waits_for_the_ecology_and_goes_on() {
 /// ecology, and goes on with the same configuration once it is back.
 #[test]
 fn an_executive_cut_off_while_it_deploys_blames_no_component_and_goes_on() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("executive-cut-deploying", Topology::Peers, false, &[]) else {
         return;
     };
@@ -980,7 +980,7 @@ fn an_executive_cut_off_while_it_deploys_blames_no_component_and_goes_on() {
 /// is configured again instead of failing.
 #[test]
 fn an_executive_stopped_for_seconds_mid_move_goes_on() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("executive-stopped", Topology::Peers, false, &[]) else {
         return;
     };
@@ -1007,7 +1007,7 @@ fn assert_no_set_blamed(all: &[Value]) {
 
 #[test]
 fn an_executive_cut_off_for_longer_than_it_waits_fails_saying_so() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("executive-lost", Topology::Peers, false, &[]) else {
         return;
     };
@@ -1043,7 +1043,7 @@ fn a_router_killed_while_the_executive_deploys_loses_nothing() {
 /// Every process a client of a router, which is killed once the executive logs `at`, and
 /// restarted once the executive judged the ecology lost: back, the move is done on the cameras.
 fn a_router_killed_and_restarted(test: &str, at: &str) {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start(test, Topology::Router, false, &[]) else {
         return;
     };
@@ -1071,7 +1071,7 @@ fn a_router_killed_and_restarted(test: &str, at: &str) {
 /// not fail it; her position input stalls and resumes, and the move is done on the cameras.
 #[test]
 fn a_robot_cut_off_for_a_second_keeps_its_move() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("robot-blip", Topology::Peers, false, &[]) else {
         return;
     };
@@ -1100,7 +1100,7 @@ fn a_robot_cut_off_for_a_second_keeps_its_move() {
 /// on with the cameras.
 #[test]
 fn a_robot_cut_off_for_seconds_is_waited_for_and_goes_on() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("robot-cut", Topology::Peers, false, &[]) else {
         return;
     };
@@ -1121,7 +1121,7 @@ fn a_robot_cut_off_for_seconds_is_waited_for_and_goes_on() {
 #[test]
 fn remote_sets_lost_on_the_way_to_a_peis_still_present_are_sent_again() {
     let test = "one-way";
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start(test, Topology::Peers, false, &["--lease", "12"]) else {
         return;
     };
@@ -1152,7 +1152,7 @@ fn remote_sets_lost_on_the_way_to_a_peis_still_present_are_sent_again() {
 #[test]
 fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
     let test = "starved";
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start(test, Topology::Peers, false, &["--lease", "12"]) else {
         return;
     };
@@ -1172,7 +1172,7 @@ fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
 #[test]
 fn the_papers_whole_task_is_done_with_every_host_dropping_packets() {
     let test = "lossy";
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start_with(test, Topology::Peers, false, &[], Cast::Whole) else {
         return;
     };
@@ -1204,7 +1204,7 @@ fn with_keys_peers_across_hosts_do_the_move() {
 
 #[test]
 fn with_keys_a_router_forwards_the_papers_whole_task() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start_with("keys-router", Topology::Router, true, &[], Cast::Whole)
     else {
         return;
@@ -1228,7 +1228,7 @@ fn with_keys_a_router_forwards_the_papers_whole_task() {
 /// the others dial the address she had (docs/network.md).
 #[test]
 fn a_robot_whose_address_changes_mid_move_comes_back_through_its_router() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("roaming", Topology::Router, false, &[]) else {
         return;
     };
@@ -1249,7 +1249,7 @@ fn a_robot_whose_address_changes_mid_move_comes_back_through_its_router() {
 /// on hsm's cameras (80), and nothing is left on.
 #[test]
 fn peis_on_two_subnets_meet_through_a_router_on_both() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("subnets", Topology::Subnets, false, &[]) else {
         return;
     };
@@ -1269,7 +1269,7 @@ fn peis_on_two_subnets_meet_through_a_router_on_both() {
 /// 6 s of the executive judging the ecology lost, and the move is done on the cameras (80).
 #[test]
 fn a_router_host_lost_mid_move_fails_over_to_the_second_router() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start("two-routers", Topology::TwoRouters, false, &[]) else {
         return;
     };
@@ -1297,7 +1297,7 @@ fn a_router_host_lost_mid_move_fails_over_to_the_second_router() {
 /// component is as before: off or on as it was, idle, with no params.
 #[test]
 fn two_tasks_across_hosts_take_nothing_from_each_other() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let Some(mut home) = Home::start_with("two-tasks", Topology::Peers, true, &[], Cast::TwoRobots)
     else {
         return;

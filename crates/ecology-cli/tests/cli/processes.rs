@@ -3,12 +3,13 @@
 //! SIGCONT, restarts, slow start-up) and a router.
 //!
 //! Each test writes a small PEIS-Home scenario in which Astrid stands in the
-//! entrance, two metres from the bedroom, so a move takes a few seconds. The
-//! tests run one at a time: each starts four or five processes that publish
-//! at 20 Hz, and two such ecologies on two cores would blur their timings.
+//! entrance, two metres from the bedroom, so a move takes a few seconds. At
+//! most two such tests run at once ([`process_slot`] hands out the slots):
+//! most of a test's time is waiting on real time (a move, a lease, a cable
+//! cut for seconds), and each uses ports, namespaces and addresses of its own.
 
 use std::process::Command;
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
@@ -19,12 +20,57 @@ use crate::support::{
     is_event, read_tuples, root, task_on,
 };
 
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+/// How many tests that start an ecology of processes run at once: `ECOLOGY_PROCESS_TESTS`, 2 by
+/// default (1 runs them one at a time, as before).
+fn process_slots() -> usize {
+    std::env::var("ECOLOGY_PROCESS_TESTS")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(2)
+}
 
-pub(crate) fn one_at_a_time() -> MutexGuard<'static, ()> {
-    ONE_AT_A_TIME
+/// The slots taken, and a wake-up for a test waiting for one.
+static TAKEN: (Mutex<usize>, Condvar) = (Mutex::new(0), Condvar::new());
+
+/// A test's slots among those that start an ecology of processes; given back when dropped.
+pub(crate) struct Slot(usize);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let (taken, freed) = &TAKEN;
+        *taken
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) -= self.0;
+        freed.notify_all();
+    }
+}
+
+/// Waits for `wanted` free slots, and takes them.
+fn take_slots(wanted: usize) -> Slot {
+    let (taken, freed) = &TAKEN;
+    let mut now = taken
         .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    while *now + wanted > process_slots().max(wanted) {
+        now = freed
+            .wait(now)
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+    }
+    *now += wanted;
+    Slot(wanted)
+}
+
+/// Waits for a slot to start an ecology of processes (see the module's note).
+pub(crate) fn process_slot() -> Slot {
+    take_slots(1)
+}
+
+/// Waits until no other test runs an ecology of processes, and keeps them all out until dropped:
+/// for the ROS 2 tests, two of which at once failed (DDS discovery and lifecycle calls on a loaded
+/// machine, though each runs on a ROS domain of its own).
+pub(crate) fn process_slot_alone() -> Slot {
+    take_slots(process_slots())
 }
 
 pub(crate) fn events(lines: &[Line]) -> Vec<Value> {
@@ -69,7 +115,7 @@ fn detection_delay(running: &Line, fault_at: Instant, seen: &Value) -> f64 {
 
 #[test]
 fn sigkill_of_the_camera_peis_reconfigures_astrid_to_her_laser() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("sigkill", &[TO_BEDROOM], Variant::Paper);
     let ecology = Ecology::start(&fixture, &[]);
     let mut task = ecology.task(&fixture, &[]);
@@ -105,7 +151,7 @@ fn sigkill_of_the_camera_peis_reconfigures_astrid_to_her_laser() {
 
 #[test]
 fn sigstop_is_detected_by_the_lease_and_sigcont_changes_nothing() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("sigstop", &[TO_BEDROOM], Variant::Paper);
     let lease = 1.0;
     let ecology = Ecology::start(&fixture, &["--lease", "1"]);
@@ -147,7 +193,7 @@ fn sigstop_is_detected_by_the_lease_and_sigcont_changes_nothing() {
 
 #[test]
 fn a_killed_peis_restarted_under_its_name_is_used_again() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("restart", &[TO_BEDROOM, TO_ENTRANCE], Variant::Paper);
     let mut ecology = Ecology::start(&fixture, &[]);
     let mut task = ecology.task(&fixture, &[]);
@@ -177,7 +223,7 @@ fn a_killed_peis_restarted_under_its_name_is_used_again() {
 
 #[test]
 fn a_component_slower_to_start_than_the_deploy_timeout_is_excluded() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     // tr1 is off and takes 20 s to start: cameras cost 20 + (20 + 10) + 40 = 90 < 170.
     let fixture = Fixture::new("slow", &[TO_BEDROOM], Variant::SlowTracking(20.0));
     let ecology = Ecology::start(&fixture, &[]);
@@ -209,7 +255,7 @@ fn a_component_slower_to_start_than_the_deploy_timeout_is_excluded() {
 /// pose tracking, and the move is done on the laser with the same s1 running scan matching.
 #[test]
 fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("garble", &[TO_BEDROOM], Variant::Paper);
     let mut ecology = Ecology::start(&fixture, &[]);
     let (code, _) = Proc::start(
@@ -261,7 +307,7 @@ fn a_producer_of_unreadable_values_is_excluded_and_its_consumer_is_not() {
 /// lease plus 1 s for hsm to leave, which a live hsm does not.
 #[test]
 fn a_name_present_one_hop_away_is_refused() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("twin", &[TO_BEDROOM], Variant::Paper);
     let ecology = Ecology::start(&fixture, &[]);
     let scenario = fixture.scenario();
@@ -310,7 +356,7 @@ fn a_name_present_one_hop_away_is_refused() {
 /// action's timeout.
 #[test]
 fn the_world_gone_mid_move_fails_its_readers_within_seconds() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("world-gone", &[TO_BEDROOM], Variant::Paper);
     let ecology = Ecology::start(&fixture, &[]);
     let mut task = ecology.task(&fixture, &[]);
@@ -355,7 +401,7 @@ fn a_secured_router_forwards_for_its_members() {
 /// A router holds `--max-sessions` sessions: once full it says so, and refuses the next PEIS.
 #[test]
 fn a_full_router_says_so_and_refuses_the_next_peis() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("full-router", &[TO_BEDROOM], Variant::Paper);
     let endpoint = free_endpoint();
     // Its stderr, where the warning goes, read too.
@@ -409,7 +455,7 @@ fn a_full_router_says_so_and_refuses_the_next_peis() {
 /// router is up.
 #[test]
 fn a_peis_started_before_its_router_joins_once_the_router_is_up() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("router-later", &[TO_BEDROOM], Variant::Paper);
     let endpoint = free_endpoint();
     let scenario = fixture.scenario();
@@ -446,7 +492,7 @@ fn a_peis_started_before_its_router_joins_once_the_router_is_up() {
 /// made a home of 1,000 PEIS hold a third more memory, and stalled the first plan.
 #[test]
 fn a_router_and_a_peis_run_without_transparent_huge_pages() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("small-pages", &[TO_BEDROOM], Variant::Paper);
     let endpoint = free_endpoint();
     let router = Proc::start("router", &["router", "--listen", &endpoint]).ready();
@@ -512,7 +558,7 @@ fn home_task_args<'a>(plan: &'a str, through: &[&'a str]) -> Vec<&'a str> {
 }
 
 fn through_a_router(secured: bool) {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("router", &[TO_BEDROOM], Variant::Paper);
     let keys = fixture.folder.join("keys").display().to_string();
     let mut secure: Vec<&str> = Vec::new();
@@ -602,7 +648,7 @@ impl SecuredRouter {
 /// is already present".
 #[test]
 fn an_executive_killed_and_started_again_at_once_waits_for_its_name_and_does_the_task() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("restarted", &[TO_BEDROOM], Variant::Paper);
     let secured = SecuredRouter::start(&fixture);
     let through = secured.through();
@@ -643,7 +689,7 @@ fn an_executive_killed_and_started_again_at_once_waits_for_its_name_and_does_the
 /// refused a twin, and is seen gone after its own lease when the process is killed.
 #[test]
 fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("many", &[TO_BEDROOM], Variant::Paper);
     let secured = SecuredRouter::start(&fixture);
     let through = secured.through();
@@ -712,7 +758,7 @@ fn several_peis_in_one_process_each_behave_as_a_process_of_their_own() {
 
 #[test]
 fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("sigterm", &[TO_BEDROOM], Variant::Paper);
     let ecology = Ecology::start(&fixture, &[]);
     let mut watch = Proc::start(
@@ -761,7 +807,7 @@ fn a_peis_process_switches_its_components_off_and_leaves_on_sigterm() {
 /// second how many have joined, and stops at once when told to, leaving nothing behind.
 #[test]
 fn a_peis_process_stopped_while_joining_exits_at_once() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("joining", &[TO_BEDROOM], Variant::Paper);
     let scenario = fixture.scenario();
     let nobody = free_endpoint();
@@ -790,7 +836,7 @@ fn a_peis_process_stopped_while_joining_exits_at_once() {
 
 #[test]
 fn the_papers_experiment_as_separate_processes() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let (code, lines) = Proc::start("demo", &["demo", "--processes", "--json"]).finish();
     let all = events(&lines);
     assert_eq!(code, Some(0), "{all:#?}");
@@ -884,7 +930,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         has_zenoh,
         "{python} has no `zenoh` module: run scripts/test, which installs eclipse-zenoh into .venv"
     );
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let ecology = WithPython::start(
         &python,
         "scenarios/peis-home.toml",
@@ -999,7 +1045,7 @@ fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released
         .output()
         .expect("check_corpus.py");
     assert!(corpus.status.success(), "{corpus:?}");
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let ecology = WithPython::start(
         &python,
         "scenarios/peis-home.toml",
@@ -1119,7 +1165,7 @@ impl WithPython {
 
 #[test]
 fn over_zenoh_a_failed_action_is_planned_around_until_no_plan_remains() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let (code, lines) = Proc::start(
         "launcher",
         &["run", "scenarios/no-plan.toml", "--processes", "--json"],
@@ -1161,7 +1207,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
         println!("skipped: no Python with the eclipse-zenoh package at `{python}`");
         return;
     }
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("attacked", &[TO_BEDROOM], Variant::Paper);
     let keys = fixture.folder.join("keys");
     let k = keys.display().to_string();
@@ -1245,7 +1291,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
 /// presence and the executive's log tuple, and serves the state the page shows.
 #[test]
 fn the_view_follows_an_ecology_of_processes() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("view", &[TO_BEDROOM], Variant::Paper);
     let ecology = Ecology::start(&fixture, &[]);
     let mut view = Proc::start(
@@ -1335,7 +1381,7 @@ fn http_get_json(port: u16, path: &str) -> Value {
 /// tests run both branches).
 #[test]
 fn over_zenoh_a_conditional_plan_branches_on_what_a_peis_observes() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let (code, lines) = Proc::start(
         "launcher",
         &[
@@ -1375,7 +1421,7 @@ fn over_zenoh_a_conditional_plan_branches_on_what_a_peis_observes() {
 /// done nothing is held any more.
 #[test]
 fn two_tasks_started_together_take_nothing_from_each_other() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::two_robots("two-tasks");
     let file = |name: &str| fixture.folder.join(name).display().to_string();
     let keys = file("keys");
@@ -1484,7 +1530,7 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
 /// no failure, and when he is done nothing is held any more.
 #[test]
 fn an_executive_interrupted_while_sharing_releases_only_its_own_claims() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::two_robots_with(
         "sigint-shared",
         "  { id = \"tr2\", type = \"tr-sys\", cost = 20, on = true },\n",

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
 
-use crate::processes::{costs, events, imports, named, one_at_a_time, python, strings};
+use crate::processes::{costs, events, imports, named, process_slot_alone, python, strings};
 use crate::support::{Fixture, Proc, TO_BEDROOM, Variant, event, free_endpoint, is_event, task_on};
 
 const SCENARIO: &str = "scenarios/peis-home-ros2.toml";
@@ -90,7 +90,7 @@ fn ecology_ros(name: &str, python: &str, domain: &str, args: &[&str]) -> Proc {
 #[test]
 fn ros2_nodes_are_configured_reconfigured_and_put_back() {
     let Some(python) = ros_python() else { return };
-    let _one = one_at_a_time();
+    let _slot = process_slot_alone();
     let domain = ros_domain();
     let tracker = node(&python, &domain, "tracker", "hsm", "tr1");
     let _self_loc = node(&python, &domain, "self_loc", "astrid", "s1");
@@ -194,7 +194,7 @@ fn ros2_nodes_are_configured_reconfigured_and_put_back() {
 #[test]
 fn the_ros2_agent_passes_its_own_check() {
     let Some(python) = ros_python() else { return };
-    let _one = one_at_a_time();
+    let _slot = process_slot_alone();
     let out = Command::new(&python)
         .args(["examples/ros2/check_agent.py", "--domain", &ros_domain()])
         .current_dir(crate::support::root())

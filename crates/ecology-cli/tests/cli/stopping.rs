@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
 
-use crate::processes::one_at_a_time;
+use crate::processes::process_slot;
 use crate::support::{Fixture, Proc, TO_BEDROOM, Variant, free_endpoint, is_event};
 
 /// The bound the tests give every process, in seconds.
@@ -117,7 +117,7 @@ fn bound() -> Duration {
 // it was doing. SIGUSR1 beforehand tells where each stands.
 #[test]
 fn every_process_stops_within_its_bound_with_its_router_frozen() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let home = RouterHome::start("frozen-router", "1.5");
     let view = home
         .client("view", &["view", "--bind", "127.0.0.1:0"])
@@ -185,7 +185,7 @@ fn every_process_stops_within_its_bound_with_its_router_frozen() {
 // through a frozen router.
 #[test]
 fn a_second_signal_ends_a_process_at_once() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let RouterHome {
         _fixture,
         router,
@@ -213,7 +213,7 @@ fn a_second_signal_ends_a_process_at_once() {
 // releases: it ends within its bound. Then the world, whose peers are all gone, is stopped too.
 #[test]
 fn an_executive_whose_peis_are_gone_mid_release_stops_within_its_bound() {
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let fixture = Fixture::new("gone-mid-release", &[TO_BEDROOM], Variant::Paper);
     let scenario = fixture.scenario();
     let world_at = free_endpoint();

@@ -3,7 +3,7 @@
 //! executive configures the whole `(go-through rex door1 office)` with it: the door is wired to
 //! rex's position, opens for rex, and the step is done.
 
-use crate::processes::{WithPython, costs, imports, named, one_at_a_time, python, strings};
+use crate::processes::{WithPython, costs, imports, named, process_slot, python, strings};
 
 #[test]
 fn the_tutorials_door_in_python_opens_for_the_robot() {
@@ -15,7 +15,7 @@ fn the_tutorials_door_in_python_opens_for_the_robot() {
         );
         return;
     }
-    let _one = one_at_a_time();
+    let _slot = process_slot();
     let ecology = WithPython::start(
         &python,
         "examples/tutorial/office.toml",
