@@ -17,7 +17,7 @@ use serde_json::Value;
 
 use crate::support::{
     Ecology, Fixture, Line, Proc, TO_BEDROOM, TO_ENTRANCE, Variant, as_strs, event, free_endpoint,
-    is_event, read_tuples, root, task_on,
+    is_event, read_tuples, root, task_on, watch_tuples,
 };
 
 /// How many tests that start an ecology of processes run at once: `ECOLOGY_PROCESS_TESTS`, 2 by
@@ -938,11 +938,14 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
         "examples/python/robot_counter.py",
         "counter",
     );
-    let (code, all) = ecology.task(
-        "examples/python/robot-counter.eco",
-        "examples/python/robot-counter.plan",
-        "world,hsm,counter",
-    );
+    let count = || {
+        ecology.task(
+            "examples/python/robot-counter.eco",
+            "examples/python/robot-counter.plan",
+            "world,hsm,counter",
+        )
+    };
+    let (code, all) = count();
     assert_the_counter_ran(code, &all);
     // Nobody read its count: it was never written. It counted all the same (done).
     let tuples = read_tuples(&ecology.world, "counter");
@@ -953,27 +956,8 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     );
     assert!(tuples.contains_key("c1.status"), "{tuples:#?}");
     // Read while the task runs again, the count goes out.
-    let listen = free_endpoint();
-    let watcher = Proc::start(
-        "watcher",
-        &[
-            "tuples",
-            "--listen",
-            &listen,
-            "--connect",
-            &ecology.world,
-            "--name",
-            "watcher",
-            "watch",
-            "counter:c1.out.robot-count",
-            "--json",
-        ],
-    );
-    let (code, all) = ecology.task(
-        "examples/python/robot-counter.eco",
-        "examples/python/robot-counter.plan",
-        "world,hsm,counter",
-    );
+    let watcher = watch_tuples(&ecology.world, "watcher", "counter:c1.out.robot-count");
+    let (code, all) = count();
     assert_the_counter_ran(code, &all);
     let counted = watcher
         .lines

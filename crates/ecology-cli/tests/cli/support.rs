@@ -471,23 +471,7 @@ impl Ecology {
 /// The tuples of `owner` as they stand, by key, as `ecology tuples watch --json` prints them
 /// (`value`, `set_by`, …), read through a PEIS connected to `endpoint`.
 pub fn read_tuples(endpoint: &str, owner: &str) -> std::collections::BTreeMap<String, Value> {
-    let listen = free_endpoint();
-    let pattern = format!("{owner}:**");
-    let watch = Proc::start(
-        "reader",
-        &[
-            "tuples",
-            "--listen",
-            &listen,
-            "--connect",
-            endpoint,
-            "--name",
-            "reader",
-            "watch",
-            &pattern,
-            "--json",
-        ],
-    );
+    let watch = watch_tuples(endpoint, "reader", &format!("{owner}:**"));
     let mut seen = std::collections::BTreeMap::new();
     while let Ok(line) = watch.lines.recv_timeout(Duration::from_millis(1500)) {
         let v = event(&line.text);
@@ -497,6 +481,27 @@ pub fn read_tuples(endpoint: &str, owner: &str) -> std::collections::BTreeMap<St
     }
     watch.signal(Signal::SIGINT);
     seen
+}
+
+/// `ecology tuples watch PATTERN --json` as PEIS `name`, connected to `endpoint`: one JSON line
+/// per change.
+pub fn watch_tuples(endpoint: &str, name: &str, pattern: &str) -> Proc {
+    let listen = free_endpoint();
+    Proc::start(
+        name,
+        &[
+            "tuples",
+            "--listen",
+            &listen,
+            "--connect",
+            endpoint,
+            "--name",
+            name,
+            "watch",
+            pattern,
+            "--json",
+        ],
+    )
 }
 
 /// The executive on `fixture`'s plan, connected to the world at `world_endpoint`, printing JSON
