@@ -152,12 +152,18 @@ impl ConflictCheck {
         let key = (change.owner.to_string(), component.to_string());
         let value = change.value.trim();
         let who = change.creator.unwrap_or("its own PEIS");
+        // An executive's own request is no conflict between executives, even when it comes in
+        // after the executive's next configuration: one that reconfigures twice in one instant
+        // (a second failure while deploying) has its first requests still on their way, and the
+        // PEIS applies its requests in the order they were sent, the later ones last.
+        let another = |executive: &str| change.creator != Some(executive);
         if field == "params" {
             if !value.is_empty() {
                 for (executive, uses) in &self.uses {
                     if let Some(used) = uses.get(&key)
                         && used.running
                         && used.params != value
+                        && another(executive)
                     {
                         self.found.push(format!(
                             "{:.3}s {}:{component} ran {} for {executive} when {who} gave it {value}",
@@ -189,6 +195,7 @@ impl ConflictCheck {
                     && used.running
                     && let Some(wired) = used.inputs.get(name)
                     && !wired.iter().any(|w| w == value)
+                    && another(executive)
                 {
                     self.found.push(format!(
                         "{:.3}s {}:{component}'s input {name} was pointed at {value} by {who} while {executive} wires it to {}",

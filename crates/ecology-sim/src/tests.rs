@@ -1072,4 +1072,36 @@ fn the_conflict_check_fires_when_a_component_serves_two_executives() {
         },
     );
     assert!(check.conflicts().is_empty(), "{:?}", check.conflicts());
+
+    // An executive that reconfigures twice in one instant: its first request lands after its
+    // second configuration is logged (the PEIS applies its requests in order). Its own, so no
+    // conflict; the same request from another executive is one.
+    let scan = "(scan-matching astrid s1)";
+    let track = "(pose-tracking astrid s1)";
+    let twice = |by: &str| {
+        let mut check = ConflictCheck::default();
+        check.logged(
+            "exec-astrid",
+            &configuration(&[&format!("{track} on astrid:s1")]),
+        );
+        set(&mut check, 0.2, "astrid:s1.params", track, "exec-astrid");
+        check.logged(
+            "exec-astrid",
+            &configuration(&[&format!("{scan} on astrid:s1")]),
+        );
+        check.logged(
+            "exec-astrid",
+            &configuration(&[&format!("{track} on astrid:s1")]),
+        );
+        set(&mut check, 9.1, "astrid:s1.params", scan, by);
+        set(&mut check, 9.1, "astrid:s1.params", track, "exec-astrid");
+        check.conflicts().to_vec()
+    };
+    assert_eq!(twice("exec-astrid"), Vec::<String>::new());
+    assert_eq!(
+        twice("exec-bob"),
+        [
+            "9.100s astrid:s1 ran (pose-tracking astrid s1) for exec-astrid when exec-bob gave it (scan-matching astrid s1)"
+        ]
+    );
 }
