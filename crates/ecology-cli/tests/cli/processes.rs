@@ -948,7 +948,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     let (code, all) = count();
     assert_the_counter_ran(code, &all);
     // Nobody read its count: it was never written. It counted all the same (done).
-    let tuples = read_tuples(&ecology.world, "counter");
+    let tuples = read_tuples(&ecology.hub, "counter");
     assert_eq!(
         tuples.get("c1.out.robot-count"),
         None,
@@ -956,7 +956,7 @@ fn a_component_written_in_python_is_switched_on_wired_and_run() {
     );
     assert!(tuples.contains_key("c1.status"), "{tuples:#?}");
     // Read while the task runs again, the count goes out.
-    let watcher = watch_tuples(&ecology.world, "watcher", "counter:c1.out.robot-count");
+    let watcher = watch_tuples(&ecology.hub, "watcher", "counter:c1.out.robot-count");
     let (code, all) = count();
     assert_the_counter_ran(code, &all);
     let counted = watcher
@@ -1011,7 +1011,6 @@ fn assert_the_counter_ran(code: Option<i32>, all: &[Value]) {
 /// which speaks version 1 to it because it announced no other (docs/tuples.md, "Compatibility").
 #[test]
 fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released() {
-    const EARLIER: &str = "crates/ecology-cli/tests/fixtures/peis-v1/robot_counter.py";
     let python = python();
     let has_zenoh = imports(&python, "zenoh");
     if !has_zenoh {
@@ -1030,13 +1029,44 @@ fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released
         .expect("check_corpus.py");
     assert!(corpus.status.success(), "{corpus:?}");
     let _slot = process_slot();
-    let ecology = WithPython::start(
+    the_earlier_component_runs(WithPython::start(
         &python,
         "scenarios/peis-home.toml",
         &["hsm"],
         EARLIER,
         "counter",
-    );
+    ));
+}
+
+/// The same through a router that holds the contract of every PEIS: the router asks the earlier
+/// component for its tuples with a selector parameter it ignores and answers for it byte for byte
+/// (docs/tuples.md, "Compatibility"); every Rust process a client of the router, the component a
+/// peer connected to it.
+#[test]
+fn a_component_of_the_earlier_contract_works_through_a_router_that_holds_the_contract() {
+    let python = python();
+    if !imports(&python, "zenoh") {
+        println!(
+            "skipped: no Python with the eclipse-zenoh package at `{python}` to run {EARLIER}"
+        );
+        return;
+    }
+    let _slot = process_slot();
+    the_earlier_component_runs(WithPython::behind_a_router(
+        &python,
+        "scenarios/peis-home.toml",
+        &["hsm"],
+        EARLIER,
+        "counter",
+    ));
+}
+
+/// The frozen component of the earlier contract.
+const EARLIER: &str = "crates/ecology-cli/tests/fixtures/peis-v1/robot_counter.py";
+
+/// The counter's task on `ecology`, whose component is [`EARLIER`]: done, and its tuples as the
+/// earlier contract leaves them.
+fn the_earlier_component_runs(ecology: WithPython) {
     let (code, all) = ecology.task(
         "examples/python/robot-counter.eco",
         "examples/python/robot-counter.plan",
@@ -1045,7 +1075,7 @@ fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released
     assert_the_counter_ran(code, &all);
     // Its tuples: every remote set applied (it refuses any attachment but version 1), the count
     // done, switched off again; it keeps no holders, records no creator and announces nothing.
-    let tuples = read_tuples(&ecology.world, "counter");
+    let tuples = read_tuples(&ecology.hub, "counter");
     let value = |key: &str| tuples.get(key).and_then(|t| t["value"].as_str());
     assert_eq!(value("components.c1.reqState"), Some("off"), "{tuples:#?}");
     assert_eq!(value("components.c1.currState"), Some("off"), "{tuples:#?}");
@@ -1071,12 +1101,16 @@ fn a_component_of_the_earlier_contract_is_discovered_switched_wired_and_released
 }
 
 /// An ecology of processes with one component written in Python: the world and the PEIS `peis`
-/// of a scenario, each listening on an endpoint of its own and connected to the world, and a
-/// Python PEIS joining the same way.
+/// of a scenario and a Python PEIS, each listening on an endpoint of its own and connected to the
+/// world, or all connected to a router (the Rust processes as its clients).
 pub(crate) struct WithPython {
-    world: String,
+    /// The endpoint the others connect to: the world's, or the router's.
+    pub(crate) hub: String,
+    /// How a Rust process joins: listening and connected to the world, or a client of the router.
+    client: bool,
+    _router: Option<Proc>,
     _world: Proc,
-    /// Each PEIS's process and endpoint.
+    /// Each PEIS's process and the endpoint it listens on (none behind a router).
     pub(crate) peis: Vec<(Proc, String)>,
     component: Proc,
 }
@@ -1091,35 +1125,83 @@ impl WithPython {
         script: &str,
         name: &str,
     ) -> WithPython {
+        Self::start_on(None, python, scenario, peis, script, name)
+    }
+
+    /// The same, every process connected to `ecology router` (holding the contract, as by
+    /// default) and nothing else.
+    pub(crate) fn behind_a_router(
+        python: &str,
+        scenario: &str,
+        peis: &[&str],
+        script: &str,
+        name: &str,
+    ) -> WithPython {
+        let endpoint = free_endpoint();
+        let router = Proc::start("router", &["router", "--listen", &endpoint]).ready();
+        Self::start_on(
+            Some((router, endpoint)),
+            python,
+            scenario,
+            peis,
+            script,
+            name,
+        )
+    }
+
+    fn start_on(
+        router: Option<(Proc, String)>,
+        python: &str,
+        scenario: &str,
+        peis: &[&str],
+        script: &str,
+        name: &str,
+    ) -> WithPython {
         let scenario = root().join(scenario).display().to_string();
-        let world = free_endpoint();
-        let world_proc = Proc::start("world", &["world", &scenario, "--listen", &world]).ready();
+        let client = router.is_some();
+        let (router, hub) = match router {
+            Some((proc, endpoint)) => (Some(proc), endpoint),
+            None => (None, free_endpoint()),
+        };
+        let join = |command: &[&str], listen: &str| -> Vec<String> {
+            let through: &[&str] = if client {
+                &["--client", "--connect", &hub]
+            } else if command[0] == "world" {
+                &["--listen", listen]
+            } else {
+                &["--listen", listen, "--connect", &hub]
+            };
+            command
+                .iter()
+                .chain(through)
+                .map(|a| a.to_string())
+                .collect()
+        };
+        let world_args = join(&["world", &scenario], &hub);
+        let world = Proc::start("world", &as_strs(&world_args)).ready();
         let peis = peis
             .iter()
             .map(|&peis| {
-                let listen = free_endpoint();
-                let args = [
-                    "peis",
-                    &scenario,
-                    "--name",
-                    peis,
-                    "--listen",
-                    &listen,
-                    "--connect",
-                    &world,
-                ];
-                (Proc::start(peis, &args).ready(), listen)
+                let listen = if client {
+                    String::new()
+                } else {
+                    free_endpoint()
+                };
+                let args = join(&["peis", &scenario, "--name", peis], &listen);
+                (Proc::start(peis, &as_strs(&args)).ready(), listen)
             })
             .collect();
         let mut command = Command::new(python);
         command
             .arg(root().join(script))
-            .args(["--listen", &free_endpoint(), "--connect", &world]);
+            .args(["--listen", &free_endpoint(), "--connect", &hub]);
         let mut component = Proc::spawn(name, command);
         component.wait_for("ready", |l| l == "ready");
         WithPython {
-            world,
-            _world: world_proc,
+            hub,
+            client,
+            _router: router,
+            _world: world,
             peis,
             component,
         }
@@ -1133,7 +1215,11 @@ impl WithPython {
         wait_for: &str,
     ) -> (Option<i32>, Vec<Value>) {
         let listen = free_endpoint();
-        let through = ["--listen", &listen, "--connect", &self.world];
+        let through = if self.client {
+            ["--client", "--connect", &self.hub].to_vec()
+        } else {
+            ["--listen", &listen, "--connect", &self.hub].to_vec()
+        };
         let task = Proc::start("executive", &task_args(domain, plan, wait_for, &through));
         let (code, lines) = task.finish();
         (code, events(&lines))
