@@ -19,6 +19,9 @@ use ecology_tuples::{
     Value,
 };
 
+/// An output's value, made only if it goes out.
+type Later = Box<dyn FnOnce() -> Value + Send>;
+
 /// A boxed, sendable future: what a component body returns.
 pub type BoxFuture<T> = Pin<Box<dyn Future<Output = T> + Send + 'static>>;
 
@@ -67,9 +70,9 @@ pub struct Context<S: TupleSpace> {
     clock: Arc<dyn Clock>,
     /// The outputs written and not deleted since, so that one going unread is deleted once.
     written: Arc<std::sync::Mutex<BTreeSet<String>>>,
-    /// The last value of each output withheld because nobody read it, to publish when a reader
-    /// comes ([`Context::readers_came`]).
-    withheld: Arc<std::sync::Mutex<BTreeMap<String, Value>>>,
+    /// The last value of each output withheld because nobody read it, not yet made, to make and
+    /// publish when a reader comes ([`Context::readers_came`]).
+    withheld: Arc<std::sync::Mutex<BTreeMap<String, Later>>>,
 }
 
 impl<S: TupleSpace> std::fmt::Debug for Context<S> {
@@ -190,21 +193,32 @@ impl<S: TupleSpace> Context<S> {
     /// is kept back instead, and published the moment a reader comes if the body waits on
     /// [`Context::readers_came`].
     pub async fn output(&self, info: &str, value: Value) -> Result<Option<Tuple>, ComponentError> {
+        self.output_with(info, move || value).await
+    }
+
+    /// [`Context::output`] of the value `make` makes, made only if it goes out: now if someone
+    /// reads it, else when a reader comes while the body waits on [`Context::readers_came`]. For
+    /// an output whose making is the work, such as a camera's image of a whole building.
+    pub async fn output_with(
+        &self,
+        info: &str,
+        make: impl FnOnce() -> Value + Send + 'static,
+    ) -> Result<Option<Tuple>, ComponentError> {
         let key = output_key(&self.component_id()?, info)
             .map_err(|e| ComponentError::Space(e.to_string()))?;
         if self.space.is_read(&key) {
             lock(&self.withheld).remove(info);
-            let tuple = self.space.set(key, value).await?;
+            let tuple = self.space.set(key, make()).await?;
             lock(&self.written).insert(info.to_string());
             return Ok(Some(tuple));
         }
         self.withdraw(info).await?;
-        lock(&self.withheld).insert(info.to_string(), value);
+        lock(&self.withheld).insert(info.to_string(), Box::new(make));
         Ok(None)
     }
 
     /// Waits until someone reads output `info` (at once if someone does now).
-    pub async fn until_read(&self, info: &str) -> Result<(), ComponentError> {
+    async fn until_read(&self, info: &str) -> Result<(), ComponentError> {
         let key = output_key(&self.component_id()?, info)
             .map_err(|e| ComponentError::Space(e.to_string()))?;
         let mut readers = self.space.watch_readers(&key);
@@ -232,9 +246,9 @@ impl<S: TupleSpace> Context<S> {
         });
         let (came, _, _) = futures_util::future::select_all(waits).await;
         let info = came?;
-        let value = lock(&self.withheld).remove(&info);
-        if let Some(value) = value {
-            self.output(&info, value).await?;
+        let make = lock(&self.withheld).remove(&info);
+        if let Some(make) = make {
+            self.output_with(&info, make).await?;
         }
         Ok(())
     }

@@ -92,6 +92,14 @@ impl Fixture {
         }
     }
 
+    /// Gives `l1` params and switches it on; returns once it runs (its start-up is 1 s).
+    async fn run_l1(&self) {
+        self.set("l1.params", "(laser robot l1)").await;
+        self.set("components.l1.reqState", "on").await;
+        self.wait_for("l1.status", "running", Duration::from_millis(1100))
+            .await;
+    }
+
     async fn get(&self, k: &str) -> Option<String> {
         let t: Option<Tuple> = self
             .other
@@ -199,10 +207,7 @@ async fn an_output_goes_out_only_while_someone_reads_it() {
             Ok(())
         });
     let f = start(vec![spec("l1", false, counter)]).await;
-    f.set("l1.params", "(laser robot l1)").await;
-    f.set("components.l1.reqState", "on").await;
-    f.wait_for("l1.status", "running", Duration::from_millis(1100))
-        .await;
+    f.run_l1().await;
     f.clock.advance(Duration::from_secs(1));
     tokio::time::sleep(STEP).await;
     assert_eq!(f.get("l1.out.range-scan").await, None, "nobody reads it");
@@ -265,10 +270,7 @@ async fn a_kept_back_output_goes_out_when_a_reader_comes() {
             Ok(())
         });
     let f = start(vec![spec("l1", false, slow)]).await;
-    f.set("l1.params", "(laser robot l1)").await;
-    f.set("components.l1.reqState", "on").await;
-    f.wait_for("l1.status", "running", Duration::from_millis(1100))
-        .await;
+    f.run_l1().await;
     assert_eq!(f.get("l1.out.range-scan").await, None, "nobody reads it");
     let asked = f.clock.now();
     let got = f

@@ -15,7 +15,8 @@
 //! An output goes out only while someone reads it (`Context::output`, which
 //! keeps the last value back and publishes it the moment a reader comes while
 //! a body waits on `Body::next` or `Body::pause`); the cameras do not even
-//! write out an image nobody reads. Status flows whether or not anyone reads.
+//! write out an image nobody reads (`Context::output_with`). Status flows
+//! whether or not anyone reads.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -290,12 +291,26 @@ impl<S: TupleSpace> Body<S> {
     }
 
     async fn output(&self, info: &str, text: String) -> Result<(), ComponentError> {
+        self.output_with(info, move || text).await
+    }
+
+    /// Publishes output `info` as `make` makes it, made only if it goes out
+    /// (`Context::output_with`); garbled if a fault says so.
+    async fn output_with(
+        &self,
+        info: &str,
+        make: impl FnOnce() -> String + Send + 'static,
+    ) -> Result<(), ComponentError> {
         let garbled = self
             .faults
             .get(self.ctx.peis().as_str(), self.ctx.component())
             .garbled;
-        let text = if garbled { garble(&text) } else { text };
-        self.ctx.output(info, Value::text(text)).await?;
+        self.ctx
+            .output_with(info, move || {
+                let text = make();
+                Value::text(if garbled { garble(&text) } else { text })
+            })
+            .await?;
         Ok(())
     }
 
@@ -378,8 +393,6 @@ impl<S: TupleSpace> Body<S> {
     async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
         let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
-        // What the last image nobody read would have shown.
-        let mut kept: Option<Vec<(String, Pose)>> = None;
         loop {
             let stalled = self.injected()?;
             truth.poll()?;
@@ -395,10 +408,9 @@ impl<S: TupleSpace> Body<S> {
             } else {
                 self.report("running", "").await?;
                 if !stalled {
-                    // An image nobody reads is not written out, but what it would show is kept
-                    // (its noise drawn as for one written, so that a seeded run does not change
-                    // with who watches it) and written out the moment a reader comes.
-                    let taken = self.ctx.is_read("image")?;
+                    // What the image shows, its noise drawn whether or not anyone reads it (so
+                    // that a seeded run does not change with who watches it); the image is
+                    // written out only if someone reads it, now or before the next one.
                     let map = truth.map().unwrap_or_default();
                     let viewpoint = truth.robot(&me);
                     let mut seen = Vec::new();
@@ -417,24 +429,10 @@ impl<S: TupleSpace> Body<S> {
                         );
                         seen.push((name, noisy));
                     }
-                    if taken {
-                        self.output("image", image_text(&seen)).await?;
-                    } else {
-                        self.ctx.withdraw("image").await?;
-                        kept = Some(seen);
-                    }
+                    self.output_with("image", move || image_text(&seen)).await?;
                 }
             }
-            let deadline = self.ctx.clock().now().saturating_add(PERIOD);
-            if let Some(seen) = kept.take() {
-                tokio::select! {
-                    biased;
-                    () = self.ctx.clock().sleep_until(deadline) => continue,
-                    read = self.ctx.until_read("image") => read?,
-                }
-                self.output("image", image_text(&seen)).await?;
-            }
-            self.ctx.clock().sleep_until(deadline).await;
+            self.pause().await?;
         }
     }
 

@@ -919,37 +919,22 @@ pub async fn readers_are_known<H: Harness>(h: &mut H) {
     publish(&cam, "c1.out.image", "robot 1 2 0").await;
     let _ = cam.is_read(&image);
     h.advance(Duration::from_secs(2));
-    until(patience, "nobody reads it at first", || {
-        !cam.is_read(&image)
-    })
-    .await;
+    let (asked, asked_of) = (&image, &cam);
+    let read_is = move |want: bool, what: &'static str| {
+        until(patience, what, move || asked_of.is_read(asked) == want)
+    };
+    read_is(false, "nobody reads it at first").await;
 
     let exact = watch(&tracker, "cam:c1.out.image").await;
-    until(patience, "an exact subscriber reads it", || {
-        cam.is_read(&image)
-    })
-    .await;
+    read_is(true, "an exact subscriber reads it").await;
     drop(exact);
-    until(
-        patience,
-        "nobody reads it once the subscriber is gone",
-        || !cam.is_read(&image),
-    )
-    .await;
+    read_is(false, "nobody reads it once the subscriber is gone").await;
 
     let other = watch(&tracker, "cam:c1.status").await;
     let wildcard = watch(&tracker, "*:*.out.*").await;
-    until(patience, "a wildcard subscriber reads it", || {
-        cam.is_read(&image)
-    })
-    .await;
+    read_is(true, "a wildcard subscriber reads it").await;
     drop(wildcard);
-    until(
-        patience,
-        "a subscriber to another key does not read it",
-        || !cam.is_read(&image),
-    )
-    .await;
+    read_is(false, "a subscriber to another key does not read it").await;
     drop(other);
 
     let pointer = MetaPointer {
@@ -971,17 +956,7 @@ pub async fn readers_are_known<H: Harness>(h: &mut H) {
             break;
         }
     }
-    until(
-        patience,
-        "a subscriber through a meta-tuple reads it",
-        || cam.is_read(&image),
-    )
-    .await;
+    read_is(true, "a subscriber through a meta-tuple reads it").await;
     drop(through_meta);
-    until(
-        patience,
-        "nobody reads it once that subscriber is gone",
-        || !cam.is_read(&image),
-    )
-    .await;
+    read_is(false, "nobody reads it once that subscriber is gone").await;
 }

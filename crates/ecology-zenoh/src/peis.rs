@@ -619,6 +619,17 @@ impl Readers {
             since: core.clock.now(),
         })
     }
+
+    /// The readers of this PEIS's tuple `key` in `known`, declared the first time it is asked
+    /// about; `None` when Zenoh refuses the declaration.
+    fn of<'a>(known: &'a mut HashMap<Key, Readers>, core: &Core, key: &Key) -> Option<&'a Readers> {
+        match known.entry(key.clone()) {
+            std::collections::hash_map::Entry::Occupied(e) => Some(e.into_mut()),
+            std::collections::hash_map::Entry::Vacant(e) => Readers::declare(core, key)
+                .ok()
+                .map(|declared| &*e.insert(declared)),
+        }
+    }
 }
 
 /// Publishes `value` as this PEIS's tuple `key`: the one path for local sets, remote sets applied, and expiry.
@@ -1039,30 +1050,22 @@ impl TupleSpace for ZenohPeis {
 
     fn is_read(&self, key: &Key) -> bool {
         let core = &self.inner.core;
-        let mut readers = lock(&core.readers);
-        let readers = match readers.entry(key.clone()) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => match Readers::declare(core, key) {
-                Ok(declared) => e.insert(declared),
-                // Not knowing, publish.
-                Err(_) => return true,
-            },
-        };
-        *readers.matching.borrow()
-            || (!core.answers_lag_presence
-                && core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER)
+        let mut known = lock(&core.readers);
+        // Not knowing, publish.
+        Readers::of(&mut known, core, key).is_none_or(|readers| {
+            *readers.matching.borrow()
+                || (!core.answers_lag_presence
+                    && core.clock.now().saturating_duration_since(readers.since) < READERS_ANSWER)
+        })
     }
 
     fn watch_readers(&self, key: &Key) -> watch::Receiver<bool> {
         let core = &self.inner.core;
-        let mut readers = lock(&core.readers);
-        match readers.entry(key.clone()) {
-            std::collections::hash_map::Entry::Occupied(e) => e.get().matching.subscribe(),
-            std::collections::hash_map::Entry::Vacant(e) => match Readers::declare(core, key) {
-                Ok(declared) => e.insert(declared).matching.subscribe(),
-                // Not knowing, never wake: the component goes on asking `is_read`.
-                Err(_) => watch::Sender::new(false).subscribe(),
-            },
+        let mut known = lock(&core.readers);
+        match Readers::of(&mut known, core, key) {
+            Some(readers) => readers.matching.subscribe(),
+            // Not knowing, never wake: the component goes on asking `is_read`.
+            None => watch::Sender::new(false).subscribe(),
         }
     }
 
