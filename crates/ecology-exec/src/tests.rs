@@ -1013,6 +1013,53 @@ fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
     assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
 }
 
+/// The executive's process stalled: on waking it hears the cameras leave, deploys the laser
+/// configuration to Astrid, then hears her leave before any of it echoed, and everyone join
+/// again. Configured on the cameras again, it takes back what it wrote to Astrid, though her
+/// mirror still shows the laser off and the odometry's params empty from before: that is no
+/// one else's doing but its own writes not seen yet, which may still land after her return.
+/// The cameras' host, meanwhile, put back the params the executive had given them (it was gone
+/// too long): those are written again, not taken for running.
+#[test]
+fn writes_not_yet_echoed_when_a_peis_left_are_taken_back_on_its_return() {
+    let mut exec = running_first_action();
+    exec.handle(secs(1.0), tuple("astrid", "od1.params", "", 1));
+    exec.handle(secs(1.0), tuple("astrid", "components.l1.currState", "off", 2));
+    let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
+    let sent = sets_to(&left, "astrid");
+    for written in [
+        ("components.l1.reqState", "on"),
+        ("od1.params", "(odometry astrid od1)"),
+    ] {
+        assert!(
+            sent.contains(&(written.0.to_string(), written.1.to_string())),
+            "{sent:?}"
+        );
+    }
+    exec.handle(secs(2.01), Event::PeisLeft(peis("astrid")));
+    exec.handle(secs(2.02), Event::PeisJoined(peis("astrid")));
+    exec.handle(secs(2.03), Event::PeisJoined(peis("hsm")));
+    exec.handle(secs(2.5), tuple("hsm", "ca1.params", "", 9));
+    let window = ExecConfig::default().loss_window;
+    let judged = exec.handle(secs(3.0), fired(&left, &Timer::LossWindow, window));
+    let text = timeline(&exec);
+    assert_eq!(costs(&exec).last(), Some(&(80, true)), "{text}");
+    let cameras = sets_to(&judged, "hsm");
+    assert!(
+        cameras
+            .iter()
+            .any(|(key, value)| key == "ca1.params" && !value.is_empty()),
+        "{cameras:?}\n{text}"
+    );
+    let back = sets_to(&judged, "astrid");
+    for put_back in [("components.l1.reqState", "off"), ("od1.params", "")] {
+        assert!(
+            back.contains(&(put_back.0.to_string(), put_back.1.to_string())),
+            "{back:?}\n{text}"
+        );
+    }
+}
+
 /// The first move running, Astrid seen gone at 2 s and her departure judged at 3 s: the
 /// executive, and the commands of the judgement.
 fn astrid_gone_and_judged() -> (Executive, Vec<Command>) {

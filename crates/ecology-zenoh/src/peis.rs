@@ -1393,7 +1393,7 @@ async fn learn_contracts(core: &Core) {
 }
 
 /// The contract version `owner` reads: what it announced in its tuple `contract`, version 1 if
-/// it announced none; `None` if it did not answer in time. Learnt once per owner and kept until
+/// it announced none but answers for its directory; `None` if it did not answer in time. Learnt once per owner and kept until
 /// its presence ends; the first remote set to an owner asks (at most 1 s), later ones do not.
 async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     // Watch before asking, so an announcement or a departure between the two is not missed.
@@ -1413,8 +1413,7 @@ async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     else {
         return None;
     };
-    // No reply at all: nobody holds the tuple, so the owner (if it is there) reads version 1.
-    let mut contract = Some(wire::VERSION_1);
+    let (mut answered, mut failed) = (false, false);
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
             Ok(sample) => {
@@ -1424,11 +1423,42 @@ async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
                     }
                     return Some(version);
                 }
+                answered = true;
             }
-            Err(_) => contract = None,
+            Err(_) => failed = true,
         }
     }
-    contract
+    if failed {
+        return None;
+    }
+    if answered {
+        return Some(wire::VERSION_1);
+    }
+    // No reply at all: either nobody holds the tuple (an owner of version 1) or nothing reached
+    // the owner (a link just lost or not yet back, as for a process that was stopped for
+    // seconds). Only an owner that answers for its own directory reads version 1; taking an
+    // unreachable owner for one would send it an unnamed request, which, if it landed, would
+    // make nobody a holder of what it switched on, so that nothing put it back.
+    owner_answers(core, owner).await.then_some(wire::VERSION_1)
+}
+
+/// Whether `owner` answers a query for its directory (`components/…`), which every PEIS holds.
+async fn owner_answers(core: &Core, owner: &PeisId) -> bool {
+    let Ok(replies) = core
+        .session
+        .get(format!("{}/{owner}/components/**", wire::ROOT))
+        .consolidation(ConsolidationMode::None)
+        .timeout(core.query_timeout.min(Duration::from_secs(1)))
+        .await
+    else {
+        return false;
+    };
+    while let Ok(reply) = replies.recv_async().await {
+        if reply.result().is_ok() {
+            return true;
+        }
+    }
+    false
 }
 
 /// Declares the subscriptions of [`ContractWatch`].

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use nix::sys::signal::Signal;
 use serde_json::Value;
 
-use crate::processes::{costs, events, named, process_slot, strings};
+use crate::processes::{Events, costs, events, named, process_slot, strings};
 use crate::support::{Fixture, Line, Proc, TO_BEDROOM, Variant, event, is_event};
 
 /// Bridges and cables are named `ecb<pid>x<n>` and `ecv<pid>x<n>h<host>`, namespaces
@@ -666,12 +666,12 @@ impl Home {
     }
 
     /// Waits for the task to end; its exit code and every event.
-    fn finish(&mut self) -> (Option<i32>, Vec<Value>) {
+    fn finish(&mut self) -> (Option<i32>, Events) {
         self.finish_of("executive")
     }
 
     /// Waits for the task of executive `name` to end; its exit code and every event.
-    fn finish_of(&mut self, name: &str) -> (Option<i32>, Vec<Value>) {
+    fn finish_of(&mut self, name: &str) -> (Option<i32>, Events) {
         let executive = self.procs.remove(name).expect("a task runs");
         let (code, lines): (Option<i32>, Vec<Line>) = executive.finish();
         (code, events(&lines))
@@ -753,7 +753,7 @@ impl Home {
     /// Waits for the task's end and checks that it was done, no action failing, its last
     /// configuration the cameras again (80, a reconfiguration), and that nothing is left on.
     /// Returns every event.
-    fn assert_done_on_the_cameras_again(&mut self) -> Vec<Value> {
+    fn assert_done_on_the_cameras_again(&mut self) -> Events {
         let (code, all) = self.finish();
         assert_eq!(code, Some(0), "{all:#?}");
         assert!(named(&all, "action_failed").is_empty(), "{all:#?}");

@@ -73,8 +73,36 @@ pub(crate) fn process_slot_alone() -> Slot {
     take_slots(process_slots())
 }
 
-pub(crate) fn events(lines: &[Line]) -> Vec<Value> {
-    lines.iter().map(|l| event(&l.text)).collect()
+pub(crate) fn events(lines: &[Line]) -> Events {
+    Events(lines.iter().map(|l| event(&l.text)).collect())
+}
+
+/// A run's events, shown one short line each when an assertion fails: a failure's message then
+/// fits in the tail of a long log, where a pretty-printed dump of every event pushed it out.
+pub(crate) struct Events(pub(crate) Vec<Value>);
+
+impl std::ops::Deref for Events {
+    type Target = Vec<Value>;
+
+    fn deref(&self) -> &Vec<Value> {
+        &self.0
+    }
+}
+
+impl std::fmt::Debug for Events {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        /// Longer lines are cut: an event that carries a whole state says enough in its start.
+        const WIDTH: usize = 200;
+        writeln!(f, "{} events:", self.0.len())?;
+        for event in &self.0 {
+            let line = event.to_string();
+            match line.char_indices().nth(WIDTH) {
+                Some((cut, _)) => writeln!(f, "  {} …", &line[..cut])?,
+                None => writeln!(f, "  {line}")?,
+            }
+        }
+        Ok(())
+    }
 }
 
 pub(crate) fn named<'a>(events: &'a [Value], name: &str) -> Vec<&'a Value> {
@@ -1213,7 +1241,7 @@ impl WithPython {
         domain: &str,
         plan: &str,
         wait_for: &str,
-    ) -> (Option<i32>, Vec<Value>) {
+    ) -> (Option<i32>, Events) {
         let listen = free_endpoint();
         let through = if self.client {
             ["--client", "--connect", &self.hub].to_vec()

@@ -290,6 +290,7 @@ impl Executive {
             }
             if !unchanged {
                 out.push(params(&key, call.clone()));
+                self.maybe_written.remove(&key);
                 self.params.insert(key.clone(), call);
             }
             if !ready {
@@ -416,20 +417,25 @@ impl Executive {
         let borrowed: Vec<ComponentKey> = self
             .params
             .keys()
+            .chain(&self.maybe_written)
             .filter(|k| which(self, k) && !self.started.contains(*k))
             .cloned()
+            .collect::<BTreeSet<_>>()
+            .into_iter()
             .collect();
         let mut switched_off = Vec::new();
         for key in switched {
             out.push(req_state(&key, "off"));
             self.started.remove(&key);
             self.params.remove(&key);
+            self.maybe_written.remove(&key);
             switched_off.push(logged(&key));
         }
         let mut stopped = Vec::new();
         for key in borrowed {
             out.push(params(&key, String::new()));
             self.params.remove(&key);
+            self.maybe_written.remove(&key);
             stopped.push(logged(&key));
         }
         (switched_off, stopped)
@@ -450,6 +456,7 @@ impl Executive {
             std::mem::take(&mut self.orphans).into_keys().collect();
         unreachable.extend(std::mem::take(&mut self.started));
         unreachable.extend(std::mem::take(&mut self.params).into_keys());
+        unreachable.extend(std::mem::take(&mut self.maybe_written));
         self.running = None;
         let unreachable: Vec<LogComponent> = unreachable.iter().map(logged).collect();
         if !switched_off.is_empty() || !stopped.is_empty() || !unreachable.is_empty() {

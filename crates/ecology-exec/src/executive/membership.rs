@@ -89,6 +89,7 @@ impl Executive {
     pub(super) fn forget(&mut self, peis: &PeisId) {
         self.params.retain(|(p, _), _| p != peis);
         self.started.retain(|(p, _)| p != peis);
+        self.maybe_written.retain(|(p, _)| p != peis);
         self.orphans.retain(|(p, _), _| p != peis);
     }
 
@@ -197,18 +198,30 @@ impl Executive {
         self.release_unused(&peis, out);
     }
 
-    /// Takes back what was written to `peis` before it left, where the mirror shows it still
-    /// stands: switched on if it is on, params if they are the same (or not yet seen).
+    /// Takes back what was written to `peis` before it left: a switch-on always (asking for
+    /// `off` releases this executive's claim and switches off nothing another holds), params
+    /// where the mirror shows the same (or none yet). Params that show empty were put back by
+    /// the PEIS (its executive gone too long) or are a write that has not echoed yet and may
+    /// still land: not believed to run, but cleared if no configuration writes them again.
     fn reclaim(&mut self, peis: &PeisId) {
         for (key, orphan) in take_on(&mut self.orphans, peis) {
-            let view = self.mirror.component(key.0.as_str(), key.1.as_str());
-            if orphan.switched_on && view.is_some_and(|v| v.on) {
+            if orphan.switched_on {
                 self.started.insert(key.clone());
             }
             if let Some(params) = orphan.params {
-                let seen = view.and_then(|v| v.params.as_deref());
-                if seen.is_none_or(|seen| seen == params) {
-                    self.params.insert(key, params);
+                let view = self.mirror.component(key.0.as_str(), key.1.as_str());
+                match view.and_then(|v| v.params.as_deref()).map(str::trim) {
+                    None => {
+                        self.params.insert(key, params);
+                    }
+                    Some(seen) if seen == params.trim() => {
+                        self.params.insert(key, params);
+                    }
+                    Some("") => {
+                        self.maybe_written.insert(key);
+                    }
+                    // Someone else's params: not this executive's to take back.
+                    Some(_) => {}
                 }
             }
         }

@@ -231,6 +231,10 @@ pub struct Executive {
     params: BTreeMap<ComponentKey, String>,
     /// What it wrote to components of PEIS that left and may come back in the same run.
     orphans: BTreeMap<ComponentKey, Orphan>,
+    /// Components whose `params` it wrote before their PEIS left, where on its return they
+    /// showed empty: put back by that PEIS, or its write not landed yet (it may still). Not
+    /// believed to run them; cleared when put back unless a configuration writes them again.
+    maybe_written: BTreeSet<ComponentKey>,
     /// The remote sets asked for that are neither answered nor failed yet: by owner and key,
     /// their values in the order asked (the driver carries out one owner's sets in order).
     /// While a PEIS has one, the way to it is not known to work.
@@ -276,6 +280,7 @@ impl Executive {
             started: BTreeSet::new(),
             params: BTreeMap::new(),
             orphans: BTreeMap::new(),
+            maybe_written: BTreeSet::new(),
             in_flight: BTreeMap::new(),
             departures: None,
             lost: None,
