@@ -53,8 +53,13 @@ const ASK_WITHIN: Duration = Duration::from_secs(5);
 /// One tuple as its owner last sent it.
 struct Held {
     key_expr: KeyExpr<'static>,
+    /// Which of [`HELD`] it falls under: a question that covers all of that one takes it without
+    /// comparing key expressions.
+    under: usize,
     payload: ZBytes,
     encoding: Encoding,
+    /// `encoding` as text, for a bundle.
+    encoding_text: String,
     attachment: Option<ZBytes>,
     /// The owner's `(epoch, seq)`: a value older than the one held is not taken.
     order: (u64, u64),
@@ -106,12 +111,21 @@ fn take(state: &Shared, sample: &Sample) {
             if tuples.get(&key).is_some_and(|held| held.order > order) {
                 return;
             }
+            let key_expr = sample.key_expr().clone().into_owned();
+            let under = HELD
+                .iter()
+                .position(|held| {
+                    KeyExpr::try_from(*held).is_ok_and(|held| held.intersects(&key_expr))
+                })
+                .unwrap_or(HELD.len());
             tuples.insert(
                 key,
                 Held {
-                    key_expr: sample.key_expr().clone().into_owned(),
+                    key_expr,
+                    under,
                     payload: sample.payload().clone(),
                     encoding: sample.encoding().clone(),
+                    encoding_text: sample.encoding().to_string(),
                     attachment: sample.attachment().cloned(),
                     order,
                     expiry: meta.and_then(|m| m.expiry),
@@ -279,32 +293,61 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
     })
 }
 
-/// Answers `query` from what is held, and passes it on to the PEIS still being asked.
+/// Answers `query` from what is held, and passes it on to the PEIS still being asked. What is
+/// held goes in one reply, a bundle (`wire::encode_bundle`), when the querier asks for one
+/// (`wire::BUNDLE_PARAMETER`): a thousand PEIS's contract is some seven thousand tuples, and a
+/// reply each cost more than everything else of the question together.
 async fn answer(session: &Session, state: &Shared, query: Query) {
     let asked = query.key_expr().clone().into_owned();
+    let bundle = query.parameters().contains_key(wire::BUNDLE_PARAMETER);
     let now = SystemClock.now().as_nanos();
-    let (replies, pass_on) = {
+    // Each of the held key expressions the question covers whole.
+    let covers: Vec<bool> = HELD
+        .iter()
+        .map(|held| KeyExpr::try_from(*held).is_ok_and(|held| asked.includes(&held)))
+        .collect();
+    let mut first = None;
+    let mut bundled = wire::BundleWriter::default();
+    let mut replies = Vec::new();
+    let pass_on: HashSet<PeisId> = {
         let state = lock(state);
-        let mut replies = Vec::new();
         for (peis, tuples) in &state.tuples {
             if !state.present.contains(peis) || state.asking.contains(peis) {
                 continue;
             }
             for held in tuples.values() {
-                if held.expiry.is_some_and(|at| at <= now) || !asked.intersects(&held.key_expr) {
+                let asked_for = covers.get(held.under).copied().unwrap_or(false)
+                    || asked.intersects(&held.key_expr);
+                if held.expiry.is_some_and(|at| at <= now) || !asked_for {
                     continue;
                 }
-                replies.push((
-                    held.key_expr.clone(),
-                    held.payload.clone(),
-                    held.encoding.clone(),
-                    held.attachment.clone(),
-                ));
+                if bundle {
+                    first.get_or_insert_with(|| held.key_expr.clone());
+                    bundled.push(wire::Bundled {
+                        key_expr: held.key_expr.as_str(),
+                        encoding: &held.encoding_text,
+                        payload: &held.payload.to_bytes(),
+                        attachment: held.attachment.as_ref().map(ZBytes::to_bytes).as_deref(),
+                    });
+                } else {
+                    replies.push((
+                        held.key_expr.clone(),
+                        held.payload.clone(),
+                        held.encoding.clone(),
+                        held.attachment.clone(),
+                    ));
+                }
             }
         }
-        let pass_on: HashSet<PeisId> = state.asking.clone();
-        (replies, pass_on)
+        state.asking.clone()
     };
+    if let Some(first) = first {
+        // Its key is one of the tuples it carries: a reply must be about what was asked.
+        let _ = query
+            .reply(first, bundled.finish())
+            .encoding(Encoding::from(wire::BUNDLE_ENCODING))
+            .await;
+    }
     for (key, payload, encoding, attachment) in replies {
         let mut reply = query.reply(key, payload).encoding(encoding);
         if let Some(attachment) = attachment {
@@ -320,8 +363,10 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
     let Ok(replies) = ask_the_peis(session, asked.to_string()).await else {
         return;
     };
+    let mut short = false;
     while let Ok(reply) = replies.recv_async().await {
         let Ok(sample) = reply.result() else {
+            short = true;
             continue;
         };
         if !owner_of(sample.key_expr().as_str()).is_some_and(|o| pass_on.contains(&o)) {
@@ -334,6 +379,13 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
             reply = reply.attachment(attachment.clone());
         }
         let _ = reply.await;
+    }
+    // Some PEIS did not answer in full (a question of theirs timed out): the querier is told,
+    // and may ask each PEIS it knows to be present but heard nothing from.
+    if short {
+        let _ = query
+            .reply_err("a PEIS this router is still asking did not answer in full")
+            .await;
     }
 }
 

@@ -435,15 +435,22 @@ const ZENOH_TIMEOUT: &[u8] = b"Timeout";
 
 /// Every tuple matching `pattern`, asked of the PEIS that own them.
 async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
-    Ok(query_tuples_answered(core, pattern).await?.0)
+    Ok(query_tuples_answered(core, pattern).await?.tuples)
 }
 
-/// [`query_tuples`], and whether every PEIS asked answered in full: false when an answer came
-/// back as an error, as a query that timed out does.
-async fn query_tuples_answered(
-    core: &Core,
-    pattern: &TuplePattern,
-) -> Result<(Vec<Tuple>, bool), TupleError> {
+/// What a question of the ecology got.
+struct Answer {
+    tuples: Vec<Tuple>,
+    /// Whether every PEIS asked answered in full: false when an answer came back as an error, as
+    /// a query that timed out does (or a router that holds the contract says one it passed the
+    /// question on to did).
+    in_full: bool,
+    /// Whether it was asked of the routers that hold the contract alone.
+    of_holders: bool,
+}
+
+/// [`query_tuples`], and how it was answered.
+async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<Answer, TupleError> {
     let key_expr = wire::pattern_key_expr(pattern);
     // Replies of every query go into an unbounded channel: with Zenoh's default (256), a query of
     // a thousand PEIS filled it, and Zenoh's thread delivering the rest blocked holding the
@@ -451,15 +458,17 @@ async fn query_tuples_answered(
     // a second query begun beside the first (a liveliness query takes it at once): deadlock.
     // A question of every PEIS that a router holds the answer to (the contract's keys) is asked of
     // the router alone; otherwise of every PEIS that matches, each answering for itself.
-    let target = match pattern.owner {
-        ecology_tuples::OwnerPattern::Any if held_for_all(core, &key_expr).await => {
-            QueryTarget::AllComplete
-        }
-        _ => QueryTarget::BestMatching,
+    // A router asked alone answers with what it holds in one bundle.
+    let (target, selector) = match pattern.owner {
+        ecology_tuples::OwnerPattern::Any if held_for_all(core, &key_expr).await => (
+            QueryTarget::AllComplete,
+            format!("{key_expr}?{}", wire::BUNDLE_PARAMETER),
+        ),
+        _ => (QueryTarget::BestMatching, key_expr),
     };
     let replies = core
         .session
-        .get(key_expr)
+        .get(selector)
         .target(target)
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout)
@@ -474,6 +483,36 @@ async fn query_tuples_answered(
             answered = false;
             continue;
         };
+        if sample.encoding().to_string() == wire::BUNDLE_ENCODING {
+            let bytes = sample.payload().to_bytes();
+            let Ok(bundle) = wire::decode_bundle(&bytes) else {
+                core.malformed.fetch_add(1, Ordering::Relaxed);
+                answered = false;
+                continue;
+            };
+            for t in bundle {
+                let encoding = || t.encoding.to_owned();
+                let decoded = decode_put(
+                    t.key_expr,
+                    t.payload,
+                    t.attachment,
+                    encoding,
+                    &core.options,
+                    core.clock.as_ref(),
+                    &mut recent,
+                );
+                match decoded {
+                    Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => {
+                        tuples.push(t);
+                    }
+                    Ok(_) => {}
+                    Err(_) => {
+                        core.malformed.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+            continue;
+        }
         match decode_sample(sample, &core.options, core.clock.as_ref(), &mut recent) {
             Ok(TupleEvent::Changed(t)) if pattern.matches(&t.owner, &t.key) => tuples.push(t),
             Ok(_) => {}
@@ -484,7 +523,11 @@ async fn query_tuples_answered(
     }
     tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
     tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
-    Ok((tuples, answered))
+    Ok(Answer {
+        tuples,
+        in_full: answered,
+        of_holders: target == QueryTarget::AllComplete,
+    })
 }
 
 /// Whether a router holds the component contract of every PEIS (see the module `cache`): then a
@@ -910,34 +953,23 @@ fn decode_sample(
     clock: &dyn Clock,
     recent: &mut Recent,
 ) -> Result<TupleEvent, WireError> {
-    let (owner, key) = recent.subject(sample.key_expr().as_str())?;
-    let meta = match sample.attachment() {
-        Some(att) => Some(recent.metadata(&att.to_bytes())?),
-        None => None,
-    };
+    let attachment = sample.attachment().map(zenoh::bytes::ZBytes::to_bytes);
     match sample.kind() {
-        SampleKind::Put => {
-            let size = sample.payload().len();
-            if size > options.limits.max_value_bytes {
-                return Err(WireError::TooLarge {
-                    size,
-                    limit: options.limits.max_value_bytes,
-                });
-            }
-            let data = Bytes::copy_from_slice(&sample.payload().to_bytes());
-            let meta = meta.unwrap_or_else(|| Metadata {
-                seq: 0,
-                ts_write: clock.now(),
-                ts_user: None,
-                expiry: None,
-                expired: false,
-                epoch: 0,
-                mimetype: default_mimetype(sample),
-                creator: None,
-            });
-            Ok(TupleEvent::Changed(meta.into_tuple(owner, key, data)))
-        }
+        SampleKind::Put => decode_put(
+            sample.key_expr().as_str(),
+            &sample.payload().to_bytes(),
+            attachment.as_deref(),
+            || sample.encoding().to_string(),
+            options,
+            clock,
+            recent,
+        ),
         SampleKind::Delete => {
+            let (owner, key) = recent.subject(sample.key_expr().as_str())?;
+            let meta = match attachment {
+                Some(att) => Some(recent.metadata(&att)?),
+                None => None,
+            };
             let (seq, epoch, expired) = meta.map_or((0, 0, false), |m| (m.seq, m.epoch, m.expired));
             Ok(TupleEvent::Removed {
                 owner,
@@ -954,13 +986,50 @@ fn decode_sample(
     }
 }
 
-/// The mimetype of a sample without metadata: its Zenoh encoding if it names one, else octet-stream.
-fn default_mimetype(sample: &Sample) -> Mimetype {
-    let encoding = sample.encoding().to_string();
+/// Reads one value put on `key_expr` as a tuple event: from a sample, or from a bundle of held
+/// tuples. Without an attachment it gets default metadata, its mimetype from its `encoding`.
+fn decode_put(
+    key_expr: &str,
+    payload: &[u8],
+    attachment: Option<&[u8]>,
+    encoding: impl FnOnce() -> String,
+    options: &PeisOptions,
+    clock: &dyn Clock,
+    recent: &mut Recent,
+) -> Result<TupleEvent, WireError> {
+    let (owner, key) = recent.subject(key_expr)?;
+    let meta = match attachment {
+        Some(att) => Some(recent.metadata(att)?),
+        None => None,
+    };
+    let size = payload.len();
+    if size > options.limits.max_value_bytes {
+        return Err(WireError::TooLarge {
+            size,
+            limit: options.limits.max_value_bytes,
+        });
+    }
+    let data = Bytes::copy_from_slice(payload);
+    let meta = meta.unwrap_or_else(|| Metadata {
+        seq: 0,
+        ts_write: clock.now(),
+        ts_user: None,
+        expiry: None,
+        expired: false,
+        epoch: 0,
+        mimetype: mimetype_of_encoding(&encoding()),
+        creator: None,
+    });
+    Ok(TupleEvent::Changed(meta.into_tuple(owner, key, data)))
+}
+
+/// The mimetype of a value without metadata: its Zenoh encoding if it names one, else
+/// octet-stream.
+fn mimetype_of_encoding(encoding: &str) -> Mimetype {
     if encoding == "zenoh/bytes" {
         return Mimetype::octet_stream();
     }
-    Mimetype::new(&encoding).unwrap_or_else(|_| Mimetype::octet_stream())
+    Mimetype::new(encoding).unwrap_or_else(|_| Mimetype::octet_stream())
 }
 
 /// Merges a subscription's snapshots with live samples: the snapshot taken
@@ -1214,10 +1283,12 @@ impl TupleSpace for ZenohPeis {
                         key: key.clone(),
                     };
                     match query_tuples_answered(&core, &theirs).await {
-                        Ok((tuples, _)) if !tuples.is_empty() => lock(&merge).catch_up(tuples),
+                        Ok(answer) if !answer.tuples.is_empty() => {
+                            lock(&merge).catch_up(answer.tuples);
+                        }
                         // Asking each of a thousand PEIS five more times, for each
                         // subscription to every PEIS, kept their router busy for seconds.
-                        Ok((_, true)) if !core.answers_lag_presence => {}
+                        Ok(answer) if answer.in_full && !core.answers_lag_presence => {}
                         _ if attempt < CATCH_UP_ATTEMPTS => {
                             let at = tokio::time::Instant::now() + CATCH_UP_PAUSE * (attempt + 1);
                             again.push((at, id, attempt + 1));
@@ -1228,11 +1299,17 @@ impl TupleSpace for ZenohPeis {
                 }
             })
         };
-        let snapshot = self.query_tuples(&pattern).await?;
-        // Every present PEIS the snapshot heard nothing from is asked on its own.
+        let answer = query_tuples_answered(core, &pattern).await?;
+        let snapshot = answer.tuples;
+        // Every present PEIS the snapshot heard nothing from is asked on its own, unless the
+        // routers that hold the contract answered in full: they answer for every PEIS present
+        // (passing the question on to those they are still asking), and asking a thousand PEIS
+        // for their presence took longer than the question itself, or, asked beside it, delayed
+        // it as long. One that appears later is caught by the watcher above. A subscription to
+        // one PEIS asks after that one only, not the whole ecology.
         let heard: BTreeSet<PeisId> = snapshot.iter().map(|t| t.owner.clone()).collect();
-        // A subscription to one PEIS asks after that one only, not the whole ecology.
-        if let Ok(alive) = alive_matching(core, &alive).await {
+        let covered = answer.of_holders && answer.in_full;
+        if !covered && let Ok(alive) = alive_matching(core, &alive).await {
             for id in alive {
                 if id != core.me && !heard.contains(&id) && pattern.owner.matches(&id) {
                     let _ = retry.send((id, 0));

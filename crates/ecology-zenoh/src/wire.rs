@@ -71,6 +71,9 @@ pub enum WireError {
     /// The attachment is not a valid metadata record.
     #[error("malformed attachment: {0}")]
     Attachment(&'static str),
+    /// A bundle of held tuples is not valid.
+    #[error("malformed bundle: {0}")]
+    Bundle(&'static str),
     /// The value is over the receiver's size limit.
     #[error("value of {size} bytes is over the limit of {limit} bytes")]
     TooLarge {
@@ -421,6 +424,114 @@ impl Metadata {
     }
 }
 
+/// The selector parameter with which a querier asks a router that holds the contract for its
+/// answer as one [bundle](encode_bundle) instead of one reply per tuple. A router that does not
+/// know it ignores it and replies per tuple; a PEIS answering for itself ignores it too.
+pub const BUNDLE_PARAMETER: &str = "ecology_bundle";
+
+/// The Zenoh encoding of a reply that is a bundle; any other reply is one tuple.
+pub const BUNDLE_ENCODING: &str = "application/x-ecology-bundle";
+
+/// The only layout of a bundle so far, its first byte.
+const BUNDLE_VERSION: u8 = 1;
+
+/// One tuple in a bundle, as its owner last sent it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Bundled<'a> {
+    /// Its key expression, `peis/OWNER/…`.
+    pub key_expr: &'a str,
+    /// Its Zenoh encoding, as text (what a sample without an attachment is read by).
+    pub encoding: &'a str,
+    /// Its value.
+    pub payload: &'a [u8],
+    /// Its attachment, if it had one.
+    pub attachment: Option<&'a [u8]>,
+}
+
+/// Many tuples in one reply, integers little-endian: a version byte (`1`), then for each tuple
+/// its key expression (u16 length, UTF-8), encoding (u8 length, UTF-8), payload (u32 length) and
+/// attachment (u32 length, `0xFFFFFFFF` for none). Parts too long for their length field are cut
+/// off at the field's limit, which no valid tuple reaches (key expressions and encodings are
+/// shorter, and values are held to the receiver's limit anyway).
+pub fn encode_bundle<'a>(tuples: impl IntoIterator<Item = Bundled<'a>>) -> Vec<u8> {
+    let mut bundle = BundleWriter::default();
+    for t in tuples {
+        bundle.push(t);
+    }
+    bundle.finish()
+}
+
+/// A bundle written one tuple at a time (see [`encode_bundle`]).
+#[derive(Debug)]
+pub struct BundleWriter(Vec<u8>);
+
+impl Default for BundleWriter {
+    fn default() -> Self {
+        BundleWriter(vec![BUNDLE_VERSION])
+    }
+}
+
+impl BundleWriter {
+    /// Appends one tuple.
+    pub fn push(&mut self, t: Bundled<'_>) {
+        fn part(out: &mut Vec<u8>, bytes: &[u8], width: usize) {
+            let limit = (1u64 << (8 * width)) - 1;
+            let len = bytes.len().min(usize::try_from(limit - 1).unwrap_or(usize::MAX));
+            out.extend_from_slice(&(len as u64).to_le_bytes()[..width]);
+            out.extend_from_slice(&bytes[..len]);
+        }
+        let out = &mut self.0;
+        part(out, t.key_expr.as_bytes(), 2);
+        part(out, t.encoding.as_bytes(), 1);
+        part(out, t.payload, 4);
+        match t.attachment {
+            Some(attachment) => part(out, attachment, 4),
+            None => out.extend_from_slice(&u32::MAX.to_le_bytes()),
+        }
+    }
+
+    /// The bundle's bytes.
+    pub fn finish(self) -> Vec<u8> {
+        self.0
+    }
+}
+
+/// Reads a bundle made by [`encode_bundle`]: every tuple, or an error for a version it does not
+/// know, a truncated part, or text that is not UTF-8.
+pub fn decode_bundle(bytes: &[u8]) -> Result<Vec<Bundled<'_>>, WireError> {
+    let bad = |e: WireError| match e {
+        WireError::Attachment(why) => WireError::Bundle(why),
+        other => other,
+    };
+    let mut r = Reader(bytes);
+    if r.u8().map_err(bad)? != BUNDLE_VERSION {
+        return Err(WireError::Bundle("unknown version"));
+    }
+    fn text(b: &[u8]) -> Result<&str, WireError> {
+        std::str::from_utf8(b).map_err(|_| WireError::Bundle("text that is not UTF-8"))
+    }
+    let mut tuples = Vec::new();
+    while !r.0.is_empty() {
+        let key_expr = text(r.part(2).map_err(bad)?)?;
+        let encoding = text(r.part(1).map_err(bad)?)?;
+        let payload = r.part(4).map_err(bad)?;
+        let attachment = match r.peek_u32() {
+            Some(u32::MAX) => {
+                r.take(4).map_err(bad)?;
+                None
+            }
+            _ => Some(r.part(4).map_err(bad)?),
+        };
+        tuples.push(Bundled {
+            key_expr,
+            encoding,
+            payload,
+            attachment,
+        });
+    }
+    Ok(tuples)
+}
+
 struct Reader<'a>(&'a [u8]);
 
 impl<'a> Reader<'a> {
@@ -441,5 +552,19 @@ impl<'a> Reader<'a> {
         let mut buf = [0; 8];
         buf.copy_from_slice(self.take(8)?);
         Ok(u64::from_le_bytes(buf))
+    }
+
+    /// A length of `width` bytes, then that many bytes.
+    fn part(&mut self, width: usize) -> Result<&'a [u8], WireError> {
+        let mut buf = [0; 8];
+        buf[..width].copy_from_slice(self.take(width)?);
+        let len = usize::try_from(u64::from_le_bytes(buf))
+            .map_err(|_| WireError::Attachment("too short"))?;
+        self.take(len)
+    }
+
+    fn peek_u32(&self) -> Option<u32> {
+        let head: [u8; 4] = self.0.get(..4)?.try_into().ok()?;
+        Some(u32::from_le_bytes(head))
     }
 }

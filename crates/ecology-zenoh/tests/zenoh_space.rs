@@ -645,6 +645,68 @@ fn metadata_round_trips_and_malformed_attachments_are_rejected() {
     }
 }
 
+/// A bundle of held tuples, byte for byte as `docs/network.md` documents it, read back whole;
+/// every way it can be cut short or bent is an error, never a panic or a tuple made up.
+#[test]
+fn a_bundle_of_held_tuples_reads_back_and_refuses_what_is_malformed() {
+    let tuples = [
+        wire::Bundled {
+            key_expr: "peis/astrid/components/s1/type",
+            encoding: "zenoh/bytes",
+            payload: b"self-loc",
+            attachment: Some(&[1, 0, 7]),
+        },
+        wire::Bundled {
+            key_expr: "peis/hsm/ca1/status",
+            encoding: "text/plain",
+            payload: b"",
+            attachment: None,
+        },
+    ];
+    let bytes = wire::encode_bundle(tuples);
+    let mut expected = vec![1u8];
+    expected.extend_from_slice(&30u16.to_le_bytes());
+    expected.extend_from_slice(b"peis/astrid/components/s1/type");
+    expected.push(11);
+    expected.extend_from_slice(b"zenoh/bytes");
+    expected.extend_from_slice(&8u32.to_le_bytes());
+    expected.extend_from_slice(b"self-loc");
+    expected.extend_from_slice(&3u32.to_le_bytes());
+    expected.extend_from_slice(&[1, 0, 7]);
+    expected.extend_from_slice(&19u16.to_le_bytes());
+    expected.extend_from_slice(b"peis/hsm/ca1/status");
+    expected.push(10);
+    expected.extend_from_slice(b"text/plain");
+    expected.extend_from_slice(&0u32.to_le_bytes());
+    expected.extend_from_slice(&u32::MAX.to_le_bytes());
+    assert_eq!(bytes, expected);
+    assert_eq!(wire::decode_bundle(&bytes), Ok(tuples.to_vec()));
+    assert_eq!(wire::decode_bundle(&[1]), Ok(Vec::new()));
+    for cut in 2..bytes.len() {
+        if cut == 1 + 2 + 30 + 1 + 11 + 4 + 8 + 4 + 3 {
+            // Between the two tuples: the first alone.
+            assert_eq!(wire::decode_bundle(&bytes[..cut]), Ok(tuples[..1].to_vec()));
+            continue;
+        }
+        assert_eq!(
+            wire::decode_bundle(&bytes[..cut]),
+            Err(WireError::Bundle("too short")),
+            "cut at {cut}"
+        );
+    }
+    let mut version = bytes.clone();
+    version[0] = 2;
+    let mut not_text = bytes.clone();
+    not_text[3] = 0xff;
+    for (bytes, expected) in [
+        (&[][..], WireError::Bundle("too short")),
+        (&version[..], WireError::Bundle("unknown version")),
+        (&not_text[..], WireError::Bundle("text that is not UTF-8")),
+    ] {
+        assert_eq!(wire::decode_bundle(bytes), Err(expected));
+    }
+}
+
 /// One entry of the attachment corpus (`tests/corpus/attachments.txt`): its name and fields.
 struct CorpusEntry {
     name: String,
@@ -1621,6 +1683,45 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
             [("components.c1.type".to_string(), "cams".to_string())]
         );
         assert_eq!(read("*:*.out.*").await, [], "outputs are not held");
+        // Asked for a bundle, the router answers in one reply; asked as before, a reply a tuple.
+        let asker = stock_router_client(&endpoint, PATIENCE)
+            .await
+            .expect("asker");
+        for (selector, bundled) in [
+            (format!("peis/*/*/*?{}", wire::BUNDLE_PARAMETER), true),
+            ("peis/*/*/*".to_string(), false),
+        ] {
+            let replies = asker
+                .get(selector.as_str())
+                .target(zenoh::query::QueryTarget::AllComplete)
+                .await
+                .expect("get");
+            let mut got = Vec::new();
+            while let Ok(reply) = replies.recv_async().await {
+                got.push(reply.result().expect("a reply").clone());
+            }
+            if bundled {
+                assert_eq!(got.len(), 1, "{got:?}");
+                assert_eq!(got[0].encoding().to_string(), wire::BUNDLE_ENCODING);
+                let bytes = got[0].payload().to_bytes();
+                let bundle = wire::decode_bundle(&bytes).expect("a bundle");
+                let keys: Vec<&str> = bundle.iter().map(|t| t.key_expr).collect();
+                assert!(keys.contains(&"peis/ghost/c1/status"), "{keys:?}");
+                assert!(bundle.iter().all(|t| t.attachment.is_some()), "{bundle:?}");
+            } else {
+                let ghost: Vec<_> = got
+                    .iter()
+                    .filter(|s| s.key_expr().as_str().starts_with("peis/ghost/"))
+                    .collect();
+                assert_eq!(ghost.len(), 1, "{got:?}");
+                assert!(
+                    got.iter()
+                        .all(|s| s.encoding().to_string() != wire::BUNDLE_ENCODING),
+                    "{got:?}"
+                );
+            }
+        }
+        asker.close().await.expect("close");
         token.undeclare().await.expect("undeclare");
         let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
         while !read("*:*.*").await.is_empty() {
