@@ -1024,7 +1024,10 @@ fn a_peis_back_before_its_departure_is_judged_is_forgiven() {
 fn writes_not_yet_echoed_when_a_peis_left_are_taken_back_on_its_return() {
     let mut exec = running_first_action();
     exec.handle(secs(1.0), tuple("astrid", "od1.params", "", 1));
-    exec.handle(secs(1.0), tuple("astrid", "components.l1.currState", "off", 2));
+    exec.handle(
+        secs(1.0),
+        tuple("astrid", "components.l1.currState", "off", 2),
+    );
     let left = exec.handle(secs(2.0), Event::PeisLeft(peis("hsm")));
     let sent = sets_to(&left, "astrid");
     for written in [

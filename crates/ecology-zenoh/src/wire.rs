@@ -476,7 +476,9 @@ impl BundleWriter {
     pub fn push(&mut self, t: Bundled<'_>) {
         fn part(out: &mut Vec<u8>, bytes: &[u8], width: usize) {
             let limit = (1u64 << (8 * width)) - 1;
-            let len = bytes.len().min(usize::try_from(limit - 1).unwrap_or(usize::MAX));
+            let len = bytes
+                .len()
+                .min(usize::try_from(limit - 1).unwrap_or(usize::MAX));
             out.extend_from_slice(&(len as u64).to_le_bytes()[..width]);
             out.extend_from_slice(&bytes[..len]);
         }

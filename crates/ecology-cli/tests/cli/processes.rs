@@ -1236,12 +1236,7 @@ impl WithPython {
     }
 
     /// The executive on `domain` and `plan`, once `wait_for` are present: its exit code and events.
-    pub(crate) fn task(
-        &self,
-        domain: &str,
-        plan: &str,
-        wait_for: &str,
-    ) -> (Option<i32>, Events) {
+    pub(crate) fn task(&self, domain: &str, plan: &str, wait_for: &str) -> (Option<i32>, Events) {
         let listen = free_endpoint();
         let through = if self.client {
             ["--client", "--connect", &self.hub].to_vec()
