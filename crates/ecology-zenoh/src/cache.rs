@@ -311,16 +311,18 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
     let mut replies = Vec::new();
     let pass_on: HashSet<PeisId> = {
         let state = lock(state);
-        for (peis, tuples) in &state.tuples {
-            if !state.present.contains(peis) || state.asking.contains(peis) {
+        for peis in &state.present {
+            if state.asking.contains(peis) {
                 continue;
             }
-            for held in tuples.values() {
+            let mut any = false;
+            for held in state.tuples.get(peis).into_iter().flat_map(HashMap::values) {
                 let asked_for = covers.get(held.under).copied().unwrap_or(false)
                     || asked.intersects(&held.key_expr);
                 if held.expiry.is_some_and(|at| at <= now) || !asked_for {
                     continue;
                 }
+                any = true;
                 if bundle {
                     first.get_or_insert_with(|| held.key_expr.clone());
                     bundled.push(wire::Bundled {
@@ -337,6 +339,15 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
                         held.attachment.clone(),
                     ));
                 }
+            }
+            // Present, and nothing held for it that the question covers: the querier, told so,
+            // asks it itself (as it would ask a PEIS present that no answer came from).
+            let covered = || {
+                KeyExpr::try_from(format!("{}/{peis}/**", wire::ROOT))
+                    .is_ok_and(|all| asked.intersects(&all))
+            };
+            if bundle && !any && covered() {
+                bundled.silent(peis.as_str());
             }
         }
         state.asking.clone()

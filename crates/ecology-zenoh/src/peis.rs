@@ -445,8 +445,10 @@ struct Answer {
     /// a query that timed out does (or a router that holds the contract says one it passed the
     /// question on to did).
     in_full: bool,
-    /// Whether it was asked of the routers that hold the contract alone.
-    of_holders: bool,
+    /// When the routers that hold the contract answered in bundles: the PEIS present that they
+    /// held nothing for under the question (to be asked themselves). Their answer stands for
+    /// every other PEIS present.
+    silent: Option<BTreeSet<PeisId>>,
 }
 
 /// [`query_tuples`], and how it was answered.
@@ -478,6 +480,7 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     let mut tuples = Vec::new();
     let mut recent = Recent::default();
     let mut answered = true;
+    let mut silent = None;
     while let Ok(reply) = replies.recv_async().await {
         let Ok(sample) = reply.result() else {
             answered = false;
@@ -490,7 +493,10 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
                 answered = false;
                 continue;
             };
-            for t in bundle {
+            silent
+                .get_or_insert_with(BTreeSet::new)
+                .extend(bundle.silent.iter().filter_map(|p| PeisId::new(p).ok()));
+            for t in bundle.tuples {
                 let encoding = || t.encoding.to_owned();
                 let decoded = decode_put(
                     t.key_expr,
@@ -526,7 +532,7 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     Ok(Answer {
         tuples,
         in_full: answered,
-        of_holders: target == QueryTarget::AllComplete,
+        silent,
     })
 }
 
@@ -1301,16 +1307,19 @@ impl TupleSpace for ZenohPeis {
         };
         let answer = query_tuples_answered(core, &pattern).await?;
         let snapshot = answer.tuples;
-        // Every present PEIS the snapshot heard nothing from is asked on its own, unless the
-        // routers that hold the contract answered in full: they answer for every PEIS present
-        // (passing the question on to those they are still asking), and asking a thousand PEIS
-        // for their presence took longer than the question itself, or, asked beside it, delayed
-        // it as long. One that appears later is caught by the watcher above. A subscription to
-        // one PEIS asks after that one only, not the whole ecology.
+        // Every present PEIS the snapshot heard nothing from is asked on its own. The routers
+        // that hold the contract, answering in full in bundles, name those they hold nothing for
+        // among the PEIS present (they see every token before it reaches this PEIS); otherwise
+        // the PEIS present are asked for, which at 1,000 PEIS took as long as the question itself
+        // (and, asked beside it, delayed it as long). One that appears later is caught by the
+        // watcher above. A subscription to one PEIS asks after that one only.
         let heard: BTreeSet<PeisId> = snapshot.iter().map(|t| t.owner.clone()).collect();
-        let covered = answer.of_holders && answer.in_full;
-        if !covered && let Ok(alive) = alive_matching(core, &alive).await {
-            for id in alive {
+        let unheard = match answer.silent.filter(|_| answer.in_full) {
+            Some(silent) => Ok(silent),
+            None => alive_matching(core, &alive).await,
+        };
+        if let Ok(unheard) = unheard {
+            for id in unheard {
                 if id != core.me && !heard.contains(&id) && pattern.owner.matches(&id) {
                     let _ = retry.send((id, 0));
                 }
@@ -1470,7 +1479,7 @@ async fn learn_contracts(core: &Core) {
 }
 
 /// The contract version `owner` reads: what it announced in its tuple `contract`, version 1 if
-/// it announced none but answers for its directory; `None` if it did not answer in time. Learnt once per owner and kept until
+/// it announced none but answers at all; `None` if it did not answer in time. Learnt once per owner and kept until
 /// its presence ends; the first remote set to an owner asks (at most 1 s), later ones do not.
 async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     // Watch before asking, so an announcement or a departure between the two is not missed.
@@ -1513,29 +1522,43 @@ async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     }
     // No reply at all: either nobody holds the tuple (an owner of version 1) or nothing reached
     // the owner (a link just lost or not yet back, as for a process that was stopped for
-    // seconds). Only an owner that answers for its own directory reads version 1; taking an
-    // unreachable owner for one would send it an unnamed request, which, if it landed, would
-    // make nobody a holder of what it switched on, so that nothing put it back.
-    owner_answers(core, owner).await.then_some(wire::VERSION_1)
+    // seconds). Taking an unreachable owner for one of version 1 would send it an unnamed
+    // request, which, if it landed once the link was back, would make nobody a holder of what it
+    // switched on, so that nothing put it back. So the owner is asked for everything it holds:
+    // its answer has its `contract` if it announced one, and shows that it answers at all.
+    owner_version(core, owner, watching).await
 }
 
-/// Whether `owner` answers a query for its directory (`components/…`), which every PEIS holds.
-async fn owner_answers(core: &Core, owner: &PeisId) -> bool {
+/// The contract version `owner` announced among all its tuples, version 1 if it answered with
+/// none, `None` if it did not answer.
+async fn owner_version(core: &Core, owner: &PeisId, watching: bool) -> Option<u8> {
     let Ok(replies) = core
         .session
-        .get(format!("{}/{owner}/components/**", wire::ROOT))
+        .get(format!("{}/{owner}/**", wire::ROOT))
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout.min(Duration::from_secs(1)))
+        .with(flume::unbounded())
         .await
     else {
-        return false;
+        return None;
     };
+    let contract = wire::tuple_key_expr(owner, &Key::new(wire::CONTRACT_KEY).ok()?);
+    let mut answered = false;
     while let Ok(reply) = replies.recv_async().await {
-        if reply.result().is_ok() {
-            return true;
+        let Ok(sample) = reply.result() else {
+            continue;
+        };
+        answered = true;
+        if sample.key_expr().as_str() == contract
+            && let Some(version) = announced(sample)
+        {
+            if watching {
+                lock(&core.contracts).insert(owner.clone(), version);
+            }
+            return Some(version);
         }
     }
-    false
+    answered.then_some(wire::VERSION_1)
 }
 
 /// Declares the subscriptions of [`ContractWatch`].

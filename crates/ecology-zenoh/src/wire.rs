@@ -448,59 +448,98 @@ pub struct Bundled<'a> {
     pub attachment: Option<&'a [u8]>,
 }
 
-/// Many tuples in one reply, integers little-endian: a version byte (`1`), then for each tuple
-/// its key expression (u16 length, UTF-8), encoding (u8 length, UTF-8), payload (u32 length) and
-/// attachment (u32 length, `0xFFFFFFFF` for none). Parts too long for their length field are cut
-/// off at the field's limit, which no valid tuple reaches (key expressions and encodings are
-/// shorter, and values are held to the receiver's limit anyway).
-pub fn encode_bundle<'a>(tuples: impl IntoIterator<Item = Bundled<'a>>) -> Vec<u8> {
+/// Many tuples in one reply, integers little-endian: a version byte (`1`), the number of tuples
+/// (u32), each tuple as its key expression (u16 length, UTF-8), encoding (u8 length, UTF-8),
+/// payload (u32 length) and attachment (u32 length, `0xFFFFFFFF` for none); then, to the end,
+/// the names of the PEIS present that the sender holds nothing for under the question (u8
+/// length, UTF-8 each), which a querier asks itself. Parts too long for their length field are
+/// cut off at the field's limit, which no valid tuple or name reaches.
+pub fn encode_bundle<'a>(
+    tuples: impl IntoIterator<Item = Bundled<'a>>,
+    silent: impl IntoIterator<Item = &'a str>,
+) -> Vec<u8> {
     let mut bundle = BundleWriter::default();
     for t in tuples {
         bundle.push(t);
     }
+    for name in silent {
+        bundle.silent(name);
+    }
     bundle.finish()
 }
 
-/// A bundle written one tuple at a time (see [`encode_bundle`]).
+/// A bundle written one tuple, and one silent PEIS, at a time (see [`encode_bundle`]).
 #[derive(Debug)]
-pub struct BundleWriter(Vec<u8>);
+pub struct BundleWriter {
+    out: Vec<u8>,
+    tuples: u32,
+    silent: Vec<u8>,
+}
 
 impl Default for BundleWriter {
     fn default() -> Self {
-        BundleWriter(vec![BUNDLE_VERSION])
+        let mut out = vec![BUNDLE_VERSION];
+        out.extend_from_slice(&0u32.to_le_bytes());
+        BundleWriter {
+            out,
+            tuples: 0,
+            silent: Vec::new(),
+        }
     }
+}
+
+/// Appends `bytes` after their length in `width` bytes, cut off at what that length can say.
+fn length_and(out: &mut Vec<u8>, bytes: &[u8], width: usize) {
+    let limit = (1u64 << (8 * width)) - 1;
+    let len = bytes
+        .len()
+        .min(usize::try_from(limit - 1).unwrap_or(usize::MAX));
+    out.extend_from_slice(&(len as u64).to_le_bytes()[..width]);
+    out.extend_from_slice(&bytes[..len]);
 }
 
 impl BundleWriter {
     /// Appends one tuple.
     pub fn push(&mut self, t: Bundled<'_>) {
-        fn part(out: &mut Vec<u8>, bytes: &[u8], width: usize) {
-            let limit = (1u64 << (8 * width)) - 1;
-            let len = bytes
-                .len()
-                .min(usize::try_from(limit - 1).unwrap_or(usize::MAX));
-            out.extend_from_slice(&(len as u64).to_le_bytes()[..width]);
-            out.extend_from_slice(&bytes[..len]);
-        }
-        let out = &mut self.0;
-        part(out, t.key_expr.as_bytes(), 2);
-        part(out, t.encoding.as_bytes(), 1);
-        part(out, t.payload, 4);
+        let out = &mut self.out;
+        length_and(out, t.key_expr.as_bytes(), 2);
+        length_and(out, t.encoding.as_bytes(), 1);
+        length_and(out, t.payload, 4);
         match t.attachment {
-            Some(attachment) => part(out, attachment, 4),
+            Some(attachment) => length_and(out, attachment, 4),
             None => out.extend_from_slice(&u32::MAX.to_le_bytes()),
         }
+        self.tuples = self.tuples.saturating_add(1);
+    }
+
+    /// Names a PEIS present that nothing is held for under the question.
+    pub fn silent(&mut self, peis: &str) {
+        length_and(&mut self.silent, peis.as_bytes(), 1);
     }
 
     /// The bundle's bytes.
-    pub fn finish(self) -> Vec<u8> {
-        self.0
+    pub fn finish(mut self) -> Vec<u8> {
+        self.out[1..5].copy_from_slice(&self.tuples.to_le_bytes());
+        self.out.extend_from_slice(&self.silent);
+        self.out
     }
 }
 
-/// Reads a bundle made by [`encode_bundle`]: every tuple, or an error for a version it does not
-/// know, a truncated part, or text that is not UTF-8.
-pub fn decode_bundle(bytes: &[u8]) -> Result<Vec<Bundled<'_>>, WireError> {
+/// A bundle as read: its tuples, and the PEIS present it holds nothing for.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Bundle<'a> {
+    /// Its tuples, in order.
+    pub tuples: Vec<Bundled<'a>>,
+    /// The names of the PEIS present that its sender held nothing for under the question.
+    pub silent: Vec<&'a str>,
+}
+
+/// Reads a bundle made by [`encode_bundle`], or an error for a version it does not know, a
+/// truncated part, or text that is not UTF-8.
+pub fn decode_bundle(bytes: &[u8]) -> Result<Bundle<'_>, WireError> {
+    fn text(b: &[u8]) -> Result<&str, WireError> {
+        std::str::from_utf8(b).map_err(|_| WireError::Bundle("text that is not UTF-8"))
+    }
     let bad = |e: WireError| match e {
         WireError::Attachment(why) => WireError::Bundle(why),
         other => other,
@@ -509,11 +548,10 @@ pub fn decode_bundle(bytes: &[u8]) -> Result<Vec<Bundled<'_>>, WireError> {
     if r.u8().map_err(bad)? != BUNDLE_VERSION {
         return Err(WireError::Bundle("unknown version"));
     }
-    fn text(b: &[u8]) -> Result<&str, WireError> {
-        std::str::from_utf8(b).map_err(|_| WireError::Bundle("text that is not UTF-8"))
-    }
-    let mut tuples = Vec::new();
-    while !r.0.is_empty() {
+    let count = r.peek_u32().ok_or(WireError::Bundle("too short"))?;
+    r.take(4).map_err(bad)?;
+    let mut bundle = Bundle::default();
+    for _ in 0..count {
         let key_expr = text(r.part(2).map_err(bad)?)?;
         let encoding = text(r.part(1).map_err(bad)?)?;
         let payload = r.part(4).map_err(bad)?;
@@ -524,14 +562,17 @@ pub fn decode_bundle(bytes: &[u8]) -> Result<Vec<Bundled<'_>>, WireError> {
             }
             _ => Some(r.part(4).map_err(bad)?),
         };
-        tuples.push(Bundled {
+        bundle.tuples.push(Bundled {
             key_expr,
             encoding,
             payload,
             attachment,
         });
     }
-    Ok(tuples)
+    while !r.0.is_empty() {
+        bundle.silent.push(text(r.part(1).map_err(bad)?)?);
+    }
+    Ok(bundle)
 }
 
 struct Reader<'a>(&'a [u8]);

@@ -663,8 +663,9 @@ fn a_bundle_of_held_tuples_reads_back_and_refuses_what_is_malformed() {
             attachment: None,
         },
     ];
-    let bytes = wire::encode_bundle(tuples);
+    let bytes = wire::encode_bundle(tuples, ["exec"]);
     let mut expected = vec![1u8];
+    expected.extend_from_slice(&2u32.to_le_bytes());
     expected.extend_from_slice(&30u16.to_le_bytes());
     expected.extend_from_slice(b"peis/astrid/components/s1/type");
     expected.push(11);
@@ -679,15 +680,21 @@ fn a_bundle_of_held_tuples_reads_back_and_refuses_what_is_malformed() {
     expected.extend_from_slice(b"text/plain");
     expected.extend_from_slice(&0u32.to_le_bytes());
     expected.extend_from_slice(&u32::MAX.to_le_bytes());
+    expected.push(4);
+    expected.extend_from_slice(b"exec");
     assert_eq!(bytes, expected);
-    assert_eq!(wire::decode_bundle(&bytes), Ok(tuples.to_vec()));
-    assert_eq!(wire::decode_bundle(&[1]), Ok(Vec::new()));
-    for cut in 2..bytes.len() {
-        if cut == 1 + 2 + 30 + 1 + 11 + 4 + 8 + 4 + 3 {
-            // Between the two tuples: the first alone.
-            assert_eq!(wire::decode_bundle(&bytes[..cut]), Ok(tuples[..1].to_vec()));
-            continue;
-        }
+    let whole = wire::Bundle {
+        tuples: tuples.to_vec(),
+        silent: vec!["exec"],
+    };
+    assert_eq!(wire::decode_bundle(&bytes), Ok(whole));
+    assert_eq!(
+        wire::decode_bundle(&wire::encode_bundle([], [])),
+        Ok(wire::Bundle::default())
+    );
+    // Cut anywhere before the names, a bundle is too short; cut inside a name too.
+    let names_at = bytes.len() - 5;
+    for cut in (0..names_at).chain([names_at + 1, names_at + 3]) {
         assert_eq!(
             wire::decode_bundle(&bytes[..cut]),
             Err(WireError::Bundle("too short")),
@@ -697,11 +704,14 @@ fn a_bundle_of_held_tuples_reads_back_and_refuses_what_is_malformed() {
     let mut version = bytes.clone();
     version[0] = 2;
     let mut not_text = bytes.clone();
-    not_text[3] = 0xff;
+    not_text[7] = 0xff;
+    let mut more = bytes.clone();
+    more[1] = 3;
     for (bytes, expected) in [
-        (&[][..], WireError::Bundle("too short")),
         (&version[..], WireError::Bundle("unknown version")),
         (&not_text[..], WireError::Bundle("text that is not UTF-8")),
+        // A third tuple promised: the name after the second is read as one, and falls short.
+        (&more[..], WireError::Bundle("too short")),
     ] {
         assert_eq!(wire::decode_bundle(bytes), Err(expected));
     }
@@ -1705,9 +1715,15 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
                 assert_eq!(got[0].encoding().to_string(), wire::BUNDLE_ENCODING);
                 let bytes = got[0].payload().to_bytes();
                 let bundle = wire::decode_bundle(&bytes).expect("a bundle");
-                let keys: Vec<&str> = bundle.iter().map(|t| t.key_expr).collect();
+                let keys: Vec<&str> = bundle.tuples.iter().map(|t| t.key_expr).collect();
                 assert!(keys.contains(&"peis/ghost/c1/status"), "{keys:?}");
-                assert!(bundle.iter().all(|t| t.attachment.is_some()), "{bundle:?}");
+                assert!(
+                    bundle.tuples.iter().all(|t| t.attachment.is_some()),
+                    "{bundle:?}"
+                );
+                // PEIS a holds nothing under `peis/*/*/*`: named, to be asked itself.
+                assert!(bundle.silent.contains(&"a"), "{bundle:?}");
+                assert!(!bundle.silent.contains(&"ghost"), "{bundle:?}");
             } else {
                 let ghost: Vec<_> = got
                     .iter()

@@ -434,6 +434,8 @@ struct Home {
     /// Every component's tuples before the task.
     before: BTreeMap<(String, String), String>,
     procs: BTreeMap<String, Proc>,
+    /// The last finished executive's events, one line each, for a failure's message.
+    events: String,
     // Declared last: dropped after the processes.
     net: Network,
 }
@@ -519,6 +521,7 @@ impl Home {
             keys,
             before: BTreeMap::new(),
             procs: BTreeMap::new(),
+            events: String::new(),
             net,
         };
         if topology != Topology::Peers {
@@ -674,7 +677,9 @@ impl Home {
     fn finish_of(&mut self, name: &str) -> (Option<i32>, Events) {
         let executive = self.procs.remove(name).expect("a task runs");
         let (code, lines): (Option<i32>, Vec<Line>) = executive.finish();
-        (code, events(&lines))
+        let all = events(&lines);
+        self.events = format!("{all:?}");
+        (code, all)
     }
 
     /// Every tuple of the PEIS (not the world's), read from the probe host once they settled.
@@ -796,10 +801,16 @@ impl Home {
             "only {components} components read before the task: {:#?}",
             self.before
         );
+        let read: Vec<String> = tuples
+            .iter()
+            .map(|((owner, key), value)| format!("  {owner}:{key} = {value:?}"))
+            .collect();
         assert!(
             left.is_empty(),
-            "left on after the task:\n{}\n(every tuple read: {tuples:#?})",
-            left.join("\n")
+            "left on after the task:\n{}\nthe executive's {}every tuple read:\n{}",
+            left.join("\n"),
+            self.events,
+            read.join("\n")
         );
     }
 }
