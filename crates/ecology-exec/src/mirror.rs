@@ -181,9 +181,6 @@ impl Mirror {
             return changes;
         }
         *slot = seq;
-        let Some(view) = self.peis.get_mut(owner) else {
-            return changes;
-        };
         // A late tuple of a run that has left does not bring the PEIS back; presence or a new run does.
         if view.left_epoch.is_none_or(|left| epoch > left) {
             view.present = true;

@@ -934,7 +934,8 @@ impl Recent {
         if let Some(subject) = self.subject.as_ref().filter(|_| self.key_expr == key_expr) {
             return Ok(subject.clone());
         }
-        let subject = wire::parse_tuple_key_expr(key_expr)?;
+        let known = self.subject.as_ref().map(|(owner, _)| owner);
+        let subject = wire::parse_tuple_key_expr_reusing(key_expr, known)?;
         if let Some(hints) = &self.route_hints {
             hints.request(key_expr);
         }
@@ -1068,15 +1069,17 @@ impl Merge {
         // A sample without metadata (seq 0) cannot be ordered: always news.
         if seq > 0 {
             let (owner, key) = event.subject();
-            let id = (owner.clone(), key.clone());
-            if self
-                .delivered
-                .get(&id)
-                .is_some_and(|&seen| (epoch, seq) <= seen)
-            {
-                return;
+            match self.delivered.entry((owner.clone(), key.clone())) {
+                std::collections::hash_map::Entry::Occupied(mut seen) => {
+                    if (epoch, seq) <= *seen.get() {
+                        return;
+                    }
+                    seen.insert((epoch, seq));
+                }
+                std::collections::hash_map::Entry::Vacant(new) => {
+                    new.insert((epoch, seq));
+                }
             }
-            self.delivered.insert(id, (epoch, seq));
         }
         self.events.send(event);
     }

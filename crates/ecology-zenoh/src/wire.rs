@@ -159,13 +159,25 @@ fn key_pattern_chunks(pattern: &KeyPattern) -> String {
 
 /// Reads (owner, key) from `peis/OWNER/k/e/y`.
 pub fn parse_tuple_key_expr(ke: &str) -> Result<(PeisId, Key), WireError> {
+    parse_tuple_key_expr_reusing(ke, None)
+}
+
+/// Reads (owner, key) like [`parse_tuple_key_expr`], taking `known` instead of a new name when
+/// the key expression names that owner (a bundle holds each PEIS's tuples one after another).
+pub fn parse_tuple_key_expr_reusing(
+    ke: &str,
+    known: Option<&PeisId>,
+) -> Result<(PeisId, Key), WireError> {
     let fail = || WireError::KeyExpr(ke.to_owned());
     let rest = ke
         .strip_prefix(ROOT)
         .and_then(|r| r.strip_prefix('/'))
         .ok_or_else(fail)?;
     let (owner, key) = rest.split_once('/').ok_or_else(fail)?;
-    let owner = PeisId::new(owner).map_err(|_| fail())?;
+    let owner = match known {
+        Some(known) if known.as_str() == owner => known.clone(),
+        _ => PeisId::new(owner).map_err(|_| fail())?,
+    };
     let key = key_of_chunks(key).ok_or_else(fail)?;
     Ok((owner, key))
 }
