@@ -885,8 +885,12 @@ impl Drop for TempKeys {
     }
 }
 
+/// A QUIC endpoint on a UDP port free now: a port free for TCP may be a QUIC listener's already
+/// (a PEIS of this test listened over UDP on the port the probe handed to the next).
 fn free_quic_endpoint() -> String {
-    free_endpoint().replacen("tcp/", "quic/", 1)
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+    let port = socket.local_addr().expect("local address").port();
+    format!("quic/127.0.0.1:{port}")
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

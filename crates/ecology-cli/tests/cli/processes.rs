@@ -17,7 +17,7 @@ use serde_json::Value;
 
 use crate::support::{
     Ecology, Fixture, Line, Proc, TO_BEDROOM, TO_ENTRANCE, Variant, as_strs, event, free_endpoint,
-    is_event, read_tuples, root, task_on, watch_tuples,
+    free_quic_endpoint, is_event, read_tuples, root, task_on, watch_tuples,
 };
 
 /// How many tests that start an ecology of processes run at once: `ECOLOGY_PROCESS_TESTS`, 2 by
@@ -594,7 +594,7 @@ fn through_a_router(secured: bool) {
     if secured {
         make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
         secure = vec!["--keys", &keys];
-        router_endpoint = router_endpoint.replacen("tcp/", "quic/", 1);
+        router_endpoint = free_quic_endpoint();
     }
     let mut args = vec!["router", "--listen", &router_endpoint];
     args.extend(&secure);
@@ -636,7 +636,7 @@ impl SecuredRouter {
     fn start(fixture: &Fixture) -> SecuredRouter {
         let keys = fixture.folder.join("keys").display().to_string();
         make_keys(&keys, &["world", "astrid", "hsm"], &["router"]);
-        let endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
+        let endpoint = free_quic_endpoint();
         let router = Proc::start(
             "router",
             &["router", "--listen", &endpoint, "--keys", &keys],
@@ -1306,7 +1306,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
     let k = keys.display().to_string();
     make_keys(&k, &["world", "astrid", "hsm", "mallory"], &[]);
     // The world first, so the attacker has somewhere to connect before hsm exists.
-    let world_endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
+    let world_endpoint = free_quic_endpoint();
     let scenario = fixture.scenario();
     let _world = Proc::start(
         "world",
@@ -1345,7 +1345,7 @@ fn an_enrolled_attacker_cannot_stop_a_task_on_a_secured_ecology() {
                 "--name",
                 name,
                 "--listen",
-                &free_endpoint().replacen("tcp/", "quic/", 1),
+                &free_quic_endpoint(),
                 "--connect",
                 &world_endpoint,
                 "--keys",
@@ -1533,7 +1533,7 @@ fn two_tasks_started_together_take_nothing_from_each_other() {
             .expect("ecology keys");
         assert!(out.status.success(), "{args:?}: {out:?}");
     }
-    let endpoint = free_endpoint().replacen("tcp/", "quic/", 1);
+    let endpoint = free_quic_endpoint();
     let _router = Proc::start(
         "router",
         &["router", "--listen", &endpoint, "--keys", &keys],

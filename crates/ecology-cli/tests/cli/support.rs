@@ -43,6 +43,16 @@ pub fn free_endpoint() -> String {
     )
 }
 
+/// A QUIC endpoint on a UDP port free now: a port free for TCP may be a QUIC listener's already
+/// (the probe of one test handed out the port another test's PEIS listened on over UDP).
+pub fn free_quic_endpoint() -> String {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+    format!(
+        "quic/127.0.0.1:{}",
+        socket.local_addr().expect("address").port()
+    )
+}
+
 /// A line a process printed, and when it was read.
 #[derive(Debug, Clone)]
 pub struct Line {
@@ -364,7 +374,7 @@ impl Ecology {
     pub fn start_with(fixture: &Fixture, hsm_extra: &[&str], keys: Option<&str>) -> Ecology {
         let scenario = fixture.scenario();
         let endpoint = || match keys {
-            Some(_) => free_endpoint().replacen("tcp/", "quic/", 1),
+            Some(_) => free_quic_endpoint(),
             None => free_endpoint(),
         };
         let secured: Vec<&str> = keys.map_or(vec![], |k| vec!["--keys", k]);
@@ -516,7 +526,7 @@ pub fn task_on(
     let plan = fixture.plan();
     args.push(&plan);
     let listen = match keys {
-        Some(_) => free_endpoint().replacen("tcp/", "quic/", 1),
+        Some(_) => free_quic_endpoint(),
         None => free_endpoint(),
     };
     if let Some(keys) = keys {
