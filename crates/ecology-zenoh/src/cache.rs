@@ -33,6 +33,17 @@ use crate::wire::{self, Metadata};
 /// The key expressions a router holds: each PEIS's directory and its components' own fields.
 pub const HELD: [&str; 2] = ["peis/*/components/**", "peis/*/*/*"];
 
+/// [`HELD`] as key expressions, made once: every sample a router takes in is sorted by them.
+pub(crate) fn held() -> &'static [KeyExpr<'static>] {
+    static HELD_EXPRS: std::sync::LazyLock<Vec<KeyExpr<'static>>> =
+        std::sync::LazyLock::new(|| {
+            HELD.iter()
+                .filter_map(|held| KeyExpr::try_from(*held).ok())
+                .collect()
+        });
+    &HELD_EXPRS
+}
+
 /// The liveliness tokens of the routers that hold the contract (`@ecology/holds-contract/ZID`):
 /// a PEIS asks for them to know whether to ask a router alone.
 pub const HOLDERS: &str = "@ecology/holds-contract/*";
@@ -112,11 +123,9 @@ fn take(state: &Shared, sample: &Sample) {
                 return;
             }
             let key_expr = sample.key_expr().clone().into_owned();
-            let under = HELD
+            let under = held()
                 .iter()
-                .position(|held| {
-                    KeyExpr::try_from(*held).is_ok_and(|held| held.intersects(&key_expr))
-                })
+                .position(|held| held.intersects(&key_expr))
                 .unwrap_or(HELD.len());
             tuples.insert(
                 key,
@@ -302,10 +311,7 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
     let bundle = query.parameters().contains_key(wire::BUNDLE_PARAMETER);
     let now = SystemClock.now().as_nanos();
     // Each of the held key expressions the question covers whole.
-    let covers: Vec<bool> = HELD
-        .iter()
-        .map(|held| KeyExpr::try_from(*held).is_ok_and(|held| asked.includes(&held)))
-        .collect();
+    let covers: Vec<bool> = held().iter().map(|held| asked.includes(held)).collect();
     let mut first = None;
     let mut bundled = wire::BundleWriter::default();
     let mut replies = Vec::new();

@@ -481,12 +481,13 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     let mut recent = Recent::default();
     let mut answered = true;
     let mut silent = None;
+    let bundle_encoding = zenoh::bytes::Encoding::from(wire::BUNDLE_ENCODING);
     while let Ok(reply) = replies.recv_async().await {
         let Ok(sample) = reply.result() else {
             answered = false;
             continue;
         };
-        if sample.encoding().to_string() == wire::BUNDLE_ENCODING {
+        if *sample.encoding() == bundle_encoding {
             let bytes = sample.payload().to_bytes();
             let Ok(bundle) = wire::decode_bundle(&bytes) else {
                 core.malformed.fetch_add(1, Ordering::Relaxed);
@@ -550,9 +551,8 @@ async fn held_for_all(core: &Core, key_expr: &str) -> bool {
     let Ok(asked) = KeyExpr::try_from(key_expr) else {
         return false;
     };
-    if !crate::cache::HELD
+    if !crate::cache::held()
         .iter()
-        .filter_map(|held| KeyExpr::try_from(*held).ok())
         .any(|held| held.includes(&asked))
     {
         return false;
@@ -1482,73 +1482,73 @@ async fn learn_contracts(core: &Core) {
 }
 
 /// The contract version `owner` reads: what it announced in its tuple `contract`, version 1 if
-/// it announced none but answers at all; `None` if it did not answer in time. Learnt once per owner and kept until
-/// its presence ends; the first remote set to an owner asks (at most 1 s), later ones do not.
+/// it announced none but answers at all; `None` if it did not answer in time. Learnt once per
+/// owner and kept until its presence ends; the first remote set to an owner asks (at most 1 s,
+/// twice if it answers nothing), later ones do not.
 async fn contract_of(core: &Core, owner: &PeisId) -> Option<u8> {
     // Watch before asking, so an announcement or a departure between the two is not missed.
     let watching = watching_contracts(core).await;
     if let Some(&version) = lock(&core.contracts).get(owner) {
         return Some(version);
     }
-    let Ok(key) = Key::new(wire::CONTRACT_KEY) else {
-        return None;
-    };
-    let Ok(replies) = core
-        .session
-        .get(wire::tuple_key_expr(owner, &key))
-        .consolidation(ConsolidationMode::None)
-        .timeout(core.query_timeout.min(Duration::from_secs(1)))
-        .await
-    else {
-        return None;
-    };
-    let (mut answered, mut failed) = (false, false);
-    while let Ok(reply) = replies.recv_async().await {
-        match reply.result() {
-            Ok(sample) => {
-                if let Some(version) = announced(sample) {
-                    if watching {
-                        lock(&core.contracts).insert(owner.clone(), version);
-                    }
-                    return Some(version);
-                }
-                answered = true;
+    let contract = wire::tuple_key_expr(owner, &Key::new(wire::CONTRACT_KEY).ok()?);
+    match ask_contract(core, owner, &contract, &contract, watching).await {
+        Heard::Version(version) => Some(version),
+        Heard::Answered => Some(wire::VERSION_1),
+        Heard::Failed => None,
+        // No reply at all: either nobody holds the tuple (an owner of version 1) or nothing
+        // reached the owner (a link just lost or not yet back, as for a process that was stopped
+        // for seconds). Taking an unreachable owner for one of version 1 would send it an
+        // unnamed request, which, if it landed once the link was back, would make nobody a
+        // holder of what it switched on, so that nothing put it back. So the owner is asked for
+        // everything it holds: its answer has its `contract` if it announced one, and shows
+        // that it answers at all.
+        Heard::Nothing => {
+            let everything = format!("{}/{owner}/**", wire::ROOT);
+            match ask_contract(core, owner, &everything, &contract, watching).await {
+                Heard::Version(version) => Some(version),
+                Heard::Answered => Some(wire::VERSION_1),
+                Heard::Failed | Heard::Nothing => None,
             }
-            Err(_) => failed = true,
         }
     }
-    if failed {
-        return None;
-    }
-    if answered {
-        return Some(wire::VERSION_1);
-    }
-    // No reply at all: either nobody holds the tuple (an owner of version 1) or nothing reached
-    // the owner (a link just lost or not yet back, as for a process that was stopped for
-    // seconds). Taking an unreachable owner for one of version 1 would send it an unnamed
-    // request, which, if it landed once the link was back, would make nobody a holder of what it
-    // switched on, so that nothing put it back. So the owner is asked for everything it holds:
-    // its answer has its `contract` if it announced one, and shows that it answers at all.
-    owner_version(core, owner, watching).await
 }
 
-/// The contract version `owner` announced among all its tuples, version 1 if it answered with
-/// none, `None` if it did not answer.
-async fn owner_version(core: &Core, owner: &PeisId, watching: bool) -> Option<u8> {
+/// What a question about an owner's contract got.
+enum Heard {
+    /// Its tuple `contract` announced this version.
+    Version(u8),
+    /// It answered, without announcing a version.
+    Answered,
+    /// An answer came back as an error (a question that timed out).
+    Failed,
+    /// No answer at all.
+    Nothing,
+}
+
+/// Asks `key_expr` of `owner` (at most 1 s) and reads its `contract` tuple (`contract`) among the
+/// answers; a version learnt is kept while `watching`.
+async fn ask_contract(
+    core: &Core,
+    owner: &PeisId,
+    key_expr: &str,
+    contract: &str,
+    watching: bool,
+) -> Heard {
     let Ok(replies) = core
         .session
-        .get(format!("{}/{owner}/**", wire::ROOT))
+        .get(key_expr)
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout.min(Duration::from_secs(1)))
         .with(flume::unbounded())
         .await
     else {
-        return None;
+        return Heard::Failed;
     };
-    let contract = wire::tuple_key_expr(owner, &Key::new(wire::CONTRACT_KEY).ok()?);
-    let mut answered = false;
+    let (mut answered, mut failed) = (false, false);
     while let Ok(reply) = replies.recv_async().await {
         let Ok(sample) = reply.result() else {
+            failed = true;
             continue;
         };
         answered = true;
@@ -1558,10 +1558,14 @@ async fn owner_version(core: &Core, owner: &PeisId, watching: bool) -> Option<u8
             if watching {
                 lock(&core.contracts).insert(owner.clone(), version);
             }
-            return Some(version);
+            return Heard::Version(version);
         }
     }
-    answered.then_some(wire::VERSION_1)
+    match (failed, answered) {
+        (true, _) => Heard::Failed,
+        (false, true) => Heard::Answered,
+        (false, false) => Heard::Nothing,
+    }
 }
 
 /// Declares the subscriptions of [`ContractWatch`].
