@@ -24,7 +24,7 @@ pub use driver::{Acquisition, Controls, DriverConfig, Replan, drive, drive_obser
 pub use executive::{Command, Event, ExecConfig, Executive, RunStatus, Timer};
 pub use interest::{Intake, Interest};
 pub use log::{LogChannel, LogComponent, LogEntry, LogEvent, LogFunctionality, LogUnavailable};
-pub use mirror::{Change, ComponentView, Mirror, PeisView};
+pub use mirror::{Change, Changes, ComponentView, Mirror, PeisView};
 pub use plan::{
     Observation, Plan, PlanBranch, PlannedAction, observations_text, parse_observations,
 };

@@ -10,9 +10,10 @@
 //! dropped. An update from a later run means the PEIS restarted: what was
 //! known of its components is forgotten, since the new run starts afresh.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
-use ecology_domain::{EcologyState, Fact};
+use ecology_domain::{EcologyState, Fact, Name};
+use rustc_hash::FxHashMap;
 use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{ComponentId, Key, PeisId};
 
@@ -46,6 +47,8 @@ pub struct PeisView {
     left_epoch: Option<u64>,
     /// Its components, by name.
     pub components: BTreeMap<ComponentId, ComponentView>,
+    /// The sequence number last taken in of each of its keys, in the run `epoch`.
+    seqs: FxHashMap<Key, u64>,
 }
 
 /// A change the mirror saw that matters to the executive.
@@ -89,7 +92,6 @@ pub enum Change {
 #[derive(Debug, Clone, Default)]
 pub struct Mirror {
     peis: BTreeMap<PeisId, PeisView>,
-    last_seq: HashMap<(PeisId, Key), u64>,
     /// The executive's own PEIS name, once known: its own claims are not another's.
     me: Option<PeisId>,
 }
@@ -156,9 +158,13 @@ impl Mirror {
         value: &str,
         epoch: u64,
         seq: u64,
-    ) -> Vec<Change> {
-        let mut changes = Vec::new();
-        let view = self.peis.entry(owner.clone()).or_default();
+    ) -> Changes {
+        let mut changes = Changes::default();
+        // Most updates are of a PEIS known already: looked up without making its name anew.
+        let view = match self.peis.get_mut(owner.as_str()) {
+            Some(view) => view,
+            None => self.peis.entry(owner.clone()).or_default(),
+        };
         // Epoch 0 is a writer that does not say (a plain Zenoh put): its updates are not ordered by run.
         if epoch != 0 && view.epoch != 0 && epoch < view.epoch {
             return changes;
@@ -166,17 +172,17 @@ impl Mirror {
         if epoch != 0 && epoch > view.epoch {
             if view.epoch != 0 {
                 view.components.clear();
-                self.last_seq.retain(|(o, _), _| o != owner);
-                changes.push(Change::Restarted {
+                view.seqs.clear();
+                changes.restarted = Some(Change::Restarted {
                     peis: owner.clone(),
                 });
             }
             view.epoch = epoch;
         }
-        let slot = self
-            .last_seq
-            .entry((owner.clone(), key.clone()))
-            .or_insert(0);
+        let slot = match view.seqs.get_mut(key.as_str()) {
+            Some(slot) => slot,
+            None => view.seqs.entry(key.clone()).or_insert(0),
+        };
         if seq <= *slot && *slot != 0 {
             return changes;
         }
@@ -186,7 +192,7 @@ impl Mirror {
             view.present = true;
             view.left_epoch = None;
         }
-        changes.extend(view.update(owner, key, value));
+        changes.update = view.update(owner, key, value);
         changes
     }
 
@@ -196,33 +202,42 @@ impl Mirror {
     /// `(held P C HOLDER FUNCTIONALITY ARG…)` with the instance it runs
     /// (`idle` when it runs none), plus the given world facts.
     pub fn state(&self, world: &EcologyState) -> EcologyState {
-        let mut state = EcologyState::new();
+        // Each name's text made once for the whole state, not once for every fact it is in.
+        let mut words = Words::default();
+        let [peis, pc, cost, status, held, on, off, idle] =
+            ["peis", "pc", "cost", "status", "held", "on", "off", "idle"].map(Name::from);
+        let mut state = EcologyState::with_capacity(8 * self.peis.len() + world.facts().len());
+        let fact = |predicate: &Name, args: Vec<Name>| Fact {
+            predicate: predicate.clone(),
+            args,
+        };
         for (name, view) in &self.peis {
             if !view.present {
                 continue;
             }
-            let name = name.as_str();
-            state.insert(Fact::new("peis", &[name]));
+            let p = name.shared();
+            state.insert(fact(&peis, vec![p.clone()]));
             for (c, comp) in &view.components {
-                let c = c.as_str();
                 let Some(ty) = &comp.ty else { continue };
-                state.insert(Fact::new("pc", &[name, ty, c]));
-                if let Some(cost) = comp.cost {
-                    let power = if comp.on { "on" } else { "off" };
-                    state.insert(Fact::new("cost", &[name, c, &cost.to_string(), power]));
+                let c = c.shared();
+                state.insert(fact(&pc, vec![p.clone(), words.of(ty), c.clone()]));
+                if let Some(n) = comp.cost {
+                    let power = if comp.on { &on } else { &off };
+                    let args = vec![p.clone(), c.clone(), words.number(n), power.clone()];
+                    state.insert(fact(&cost, args));
                 }
-                if let Some(status) = &comp.status {
-                    state.insert(Fact::new("status", &[name, c, status]));
+                if let Some(s) = &comp.status {
+                    state.insert(fact(&status, vec![p.clone(), c.clone(), words.of(s)]));
                 }
                 for holder in comp.holders.iter().filter(|h| Some(*h) != self.me.as_ref()) {
                     let params = comp.params.as_deref().unwrap_or("");
                     let instance = params.trim().trim_start_matches('(').trim_end_matches(')');
-                    let mut args = vec![name, c, holder.as_str()];
-                    match instance.split_whitespace().collect::<Vec<_>>() {
-                        words if words.is_empty() => args.push("idle"),
-                        words => args.extend(words),
+                    let mut args = vec![p.clone(), c.clone(), holder.shared().clone()];
+                    args.extend(instance.split_whitespace().map(Name::from));
+                    if args.len() == 3 {
+                        args.push(idle.clone());
                     }
-                    state.insert(Fact::new("held", &args));
+                    state.insert(fact(&held, args));
                 }
             }
         }
@@ -265,10 +280,21 @@ impl PeisView {
     fn update(&mut self, owner: &PeisId, key: &Key, value: &str) -> Option<Change> {
         let value = value.trim();
         // Keys outside the contract's fixed fields (outputs, inputs, anything else) change nothing here.
-        let Some((component, field)) = ComponentField::parse(key) else {
+        let Some((name, field)) = ComponentField::parse_str(key.as_str()) else {
             return Some(Change::Other);
         };
-        let c = self.components.entry(component.clone()).or_default();
+        let (component, c) = match self.components.get_key_value(name) {
+            Some((component, _)) => {
+                let component = component.clone();
+                let c = self.components.get_mut(name)?;
+                (component, c)
+            }
+            None => {
+                let component = ComponentId::new(name).ok()?;
+                let c = self.components.entry(component.clone()).or_default();
+                (component, c)
+            }
+        };
         match field {
             ComponentField::Type => c.ty = Some(value.to_string()),
             ComponentField::Cost => c.cost = value.parse().ok(),
@@ -300,5 +326,39 @@ impl PeisView {
             }
         }
         Some(Change::Other)
+    }
+}
+
+/// The words of a state (types, statuses, costs), each made once.
+#[derive(Default)]
+struct Words<'a> {
+    text: FxHashMap<&'a str, Name>,
+    numbers: FxHashMap<u64, Name>,
+}
+
+impl<'a> Words<'a> {
+    fn of(&mut self, word: &'a str) -> Name {
+        self.text.entry(word).or_insert_with(|| Name::from(word)).clone()
+    }
+
+    fn number(&mut self, n: u64) -> Name {
+        let name = self.numbers.entry(n).or_insert_with(|| Name::from(n.to_string()));
+        name.clone()
+    }
+}
+
+/// What one update changed: that its PEIS restarted, then what the update itself changed.
+#[derive(Debug, Default)]
+pub struct Changes {
+    restarted: Option<Change>,
+    update: Option<Change>,
+}
+
+impl IntoIterator for Changes {
+    type Item = Change;
+    type IntoIter = std::iter::Chain<std::option::IntoIter<Change>, std::option::IntoIter<Change>>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.restarted.into_iter().chain(self.update)
     }
 }

@@ -88,16 +88,22 @@ impl ComponentField {
 
     /// The component and field `key` is, when it is one of the contract's fixed fields.
     pub fn parse(key: &Key) -> Option<(ComponentId, ComponentField)> {
-        let text = key.as_str();
-        let (of_init, rest) = match text.strip_prefix("components.") {
+        let (component, field) = ComponentField::parse_str(key.as_str())?;
+        Some((ComponentId::new(component).ok()?, field))
+    }
+
+    /// The component's name and the field `key` is, when it is one of the contract's fixed
+    /// fields; the name is not checked (a reader that knows the component already skips that).
+    pub fn parse_str(key: &str) -> Option<(&str, ComponentField)> {
+        let (of_init, rest) = match key.strip_prefix("components.") {
             Some(rest) => (true, rest),
-            None => (false, text),
+            None => (false, key),
         };
         let (component, field) = rest.split_once('.')?;
         let field = ComponentField::ALL
             .into_iter()
             .find(|f| f.of_init() == of_init && f.name() == field)?;
-        Some((ComponentId::new(component).ok()?, field))
+        Some((component, field))
     }
 }
 

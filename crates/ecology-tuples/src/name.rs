@@ -22,6 +22,11 @@ macro_rules! text_name {
             pub fn as_str(&self) -> &str {
                 &self.0
             }
+
+            /// The name's text, shared: a clone of it copies no text.
+            pub fn shared(&self) -> &Arc<str> {
+                &self.0
+            }
         }
 
         impl fmt::Display for $name {
