@@ -153,6 +153,10 @@ struct Truth {
     latest: BTreeMap<String, String>,
     /// The map, read once each time it changes (not at every look: a building's map is long).
     map: Option<Arc<Map>>,
+    /// The robots' poses and the things' places, read once each time they change (a camera
+    /// looks at every robot of a building 20 times a second), by their key: in `latest`'s order.
+    robots: BTreeMap<String, (Arc<str>, Pose)>,
+    things: BTreeMap<String, (Arc<str>, (f64, f64))>,
     clock: Arc<dyn Clock>,
     /// When the last tuple of the world arrived.
     heard: Option<Timestamp>,
@@ -164,6 +168,8 @@ impl Truth {
             subscription: ctx.space().subscribe(world_pattern()).await?,
             latest: BTreeMap::new(),
             map: None,
+            robots: BTreeMap::new(),
+            things: BTreeMap::new(),
             clock: ctx.clock().clone(),
             heard: None,
         })
@@ -192,16 +198,37 @@ impl Truth {
             match event {
                 TupleEvent::Changed(t) => {
                     if let Ok(text) = t.text() {
-                        if WorldKey::parse(t.key.as_str()) == Some(WorldKey::Map) {
-                            self.map = Map::parse(text).ok().map(Arc::new);
+                        let key = t.key.as_str();
+                        match WorldKey::parse(key) {
+                            Some(WorldKey::Map) => self.map = Map::parse(text).ok().map(Arc::new),
+                            Some(WorldKey::RobotPose(name)) => match Pose::parse(text) {
+                                Ok(pose) => {
+                                    self.robots.insert(key.to_string(), (name.into(), pose));
+                                }
+                                Err(_) => {
+                                    self.robots.remove(key);
+                                }
+                            },
+                            Some(WorldKey::ThingAt(name)) => match Point::parse(text) {
+                                Ok(at) => {
+                                    let place = (name.into(), (at.x, at.y));
+                                    self.things.insert(key.to_string(), place);
+                                }
+                                Err(_) => {
+                                    self.things.remove(key);
+                                }
+                            },
+                            _ => {}
                         }
-                        self.latest.insert(t.key.to_string(), text.to_string());
+                        self.latest.insert(key.to_string(), text.to_string());
                     }
                 }
                 TupleEvent::Removed { key, .. } => {
                     if WorldKey::parse(key.as_str()) == Some(WorldKey::Map) {
                         self.map = None;
                     }
+                    self.robots.remove(key.as_str());
+                    self.things.remove(key.as_str());
                     self.latest.remove(key.as_str());
                 }
                 TupleEvent::Retargeted { .. } => {}
@@ -215,38 +242,20 @@ impl Truth {
     }
 
     fn robot(&self, name: &str) -> Option<Pose> {
-        self.text(&WorldKey::RobotPose(name).to_string())
-            .and_then(|text| Pose::parse(text).ok())
+        let key = WorldKey::RobotPose(name).to_string();
+        self.robots.get(&key).map(|(_, pose)| *pose)
     }
 
-    fn robots(&self) -> Vec<(String, Pose)> {
-        self.latest
-            .iter()
-            .filter_map(|(k, v)| {
-                let WorldKey::RobotPose(name) = WorldKey::parse(k)? else {
-                    return None;
-                };
-                Some((name.to_string(), Pose::parse(v).ok()?))
-            })
-            .collect()
+    fn robots(&self) -> Vec<(Arc<str>, Pose)> {
+        self.robots.values().cloned().collect()
     }
 
     fn map(&self) -> Option<Arc<Map>> {
         self.map.clone()
     }
 
-    /// Things lying somewhere (not held), with where.
-    fn things(&self) -> Vec<(String, (f64, f64))> {
-        self.latest
-            .iter()
-            .filter_map(|(k, v)| {
-                let WorldKey::ThingAt(name) = WorldKey::parse(k)? else {
-                    return None;
-                };
-                let at = Point::parse(v).ok()?;
-                Some((name.to_string(), (at.x, at.y)))
-            })
-            .collect()
+    fn things(&self) -> impl Iterator<Item = &(Arc<str>, (f64, f64))> {
+        self.things.values()
     }
 
     /// Whether `name` is a thing of the world (not a robot).
@@ -400,8 +409,7 @@ impl<S: TupleSpace> Body<S> {
             robots.extend(
                 truth
                     .things()
-                    .into_iter()
-                    .map(|(name, (x, y))| (name, Pose::new(x, y, 0.0))),
+                    .map(|(name, (x, y))| (name.clone(), Pose::new(*x, *y, 0.0))),
             );
             if robots.is_empty() {
                 self.report("waiting", "ground truth").await?;
@@ -418,7 +426,7 @@ impl<S: TupleSpace> Body<S> {
                         if let (Some(range), Some(eye)) = (range, viewpoint) {
                             let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
                                 == map.room_at(pose.x, pose.y).map(|r| &r.name);
-                            if name == me || !same_room || eye.distance_to(pose.x, pose.y) > range {
+                            if *name == *me || !same_room || eye.distance_to(pose.x, pose.y) > range {
                                 continue;
                             }
                         }
@@ -452,10 +460,11 @@ impl<S: TupleSpace> Body<S> {
                     IMAGES_LOST.as_secs_f64()
                 )));
             }
-            match self.read(&inputs, "image", IMAGE_FORMAT, parse_image) {
+            let seen = |image: &str| pose_in_image(image, &target);
+            match self.read(&inputs, "image", IMAGE_FORMAT, seen) {
                 Err(cause) => self.report("waiting", &cause).await?,
                 Ok(None) => self.report("waiting", "image").await?,
-                Ok(Some(image)) => match seen_in_image(&image, &target) {
+                Ok(Some(seen)) => match seen {
                     None => {
                         self.report("waiting", &format!("{target} not in view"))
                             .await?
@@ -845,7 +854,7 @@ impl<S: TupleSpace> Body<S> {
 
 /// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
 /// An image's text: `NAME X Y THETA; …`.
-fn image_text(seen: &[(String, Pose)]) -> String {
+fn image_text(seen: &[(Arc<str>, Pose)]) -> String {
     let mut text = String::new();
     for (i, (name, pose)) in seen.iter().enumerate() {
         if i > 0 {
@@ -861,6 +870,20 @@ fn seen_in_image(image: &[(String, Pose)], name: &str) -> Option<Pose> {
         .iter()
         .find(|(seen, _)| seen == name)
         .map(|(_, pose)| *pose)
+}
+
+/// Where `image` (read as [`parse_image`] reads it) shows `name` (`Some(None)`: not in it);
+/// `None` when any entry is not of its form. Names are compared, not copied.
+fn pose_in_image(image: &str, name: &str) -> Option<Option<Pose>> {
+    let mut found = None;
+    for entry in image.split(';').map(str::trim).filter(|e| !e.is_empty()) {
+        let (seen, pose) = entry.split_once(char::is_whitespace)?;
+        let pose = Pose::parse(pose).ok()?;
+        if seen == name && found.is_none() {
+            found = Some(pose);
+        }
+    }
+    Some(found)
 }
 
 /// What an `image` shows: `NAME X Y THETA` entries separated by `;` (none
@@ -937,4 +960,35 @@ pub fn match_scan(map: &Map, guess: Pose, ranges: &[f64]) -> Pose {
         }
     }
     best.1
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::{parse_image, pose_in_image, seen_in_image};
+
+    /// An image's text from entries drawn among well-formed ones, the same name twice, and
+    /// malformed ones, with any spacing.
+    fn image() -> impl Strategy<Value = String> {
+        let entry = prop_oneof![
+            ("[a-c]", -50i32..50, -50i32..50, -314i32..314)
+                .prop_map(|(n, x, y, t)| format!("{n} {}.{:02} {y} {t}e-2", x / 10, x.abs() % 10)),
+            Just(String::new()),
+            Just("a 1 2".to_string()),
+            Just("b x 2 3".to_string()),
+            Just("c".to_string()),
+            Just("  a  0.5 -0.25 1.0  ".to_string()),
+        ];
+        prop::collection::vec(entry, 0..6).prop_map(|entries| entries.join(";"))
+    }
+
+    proptest! {
+        /// The tracker's lookup reads an image as the whole reading of it does.
+        #[test]
+        fn a_pose_is_found_in_an_image_as_reading_all_of_it_finds_it(text in image(), name in "[a-d]") {
+            let whole = parse_image(&text).map(|image| seen_in_image(&image, &name));
+            prop_assert_eq!(pose_in_image(&text, &name), whole);
+        }
+    }
 }

@@ -248,15 +248,34 @@ impl<const D: u32> fmt::Display for Fixed<D> {
             return write!(f, "{:.*}", D as usize, self.0);
         }
         let n = scaled as i64;
-        let sign = if n < 0 { "-" } else { "" };
-        let m = n.unsigned_abs();
-        write!(
-            f,
-            "{sign}{}.{:0width$}",
-            m / unit,
-            m % unit,
-            width = D as usize
-        )
+        // The digits from the last, into a buffer long enough for a sign, 15 digits and a point.
+        let mut text = [0u8; 24];
+        let mut at = text.len();
+        let mut put = |byte: u8| {
+            at -= 1;
+            text[at] = byte;
+        };
+        let mut m = n.unsigned_abs();
+        let digit = |m: u64| b'0' + u8::try_from(m % 10).unwrap_or(0);
+        if D == 0 {
+            put(b'0');
+        }
+        for _ in 0..D {
+            put(digit(m));
+            m /= 10;
+        }
+        put(b'.');
+        loop {
+            put(digit(m));
+            m /= 10;
+            if m == 0 {
+                break;
+            }
+        }
+        if n < 0 {
+            put(b'-');
+        }
+        f.write_str(std::str::from_utf8(&text[at..]).unwrap_or_default())
     }
 }
 
