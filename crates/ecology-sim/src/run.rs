@@ -228,6 +228,10 @@ pub async fn run(
         world: scenario.world_for(options.seed),
         peis: scenario.peis.clone(),
         faults: Faults::default(),
+        redelivers: scenario
+            .faults
+            .iter()
+            .any(|f| matches!(f.kind, FaultKind::Duplicate | FaultKind::Late)),
         schedule: schedule.clone(),
         seed: options.seed,
         pace: options.pace,
@@ -334,7 +338,8 @@ pub async fn run(
 /// the order they happened: the in-process space hands a change to its
 /// subscribers as it makes it) and at every step of the simulation.
 struct GroundTruth {
-    tuples: Subscription,
+    /// Nothing with one executive: there is no other for it to conflict with.
+    tuples: Option<Subscription>,
     clock: Arc<dyn Clock>,
     start: Timestamp,
     check: ConflictCheck,
@@ -344,7 +349,13 @@ impl GroundTruth {
     /// Follows what the check reads, and nothing more, so that it reads no component's output
     /// (an output nobody else reads is not published): every two-segment key (`C.params`,
     /// `C.mi-INFO`, …) and `C.mi-INFO.ARG` for each information of the tasks' domains.
-    fn follow(watcher: &InProcessPeis, scenario: &Scenario) -> Result<Subscription, TupleError> {
+    fn follow(
+        watcher: &InProcessPeis,
+        scenario: &Scenario,
+    ) -> Result<Option<Subscription>, TupleError> {
+        if scenario.tasks.len() < 2 {
+            return Ok(None);
+        }
         let mut infos = std::collections::BTreeSet::new();
         for task in &scenario.tasks {
             for f in &task.domain.functionalities {
@@ -358,12 +369,15 @@ impl GroundTruth {
                 .iter()
                 .filter_map(|info| TuplePattern::parse(&format!("*:*.mi-{info}.*")).ok()),
         );
-        watcher.subscribe_any(patterns)
+        watcher.subscribe_any(patterns).map(Some)
     }
 
     /// Feeds the check every tuple change not yet taken in.
     fn take_in(&mut self) {
-        while let Some(event) = self.tuples.try_next() {
+        let Some(tuples) = &mut self.tuples else {
+            return;
+        };
+        while let Some(event) = tuples.try_next() {
             let (change, at) = match &event {
                 TupleEvent::Changed(tuple) => (
                     Change {
@@ -633,6 +647,8 @@ struct Simulation {
     world: World,
     peis: Vec<PeisDef>,
     faults: Faults,
+    /// Whether the scenario delivers status tuples again (duplicates, late arrivals).
+    redelivers: bool,
     schedule: Schedule,
     seed: u64,
     pace: Pace,
@@ -654,18 +670,13 @@ struct Hosted {
 struct Hosts {
     tasks: JoinSet<(String, Result<(), HostError>)>,
     running: BTreeMap<String, Hosted>,
-    stop: watch::Sender<bool>,
-    stopped: watch::Receiver<bool>,
 }
 
 impl Hosts {
     fn new() -> Hosts {
-        let (stop, stopped) = watch::channel(false);
         Hosts {
             tasks: JoinSet::new(),
             running: BTreeMap::new(),
-            stop,
-            stopped,
         }
     }
 
@@ -681,18 +692,13 @@ impl Hosts {
         None
     }
 
-    /// Stops every host and waits for them; the first that failed, if any.
+    /// Ends every host where it stands, the run being over, and waits for them; the first that
+    /// had failed, if any. A host that stops alone switches its components off one by one; at the
+    /// end of a run nobody is left to hear it, and in a building that was a tenth of the run.
     async fn shut_down(mut self) -> Option<RunError> {
-        let _ = self.stop.send(true);
-        let mut failure = None;
-        while let Some(joined) = self.tasks.join_next().await {
-            if let Ok((peis, Err(error))) = joined
-                && self.running.contains_key(&peis)
-                && failure.is_none()
-            {
-                failure = Some(RunError::Host { peis, error });
-            }
-        }
+        let failure = self.failed();
+        self.tasks.abort_all();
+        while self.tasks.join_next().await.is_some() {}
         failure
     }
 }
@@ -719,15 +725,13 @@ impl Simulation {
             PeisId::new(&def.name).map_err(TupleError::Invalid)?,
             PeisOptions::default(),
         )?;
-        let mut stop = hosts.stopped.clone();
         let name = def.name.clone();
+        // Ended by `Hosts::shut_down`, not asked to stop.
         let host = run_host(
             handle.clone(),
             self.shared.clone(),
             simulated_components(def, &self.faults, self.seed),
-            async move {
-                let _ = stop.wait_for(|s| *s).await;
-            },
+            std::future::pending(),
         );
         let task = hosts.tasks.spawn(async move { (name, host.await) });
         Ok(Hosted { handle, task })
@@ -847,8 +851,13 @@ impl Simulation {
 
         // The recent status tuples of every component, to deliver again as
         // duplicates and late arrivals.
-        let pattern = TuplePattern::parse("*:*.status").map_err(TupleError::Invalid)?;
-        let mut statuses = space.subscribe(pattern).await?;
+        // Kept only when the scenario has such faults.
+        let mut statuses = if self.redelivers {
+            let pattern = TuplePattern::parse("*:*.status").map_err(TupleError::Invalid)?;
+            Some(space.subscribe(pattern).await?)
+        } else {
+            None
+        };
         let mut recent = Recent::new();
         let mut hosts = Hosts::new();
         for def in self.peis.clone() {
@@ -871,7 +880,7 @@ impl Simulation {
             if failure.is_some() {
                 break;
             }
-            while let Some(event) = statuses.try_next() {
+            while let Some(event) = statuses.as_mut().and_then(Subscription::try_next) {
                 if let TupleEvent::Changed(tuple) = event {
                     remember(&mut recent, tuple);
                 }
