@@ -13,9 +13,9 @@
 use std::collections::BTreeMap;
 
 use ecology_domain::{EcologyState, Fact, Name};
-use rustc_hash::FxHashMap;
 use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{ComponentId, Key, PeisId};
+use rustc_hash::FxHashMap;
 
 /// What the mirror knows of one component.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -338,11 +338,17 @@ struct Words<'a> {
 
 impl<'a> Words<'a> {
     fn of(&mut self, word: &'a str) -> Name {
-        self.text.entry(word).or_insert_with(|| Name::from(word)).clone()
+        self.text
+            .entry(word)
+            .or_insert_with(|| Name::from(word))
+            .clone()
     }
 
     fn number(&mut self, n: u64) -> Name {
-        let name = self.numbers.entry(n).or_insert_with(|| Name::from(n.to_string()));
+        let name = self
+            .numbers
+            .entry(n)
+            .or_insert_with(|| Name::from(n.to_string()));
         name.clone()
     }
 }

@@ -109,6 +109,10 @@ impl std::fmt::Debug for HostOptions {
     }
 }
 
+/// Each component's state, by name. Boxed: a map's node has room for eleven entries, and a host
+/// of one or two components would otherwise carry the rest empty (2 KB a host in a building).
+type States<S> = BTreeMap<String, Box<State<S>>>;
+
 struct State<S: TupleSpace> {
     spec: ComponentSpec<S>,
     on: bool,
@@ -147,7 +151,7 @@ pub async fn run_host_with<S: TupleSpace>(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), HostError> {
     let me = space.peis().clone();
-    let mut states: BTreeMap<String, State<S>> = BTreeMap::new();
+    let mut states: States<S> = BTreeMap::new();
     for spec in components {
         let c = spec.name.clone();
         space
@@ -168,14 +172,14 @@ pub async fn run_host_with<S: TupleSpace>(
             .await?;
         states.insert(
             c,
-            State {
+            Box::new(State {
                 on: spec.on,
                 spec,
                 starting_until: None,
                 params: None,
                 generation: 0,
                 task: None,
-            },
+            }),
         );
     }
     let requests_pattern = TuplePattern::parse(&format!("{me}:components.*.reqState"))
@@ -197,6 +201,8 @@ pub async fn run_host_with<S: TupleSpace>(
     let mut gone: BTreeMap<PeisId, Timestamp> = BTreeMap::new();
     let mut tasks: JoinSet<Outcome> = JoinSet::new();
     tokio::pin!(shutdown);
+    // The helpers awaited in the loop are boxed: inline, their state made every host's future
+    // (a thousand of them in a building) larger by a third.
     loop {
         let next_start = states
             .values()
@@ -225,7 +231,7 @@ pub async fn run_host_with<S: TupleSpace>(
                     // switching it on again runs its params afresh.
                     "on" if state.on && state.task.is_none() && state.params.is_some() => {
                         let c = c.to_string();
-                        start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                        Box::pin(start(&space, &clock, &mut states, &c, &mut tasks)).await?;
                     }
                     "off" => {
                         state.starting_until = None;
@@ -253,7 +259,7 @@ pub async fn run_host_with<S: TupleSpace>(
                 let stopping = state.params.is_none() && (state.task.is_some() || had_params);
                 if state.on {
                     let c = c.to_string();
-                    start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                    Box::pin(start(&space, &clock, &mut states, &c, &mut tasks)).await?;
                     if stopping {
                         space.set(field(&c, ComponentField::Status)?, Value::text("idle")).await?;
                     }
@@ -264,7 +270,7 @@ pub async fn run_host_with<S: TupleSpace>(
                 let Some((c, ComponentField::Holders)) = ComponentField::parse(&t.key) else { continue };
                 let now_held = ecology_tuples::claims::parse_holders(t.text().unwrap_or(""));
                 for holder in &now_held {
-                    watch(&space, &clock, &options, holder, &mut watched, &mut gone).await?;
+                    Box::pin(watch(&space, &clock, &options, holder, &mut watched, &mut gone)).await?;
                 }
                 holders.insert(c.to_string(), now_held);
                 // A PEIS that holds nothing here any more is watched no longer.
@@ -307,7 +313,7 @@ pub async fn run_host_with<S: TupleSpace>(
                 for peis in due {
                     gone.remove(&peis);
                     watched.remove(&peis);
-                    release(&space, &peis, &options).await?;
+                    Box::pin(release(&space, &peis, &options)).await?;
                 }
                 let ready: Vec<String> = states
                     .iter()
@@ -320,7 +326,7 @@ pub async fn run_host_with<S: TupleSpace>(
                         state.on = true;
                     }
                     space.set(field(&c, ComponentField::CurrState)?, Value::text("on")).await?;
-                    start(&space, &clock, &mut states, &c, &mut tasks).await?;
+                    Box::pin(start(&space, &clock, &mut states, &c, &mut tasks)).await?;
                 }
             }
         }
@@ -401,7 +407,7 @@ fn next_presence(
 async fn start<S: TupleSpace>(
     space: &S,
     clock: &Arc<dyn Clock>,
-    states: &mut BTreeMap<String, State<S>>,
+    states: &mut States<S>,
     c: &str,
     tasks: &mut JoinSet<Outcome>,
 ) -> Result<(), HostError> {

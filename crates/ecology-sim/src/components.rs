@@ -426,7 +426,8 @@ impl<S: TupleSpace> Body<S> {
                         if let (Some(range), Some(eye)) = (range, viewpoint) {
                             let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
                                 == map.room_at(pose.x, pose.y).map(|r| &r.name);
-                            if *name == *me || !same_room || eye.distance_to(pose.x, pose.y) > range {
+                            if *name == *me || !same_room || eye.distance_to(pose.x, pose.y) > range
+                            {
                                 continue;
                             }
                         }
@@ -972,8 +973,11 @@ mod tests {
     /// malformed ones, with any spacing.
     fn image() -> impl Strategy<Value = String> {
         let entry = prop_oneof![
-            ("[a-c]", -50i32..50, -50i32..50, -314i32..314)
-                .prop_map(|(n, x, y, t)| format!("{n} {}.{:02} {y} {t}e-2", x / 10, x.abs() % 10)),
+            ("[a-c]", -50i32..50, -50i32..50, -314i32..314).prop_map(|(n, x, y, t)| format!(
+                "{n} {}.{:02} {y} {t}e-2",
+                x / 10,
+                x.abs() % 10
+            )),
             Just(String::new()),
             Just("a 1 2".to_string()),
             Just("b x 2 3".to_string()),
