@@ -160,11 +160,7 @@ impl Mirror {
         seq: u64,
     ) -> Changes {
         let mut changes = Changes::default();
-        // Most updates are of a PEIS known already: looked up without making its name anew.
-        let view = match self.peis.get_mut(owner.as_str()) {
-            Some(view) => view,
-            None => self.peis.entry(owner.clone()).or_default(),
-        };
+        let view = self.peis.entry(owner.clone()).or_default();
         // Epoch 0 is a writer that does not say (a plain Zenoh put): its updates are not ordered by run.
         if epoch != 0 && view.epoch != 0 && epoch < view.epoch {
             return changes;
@@ -179,10 +175,7 @@ impl Mirror {
             }
             view.epoch = epoch;
         }
-        let slot = match view.seqs.get_mut(key.as_str()) {
-            Some(slot) => slot,
-            None => view.seqs.entry(key.clone()).or_insert(0),
-        };
+        let slot = view.seqs.entry(key.clone()).or_insert(0);
         if seq <= *slot && *slot != 0 {
             return changes;
         }
@@ -283,18 +276,12 @@ impl PeisView {
         let Some((name, field)) = ComponentField::parse_str(key.as_str()) else {
             return Some(Change::Other);
         };
-        let (component, c) = match self.components.get_key_value(name) {
-            Some((component, _)) => {
-                let component = component.clone();
-                let c = self.components.get_mut(name)?;
-                (component, c)
-            }
-            None => {
-                let component = ComponentId::new(name).ok()?;
-                let c = self.components.entry(component.clone()).or_default();
-                (component, c)
-            }
+        // A component known already keeps its name: only a new one's is checked and made.
+        let component = match self.components.get_key_value(name) {
+            Some((component, _)) => component.clone(),
+            None => ComponentId::new(name).ok()?,
         };
+        let c = self.components.entry(component.clone()).or_default();
         match field {
             ComponentField::Type => c.ty = Some(value.to_string()),
             ComponentField::Cost => c.cost = value.parse().ok(),
