@@ -1546,3 +1546,69 @@ fn a_state_plans_alike_whether_its_names_are_shared_or_not() {
     assert_eq!(a[0].0, 80, "the paper's cheapest configuration");
     assert_eq!(a, b);
 }
+
+/// Planning from only the components of the types a goal's methods name (as the executive does)
+/// finds the configurations the whole state gives, for each of the paper's goals, with and
+/// without a component excluded and with another executive's claims.
+#[test]
+fn a_state_cut_to_the_goals_component_types_plans_the_same() {
+    let domain = parse_domain(PEIS_HOME.as_bytes()).expect("domain parses");
+    let held = include_str!("../../../domains/peis-home-held.facts");
+    for facts in [PEIS_HOME_FACTS, held] {
+        let state = parse_facts(facts.as_bytes()).expect("facts parse");
+        for goal in [
+            "(navigate astrid bedroom)",
+            "(grasp astrid newspaper)",
+            "(wake-up astrid johanna)",
+        ] {
+            let goal = parse_goal(goal).expect("goal parses");
+            let types = crate::component_types(&domain, &goal).expect("the goal names its types");
+            // The components of other types, and every fact about them.
+            let other: Vec<(Name, Name)> = state
+                .facts()
+                .iter()
+                .filter(|f| &*f.predicate == "pc" && !types.contains(&*f.args[1]))
+                .map(|f| (f.args[0].clone(), f.args[2].clone()))
+                .collect();
+            assert!(!other.is_empty(), "{goal}: every component is of its types");
+            let about_other = |f: &ecology_domain::Fact| {
+                let (p, c) = match (&*f.predicate, f.args.as_slice()) {
+                    ("pc", [p, _, c, ..]) | ("cost" | "status" | "held", [p, c, ..]) => (p, c),
+                    _ => return false,
+                };
+                other.iter().any(|(op, oc)| op == p && oc == c)
+            };
+            let cut: EcologyState = state
+                .facts()
+                .iter()
+                .filter(|f| !about_other(f))
+                .cloned()
+                .collect();
+            for exclude in [&[][..], &["hsm:ca1"][..]] {
+                let exclusions = exclusions(exclude);
+                let outcome = |state: &EcologyState| {
+                    let request = Request {
+                        domain: &domain,
+                        state,
+                        goal: &goal,
+                        exclusions: &exclusions,
+                    };
+                    let options = Options {
+                        count: 3,
+                        ..Options::default()
+                    };
+                    plan(&request, &options, &NoClock).expect("valid")
+                };
+                let (whole, part) = (outcome(&state), outcome(&cut));
+                assert!(
+                    !whole.configurations.is_empty(),
+                    "{goal} without {exclude:?}"
+                );
+                assert_eq!(
+                    whole.configurations, part.configurations,
+                    "{goal} without {exclude:?}"
+                );
+            }
+        }
+    }
+}

@@ -10,7 +10,7 @@
 //! dropped. An update from a later run means the PEIS restarted: what was
 //! known of its components is forgotten, since the new run starts afresh.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use ecology_domain::{EcologyState, Fact, Name};
 use ecology_tuples::contract::ComponentField;
@@ -193,8 +193,11 @@ impl Mirror {
     /// components with a known type `(pc P TYPE C)`, `(cost P C N on|off)`,
     /// `(status P C S)` and, for each other executive that holds it,
     /// `(held P C HOLDER FUNCTIONALITY ARG…)` with the instance it runs
-    /// (`idle` when it runs none), plus the given world facts.
-    pub fn state(&self, world: &EcologyState) -> EcologyState {
+    /// (`idle` when it runs none), plus the given world facts. With `types`, only the components
+    /// of those types are in it: a goal whose methods name the types they can use
+    /// ([`ecology_config::component_types`]) is planned the same without the others, and in a
+    /// building most components are of types a given goal cannot use.
+    pub fn state(&self, world: &EcologyState, types: Option<&BTreeSet<String>>) -> EcologyState {
         // Each name's text made once for the whole state, not once for every fact it is in.
         let mut words = Words::default();
         let [peis, pc, cost, status, held, on, off, idle] =
@@ -212,6 +215,9 @@ impl Mirror {
             state.insert(fact(&peis, vec![p.clone()]));
             for (c, comp) in &view.components {
                 let Some(ty) = &comp.ty else { continue };
+                if types.is_some_and(|types| !types.contains(ty.as_str())) {
+                    continue;
+                }
                 let c = c.shared();
                 state.insert(fact(&pc, vec![p.clone(), words.of(ty), c.clone()]));
                 if let Some(n) = comp.cost {
@@ -353,5 +359,51 @@ impl IntoIterator for Changes {
 
     fn into_iter(self) -> Self::IntoIter {
         self.restarted.into_iter().chain(self.update)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeSet;
+
+    use ecology_domain::EcologyState;
+    use ecology_tuples::{Key, PeisId};
+
+    use super::Mirror;
+
+    /// A state with the given types leaves out the components of other types, and only them.
+    #[test]
+    fn a_state_for_some_types_has_only_their_components() {
+        let mut mirror = Mirror::new();
+        let tuples = [
+            ("hsm", "components.ca1.type", "cams"),
+            ("hsm", "components.ca1.cost", "20"),
+            ("hsm", "ca1.status", "running"),
+            ("app-7", "components.pl1.type", "player"),
+            ("app-7", "components.pl1.cost", "5"),
+            ("app-7", "pl1.status", "idle"),
+        ];
+        for (seq, (owner, key, value)) in (1..).zip(tuples) {
+            let owner = PeisId::new(owner).expect("a name");
+            mirror.joined(&owner);
+            let _ = mirror.apply(&owner, &Key::new(key).expect("a key"), value, 1, seq);
+        }
+        let text = |state: EcologyState| {
+            let mut facts: Vec<String> = state.facts().iter().map(ToString::to_string).collect();
+            facts.sort();
+            facts.join(" ")
+        };
+        let all = text(mirror.state(&EcologyState::default(), None));
+        assert_eq!(
+            all,
+            "(cost app-7 pl1 5 off) (cost hsm ca1 20 off) (pc app-7 player pl1) (pc hsm cams ca1) \
+             (peis app-7) (peis hsm) (status app-7 pl1 idle) (status hsm ca1 running)"
+        );
+        let cams = BTreeSet::from(["cams".to_string()]);
+        let some = text(mirror.state(&EcologyState::default(), Some(&cams)));
+        assert_eq!(
+            some,
+            "(cost hsm ca1 20 off) (pc hsm cams ca1) (peis app-7) (peis hsm) (status hsm ca1 running)"
+        );
     }
 }

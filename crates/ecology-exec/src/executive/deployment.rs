@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use std::time::Duration;
 
 use ecology_config::{Clock as PlannerClock, Configuration, Exclusion, Options, Request};
-use ecology_domain::EcologyState;
+use ecology_domain::{Call, EcologyState};
 use ecology_tuples::contract::{self, ComponentField};
 use ecology_tuples::{ComponentId, Key, PeisId};
 
@@ -136,6 +136,13 @@ impl PlannerClock for Since<'_> {
 }
 
 impl Executive {
+    /// The state a configuration for `goal` is planned from: the components of the types the
+    /// goal's methods can use, or all of them when they could use any.
+    pub(super) fn planning_state(&self, goal: &Call) -> EcologyState {
+        let types = ecology_config::component_types(self.planner.domain(), goal);
+        self.mirror.state(&self.world, types.as_ref())
+    }
+
     /// Acquires the state, plans the action's cheapest configuration without what it excludes,
     /// and deploys it; without one, the action has no configuration.
     pub(super) fn configure(&mut self, reconfiguration: bool, out: &mut Vec<Command>) {
@@ -150,7 +157,7 @@ impl Executive {
             return;
         };
         let before = self.stopwatch.0.elapsed();
-        let state = self.mirror.state(&self.world);
+        let state = self.planning_state(&goal);
         let (peis, components) = self.mirror.counts();
         let unavailable = self.add_unavailable(&mut exclusions);
         let acquired = self.stopwatch.0.elapsed();

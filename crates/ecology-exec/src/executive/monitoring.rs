@@ -479,7 +479,7 @@ impl Executive {
             component: key.1.to_string(),
         });
         self.add_unavailable(&mut exclusions);
-        let state = self.mirror.state(&self.world);
+        let state = self.planning_state(goal);
         // Only whether one exists: no explanation, so that "none" is answered
         // before grounding when it can be.
         self.plan_configurations(&state, goal, &exclusions, 1, false)
