@@ -209,6 +209,8 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         observe_tuples: hub.is_some(),
         acquisition: args.acquire.into(),
         wall_stopwatch: args.timings,
+        // This process exits right after the run (`exit_at_once`): the kernel takes it all back.
+        tear_down: false,
         ..RunOptions::seeded(seed)
     };
     // One thread: the run is reproducible from its seed.
@@ -272,6 +274,8 @@ fn simulate(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<u8> {
         .block_on(ecology_sim::run(scenario, &options, observer))
         .context("the simulation failed")?;
     let wall = wall.elapsed();
+    // The hosts the run left standing are the runtime's tasks: dropping it would take them down.
+    std::mem::forget(runtime);
     if progress {
         eprint!("\r\x1b[K");
     }

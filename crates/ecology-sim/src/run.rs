@@ -63,6 +63,12 @@ pub struct RunOptions {
     /// (the log's `micros`, and the planner's time budget); without it they
     /// read 0 and the run is reproducible from its seed alone.
     pub wall_stopwatch: bool,
+    /// Whether the run takes down what it built when it ends: the hosts, the executives and
+    /// the tuple space. A process that exits right after the run (`ecology run`) leaves them
+    /// standing, for the kernel to take back with the process: in a building of 10,000 PEIS
+    /// taking them down piece by piece was a tenth of the run. Anything that runs on in the
+    /// same process (a sweep, a test) takes them down, or it keeps their memory.
+    pub tear_down: bool,
 }
 
 impl RunOptions {
@@ -75,6 +81,7 @@ impl RunOptions {
             observe_tuples: false,
             acquisition: Acquisition::OnDemand,
             wall_stopwatch: false,
+            tear_down: true,
         }
     }
 }
@@ -239,6 +246,7 @@ pub async fn run(
         observer: observer.clone(),
         injected: injected.clone(),
         truth: truth.clone(),
+        tear_down: options.tear_down,
     };
     let mut tasks = JoinSet::new();
     tasks.spawn(simulation.run(world_peis, stopped));
@@ -303,7 +311,9 @@ pub async fn run(
             intake: driven.intake,
         });
     }
-    if let Ok(space) = Arc::try_unwrap(space) {
+    if options.tear_down
+        && let Ok(space) = Arc::try_unwrap(space)
+    {
         space.shutdown().await;
     }
     if let Some(e) = failure {
@@ -584,13 +594,18 @@ impl Drive<'_> {
             .await
         };
         drop(me);
-        Driven {
+        let driven = Driven {
             executive: task.executive.clone(),
             status: driven,
             log: exec.log().iter().map(shifted).collect(),
             intake: *exec.intake(),
             spurious,
+        };
+        if !self.options.tear_down {
+            // Left to the kernel with the process (see `RunOptions::tear_down`).
+            std::mem::forget(exec);
         }
+        driven
     }
 }
 
@@ -657,6 +672,8 @@ struct Simulation {
     injected: Arc<Mutex<Vec<(Duration, String)>>>,
     /// Taken in every step, so that what it buffers stays small.
     truth: Arc<Mutex<GroundTruth>>,
+    /// [`RunOptions::tear_down`].
+    tear_down: bool,
 }
 
 /// A running PEIS host: its handle (to crash it) and its task.
@@ -695,10 +712,15 @@ impl Hosts {
     /// Ends every host where it stands, the run being over, and waits for them; the first that
     /// had failed, if any. A host that stops alone switches its components off one by one; at the
     /// end of a run nobody is left to hear it, and in a building that was a tenth of the run.
-    async fn shut_down(mut self) -> Option<RunError> {
+    /// Without `tear_down` the hosts are left as they stand, never to be polled again.
+    async fn shut_down(mut self, tear_down: bool) -> Option<RunError> {
         let failure = self.failed();
-        self.tasks.abort_all();
-        while self.tasks.join_next().await.is_some() {}
+        if tear_down {
+            self.tasks.abort_all();
+            while self.tasks.join_next().await.is_some() {}
+        } else {
+            std::mem::forget(self);
+        }
         failure
     }
 }
@@ -912,7 +934,7 @@ impl Simulation {
                 tokio::time::sleep_until(due.into()).await;
             }
         }
-        let stopped = hosts.shut_down().await;
+        let stopped = hosts.shut_down(self.tear_down).await;
         match failure.or(stopped) {
             Some(e) => Err(e),
             None => Ok(world.into_world()),
