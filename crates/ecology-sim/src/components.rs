@@ -19,7 +19,6 @@
 //! whether or not anyone reads.
 
 use std::collections::BTreeMap;
-use std::fmt::Write;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -856,12 +855,15 @@ impl<S: TupleSpace> Body<S> {
 /// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
 /// An image's text: `NAME X Y THETA; …`.
 fn image_text(seen: &[(Arc<str>, Pose)]) -> String {
-    let mut text = String::new();
+    // A name and three numbers of at most a dozen characters each.
+    let mut text = String::with_capacity(seen.iter().map(|(name, _)| name.len() + 42).sum());
     for (i, (name, pose)) in seen.iter().enumerate() {
         if i > 0 {
             text.push_str("; ");
         }
-        let _ = write!(text, "{name} {pose}");
+        text.push_str(name);
+        text.push(' ');
+        pose.push_to(&mut text);
     }
     text
 }

@@ -1,6 +1,8 @@
 //! The in-process tuple space: every PEIS of an ecology in one process, on an injected clock.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
+
+use rustc_hash::FxHashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, Weak};
 
@@ -46,10 +48,10 @@ struct State {
     presence: Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>,
     /// Subscriptions to one PEIS's presence, by that PEIS: a PEIS host watches only those who
     /// asked it for something, so with N PEIS a join reaches a few subscribers, not N.
-    presence_of: HashMap<PeisId, Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>>,
+    presence_of: FxHashMap<PeisId, Vec<(u64, mpsc::UnboundedSender<PresenceEvent>)>>,
     next_subscriber: u64,
     /// Who reads the tuples components asked about ([`TupleSpace::watch_readers`]), by owner.
-    read_watches: HashMap<PeisId, HashMap<Key, watch::Sender<bool>>>,
+    read_watches: FxHashMap<PeisId, FxHashMap<Key, watch::Sender<bool>>>,
 }
 
 #[derive(Debug)]
@@ -81,10 +83,10 @@ impl Subscriber {
 /// order of subscribing, and a change reaches its subscribers in that order across both.
 #[derive(Debug, Default)]
 struct Subscribers {
-    by_owner: HashMap<PeisId, Vec<Subscriber>>,
+    by_owner: FxHashMap<PeisId, Vec<Subscriber>>,
     any_owner: Vec<Subscriber>,
     /// The owner each subscription names, if one.
-    owner_of: HashMap<u64, Option<PeisId>>,
+    owner_of: FxHashMap<u64, Option<PeisId>>,
 }
 
 impl Subscribers {

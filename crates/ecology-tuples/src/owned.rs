@@ -1,6 +1,8 @@
 //! The tuples one PEIS owns: values, per-key sequence numbers and expiry, shared by every implementation.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet};
+
+use rustc_hash::FxHashMap;
 
 use crate::model::{RemovalReason, Timestamp, Tuple, TupleEvent, Value};
 use crate::name::{Key, PeisId};
@@ -13,7 +15,7 @@ pub struct OwnedTuples {
     epoch: u64,
     tuples: BTreeMap<Key, Tuple>,
     // Sequence numbers outlive deletes, so a key set again after a delete keeps increasing.
-    seqs: HashMap<Key, u64>,
+    seqs: FxHashMap<Key, u64>,
     // May hold stale entries (overwritten or deleted tuples); `expire_due` skips them.
     expiry: BTreeSet<(Timestamp, Key)>,
 }
@@ -25,7 +27,7 @@ impl OwnedTuples {
             owner,
             epoch,
             tuples: BTreeMap::new(),
-            seqs: HashMap::new(),
+            seqs: FxHashMap::default(),
             expiry: BTreeSet::new(),
         }
     }

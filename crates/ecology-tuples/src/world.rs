@@ -13,7 +13,7 @@
 //! tests), so [`Map`], [`Pose`] and [`Point`] write exactly what they always wrote, and their
 //! parsers return an error, never panic, on any input.
 
-use std::fmt;
+use std::fmt::{self, Write as _};
 
 use crate::contract::quoted;
 use crate::name::{Key, ValidationError};
@@ -143,12 +143,42 @@ impl TextError {
 
 /// Exactly `N` finite numbers separated by white space.
 fn numbers<const N: usize>(text: &str) -> Option<[f64; N]> {
+    if text.is_ascii() {
+        return numbers_ascii(text);
+    }
     let mut words = text.split_whitespace();
     let mut out = [0.0; N];
     for slot in &mut out {
         *slot = number(words.next()?).filter(|v| v.is_finite())?;
     }
     words.next().is_none().then_some(out)
+}
+
+/// Whether an ASCII byte is white space as `char::is_whitespace` says (vertical tab included,
+/// which `u8::is_ascii_whitespace` leaves out).
+fn ascii_space(b: u8) -> bool {
+    matches!(b, b' ' | b'\t' | b'\n' | 0x0b | 0x0c | b'\r')
+}
+
+/// [`numbers`] of ASCII text, byte by byte: what every pose the world and the cameras write is,
+/// and splitting it by `char` was most of reading it.
+fn numbers_ascii<const N: usize>(text: &str) -> Option<[f64; N]> {
+    let bytes = text.as_bytes();
+    let mut at = 0;
+    let mut out = [0.0; N];
+    for slot in &mut out {
+        while bytes.get(at).is_some_and(|&b| ascii_space(b)) {
+            at += 1;
+        }
+        let start = at;
+        while bytes.get(at).is_some_and(|&b| !ascii_space(b)) {
+            at += 1;
+        }
+        // `at` stops at an ASCII byte or the end: a character boundary.
+        let word = text.get(start..at).filter(|w| !w.is_empty())?;
+        *slot = number(word).filter(|v| v.is_finite())?;
+    }
+    bytes[at..].iter().all(|&b| ascii_space(b)).then_some(out)
 }
 
 /// A number's text read as `str::parse` reads it, the same value to the last bit. Numbers as the
@@ -219,6 +249,16 @@ impl Pose {
         let [x, y, theta] = numbers(text).ok_or_else(|| TextError::new(Pose::FORM, text))?;
         Ok(Pose { x, y, theta })
     }
+
+    /// Appends the pose's text to `out`, as `Display` writes it, without formatting machinery:
+    /// a building's ceiling camera writes a thousand poses into each image.
+    pub fn push_to(&self, out: &mut String) {
+        Fixed::<3>(self.x).push_to(out);
+        out.push(' ');
+        Fixed::<3>(self.y).push_to(out);
+        out.push(' ');
+        Fixed::<4>(self.theta).push_to(out);
+    }
 }
 
 /// `X Y THETA`: millimetres and tenths of a milliradian.
@@ -240,16 +280,16 @@ impl fmt::Display for Pose {
 /// A value too large for that (over 10^15 scaled) is written by `{:.D}`; zero is never negative.
 struct Fixed<const D: u32>(f64);
 
-impl<const D: u32> fmt::Display for Fixed<D> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+impl<const D: u32> Fixed<D> {
+    /// The text, written into `text`; `None` when the value is too large for integers.
+    fn short<'t>(&self, text: &'t mut [u8; 24]) -> Option<&'t str> {
         let unit = 10u64.pow(D);
         let scaled = (self.0 * unit as f64).round();
         if !scaled.is_finite() || scaled.abs() >= 1e15 {
-            return write!(f, "{:.*}", D as usize, self.0);
+            return None;
         }
         let n = scaled as i64;
         // The digits from the last, into a buffer long enough for a sign, 15 digits and a point.
-        let mut text = [0u8; 24];
         let mut at = text.len();
         let mut put = |byte: u8| {
             at -= 1;
@@ -275,7 +315,28 @@ impl<const D: u32> fmt::Display for Fixed<D> {
         if n < 0 {
             put(b'-');
         }
-        f.write_str(std::str::from_utf8(&text[at..]).unwrap_or_default())
+        std::str::from_utf8(&text[at..]).ok()
+    }
+
+    /// Appends the text to `out`, as `Display` writes it.
+    fn push_to(&self, out: &mut String) {
+        let mut text = [0u8; 24];
+        match self.short(&mut text) {
+            Some(short) => out.push_str(short),
+            None => {
+                let _ = write!(out, "{:.*}", D as usize, self.0);
+            }
+        }
+    }
+}
+
+impl<const D: u32> fmt::Display for Fixed<D> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut text = [0u8; 24];
+        match self.short(&mut text) {
+            Some(short) => f.write_str(short),
+            None => write!(f, "{:.*}", D as usize, self.0),
+        }
     }
 }
 
@@ -452,6 +513,7 @@ impl fmt::Display for Map {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::strategy::Strategy as _;
 
     /// The PEIS-Home's map as its world publishes it.
     const PEIS_HOME: &str = "room living-room 0 0 3 3; room kitchen 3 0 5 3; \
@@ -649,6 +711,58 @@ mod tests {
                 other.parse::<f64>().ok().map(f64::to_bits),
                 "{}", other
             );
+        }
+    }
+
+    proptest::proptest! {
+        /// A pose appended to a string reads as its `Display`, large values and zeros too.
+        #[test]
+        fn a_pose_pushed_is_its_display(
+            x in proptest::prop_oneof![-1e4f64..1e4, proptest::strategy::Just(-0.0), proptest::strategy::Just(1e300), proptest::strategy::Just(-2e12)],
+            y in -1e4f64..1e4,
+            theta in -4f64..4.0,
+        ) {
+            let pose = Pose::new(x, y, theta);
+            let mut pushed = String::from("a ");
+            pose.push_to(&mut pushed);
+            proptest::prop_assert_eq!(pushed, format!("a {pose}"));
+        }
+    }
+
+    proptest::proptest! {
+        /// Three numbers in ASCII text, read byte by byte, read as splitting the text by `char`
+        /// reads them, with any white space (the vertical tab too) and around non-ASCII text.
+        #[test]
+        fn numbers_read_byte_by_byte_as_by_char(
+            text in proptest::prop_oneof![
+                "[-0-9. \t\n\u{b}\u{c}\rxe\u{a0}\u{85}]{0,24}",
+                (
+                    proptest::collection::vec("[ \t\n\u{b}\u{c}\r\u{a0}]{0,2}", 4),
+                    proptest::collection::vec(-1e4f64..1e4, 3),
+                ).prop_map(|(spaces, values)| {
+                    let mut text = spaces[0].clone();
+                    for (value, space) in values.iter().zip(&spaces[1..]) {
+                        text.push_str(&format!("{value:.3}"));
+                        text.push_str(if space.is_empty() { " " } else { space });
+                    }
+                    text
+                }),
+            ],
+        ) {
+            let by_char = {
+                let mut words = text.split_whitespace();
+                let mut out = [0.0; 3];
+                let mut ok = true;
+                for slot in &mut out {
+                    match words.next().and_then(number).filter(|v| v.is_finite()) {
+                        Some(v) => *slot = v,
+                        None => ok = false,
+                    }
+                }
+                (ok && words.next().is_none()).then_some(out)
+            };
+            let bits = |n: Option<[f64; 3]>| n.map(|n| n.map(f64::to_bits));
+            proptest::prop_assert_eq!(bits(numbers::<3>(&text)), bits(by_char), "{:?}", text);
         }
     }
 
