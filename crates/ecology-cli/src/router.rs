@@ -56,6 +56,7 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
     };
     options.security = args.net.security(&name)?;
     let describe = args.net.describe();
+    let close_within = options.close_within;
     network::runtime()?.block_on(async {
         let stop = network::stop_signal();
         let _reporter = network::report_on_sigusr1("router", None);
@@ -79,7 +80,15 @@ pub fn router(args: &RouterArgs) -> anyhow::Result<u8> {
         )
         .await;
         match result {
-            Ok(()) => Ok(EXIT_OK),
+            Ok(ecology_zenoh::Closed::Cleanly) => Ok(EXIT_OK),
+            Ok(ecology_zenoh::Closed::CutShort) => {
+                println!(
+                    "router: its sessions were still closing after {:.1} s (many PEIS leaving at \
+                     once); stopped without waiting for them",
+                    close_within.as_secs_f64()
+                );
+                Ok(EXIT_OK)
+            }
             Err(e) => {
                 eprintln!("error: {e}");
                 Ok(EXIT_NO_SOLUTION)

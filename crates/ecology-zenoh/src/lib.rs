@@ -16,7 +16,7 @@ pub mod wire;
 
 pub use config::{Mode, Notices, Security, ZenohOptions};
 pub use peis::ZenohPeis;
-pub use router::{DEFAULT_MAX_SESSIONS, RouterOptions, run_router};
+pub use router::{Closed, DEFAULT_MAX_SESSIONS, RouterOptions, run_router};
 
 use ecology_tuples::TupleError;
 

@@ -36,6 +36,19 @@ pub struct RouterOptions {
     /// Whether it holds the component contract of every PEIS and answers queries on it
     /// (see the module `cache`): on by default.
     pub hold_contract: bool,
+    /// How long a router told to stop waits for its sessions to close before it stops without
+    /// them: with a thousand PEIS that left at once, Zenoh was still taking their declarations
+    /// back after 10 s. Its PEIS see the connection end either way.
+    pub close_within: Duration,
+}
+
+/// How a router's stop ended (see [`run_router`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Closed {
+    /// Its sessions were closed.
+    Cleanly,
+    /// They were still closing after [`RouterOptions::close_within`]; it stopped without them.
+    CutShort,
 }
 
 /// [`RouterOptions::max_sessions`] by default: room for a building of PEIS, each its own session
@@ -53,6 +66,7 @@ impl Default for RouterOptions {
             security: Security::Open,
             max_sessions: DEFAULT_MAX_SESSIONS,
             hold_contract: true,
+            close_within: Duration::from_secs(2),
         }
     }
 }
@@ -60,13 +74,14 @@ impl Default for RouterOptions {
 /// Runs a Zenoh router until `shutdown` completes. `ready` is called once it
 /// listens, with its Zenoh id; `full` each time it comes to hold
 /// [`RouterOptions::max_sessions`] sessions, with that number: from then on, until one leaves,
-/// a PEIS that connects is refused (and sees only that it could not connect).
+/// a PEIS that connects is refused (and sees only that it could not connect). Once `shutdown`
+/// completes, it closes its sessions, waiting for them at most [`RouterOptions::close_within`].
 pub async fn run_router(
     options: RouterOptions,
     ready: impl FnOnce(String),
     full: impl Fn(usize) + Send + Sync + 'static,
     shutdown: impl Future<Output = ()>,
-) -> Result<(), ZenohError> {
+) -> Result<Closed, ZenohError> {
     let mut config = base_config(options.zenoh_config.as_deref())?;
     let c = &mut config;
     insert(c, "mode", json!("router"))?;
@@ -125,6 +140,13 @@ pub async fn run_router(
     };
     ready(session.zid().to_string());
     shutdown.await;
-    let _ = session.close().await;
-    Ok(())
+    let closed = match session.close().timeout(options.close_within).await {
+        Ok(()) => Closed::Cleanly,
+        Err(_) => Closed::CutShort,
+    };
+    if closed == Closed::CutShort {
+        // Its drop would wait for the close again: the process ends without it.
+        std::mem::forget(session);
+    }
+    Ok(closed)
 }

@@ -1449,6 +1449,40 @@ async fn router_client_peis(name: &str, endpoint: &str) -> ZenohPeis {
     ZenohPeis::open(options).await.expect("open")
 }
 
+/// A router told to stop closes its sessions but waits for them only `close_within`: given time,
+/// it says it closed cleanly; given none (a thousand PEIS leaving at once kept Zenoh closing for
+/// over 10 s), it says it stopped without them. Either way it stops at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_router_told_to_stop_waits_for_its_sessions_only_so_long() {
+    use ecology_zenoh::Closed;
+    for (close_within, expected) in [
+        (PATIENCE, Closed::Cleanly),
+        (Duration::ZERO, Closed::CutShort),
+    ] {
+        let endpoint = free_endpoint();
+        let options = ecology_zenoh::RouterOptions {
+            listen: vec![endpoint.clone()],
+            close_within,
+            ..ecology_zenoh::RouterOptions::default()
+        };
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let router = tokio::spawn(ecology_zenoh::run_router(options, |_| {}, |_| {}, async {
+            let _ = stopped.await;
+        }));
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let _client = stock_router_client(&endpoint, PATIENCE)
+            .await
+            .expect("a client of the router");
+        let _ = stop.send(());
+        let closed = tokio::time::timeout(PATIENCE, router)
+            .await
+            .expect("the router stops within its bound")
+            .expect("its task ends")
+            .expect("it ran");
+        assert_eq!(closed, expected, "closing within {close_within:?}");
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_router_says_so_and_takes_a_session_again_once_one_leaves() {
     let (told, mut full) = tokio::sync::mpsc::unbounded_channel();
