@@ -852,7 +852,6 @@ impl<S: TupleSpace> Body<S> {
     }
 }
 
-/// Where `image` (`NAME X Y THETA; …`, as the cameras write it) shows `name`.
 /// An image's text: `NAME X Y THETA; …`.
 fn image_text(seen: &[(Arc<str>, Pose)]) -> String {
     // A name and three numbers of at most a dozen characters each.
@@ -868,6 +867,7 @@ fn image_text(seen: &[(Arc<str>, Pose)]) -> String {
     text
 }
 
+/// Where a read `image` shows `name`.
 fn seen_in_image(image: &[(String, Pose)], name: &str) -> Option<Pose> {
     image
         .iter()

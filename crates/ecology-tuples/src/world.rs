@@ -318,13 +318,13 @@ impl<const D: u32> Fixed<D> {
         std::str::from_utf8(&text[at..]).ok()
     }
 
-    /// Appends the text to `out`, as `Display` writes it.
+    /// Appends the text to `out`, as `Display` writes it (a value too large, through it).
     fn push_to(&self, out: &mut String) {
         let mut text = [0u8; 24];
         match self.short(&mut text) {
             Some(short) => out.push_str(short),
             None => {
-                let _ = write!(out, "{:.*}", D as usize, self.0);
+                let _ = write!(out, "{self}");
             }
         }
     }

@@ -140,13 +140,12 @@ pub async fn run_router(
     };
     ready(session.zid().to_string());
     shutdown.await;
-    let closed = match session.close().timeout(options.close_within).await {
-        Ok(()) => Closed::Cleanly,
-        Err(_) => Closed::CutShort,
-    };
-    if closed == Closed::CutShort {
-        // Its drop would wait for the close again: the process ends without it.
-        std::mem::forget(session);
+    match session.close().timeout(options.close_within).await {
+        Ok(()) => Ok(Closed::Cleanly),
+        Err(_) => {
+            // Its drop would wait for the close again: the process ends without it.
+            std::mem::forget(session);
+            Ok(Closed::CutShort)
+        }
     }
-    Ok(closed)
 }
