@@ -1177,17 +1177,22 @@ fn a_robot_that_hears_nothing_from_the_cameras_for_seconds_keeps_its_move() {
     home.assert_done_unblamed(("waiting_longer", "component", "s1"));
 }
 
-/// The paper's whole task (with Pippi) while every host drops a tenth of the packets it sends and
-/// of those it receives (the executive joins through the loss; the others joined before it
-/// began). TCP resends what is lost, and the task is done; nothing is left on.
+/// The paper's whole task (with Pippi) while every host, the router's too, drops a tenth of the
+/// packets it sends and of those it receives (the executive joins through the loss; the others
+/// joined before it began). TCP resends what is lost, and the task is done; nothing is left on.
+///
+/// Through a router, as docs/network.md advises for lossy networks: each client dials its router
+/// until linked. Among peers, a peer heard of through gossip is dialled once, and a dial whose
+/// TCP handshake lost its packets four times running outlasts Zenoh's 10 s open timeout and is
+/// not tried again; in one CI run the executive never met Pippi that way.
 #[test]
 fn the_papers_whole_task_is_done_with_every_host_dropping_packets() {
     let test = "lossy";
     let _slot = process_slot();
-    let Some(mut home) = Home::start_with(test, Topology::Peers, false, &[], Cast::Whole) else {
+    let Some(mut home) = Home::start_with(test, Topology::Router, false, &[], Cast::Whole) else {
         return;
     };
-    let hosts = ["world", "astrid", "hsm", "pippi", "executive"];
+    let hosts = ["router", "world", "astrid", "hsm", "pippi", "executive"];
     for host in hosts {
         if !home.net.drop_packets(test, host, 10) {
             return;
