@@ -11,8 +11,9 @@
 //! - it takes every put and delete of those keys (the owner's `(epoch, seq)` orders them);
 //! - a PEIS's tuples are forgotten when its liveliness token goes;
 //! - when a PEIS's token appears (it joined, or it was there before this router, or beyond another
-//!   router), the router asks that PEIS for its tuples; until it has the answer, a query that
-//!   covers that PEIS is passed on to it, so that an answer is never short of a PEIS present;
+//!   router), the router asks that PEIS for its tuples, unless it sees it start (its `contract`
+//!   tuple, which a PEIS publishes first, right after its token); until it has the answer, a query
+//!   that covers that PEIS is passed on to it, so that an answer is never short of a PEIS present;
 //! - an expired tuple is not given out.
 
 use std::collections::{HashMap, HashSet};
@@ -54,6 +55,12 @@ const FROM_A_HOLDER: &str = "ecology_holder";
 
 /// How many PEIS a router asks for their tuples at once.
 const ASKED_AT_ONCE: usize = 32;
+
+/// How long after a PEIS appears a router asks it for its tuples: time for its `contract` tuple,
+/// which a PEIS that starts publishes right after its presence token, to arrive and make the
+/// question needless. Until it is asked and has answered, a query that covers it is passed on to
+/// it.
+const ASK_AFTER: Duration = Duration::from_millis(500);
 
 /// How long after a PEIS did not answer in full a router asks it again.
 const ASK_AGAIN_AFTER: Duration = Duration::from_secs(1);
@@ -176,8 +183,39 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                 .await?,
         );
     }
+    // A PEIS that starts publishes its `contract` tuple first, right after its presence token,
+    // and every tuple it writes after it: seen after its token, the router takes all its tuples as
+    // they go by and need not ask it. (A thousand PEIS joining put two thousand questions on their
+    // router, each matched against every key expression it knew.) One that came back without
+    // starting again, or that was there before this router, does not publish it again, and is
+    // asked.
+    let started = state.clone();
+    subscribers.push(
+        session
+            .declare_subscriber(format!("{}/*/{}", wire::ROOT, wire::CONTRACT_KEY))
+            .callback(move |sample| {
+                if sample.kind() != SampleKind::Put {
+                    return;
+                }
+                let Some(owner) = owner_of(sample.key_expr().as_str()) else {
+                    return;
+                };
+                let epoch = sample
+                    .attachment()
+                    .and_then(|a| Metadata::decode(&a.to_bytes()).ok())
+                    .map_or(0, |meta| meta.epoch);
+                let mut state = lock(&started);
+                if state.asking.remove(&owner)
+                    && let Some(tuples) = state.tuples.get_mut(&owner)
+                {
+                    // What is left of an earlier run of the PEIS goes.
+                    tuples.retain(|_, held| held.order.0 >= epoch);
+                }
+            })
+            .await?,
+    );
     // Presence: a PEIS that appears is asked for its tuples; one that goes is forgotten.
-    let (appeared, mut to_ask) = mpsc::unbounded_channel::<PeisId>();
+    let (appeared, mut to_ask) = mpsc::unbounded_channel::<(PeisId, tokio::time::Instant)>();
     let appeared_again = appeared.clone();
     let watched = state.clone();
     let tokens = session
@@ -193,7 +231,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                 state.present.insert(peis.clone());
                 state.asking.insert(peis.clone());
                 drop(state);
-                let _ = appeared.send(peis);
+                let _ = appeared.send((peis, tokio::time::Instant::now()));
             } else {
                 state.present.remove(&peis);
                 state.asking.remove(&peis);
@@ -206,7 +244,9 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
     tasks.push(tokio::spawn(async move {
         // Each PEIS asked at once; owned here, so that stopping the cache stops them.
         let mut asking = tokio::task::JoinSet::new();
-        while let Some(peis) = to_ask.recv().await {
+        while let Some((peis, appeared)) = to_ask.recv().await {
+            // In the order they appeared, so one wait covers a thousand that appear together.
+            tokio::time::sleep_until(appeared + ASK_AFTER).await;
             while asking.try_join_next().is_some() {}
             // A thousand PEIS joining at once are asked a few at a time, so that none times out.
             while asking.len() >= ASKED_AT_ONCE {
@@ -216,6 +256,10 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
             let state = filled.clone();
             let again = appeared_again.clone();
             asking.spawn(async move {
+                // Started since it appeared: its tuples come as they are published.
+                if !lock(&state).asking.contains(&peis) {
+                    return;
+                }
                 let mut answered = true;
                 for held in HELD {
                     let Some(rest) = held.strip_prefix("peis/*/") else {
@@ -254,7 +298,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                 // Not answered in full: passed on to meanwhile, and asked again a little later.
                 if ask_again {
                     tokio::time::sleep(ASK_AGAIN_AFTER).await;
-                    let _ = again.send(peis);
+                    let _ = again.send((peis, tokio::time::Instant::now()));
                 }
             });
         }

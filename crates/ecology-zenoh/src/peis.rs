@@ -17,7 +17,7 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::query::{ConsolidationMode, Query, QueryTarget};
-use zenoh::sample::{Sample, SampleKind};
+use zenoh::sample::{Locality, Sample, SampleKind};
 
 use crate::relink;
 use crate::wire::{self, Metadata, WireError};
@@ -1200,10 +1200,21 @@ impl TupleSpace for ZenohPeis {
         let options = core.options.clone();
         let clock = core.clock.clone();
         let filter = pattern.clone();
+        // Only this PEIS writes its own tuples (a remote set is answered by it, and it publishes
+        // what the set wrote), so a subscription to them takes its own puts alone and is not
+        // declared to the network: a PEIS host subscribes to four sets of its own tuples at
+        // start, and a router of a thousand PEIS matched each of those four thousand
+        // declarations against every key expression it knew.
+        let origin = if pattern.owner == ecology_tuples::OwnerPattern::Exact(core.me.clone()) {
+            Locality::SessionLocal
+        } else {
+            Locality::Any
+        };
         // Declare first, then ask for the current values: nothing set in between is missed.
         let subscriber = core
             .session
             .declare_subscriber(wire::pattern_key_expr(&pattern))
+            .allowed_origin(origin)
             .callback(move |sample| {
                 let mut merge = lock(&live);
                 let merge = &mut *merge;

@@ -336,6 +336,54 @@ async fn a_plain_put_is_a_tuple_and_malformed_samples_are_counted() {
     watcher.close().await;
 }
 
+/// A PEIS's subscription to its own tuples hears its own writes alone, and is not declared to the
+/// network (a router of a thousand PEIS matched four such declarations of each against every key
+/// it knew): another session's put on one of its keys, which a subscription to every PEIS does
+/// hear, is not taken for its tuple.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscription_to_its_own_tuples_hears_only_its_own_writes() {
+    let (watcher, endpoint) = lone_peis("watcher", PeisOptions::default()).await;
+    let pattern = |text: &str| TuplePattern::parse(text).expect("pattern");
+    let mut own = watcher
+        .subscribe(pattern("watcher:*"))
+        .await
+        .expect("subscribe");
+    let mut every = watcher.subscribe(pattern("*:*")).await.expect("subscribe");
+    let client = stock_client(&endpoint).await;
+    // Put again until it is heard at all: the first may go out before the link is up.
+    let mut heard = false;
+    for _ in 0..50 {
+        client
+            .put("peis/watcher/spoof", "not mine")
+            .await
+            .expect("put");
+        // Its own tuples (the contract) come too.
+        while let Ok(Some(event)) =
+            tokio::time::timeout(Duration::from_millis(200), every.next()).await
+        {
+            heard |= matches!(event, TupleEvent::Changed(t) if t.key.as_str() == "spoof");
+        }
+        if heard {
+            break;
+        }
+    }
+    assert!(heard, "the subscription to every PEIS hears the put");
+    watcher
+        .set(key("mine"), Value::text("written here"))
+        .await
+        .expect("set");
+    match next_event(&mut own, PATIENCE).await {
+        TupleEvent::Changed(t) => assert_eq!(
+            (t.key.as_str(), t.text()),
+            ("mine", Ok("written here")),
+            "the first event of its own subscription is its own write"
+        ),
+        other => panic!("unexpected {other:?}"),
+    }
+    client.close().await.expect("close");
+    watcher.close().await;
+}
+
 /// An owner that never answers a remote set is out of reach, not refusing: Zenoh's own
 /// "Timeout" error reply is not the owner's reason.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1632,6 +1680,94 @@ async fn through_a_router_a_peis_knows_who_reads_its_outputs() {
     })
     .await;
     cam.close().await;
+}
+
+/// A router that holds the contract asks a PEIS that appears for its tuples only when it did not
+/// see it start: a PEIS that starts publishes its `contract` tuple right after its presence token,
+/// and the router takes every tuple after it as it goes by. `started` does so and is not asked;
+/// `back` (as a PEIS is that came back without starting again) publishes no contract and is asked.
+/// Both are read through the router.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_router_does_not_ask_a_peis_it_saw_start() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let (endpoint, _stop) = start_router(8, |_| {});
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut asked = Vec::new();
+    let mut clients = Vec::new();
+    for name in ["started", "back"] {
+        let client = stock_router_client(&endpoint, PATIENCE)
+            .await
+            .expect("client");
+        let count = Arc::new(AtomicUsize::new(0));
+        let counter = count.clone();
+        let queryable = client
+            .declare_queryable(format!("peis/{name}/**"))
+            .callback(move |_query| {
+                counter.fetch_add(1, Ordering::Relaxed);
+            })
+            .await
+            .expect("queryable");
+        // A new client sends a put only once it knows of a subscriber: the router's, here.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let token = client
+            .liveliness()
+            .declare_token(format!("peis/{name}/@alive"))
+            .await
+            .expect("token");
+        let mut tuples = vec![("components/c1/type", "cams"), ("c1/status", "running")];
+        if name == "started" {
+            tuples.insert(0, (wire::CONTRACT_KEY, "2"));
+        }
+        for (seq, (key, text)) in tuples.into_iter().enumerate() {
+            let meta = Metadata {
+                seq: seq as u64 + 1,
+                ts_write: Timestamp(1),
+                ts_user: None,
+                expiry: None,
+                expired: false,
+                epoch: 7,
+                mimetype: Mimetype::text(),
+                creator: None,
+            };
+            client
+                .put(format!("peis/{name}/{key}"), text)
+                .attachment(meta.encode())
+                .await
+                .expect("put");
+        }
+        asked.push(count);
+        clients.push((client, queryable, token));
+    }
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while asked[1].load(Ordering::Relaxed) == 0 {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "back was never asked"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Well past the wait before asking (0.5 s) of the PEIS that appeared first.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(
+        asked[0].load(Ordering::Relaxed),
+        0,
+        "the router saw started start: it did not ask it"
+    );
+    let a = router_client_peis("a", &endpoint).await;
+    let mut owners: Vec<String> = a
+        .get_matching(TuplePattern::parse("*:*.status").expect("pattern"))
+        .await
+        .expect("get")
+        .into_iter()
+        .map(|t| t.owner.to_string())
+        .filter(|owner| owner != "a")
+        .collect();
+    owners.sort();
+    assert_eq!(owners, ["back", "started"]);
+    a.close().await;
+    for (client, _, _) in clients {
+        client.close().await.expect("close");
+    }
 }
 
 /// A router holds the component contract of every PEIS and answers for it: a stock client that
