@@ -1102,6 +1102,13 @@ impl Merge {
     }
 }
 
+/// How many PEIS that appeared, at most, a subscription to every PEIS asks after at once.
+const CATCH_UP_BATCH: usize = 1024;
+/// From how many PEIS that appeared a subscription to every PEIS asks them with one question of
+/// every PEIS rather than one question each: each question costs the router a match against the
+/// keys of every PEIS, and one of every PEIS costs it a message to each.
+const ASK_EVERY_PEIS_FROM: usize = 8;
+
 /// How many more times a present PEIS that answered nothing is asked for its tuples.
 const CATCH_UP_ATTEMPTS: u32 = 5;
 /// The pause before the first of those; each next one waits one more of these.
@@ -1298,23 +1305,55 @@ impl TupleSpace for ZenohPeis {
                             (id, attempt)
                         }
                     };
-                    let theirs = TuplePattern {
-                        owner: ecology_tuples::OwnerPattern::Exact(id.clone()),
-                        key: key.clone(),
+                    // Those that appeared meanwhile are asked with it. A thousand PEIS
+                    // appearing at once, asked one by one, put a thousand questions on their
+                    // router for each subscription to every PEIS, each matched against the keys
+                    // of every PEIS; so many are asked with one question of every PEIS.
+                    let mut batch = vec![(id, attempt)];
+                    while batch.len() < CATCH_UP_BATCH
+                        && let Ok(next) = appearances.try_recv()
+                    {
+                        batch.push(next);
+                    }
+                    let questions: Vec<TuplePattern> = if batch.len() >= ASK_EVERY_PEIS_FROM {
+                        vec![TuplePattern {
+                            owner: ecology_tuples::OwnerPattern::Any,
+                            key: key.clone(),
+                        }]
+                    } else {
+                        batch
+                            .iter()
+                            .map(|(id, _)| TuplePattern {
+                                owner: ecology_tuples::OwnerPattern::Exact(id.clone()),
+                                key: key.clone(),
+                            })
+                            .collect()
                     };
-                    match query_tuples_answered(&core, &theirs).await {
-                        Ok(answer) if !answer.tuples.is_empty() => {
-                            lock(&merge).catch_up(answer.tuples);
+                    let mut heard = BTreeSet::new();
+                    // Whether every question came back in full.
+                    let mut in_full = true;
+                    for question in &questions {
+                        match query_tuples_answered(&core, question).await {
+                            Ok(answer) => {
+                                in_full &= answer.in_full;
+                                heard.extend(answer.tuples.iter().map(|t| t.owner.clone()));
+                                if !answer.tuples.is_empty() {
+                                    lock(&merge).catch_up(answer.tuples);
+                                }
+                            }
+                            Err(_) => in_full = false,
                         }
+                    }
+                    for (id, attempt) in batch {
                         // Asking each of a thousand PEIS five more times, for each
                         // subscription to every PEIS, kept their router busy for seconds.
-                        Ok(answer) if answer.in_full && !core.answers_lag_presence => {}
-                        _ if attempt < CATCH_UP_ATTEMPTS => {
+                        let settled =
+                            heard.contains(&id) || (in_full && !core.answers_lag_presence);
+                        // A PEIS that never answers is caught up with by its next changes.
+                        if !settled && attempt < CATCH_UP_ATTEMPTS {
                             let at = tokio::time::Instant::now() + CATCH_UP_PAUSE * (attempt + 1);
                             again.push((at, id, attempt + 1));
                         }
-                        // A PEIS that never answers is caught up with by its next changes.
-                        _ => {}
                     }
                 }
             })

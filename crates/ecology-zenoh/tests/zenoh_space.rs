@@ -1624,6 +1624,87 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
     a.close().await;
 }
 
+/// Many PEIS that appear at once beside a subscription to every PEIS are caught up with in one
+/// question of every PEIS, not one question each (a thousand of them, asked one by one, put a
+/// thousand questions on their router for each such subscription). A stock client answers for 40
+/// PEIS whose tuples were set before they appeared; every one of them reaches the subscription,
+/// and the client is asked far fewer than 40 questions.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn peis_appearing_together_are_caught_up_with_in_one_question() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let (endpoint, _stop) = start_router(8, |_| {});
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let a = router_client_peis("a", &endpoint).await;
+    let mut velocities = a
+        .subscribe(TuplePattern::parse("*:*.out.velocity").expect("pattern"))
+        .await
+        .expect("subscribe");
+    let crowd = stock_router_client(&endpoint, PATIENCE)
+        .await
+        .expect("crowd");
+    let asked = Arc::new(AtomicUsize::new(0));
+    let counter = asked.clone();
+    let _queryable = crowd
+        .declare_queryable("peis/**")
+        .callback(move |query| {
+            counter.fetch_add(1, Ordering::Relaxed);
+            let Some(rest) = query.key_expr().as_str().strip_prefix("peis/") else {
+                return;
+            };
+            let owners: Vec<String> = match rest.split('/').next() {
+                Some("*") => (0..40).map(|i| format!("s{i}")).collect(),
+                Some(one) if one.starts_with('s') => vec![one.to_string()],
+                _ => return,
+            };
+            for owner in owners {
+                let meta = Metadata {
+                    seq: 1,
+                    ts_write: Timestamp(1),
+                    ts_user: None,
+                    expiry: None,
+                    expired: false,
+                    epoch: 7,
+                    mimetype: Mimetype::text(),
+                    creator: None,
+                };
+                let _ = zenoh::Wait::wait(
+                    query
+                        .reply(format!("peis/{owner}/m1/out/velocity"), "0.1 0")
+                        .attachment(meta.encode()),
+                );
+            }
+        })
+        .await
+        .expect("queryable");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut tokens = Vec::new();
+    for i in 0..40 {
+        tokens.push(
+            crowd
+                .liveliness()
+                .declare_token(format!("peis/s{i}/@alive"))
+                .await
+                .expect("token"),
+        );
+    }
+    let mut owners = std::collections::BTreeSet::new();
+    while owners.len() < 40 {
+        match next_event(&mut velocities, PATIENCE).await {
+            TupleEvent::Changed(t) => {
+                owners.insert(t.owner.to_string());
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    let questions = asked.load(Ordering::Relaxed);
+    assert!(
+        questions < 20,
+        "40 PEIS appearing together were asked {questions} questions"
+    );
+    a.close().await;
+    crowd.close().await.expect("close");
+}
+
 /// Through a router that holds the contract, a PEIS knows who reads its outputs: nobody, once its
 /// router has answered (the router's own holding does not read an output); a client subscribed
 /// through the router, until it unsubscribes or goes; a watch of its readers is told when one
