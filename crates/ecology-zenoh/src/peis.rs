@@ -1329,28 +1329,32 @@ impl TupleSpace for ZenohPeis {
                             })
                             .collect()
                     };
-                    let mut heard = BTreeSet::new();
-                    // Whether every question came back in full.
-                    let mut in_full = true;
+                    // Those heard from, and those a question in full found with nothing to
+                    // catch up: asking each of a thousand PEIS five more times, for each
+                    // subscription to every PEIS, kept their router busy for seconds.
+                    let mut settled = BTreeSet::new();
                     for question in &questions {
-                        match query_tuples_answered(&core, question).await {
-                            Ok(answer) => {
-                                in_full &= answer.in_full;
-                                heard.extend(answer.tuples.iter().map(|t| t.owner.clone()));
-                                if !answer.tuples.is_empty() {
-                                    lock(&merge).catch_up(answer.tuples);
+                        let Ok(answer) = query_tuples_answered(&core, question).await else {
+                            continue;
+                        };
+                        if answer.in_full && !core.answers_lag_presence {
+                            match &question.owner {
+                                ecology_tuples::OwnerPattern::Exact(id) => {
+                                    settled.insert(id.clone());
+                                }
+                                ecology_tuples::OwnerPattern::Any => {
+                                    settled.extend(batch.iter().map(|(id, _)| id.clone()));
                                 }
                             }
-                            Err(_) => in_full = false,
+                        }
+                        settled.extend(answer.tuples.iter().map(|t| t.owner.clone()));
+                        if !answer.tuples.is_empty() {
+                            lock(&merge).catch_up(answer.tuples);
                         }
                     }
                     for (id, attempt) in batch {
-                        // Asking each of a thousand PEIS five more times, for each
-                        // subscription to every PEIS, kept their router busy for seconds.
-                        let settled =
-                            heard.contains(&id) || (in_full && !core.answers_lag_presence);
                         // A PEIS that never answers is caught up with by its next changes.
-                        if !settled && attempt < CATCH_UP_ATTEMPTS {
+                        if !settled.contains(&id) && attempt < CATCH_UP_ATTEMPTS {
                             let at = tokio::time::Instant::now() + CATCH_UP_PAUSE * (attempt + 1);
                             again.push((at, id, attempt + 1));
                         }

@@ -1489,6 +1489,20 @@ async fn stock_router_client(endpoint: &str, timeout: Duration) -> zenoh::Result
     zenoh::open(config).await
 }
 
+/// What a stock client writing a PEIS's text tuple attaches: its run (epoch 7) and `seq`.
+fn stock_meta(seq: u64) -> Metadata {
+    Metadata {
+        seq,
+        ts_write: Timestamp(1),
+        ts_user: None,
+        expiry: None,
+        expired: false,
+        epoch: 7,
+        mimetype: Mimetype::text(),
+        creator: None,
+    }
+}
+
 /// A PEIS that is a client of the router at `endpoint`.
 async fn router_client_peis(name: &str, endpoint: &str) -> ZenohPeis {
     let mut options = ZenohOptions::new(peis(name));
@@ -1657,16 +1671,7 @@ async fn peis_appearing_together_are_caught_up_with_in_one_question() {
                 _ => return,
             };
             for owner in owners {
-                let meta = Metadata {
-                    seq: 1,
-                    ts_write: Timestamp(1),
-                    ts_user: None,
-                    expiry: None,
-                    expired: false,
-                    epoch: 7,
-                    mimetype: Mimetype::text(),
-                    creator: None,
-                };
+                let meta = stock_meta(1);
                 let _ = zenoh::Wait::wait(
                     query
                         .reply(format!("peis/{owner}/m1/out/velocity"), "0.1 0")
@@ -1800,16 +1805,7 @@ async fn a_router_does_not_ask_a_peis_it_saw_start() {
             tuples.insert(0, (wire::CONTRACT_KEY, "2"));
         }
         for (seq, (key, text)) in tuples.into_iter().enumerate() {
-            let meta = Metadata {
-                seq: seq as u64 + 1,
-                ts_write: Timestamp(1),
-                ts_user: None,
-                expiry: None,
-                expired: false,
-                epoch: 7,
-                mimetype: Mimetype::text(),
-                creator: None,
-            };
+            let meta = stock_meta(seq as u64 + 1);
             client
                 .put(format!("peis/{name}/{key}"), text)
                 .attachment(meta.encode())
@@ -1894,16 +1890,7 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
         .into_iter()
         .enumerate()
         {
-            let meta = Metadata {
-                seq: seq as u64 + 1,
-                ts_write: Timestamp(1),
-                ts_user: None,
-                expiry: None,
-                expired: false,
-                epoch: 7,
-                mimetype: Mimetype::text(),
-                creator: None,
-            };
+            let meta = stock_meta(seq as u64 + 1);
             ghost
                 .put(key_expr, text)
                 .attachment(meta.encode())
