@@ -13,7 +13,7 @@
 //! tests), so [`Map`], [`Pose`] and [`Point`] write exactly what they always wrote, and their
 //! parsers return an error, never panic, on any input.
 
-use std::fmt::{self, Write as _};
+use std::fmt::{self, Write};
 
 use crate::contract::quoted;
 use crate::name::{Key, ValidationError};
@@ -144,8 +144,14 @@ impl TextError {
 /// Exactly `N` finite numbers separated by white space.
 fn numbers<const N: usize>(text: &str) -> Option<[f64; N]> {
     if text.is_ascii() {
-        return numbers_ascii(text);
+        numbers_ascii(text)
+    } else {
+        numbers_by_char(text)
     }
+}
+
+/// [`numbers`] of any text, split into words by `char`.
+fn numbers_by_char<const N: usize>(text: &str) -> Option<[f64; N]> {
     let mut words = text.split_whitespace();
     let mut out = [0.0; N];
     for slot in &mut out {
@@ -318,25 +324,26 @@ impl<const D: u32> Fixed<D> {
         std::str::from_utf8(&text[at..]).ok()
     }
 
-    /// Appends the text to `out`, as `Display` writes it (a value too large, through it).
-    fn push_to(&self, out: &mut String) {
+    /// Writes the text to `out`: a `String` directly, or a formatter for `Display`.
+    fn write_to(&self, out: &mut impl Write) -> fmt::Result {
         let mut text = [0u8; 24];
         match self.short(&mut text) {
-            Some(short) => out.push_str(short),
-            None => {
-                let _ = write!(out, "{self}");
-            }
+            Some(short) => out.write_str(short),
+            None => write!(out, "{:.*}", D as usize, self.0),
         }
+    }
+
+    /// Appends the text to `out`, as `Display` writes it, without formatting machinery for the
+    /// values that fit in integers.
+    fn push_to(&self, out: &mut String) {
+        // Writing into a `String` cannot fail.
+        let _ = self.write_to(out);
     }
 }
 
 impl<const D: u32> fmt::Display for Fixed<D> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut text = [0u8; 24];
-        match self.short(&mut text) {
-            Some(short) => f.write_str(short),
-            None => write!(f, "{:.*}", D as usize, self.0),
-        }
+        self.write_to(f)
     }
 }
 
@@ -749,20 +756,13 @@ mod tests {
                 }),
             ],
         ) {
-            let by_char = {
-                let mut words = text.split_whitespace();
-                let mut out = [0.0; 3];
-                let mut ok = true;
-                for slot in &mut out {
-                    match words.next().and_then(number).filter(|v| v.is_finite()) {
-                        Some(v) => *slot = v,
-                        None => ok = false,
-                    }
-                }
-                (ok && words.next().is_none()).then_some(out)
-            };
             let bits = |n: Option<[f64; 3]>| n.map(|n| n.map(f64::to_bits));
-            proptest::prop_assert_eq!(bits(numbers::<3>(&text)), bits(by_char), "{:?}", text);
+            proptest::prop_assert_eq!(
+                bits(numbers::<3>(&text)),
+                bits(numbers_by_char::<3>(&text)),
+                "{:?}",
+                text
+            );
         }
     }
 
