@@ -45,6 +45,15 @@ pub(crate) fn held() -> &'static [KeyExpr<'static>] {
     &HELD_EXPRS
 }
 
+/// Which of [`HELD`] `is` says yes of, a bit each (bit `i` for `HELD[i]`).
+fn mask(is: impl Fn(&KeyExpr<'static>) -> bool) -> u8 {
+    held()
+        .iter()
+        .enumerate()
+        .filter(|(_, held)| is(held))
+        .fold(0, |mask, (i, _)| mask | 1 << i)
+}
+
 /// The liveliness tokens of the routers that hold the contract (`@ecology/holds-contract/ZID`):
 /// a PEIS asks for them to know whether to ask a router alone.
 pub const HOLDERS: &str = "@ecology/holds-contract/*";
@@ -71,9 +80,10 @@ const ASK_WITHIN: Duration = Duration::from_secs(5);
 /// One tuple as its owner last sent it.
 struct Held {
     key_expr: KeyExpr<'static>,
-    /// Which of [`HELD`] it falls under: a question that covers all of that one takes it without
-    /// comparing key expressions.
-    under: usize,
+    /// Which of [`HELD`] it falls under, a bit each: a question that covers all of one of them
+    /// takes it, and one within one of them that it is not under passes it by, without comparing
+    /// key expressions.
+    under: u8,
     payload: ZBytes,
     encoding: Encoding,
     /// `encoding` as text, for a bundle.
@@ -130,10 +140,7 @@ fn take(state: &Shared, sample: &Sample) {
                 return;
             }
             let key_expr = sample.key_expr().clone().into_owned();
-            let under = held()
-                .iter()
-                .position(|held| held.intersects(&key_expr))
-                .unwrap_or(HELD.len());
+            let under = mask(|held| held.intersects(&key_expr));
             tuples.insert(
                 key,
                 Held {
@@ -354,21 +361,29 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
     let asked = query.key_expr().clone().into_owned();
     let bundle = query.parameters().contains_key(wire::BUNDLE_PARAMETER);
     let now = SystemClock.now().as_nanos();
-    // Each of the held key expressions the question covers whole.
-    let covers: Vec<bool> = held().iter().map(|held| asked.includes(held)).collect();
+    // The held key expressions the question covers whole, and those it lies within.
+    let covers = mask(|held| asked.includes(held));
+    let within = mask(|held| held.includes(&asked));
     let mut first = None;
     let mut bundled = wire::BundleWriter::default();
     let mut replies = Vec::new();
+    // A question about one PEIS (`peis/NAME/…`, as a querier catching up with a PEIS that
+    // appeared asks) weighs that PEIS's tuples alone, not those of every PEIS present.
+    let only = owner_of(asked.as_str());
     let pass_on: HashSet<PeisId> = {
         let state = lock(state);
-        for peis in &state.present {
+        let present: Vec<&PeisId> = match &only {
+            Some(owner) => state.present.get(owner).into_iter().collect(),
+            None => state.present.iter().collect(),
+        };
+        for peis in present {
             if state.asking.contains(peis) {
                 continue;
             }
             let mut any = false;
             for held in state.tuples.get(peis).into_iter().flat_map(HashMap::values) {
-                let asked_for = covers.get(held.under).copied().unwrap_or(false)
-                    || asked.intersects(&held.key_expr);
+                let asked_for = held.under & covers != 0
+                    || (within & !held.under == 0 && asked.intersects(&held.key_expr));
                 if held.expiry.is_some_and(|at| at <= now) || !asked_for {
                     continue;
                 }

@@ -435,7 +435,9 @@ const ZENOH_TIMEOUT: &[u8] = b"Timeout";
 
 /// Every tuple matching `pattern`, asked of the PEIS that own them.
 async fn query_tuples(core: &Core, pattern: &TuplePattern) -> Result<Vec<Tuple>, TupleError> {
-    Ok(query_tuples_answered(core, pattern).await?.tuples)
+    let mut tuples = query_tuples_answered(core, pattern).await?.tuples;
+    tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
+    Ok(tuples)
 }
 
 /// What a question of the ecology got.
@@ -480,6 +482,8 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     let mut tuples = Vec::new();
     let mut recent = Recent::default();
     let mut answered = true;
+    // The replies that carried tuples: a bundle counts once.
+    let mut sources = 0usize;
     let mut silent = None;
     let bundle_encoding = zenoh::bytes::Encoding::from(wire::BUNDLE_ENCODING);
     while let Ok(reply) = replies.recv_async().await {
@@ -487,6 +491,7 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
             answered = false;
             continue;
         };
+        sources += 1;
         if *sample.encoding() == bundle_encoding {
             let bytes = sample.payload().to_bytes();
             let Ok(bundle) = wire::decode_bundle(&bytes) else {
@@ -528,8 +533,13 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
             }
         }
     }
-    tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
-    tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
+    // A tuple heard from twice (two routers, or a router and its owner) is kept once, as heard
+    // first. A bundle alone holds each tuple once: its router holds one value a key. (Sorting the
+    // seven thousand tuples of a thousand PEIS's contract took a tenth of the question.)
+    if sources > 1 {
+        tuples.sort_by(|a, b| (&a.owner, &a.key).cmp(&(&b.owner, &b.key)));
+        tuples.dedup_by(|a, b| a.owner == b.owner && a.key == b.key);
+    }
     Ok(Answer {
         tuples,
         in_full: answered,
