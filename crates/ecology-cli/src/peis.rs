@@ -62,6 +62,28 @@ pub struct WorldArgs {
 /// on a small machine outlast the connect timeout, and some PEIS would not join.
 const JOINING_AT_ONCE: usize = 32;
 
+/// From how many PEIS a process holds, its presence lease defaults to [`BUSY_LEASE`] seconds
+/// instead of 2 (`--lease` still chooses).
+const MANY_PEIS: usize = 100;
+
+/// The default presence lease of a process of [`MANY_PEIS`] or more. A router drops a link it has
+/// heard nothing on for the lease its PEIS announced; a process of a thousand PEIS on 2 cores,
+/// busy starting them, went 2 s without a word on some of its sessions in about half of the runs
+/// (16 to 161 sessions dropped and joined again), and in none of three with 5 s.
+const BUSY_LEASE: f64 = 5.0;
+
+/// `net` with the presence lease a process of `peis` PEIS gets by default.
+fn with_default_lease(net: &NetArgs, peis: usize) -> NetArgs {
+    let mut net = net.clone();
+    if net.lease.is_none() && peis >= MANY_PEIS {
+        net.lease = Some(BUSY_LEASE);
+        say(&format!(
+            "{peis} PEIS in one process: presence lease {BUSY_LEASE} s (--lease to choose)"
+        ));
+    }
+    net
+}
+
 /// How often one PEIS of a process of several tries to join when its session cannot be opened
 /// while another PEIS of the process has joined through the same endpoints (so they can be
 /// reached, and the failure was the moment's: a router busy with hundreds of handshakes).
@@ -143,9 +165,10 @@ pub fn peis(args: &PeisArgs) -> anyhow::Result<u8> {
         // Up to JOINING_AT_ONCE PEIS join at a time (each join waits for the mesh to settle, so
         // not one after the other), in the file's order.
         let total = ids.len();
+        let net = with_default_lease(&args.net, total);
         let joined_any = AtomicBool::new(false);
         let mut joining = futures_util::stream::iter(ids)
-            .map(|id| join_retrying(id, &args.net, &joined_any))
+            .map(|id| join_retrying(id, &net, &joined_any))
             .buffered(JOINING_AT_ONCE);
         let mut spaces = Vec::new();
         // Each second of a long join says how far it is.

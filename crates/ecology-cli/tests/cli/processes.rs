@@ -862,6 +862,50 @@ fn a_peis_process_stopped_while_joining_exits_at_once() {
     );
 }
 
+/// A process of a hundred PEIS or more announces a presence lease of 5 s unless told one (a
+/// router dropped sessions of a busy process of a thousand that announced 2 s); one of a few keeps
+/// the default of 2 s, and `--lease` chooses for any.
+#[test]
+fn a_process_of_many_peis_takes_a_longer_lease() {
+    let _slot = process_slot();
+    let file = std::env::temp_dir().join(format!("ecology-lease-{}.toml", std::process::id()));
+    let file_text = file.to_string_lossy().to_string();
+    let made = Proc::start(
+        "generate",
+        &["generate", "home", "--peis", "101", "--output", &file_text],
+    )
+    .finish();
+    assert_eq!(made.0, Some(0), "{:?}", made.1);
+    let fixture = Fixture::new("lease", &[TO_BEDROOM], Variant::Paper);
+    let few = fixture.scenario();
+    for (scenario, lease, said) in [
+        (
+            file_text.as_str(),
+            None,
+            Some("100 PEIS in one process: presence lease 5 s (--lease to choose)"),
+        ),
+        (file_text.as_str(), Some("3"), None),
+        (few.as_str(), None, None),
+    ] {
+        // Nothing listens where they connect: they say what they announce, then keep trying.
+        let nobody = free_endpoint();
+        let mut args = vec!["peis", scenario, "--all", "--connect", &nobody, "--client"];
+        args.extend(lease.iter().flat_map(|l| ["--lease", l]));
+        let mut hosts = Proc::start("hosts", &args);
+        hosts.wait_for("progress", |l| l.starts_with("… "));
+        hosts.signal(Signal::SIGTERM);
+        let (code, lines) = hosts.finish();
+        assert_eq!(code, Some(0), "{lines:?}");
+        let leases: Vec<&str> = lines
+            .iter()
+            .map(|l| l.text.as_str())
+            .filter(|l| l.contains("presence lease"))
+            .collect();
+        assert_eq!(leases, said.into_iter().collect::<Vec<_>>(), "{args:?}");
+    }
+    let _ = std::fs::remove_file(&file);
+}
+
 #[test]
 fn the_papers_experiment_as_separate_processes() {
     let _slot = process_slot();
