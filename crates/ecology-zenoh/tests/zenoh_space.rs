@@ -1937,22 +1937,15 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
         assert_eq!(read("*:*.out.*").await, [], "outputs are not held");
         // A question about one PEIS is answered from what is held for it (ghost answers nothing
         // itself), under each of the held key expressions and within one of them.
-        assert_eq!(
-            read("ghost:*.*").await,
-            [("c1.status".to_string(), "running".to_string())]
-        );
-        assert_eq!(
-            read("ghost:components.**").await,
-            [("components.c1.type".to_string(), "cams".to_string())]
-        );
-        assert_eq!(
-            read("ghost:c1.*").await,
-            [("c1.status".to_string(), "running".to_string())]
-        );
-        assert_eq!(
-            read("ghost:components.*.type").await,
-            [("components.c1.type".to_string(), "cams".to_string())]
-        );
+        for (pattern, key, value) in [
+            ("ghost:*.*", "c1.status", "running"),
+            ("ghost:components.**", "components.c1.type", "cams"),
+            ("ghost:c1.*", "c1.status", "running"),
+            ("ghost:components.*.type", "components.c1.type", "cams"),
+        ] {
+            let expected = [(key.to_string(), value.to_string())];
+            assert_eq!(read(pattern).await, expected, "{pattern}");
+        }
         // Asked for a bundle, the router answers in one reply; asked as before, a reply a tuple.
         let asker = stock_router_client(&endpoint, PATIENCE)
             .await
