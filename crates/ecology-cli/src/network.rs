@@ -34,9 +34,10 @@ pub struct NetArgs {
     #[arg(long, global = true, value_name = "SECONDS")]
     pub connect_timeout: Option<f64>,
     /// Presence lease in seconds: when this process freezes or its network is cut, the others
-    /// notice within this long (default 2; 5 for a process of 100 PEIS or more, which its
-    /// router could otherwise drop while it is busy starting them). A PEIS joining waits this long plus 1 s for another
-    /// of its name to leave (a run that just stopped) before it takes the name as taken.
+    /// notice within this long (default 2; 5 for a process of 100 PEIS or more, which its router
+    /// could otherwise drop while it is busy starting them). A PEIS joining waits this long plus
+    /// 1 s for another of its name to leave (a run that just stopped) before it takes the name as
+    /// taken.
     #[arg(long, global = true, value_name = "SECONDS")]
     pub lease: Option<f64>,
     /// The ecology's keys directory (made by `ecology keys`): join with this PEIS's certificate
