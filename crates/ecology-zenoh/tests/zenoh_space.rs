@@ -4,6 +4,7 @@
 use std::io::BufRead;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use ecology_tuples::conformance::{Harness, next_event, until, wait_presence};
@@ -1474,6 +1475,26 @@ fn start_router_with(
     (endpoint, stop)
 }
 
+/// A queryable of `session` on `key_expr` that counts the queries it gets and hands each to
+/// `answer`: the count, and the queryable (it answers while kept).
+async fn counting_queryable(
+    session: &zenoh::Session,
+    key_expr: &str,
+    answer: impl Fn(zenoh::query::Query) + Send + Sync + 'static,
+) -> (Arc<AtomicUsize>, zenoh::query::Queryable<()>) {
+    let count = Arc::new(AtomicUsize::new(0));
+    let counter = count.clone();
+    let queryable = session
+        .declare_queryable(key_expr.to_owned())
+        .callback(move |query| {
+            counter.fetch_add(1, Ordering::Relaxed);
+            answer(query);
+        })
+        .await
+        .expect("queryable");
+    (count, queryable)
+}
+
 /// A raw Zenoh client of the router at `endpoint`, giving up connecting after `timeout`.
 async fn stock_router_client(endpoint: &str, timeout: Duration) -> zenoh::Result<zenoh::Session> {
     let mut config = zenoh::Config::default();
@@ -1579,7 +1600,6 @@ async fn a_full_router_says_so_and_takes_a_session_again_once_one_leaves() {
 /// client counts the queries it is sent for `a`'s tuples and for its own.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
-    use std::sync::atomic::{AtomicUsize, Ordering};
     // A router that holds nothing: every PEIS answers for itself (the router that holds the
     // contract is `a_router_answers_for_the_contract_of_every_peis_until_it_goes`).
     let options = ecology_zenoh::RouterOptions {
@@ -1589,20 +1609,8 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
     let (endpoint, _stop) = start_router_with(options, |_| {});
     tokio::time::sleep(Duration::from_millis(300)).await;
     let spy = stock_router_client(&endpoint, PATIENCE).await.expect("spy");
-    let count = |key_expr: &str| {
-        let asked = Arc::new(AtomicUsize::new(0));
-        let counter = asked.clone();
-        let queryable = spy
-            .declare_queryable(key_expr.to_owned())
-            .callback(move |_query| {
-                counter.fetch_add(1, Ordering::Relaxed);
-            });
-        (asked, queryable)
-    };
-    let (asked_about_a, about_a) = count("peis/a/**");
-    let _about_a = about_a.await.expect("queryable");
-    let (asked_the_spy, of_spy) = count("peis/spy/**");
-    let _of_spy = of_spy.await.expect("queryable");
+    let (asked_about_a, _about_a) = counting_queryable(&spy, "peis/a/**", drop).await;
+    let (asked_the_spy, _of_spy) = counting_queryable(&spy, "peis/spy/**", drop).await;
     // Present as a PEIS is, its queryables declared before its token.
     let _token = spy
         .liveliness()
@@ -1645,7 +1653,6 @@ async fn through_a_router_a_peis_asks_for_nothing_it_has_and_asks_once() {
 /// and the client is asked far fewer than 40 questions.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn peis_appearing_together_are_caught_up_with_in_one_question() {
-    use std::sync::atomic::{AtomicUsize, Ordering};
     let (endpoint, _stop) = start_router(8, |_| {});
     tokio::time::sleep(Duration::from_millis(300)).await;
     let a = router_client_peis("a", &endpoint).await;
@@ -1656,31 +1663,25 @@ async fn peis_appearing_together_are_caught_up_with_in_one_question() {
     let crowd = stock_router_client(&endpoint, PATIENCE)
         .await
         .expect("crowd");
-    let asked = Arc::new(AtomicUsize::new(0));
-    let counter = asked.clone();
-    let _queryable = crowd
-        .declare_queryable("peis/**")
-        .callback(move |query| {
-            counter.fetch_add(1, Ordering::Relaxed);
-            let Some(rest) = query.key_expr().as_str().strip_prefix("peis/") else {
-                return;
-            };
-            let owners: Vec<String> = match rest.split('/').next() {
-                Some("*") => (0..40).map(|i| format!("s{i}")).collect(),
-                Some(one) if one.starts_with('s') => vec![one.to_string()],
-                _ => return,
-            };
-            for owner in owners {
-                let meta = stock_meta(1);
-                let _ = zenoh::Wait::wait(
-                    query
-                        .reply(format!("peis/{owner}/m1/out/velocity"), "0.1 0")
-                        .attachment(meta.encode()),
-                );
-            }
-        })
-        .await
-        .expect("queryable");
+    let (asked, _queryable) = counting_queryable(&crowd, "peis/**", |query| {
+        let Some(rest) = query.key_expr().as_str().strip_prefix("peis/") else {
+            return;
+        };
+        let owners: Vec<String> = match rest.split('/').next() {
+            Some("*") => (0..40).map(|i| format!("s{i}")).collect(),
+            Some(one) if one.starts_with('s') => vec![one.to_string()],
+            _ => return,
+        };
+        for owner in owners {
+            let meta = stock_meta(1);
+            let _ = zenoh::Wait::wait(
+                query
+                    .reply(format!("peis/{owner}/m1/out/velocity"), "0.1 0")
+                    .attachment(meta.encode()),
+            );
+        }
+    })
+    .await;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let mut tokens = Vec::new();
     for i in 0..40 {
@@ -1775,7 +1776,6 @@ async fn through_a_router_a_peis_knows_who_reads_its_outputs() {
 /// Both are read through the router.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_router_does_not_ask_a_peis_it_saw_start() {
-    use std::sync::atomic::{AtomicUsize, Ordering};
     let (endpoint, _stop) = start_router(8, |_| {});
     tokio::time::sleep(Duration::from_millis(300)).await;
     let mut asked = Vec::new();
@@ -1784,15 +1784,8 @@ async fn a_router_does_not_ask_a_peis_it_saw_start() {
         let client = stock_router_client(&endpoint, PATIENCE)
             .await
             .expect("client");
-        let count = Arc::new(AtomicUsize::new(0));
-        let counter = count.clone();
-        let queryable = client
-            .declare_queryable(format!("peis/{name}/**"))
-            .callback(move |_query| {
-                counter.fetch_add(1, Ordering::Relaxed);
-            })
-            .await
-            .expect("queryable");
+        let (count, queryable) =
+            counting_queryable(&client, &format!("peis/{name}/**"), drop).await;
         // A new client sends a put only once it knows of a subscriber: the router's, here.
         tokio::time::sleep(Duration::from_millis(300)).await;
         let token = client
@@ -1864,7 +1857,7 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
             .await
             .expect("ghost");
         // It answers no query, and counts those asked of every PEIS (`peis/*/…`).
-        let asked = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let asked = Arc::new(AtomicUsize::new(0));
         let counter = asked.clone();
         let _queryable = ghost
             .declare_queryable("peis/ghost/**")
