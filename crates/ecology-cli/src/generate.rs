@@ -37,7 +37,7 @@ pub struct HomeArgs {
     #[arg(long, short, value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// The task's domain, written into the file as an absolute path.
-    #[arg(long, value_name = "FILE", default_value = "domains/peis-home.eco")]
+    #[arg(long, value_name = "FILE", default_value = "domains/peis-building.eco")]
     pub domain: PathBuf,
     /// The task's problem, written into the file as an absolute path.
     #[arg(

@@ -53,7 +53,7 @@ pub use model::{
     RequestError, Snapshot, Stats, Status,
 };
 pub use planner::{Progress, Search};
-pub use relevant::component_types;
+pub use relevant::{component_types, facts_at_action};
 
 use planner::{Prepared, plan_prepared};
 

@@ -10,9 +10,9 @@
 //! negated `pc`, a `cost` or `status` of a component no constant-type `pc`
 //! binds) needs the whole state.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 
-use ecology_domain::{Call, Domain, Literal, Term};
+use ecology_domain::{Call, Domain, Fact, Literal, Term};
 
 /// The component types a configuration for `goal` can use, or `None` when
 /// the goal's methods and functionalities could use a component of any type
@@ -75,6 +75,63 @@ fn types_of(precondition: &[Literal], types: &mut BTreeSet<String>) -> Option<()
     Some(())
 }
 
+/// The world a configuration for `action` (an action of `domain` written `(move astrid
+/// living-room entrance)`) is planned in: the ground atoms of its precondition whose predicates a
+/// functionality or method of `domain` reads. The action planner started the action where its
+/// precondition holds, so they hold when it starts; a method can ask where the robot is
+/// (`(at ?r ?x)`). Empty for an action `domain` does not know, or written otherwise.
+pub fn facts_at_action(domain: &Domain, action: &str) -> Vec<Fact> {
+    let Ok(call) = ecology_domain::parse_goal(action) else {
+        return Vec::new();
+    };
+    let Some(schema) = domain.action(&call.name) else {
+        return Vec::new();
+    };
+    if schema.params.len() != call.args.len() {
+        return Vec::new();
+    }
+    let mut bound = HashMap::new();
+    for (param, arg) in schema.params.iter().zip(&call.args) {
+        let Term::Const(value) = arg else {
+            return Vec::new();
+        };
+        bound.insert(&*param.name, value.clone());
+    }
+    let read: BTreeSet<&str> = domain
+        .functionalities
+        .iter()
+        .map(|f| &f.precondition)
+        .chain(domain.methods.iter().map(|m| &m.precondition))
+        .flatten()
+        .filter_map(|literal| match literal {
+            Literal::Pos(atom) | Literal::Neg(atom) => Some(&*atom.predicate),
+            _ => None,
+        })
+        .collect();
+    schema
+        .precondition
+        .iter()
+        .filter_map(|literal| match literal {
+            Literal::Pos(atom) if read.contains(&*atom.predicate) => Some(atom),
+            _ => None,
+        })
+        .filter_map(|atom| {
+            let args = atom
+                .args
+                .iter()
+                .map(|term| match term {
+                    Term::Const(c) => Some(c.clone()),
+                    Term::Var(v) => bound.get(&**v).cloned(),
+                })
+                .collect::<Option<Vec<_>>>()?;
+            Some(Fact {
+                predicate: atom.predicate.clone(),
+                args,
+            })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -115,6 +172,43 @@ mod tests {
         let d = domain(SEE);
         assert_eq!(component_types(&d, &goal("(look robot)")), None);
         assert_eq!(component_types(&d, &goal("(fly robot)")), None);
+    }
+
+    const MOVE: &str = r#"(define (domain d)
+      (:requirements :strips :typing)
+      (:types robot room)
+      (:predicates (at ?r - robot ?x - room) (connected ?a ?b - room) (lit ?x - room))
+      (:functionality cam :parameters (?p ?c) :component (?p ?c)
+        :precondition (pc ?p cam ?c) :output ((image ?p)) :cost 5)
+      (:task see :parameters (?r))
+      (:method see-where-it-is :parameters (?r ?p ?c ?x) :task (see ?r)
+        :precondition (and (at ?r ?x) (covers ?p ?c ?x) (pc ?p cam ?c))
+        :subtasks ((f1 (cam ?p ?c))))
+      (:action move :parameters (?r - robot ?from ?to - room)
+        :precondition (and (at ?r ?from) (connected ?from ?to) (lit ?to) (not (= ?from ?to)))
+        :effect (and (at ?r ?to) (not (at ?r ?from)))
+        :configure (see ?r)))"#;
+
+    #[test]
+    fn an_action_brings_the_atoms_of_its_precondition_that_methods_read() {
+        let d = domain(MOVE);
+        let facts = facts_at_action(&d, "(move astrid hall kitchen)");
+        let shown: Vec<String> = facts
+            .iter()
+            .map(|f| format!("({} {})", f.predicate, f.args.join(" ")))
+            .collect();
+        // `connected` and `lit` hold too, but no method or functionality reads them.
+        assert_eq!(shown, ["(at astrid hall)"]);
+    }
+
+    #[test]
+    fn an_action_the_domain_does_not_know_brings_nothing() {
+        let d = domain(MOVE);
+        assert!(facts_at_action(&d, "(fly astrid hall kitchen)").is_empty());
+        assert!(facts_at_action(&d, "(move astrid hall)").is_empty());
+        assert!(facts_at_action(&d, "move astrid hall kitchen").is_empty());
+        assert!(facts_at_action(&d, "(move astrid ?x kitchen)").is_empty());
+        assert!(facts_at_action(&d, "").is_empty());
     }
 
     #[test]

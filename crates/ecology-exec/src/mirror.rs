@@ -34,6 +34,8 @@ pub struct ComponentView {
     pub params: Option<String>,
     /// `components.C.holders`: the executives that hold it (claims), in the order they claimed it.
     pub holders: Vec<PeisId>,
+    /// `components.C.covers`: the places it sees, as it said them (empty: it did not say).
+    pub covers: Vec<String>,
 }
 
 /// What the mirror knows of one PEIS.
@@ -191,7 +193,8 @@ impl Mirror {
 
     /// The ecology state: `(peis P)` for present PEIS, and for each of their
     /// components with a known type `(pc P TYPE C)`, `(cost P C N on|off)`,
-    /// `(status P C S)` and, for each other executive that holds it,
+    /// `(status P C S)`, `(covers P C PLACE)` for each place it sees and, for each other
+    /// executive that holds it,
     /// `(held P C HOLDER FUNCTIONALITY ARG…)` with the instance it runs
     /// (`idle` when it runs none), plus the given world facts. With `types`, only the components
     /// of those types are in it: a goal whose methods name the types they can use
@@ -200,8 +203,10 @@ impl Mirror {
     pub fn state(&self, world: &EcologyState, types: Option<&BTreeSet<String>>) -> EcologyState {
         // Each name's text made once for the whole state, not once for every fact it is in.
         let mut words = Words::default();
-        let [peis, pc, cost, status, held, on, off, idle] =
-            ["peis", "pc", "cost", "status", "held", "on", "off", "idle"].map(Name::from);
+        let [peis, pc, cost, status, held, covers, on, off, idle] = [
+            "peis", "pc", "cost", "status", "held", "covers", "on", "off", "idle",
+        ]
+        .map(Name::from);
         let mut state = EcologyState::with_capacity(8 * self.peis.len() + world.facts().len());
         let fact = |predicate: &Name, args: Vec<Name>| Fact {
             predicate: predicate.clone(),
@@ -227,6 +232,9 @@ impl Mirror {
                 }
                 if let Some(s) = &comp.status {
                     state.insert(fact(&status, vec![p.clone(), c.clone(), words.of(s)]));
+                }
+                for place in &comp.covers {
+                    state.insert(fact(&covers, vec![p.clone(), c.clone(), words.of(place)]));
                 }
                 for holder in comp.holders.iter().filter(|h| Some(*h) != self.me.as_ref()) {
                     let params = comp.params.as_deref().unwrap_or("");
@@ -310,6 +318,9 @@ impl PeisView {
             }
             ComponentField::Cause => c.cause = Some(value.to_string()),
             ComponentField::Params => c.params = Some(value.to_string()),
+            ComponentField::Covers => {
+                c.covers = value.split_whitespace().map(str::to_string).collect();
+            }
             ComponentField::Observed => {
                 return Some(Change::Observed {
                     peis: owner.clone(),
@@ -371,7 +382,8 @@ mod tests {
 
     use super::Mirror;
 
-    /// A state with the given types leaves out the components of other types, and only them.
+    /// A state with the given types leaves out the components of other types, and only them;
+    /// the rooms a component covers are facts of it.
     #[test]
     fn a_state_for_some_types_has_only_their_components() {
         let mut mirror = Mirror::new();
@@ -379,7 +391,9 @@ mod tests {
             ("hsm", "components.ca1.type", "cams"),
             ("hsm", "components.ca1.cost", "20"),
             ("hsm", "ca1.status", "running"),
+            ("hsm", "components.ca1.covers", " kitchen  living-room "),
             ("app-7", "components.pl1.type", "player"),
+            ("app-7", "components.pl1.covers", "kitchen"),
             ("app-7", "components.pl1.cost", "5"),
             ("app-7", "pl1.status", "idle"),
         ];
@@ -396,14 +410,17 @@ mod tests {
         let all = text(mirror.state(&EcologyState::default(), None));
         assert_eq!(
             all,
-            "(cost app-7 pl1 5 off) (cost hsm ca1 20 off) (pc app-7 player pl1) (pc hsm cams ca1) \
-             (peis app-7) (peis hsm) (status app-7 pl1 idle) (status hsm ca1 running)"
+            "(cost app-7 pl1 5 off) (cost hsm ca1 20 off) (covers app-7 pl1 kitchen) \
+             (covers hsm ca1 kitchen) (covers hsm ca1 living-room) (pc app-7 player pl1) \
+             (pc hsm cams ca1) (peis app-7) (peis hsm) (status app-7 pl1 idle) \
+             (status hsm ca1 running)"
         );
         let cams = BTreeSet::from(["cams".to_string()]);
         let some = text(mirror.state(&EcologyState::default(), Some(&cams)));
         assert_eq!(
             some,
-            "(cost hsm ca1 20 off) (pc hsm cams ca1) (peis app-7) (peis hsm) (status hsm ca1 running)"
+            "(cost hsm ca1 20 off) (covers hsm ca1 kitchen) (covers hsm ca1 living-room) \
+             (pc hsm cams ca1) (peis app-7) (peis hsm) (status hsm ca1 running)"
         );
     }
 }

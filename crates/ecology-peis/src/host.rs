@@ -51,6 +51,9 @@ pub struct ComponentSpec<S: TupleSpace> {
     pub on: bool,
     /// How long switching it on takes.
     pub startup: Duration,
+    /// The places it sees (`components.C.covers`), such as the rooms a ceiling camera is mounted
+    /// over; empty when it does not say.
+    pub covers: Vec<String>,
     /// Its body.
     pub body: Arc<dyn Component<S>>,
 }
@@ -63,6 +66,7 @@ impl<S: TupleSpace> std::fmt::Debug for ComponentSpec<S> {
             .field("cost", &self.cost)
             .field("on", &self.on)
             .field("startup", &self.startup)
+            .field("covers", &self.covers)
             .finish_non_exhaustive()
     }
 }
@@ -170,6 +174,12 @@ pub async fn run_host_with<S: TupleSpace>(
         space
             .set(field(&c, ComponentField::Status)?, Value::text("idle"))
             .await?;
+        if !spec.covers.is_empty() {
+            let places = spec.covers.join(" ");
+            space
+                .set(field(&c, ComponentField::Covers)?, Value::text(places))
+                .await?;
+        }
         states.insert(
             c,
             Box::new(State {

@@ -134,6 +134,7 @@ fn spec(
         cost: 100,
         on,
         startup: Duration::from_secs(1),
+        covers: Vec::new(),
         body,
     }
 }

@@ -27,7 +27,7 @@ use ecology_tuples::contract::{quoted, unreadable_cause};
 use ecology_tuples::world::{AWAKE, Command, Point, WORLD, WorldKey, world_pattern};
 use ecology_tuples::{Clock, Subscription, Timestamp, TupleEvent, TupleSpace, Value};
 
-use crate::world::{self, MAX_SPEED, MAX_TURN, Map, Pose, ray, wrap_angle};
+use crate::world::{self, MAX_SPEED, MAX_TURN, Map, Pose, Room, ray, wrap_angle};
 use ecology_core::Rng;
 
 /// The component types the simulator provides (the `pc` facts' types).
@@ -93,6 +93,8 @@ pub struct Simulated {
     kind: String,
     faults: Faults,
     seed: u64,
+    /// The rooms a ceiling camera sees; empty: every room.
+    covers: Arc<[String]>,
 }
 
 impl Simulated {
@@ -103,8 +105,26 @@ impl Simulated {
             kind: kind.to_string(),
             faults,
             seed,
+            covers: Arc::from([]),
         })
     }
+
+    /// The same component, seeing only the rooms `covers` names when it is a ceiling camera
+    /// (`cams`); with none, it sees every room.
+    pub fn covering(mut self, covers: &[String]) -> Simulated {
+        self.covers = Arc::from(covers);
+        self
+    }
+}
+
+/// What a camera sees.
+enum Sight {
+    /// Every room of the map: ceiling cameras that do not say what they cover.
+    Everywhere,
+    /// These rooms: ceiling cameras mounted over them.
+    Rooms(Arc<[String]>),
+    /// Within this many metres in its own room, itself aside: a robot's camera.
+    Range(f64),
 }
 
 impl<S: TupleSpace> Component<S> for Simulated {
@@ -126,8 +146,9 @@ impl<S: TupleSpace> Component<S> for Simulated {
                 shown: None,
             };
             match (sim.kind.as_str(), functionality.as_str()) {
-                ("cams", _) => body.cameras(None).await,
-                ("cam", _) => body.cameras(Some(3.5)).await,
+                ("cams", _) if sim.covers.is_empty() => body.cameras(Sight::Everywhere).await,
+                ("cams", _) => body.cameras(Sight::Rooms(sim.covers.clone())).await,
+                ("cam", _) => body.cameras(Sight::Range(3.5)).await,
                 ("tr-sys", _) => body.tracker(true).await,
                 ("obj-loc", _) => body.localizer().await,
                 ("laser", _) => body.laser().await,
@@ -394,11 +415,10 @@ impl<S: TupleSpace> Body<S> {
             })
     }
 
-    /// Ceiling cameras (`range = None`: they see the whole home) or a robot's
-    /// camera (sees robots and things within `range` metres in the same
-    /// room): `image` holds what it sees, as `NAME X Y THETA; …` (a thing's
-    /// heading is 0).
-    async fn cameras(&mut self, range: Option<f64>) -> Result<(), ComponentError> {
+    /// Ceiling cameras (they see the rooms they cover, or the whole home) or a robot's camera
+    /// (sees robots and things within range in the same room): `image` holds what it sees, as
+    /// `NAME X Y THETA; …` (a thing's heading is 0).
+    async fn cameras(&mut self, sight: Sight) -> Result<(), ComponentError> {
         let mut truth = Truth::follow(&self.ctx).await?;
         let me = self.ctx.peis().to_string();
         loop {
@@ -420,15 +440,31 @@ impl<S: TupleSpace> Body<S> {
                     // written out only if someone reads it, now or before the next one.
                     let map = truth.map().unwrap_or_default();
                     let viewpoint = truth.robot(&me);
+                    let covered: Vec<&Room> = match &sight {
+                        Sight::Rooms(names) => map
+                            .rooms
+                            .iter()
+                            .filter(|r| names.contains(&r.name))
+                            .collect(),
+                        Sight::Everywhere | Sight::Range(_) => Vec::new(),
+                    };
                     let mut seen = Vec::new();
                     for (name, pose) in robots {
-                        if let (Some(range), Some(eye)) = (range, viewpoint) {
-                            let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
-                                == map.room_at(pose.x, pose.y).map(|r| &r.name);
-                            if *name == *me || !same_room || eye.distance_to(pose.x, pose.y) > range
-                            {
-                                continue;
+                        let visible = match (&sight, viewpoint) {
+                            (Sight::Everywhere, _) | (Sight::Range(_), None) => true,
+                            (Sight::Rooms(_), _) => {
+                                covered.iter().any(|r| r.contains(pose.x, pose.y))
                             }
+                            (Sight::Range(range), Some(eye)) => {
+                                let same_room = map.room_at(eye.x, eye.y).map(|r| &r.name)
+                                    == map.room_at(pose.x, pose.y).map(|r| &r.name);
+                                *name != *me
+                                    && same_room
+                                    && eye.distance_to(pose.x, pose.y) <= *range
+                            }
+                        };
+                        if !visible {
+                            continue;
                         }
                         let noisy = Pose::new(
                             pose.x + self.rng.gaussian(0.02),

@@ -4,16 +4,20 @@
 //! Astrid, Pippi, the newspaper, Johanna, and the PEIS `astrid`, `hsm` and `pippi`), with a wing
 //! of further rooms to the east and `N − 4` more devices in them (the world is the fourth PEIS):
 //!
-//! - *monitors* (`mon-K`): ceiling cameras and a tracking system, like hsm. Their costs are drawn
-//!   around hsm's, so some are cheaper routes for Astrid's navigation and some dearer;
+//! - *monitors* (`mon-K`): ceiling cameras and a tracking system, like hsm, the cameras covering
+//!   the wing room the monitor stands in (hsm's cover the four rooms of the home). Their costs are
+//!   drawn around hsm's: cheaper or dearer, they track only what is in their room;
 //! - *robots* (`bot-K`): a laser, odometry, a thinking cap, self-localization, a camera and an
 //!   object localizer, standing in a wing room. Their object localizers are dear, so tracking Astrid
 //!   with them is an alternative the planner weighs and rejects;
 //! - *appliances* (`app-K`): a fridge's or an oven's server (`player`), which no step of the task
 //!   uses.
 //!
-//! The paper's task stays solvable: astrid, hsm and pippi are as in `scenarios/peis-home.toml`.
-//! The same `N` and seed give the same file.
+//! The paper's task stays solvable: astrid, hsm and pippi are as in `scenarios/peis-home.toml`,
+//! hsm's cameras covering the home. The task's domain should be `domains/peis-building.eco`, whose
+//! ceiling cameras track a robot only in a room they cover; with `domains/peis-home.eco`, a
+//! cheaper monitor in the wing is chosen and never sees Astrid. The same `N` and seed give the
+//! same file.
 
 use std::fmt::Write;
 
@@ -135,7 +139,8 @@ pub fn home(peis: usize, seed: u64, domain: &str, problem: &str) -> Result<Strin
          {{ id = \"gr1\", type = \"gripp\",    cost = 90,  on = false, startup = 1.0 }},\n  \
          {{ id = \"sp1\", type = \"speak\",    cost = 10,  on = false, startup = 0.5 }},\n]\n\n\
          [[peis]]\nname = \"hsm\"\ncomponents = [\n  \
-         {{ id = \"ca1\", type = \"cams\",   cost = 20, on = true }},\n  \
+         {{ id = \"ca1\", type = \"cams\",   cost = 20, on = true, \
+         covers = [\"living-room\", \"kitchen\", \"entrance\", \"bedroom\"] }},\n  \
          {{ id = \"tr1\", type = \"tr-sys\", cost = 20, on = true }},\n]\n\n\
          [[peis]]\nname = \"pippi\"\ncomponents = [\n  \
          {{ id = \"ca2\", type = \"cam\",     cost = 20,  on = true }},\n  \
@@ -146,6 +151,7 @@ pub fn home(peis: usize, seed: u64, domain: &str, problem: &str) -> Result<Strin
         let mut cost = |low: u64, high: u64| low + rng.below(high - low + 1);
         match device {
             Device::Monitor => {
+                let room = k / PER_ROOM;
                 let (cams, tracking) = (cost(10, 35), cost(10, 35));
                 let on = rng.chance(0.7);
                 let startup = if on {
@@ -156,7 +162,7 @@ pub fn home(peis: usize, seed: u64, domain: &str, problem: &str) -> Result<Strin
                 let _ = writeln!(
                     w,
                     "[[peis]]\nname = \"mon-{k}\"\ncomponents = [\n  \
-                     {{ id = \"ca1\", type = \"cams\",   cost = {cams}, on = true }},\n  \
+                     {{ id = \"ca1\", type = \"cams\",   cost = {cams}, on = true, covers = [\"wing-{room}\"] }},\n  \
                      {{ id = \"tr1\", type = \"tr-sys\", cost = {tracking}, on = {on}, startup = {startup:.1} }},\n]\n"
                 );
             }

@@ -28,13 +28,14 @@ pub fn simulated_components<S: TupleSpace>(
         .iter()
         .filter(|c| c.ros2.is_none())
         .filter_map(|c| {
-            let body = Simulated::new(&c.kind, faults.clone(), seed)?;
+            let body = Simulated::new(&c.kind, faults.clone(), seed)?.covering(&c.covers);
             Some(ComponentSpec {
                 name: c.id.clone(),
                 kind: c.kind.clone(),
                 cost: c.cost,
                 on: c.on,
                 startup: c.startup,
+                covers: c.covers.clone(),
                 body: Arc::new(body),
             })
         })
@@ -79,6 +80,7 @@ pub fn ros2_components<S: TupleSpace>(def: &PeisDef, agent: &Agent) -> Vec<Compo
                 cost: c.cost,
                 on: c.on,
                 startup: c.startup,
+                covers: c.covers.clone(),
                 body: Arc::new(body),
             })
         })

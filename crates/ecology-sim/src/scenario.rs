@@ -142,6 +142,9 @@ pub struct ComponentDef {
     /// The ROS 2 lifecycle node it is, if it is one (`ros2` in the file), its topics resolved;
     /// else it is simulated.
     pub ros2: Option<ecology_ros2::NodeSpec>,
+    /// The rooms it sees (`covers`), published as `components.C.covers`; empty when it does not
+    /// say. A simulated ceiling camera (`cams`) that says sees only these rooms.
+    pub covers: Vec<String>,
 }
 
 /// One PEIS of a scenario.
@@ -340,6 +343,8 @@ struct ComponentFile {
     on: bool,
     #[serde(default)]
     startup: f64,
+    #[serde(default)]
+    covers: Vec<String>,
     ros2: Option<Ros2File>,
 }
 
@@ -540,6 +545,7 @@ impl Scenario {
         let map = parse_map(&check, &parsed.map)?;
         let (world, places) = parse_world(&check, &parsed, map)?;
         let peis = check_peis(&check, &parsed.peis)?;
+        check_covers(&check, &parsed)?;
         let tasks = parse_tasks(&check, &parsed, &peis, time_limit, &read_named)?;
         let faults = parse_faults(&check, &parsed.faults, &peis, &tasks)?;
         Ok(Scenario {
@@ -1051,6 +1057,25 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
             }
             let startup = seconds(def.startup)
                 .ok_or_else(|| check.at(c.span(), "startup must be a number of seconds"))?;
+            let mut covers: Vec<String> = Vec::new();
+            for place in &def.covers {
+                if !is_name(place) {
+                    return Err(check.at(
+                        c.span(),
+                        format!(
+                            "component {}: `{place}` cannot name a room it covers",
+                            def.id
+                        ),
+                    ));
+                }
+                if covers.contains(place) {
+                    return Err(check.at(
+                        c.span(),
+                        format!("component {} covers {place} twice", def.id),
+                    ));
+                }
+                covers.push(place.clone());
+            }
             components.push(ComponentDef {
                 id: def.id.clone(),
                 kind: def.kind.clone(),
@@ -1058,6 +1083,7 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
                 on: def.on,
                 startup,
                 ros2,
+                covers,
             });
         }
         peis.push(PeisDef {
@@ -1066,6 +1092,32 @@ fn check_peis(check: &Checker<'_>, files: &[PeisFile]) -> Result<Vec<PeisDef>, S
         });
     }
     Ok(peis)
+}
+
+/// Every room a component covers is one of the map's.
+fn check_covers(check: &Checker<'_>, parsed: &File) -> Result<(), ScenarioError> {
+    let rooms: BTreeSet<&str> = parsed
+        .map
+        .rooms
+        .iter()
+        .map(|r| r.get_ref().name.as_str())
+        .collect();
+    for p in &parsed.peis {
+        for c in &p.components {
+            let def = c.get_ref();
+            if let Some(place) = def.covers.iter().find(|r| !rooms.contains(r.as_str())) {
+                return Err(check.at(
+                    c.span(),
+                    format!(
+                        "component {}:{} covers {place}, which is no room of the map",
+                        p.name.get_ref(),
+                        def.id
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A file read only for its `[[peis]]` tables (a scenario file, or a file of PEIS alone).

@@ -196,6 +196,32 @@ fn bad_scenario_files_are_reported_with_their_line() {
     );
 }
 
+/// A component may say which rooms it covers; they must be rooms of the map, each named once.
+#[test]
+fn the_rooms_a_camera_covers_are_rooms_of_the_map() {
+    let good = std::fs::read_to_string(scenario_path("kitchen.toml")).expect("reads");
+    let cams = "type = \"cams\",   cost = 20, on = true";
+    assert!(good.contains(cams), "kitchen.toml changed");
+    let covering = |rooms: &str| good.replace(cams, &format!("{cams}, covers = [{rooms}]"));
+    let scenario = parse(&covering("\"kitchen\", \"living-room\"")).expect("loads");
+    let hsm = scenario.peis.iter().find(|p| p.name == "hsm").expect("hsm");
+    let covers: Vec<&[String]> = hsm.components.iter().map(|c| c.covers.as_slice()).collect();
+    assert_eq!(covers, [&["kitchen", "living-room"][..], &[]]);
+
+    let e = error_of(&covering("\"kitchen\", \"attic\""));
+    assert!(e.starts_with("bad.toml:"), "{e}");
+    assert!(
+        e.contains("component hsm:ca1 covers attic, which is no room of the map"),
+        "{e}"
+    );
+    let e = error_of(&covering("\"kitchen\", \"kitchen\""));
+    assert!(e.contains("component ca1 covers kitchen twice"), "{e}");
+    let e = error_of(&covering("\"kit chen\""));
+    assert!(e.contains("`kit chen` cannot name a room it covers"), "{e}");
+    let e = error_of(&covering("3"));
+    assert!(e.starts_with("bad.toml:"), "{e}");
+}
+
 #[test]
 fn scenario_files_are_read_with_a_size_limit_and_utf8_errors_have_a_place() {
     let e = PeisDef::load_all(Path::new("/dev/zero")).expect_err("not a scenario");
@@ -598,13 +624,11 @@ fn bytes_of(text: &str) -> bytes::Bytes {
     bytes::Bytes::copy_from_slice(text.as_bytes())
 }
 
-// A generated building: the same seed gives the same file, it loads, and the paper's
-// task is done in it; some of its new monitors are cheaper routes than hsm's.
 /// The on-demand executive (the default) reads only the PEIS with a component its goals can
 /// use, and chooses exactly the configurations the executive reading everything chooses.
 #[tokio::test]
 async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
-    let domain = scenario_path("../domains/peis-home.eco");
+    let domain = scenario_path("../domains/peis-building.eco");
     let problem = scenario_path("../domains/peis-home-task.problem");
     let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
     let mut reconfigured = 0;
@@ -665,9 +689,12 @@ async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
     assert!(reconfigured > 0, "no fault changed a configuration");
 }
 
+// A generated building: the same seed gives the same file, it loads, and the paper's task is
+// done in it. Some of its new monitors would be cheaper routes than hsm's, but their cameras
+// cover wing rooms, not Astrid's: the navigation is tracked by hsm's, which cover the home.
 #[tokio::test]
 async fn a_generated_home_runs_the_papers_task() {
-    let domain = scenario_path("../domains/peis-home.eco");
+    let domain = scenario_path("../domains/peis-building.eco");
     let problem = scenario_path("../domains/peis-home-task.problem");
     let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
     let text = crate::generate::home(60, 3, &domain, &problem).expect("generated");
@@ -688,8 +715,36 @@ async fn a_generated_home_runs_the_papers_task() {
     let report = run_seeded(&scenario, 3).await;
     let text = timeline(&report);
     assert_eq!(report.status, RunStatus::Done, "{text}");
-    let first = configurations(&report)[0].0;
-    assert!(first < 80, "a cheaper monitor than hsm's 80: {text}");
+    let cheaper = scenario.peis.iter().find(|p| {
+        let cost = |ty: &str| p.components.iter().find(|c| c.kind == ty).map(|c| c.cost);
+        p.name.starts_with("mon-")
+            && p.components.iter().all(|c| c.on)
+            && cost("cams")
+                .zip(cost("tr-sys"))
+                .is_some_and(|(a, b)| a + b < 40)
+    });
+    let cheaper = cheaper.expect("a monitor cheaper than hsm's cameras and tracker (40)");
+    assert!(
+        cheaper
+            .components
+            .iter()
+            .any(|c| c.covers.iter().any(|r| r.starts_with("wing-"))),
+        "{cheaper:?}"
+    );
+    let navigations: Vec<_> = configurations(&report)
+        .into_iter()
+        .filter(|c| c.2.iter().any(|f| f.starts_with("(navigation")))
+        .collect();
+    assert_eq!(navigations.len(), 2, "{text}");
+    for (cost, _, functionalities) in navigations {
+        assert_eq!(cost, 80, "{text}");
+        assert!(
+            functionalities
+                .iter()
+                .any(|f| f == "(tracking-system hsm tr1 astrid) on hsm:tr1"),
+            "{functionalities:?}"
+        );
+    }
 }
 
 // --- several tasks -------------------------------------------------------------

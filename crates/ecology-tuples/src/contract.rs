@@ -32,10 +32,14 @@ pub enum ComponentField {
     /// domain's predicates (`(thing-at newspaper kitchen)`,
     /// `(not (thing-at newspaper entrance))`).
     Observed,
+    /// `components.C.covers`: the places a sensor sees, such as the rooms a ceiling camera is
+    /// mounted over, names separated by spaces (init component). Optional: a component that does
+    /// not say is not known to cover any place.
+    Covers,
 }
 
 impl ComponentField {
-    const ALL: [ComponentField; 9] = [
+    const ALL: [ComponentField; 10] = [
         ComponentField::Type,
         ComponentField::Cost,
         ComponentField::CurrState,
@@ -45,6 +49,7 @@ impl ComponentField {
         ComponentField::Cause,
         ComponentField::Params,
         ComponentField::Observed,
+        ComponentField::Covers,
     ];
 
     /// The last segment of the key.
@@ -59,6 +64,7 @@ impl ComponentField {
             ComponentField::Cause => "cause",
             ComponentField::Params => "params",
             ComponentField::Observed => "observed",
+            ComponentField::Covers => "covers",
         }
     }
 
@@ -71,6 +77,7 @@ impl ComponentField {
                 | ComponentField::CurrState
                 | ComponentField::ReqState
                 | ComponentField::Holders
+                | ComponentField::Covers
         )
     }
 

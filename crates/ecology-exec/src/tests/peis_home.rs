@@ -63,6 +63,7 @@ impl Hosts {
                     cost: cost.amount,
                     on: cost.power == Power::On,
                     startup,
+                    covers: Vec::new(),
                 });
             }
             let (stop, stopped) = oneshot::channel::<()>();
