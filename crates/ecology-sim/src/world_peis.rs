@@ -6,7 +6,6 @@
 //! The tuples it publishes and the component outputs it reads are the
 //! contract of [`ecology_tuples::world`].
 
-use std::collections::BTreeMap;
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
@@ -29,8 +28,10 @@ pub struct WorldPeis {
     velocities: Subscription,
     grasps: Subscription,
     sounds: Subscription,
-    /// Each robot's pose as last published.
-    shown: BTreeMap<String, Pose>,
+    /// Each robot's pose as last published, in the order of the world's robots (which a run
+    /// does not change): a thousand robots looked up by name every step cost more than the rest
+    /// of publishing their poses.
+    shown: Vec<Option<Pose>>,
     /// The still robot whose pose the next quiet step publishes again.
     beat: usize,
 }
@@ -49,7 +50,7 @@ impl WorldPeis {
             sounds: space.subscribe(Command::Sound.pattern()).await?,
             world,
             rng: Rng::derive(seed, WORLD),
-            shown: BTreeMap::new(),
+            shown: Vec::new(),
             beat: 0,
         };
         space
@@ -125,22 +126,26 @@ impl WorldPeis {
     /// is still heard from every step (its readers take a silence of a second for a world
     /// that left or froze).
     fn poses_to_publish(&mut self) -> Vec<(Key, String)> {
-        let mut moved: Vec<&String> = Vec::new();
-        for (name, robot) in &self.world.robots {
-            if self.shown.get(name) != Some(&robot.pose) {
-                moved.push(name);
+        let robots = &self.world.robots;
+        self.shown.resize(robots.len(), None);
+        let mut out = Vec::new();
+        let mut moved = false;
+        for ((name, robot), shown) in robots.iter().zip(self.shown.iter_mut()) {
+            if *shown != Some(robot.pose) {
+                moved = true;
+                if let Ok(at) = key(WorldKey::RobotPose(name)) {
+                    *shown = Some(robot.pose);
+                    out.push((at, robot.pose.to_string()));
+                }
             }
         }
-        if moved.is_empty() && !self.world.robots.is_empty() {
-            self.beat = (self.beat + 1) % self.world.robots.len();
-            moved.extend(self.world.robots.keys().nth(self.beat));
-        }
-        let mut out = Vec::with_capacity(moved.len());
-        for name in moved {
-            let pose = self.world.robots[name].pose;
-            if let Ok(at) = key(WorldKey::RobotPose(name)) {
-                self.shown.insert(name.clone(), pose);
-                out.push((at, pose.to_string()));
+        if !moved && !robots.is_empty() {
+            self.beat = (self.beat + 1) % robots.len();
+            if let Some((name, robot)) = robots.iter().nth(self.beat)
+                && let Ok(at) = key(WorldKey::RobotPose(name))
+            {
+                self.shown[self.beat] = Some(robot.pose);
+                out.push((at, robot.pose.to_string()));
             }
         }
         out
