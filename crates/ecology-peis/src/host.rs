@@ -32,8 +32,8 @@ use std::time::Duration;
 
 use ecology_tuples::contract::ComponentField;
 use ecology_tuples::{
-    Clock, ComponentId, Key, PeisId, PresenceEvent, PresenceSubscription, Timestamp, TupleError,
-    TupleEvent, TuplePattern, TupleSpace, Value,
+    Clock, ComponentId, Key, KeyPattern, OwnerPattern, PeisId, PresenceEvent, PresenceSubscription,
+    Timestamp, TupleError, TupleEvent, TuplePattern, TupleSpace, Value,
 };
 use tokio::task::{AbortHandle, JoinSet};
 
@@ -158,27 +158,20 @@ pub async fn run_host_with<S: TupleSpace>(
     let mut states: States<S> = BTreeMap::new();
     for spec in components {
         let c = spec.name.clone();
-        space
-            .set(field(&c, ComponentField::Type)?, Value::text(&spec.kind))
-            .await?;
-        space
-            .set(
-                field(&c, ComponentField::Cost)?,
-                Value::text(spec.cost.to_string()),
-            )
-            .await?;
+        // The name checked once for its five keys.
+        let id = ComponentId::new(&c).map_err(|_| HostError::InvalidName(c.clone()))?;
         let power = if spec.on { "on" } else { "off" };
-        space
-            .set(field(&c, ComponentField::CurrState)?, Value::text(power))
-            .await?;
-        space
-            .set(field(&c, ComponentField::Status)?, Value::text("idle"))
-            .await?;
+        let mut announced = vec![
+            (ComponentField::Type, spec.kind.clone()),
+            (ComponentField::Cost, spec.cost.to_string()),
+            (ComponentField::CurrState, power.to_string()),
+            (ComponentField::Status, "idle".to_string()),
+        ];
         if !spec.covers.is_empty() {
-            let places = spec.covers.join(" ");
-            space
-                .set(field(&c, ComponentField::Covers)?, Value::text(places))
-                .await?;
+            announced.push((ComponentField::Covers, spec.covers.join(" ")));
+        }
+        for (field, value) in announced {
+            space.set(field.key(&id), Value::text(value)).await?;
         }
         states.insert(
             c,
@@ -192,12 +185,18 @@ pub async fn run_host_with<S: TupleSpace>(
             }),
         );
     }
-    let requests_pattern = TuplePattern::parse(&format!("{me}:components.*.reqState"))
-        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
-    let params_pattern = TuplePattern::parse(&format!("{me}:*.params"))
-        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
-    let holders_pattern = TuplePattern::parse(&format!("{me}:components.*.holders"))
-        .map_err(|e| HostError::Space(TupleError::Invalid(e)))?;
+    // Of this PEIS's own keys: its name is valid already.
+    let own = |key: &str| {
+        KeyPattern::new(key)
+            .map(|key| TuplePattern {
+                owner: OwnerPattern::Exact(me.clone()),
+                key,
+            })
+            .map_err(|e| HostError::Space(TupleError::Invalid(e)))
+    };
+    let requests_pattern = own("components.*.reqState")?;
+    let params_pattern = own("*.params")?;
+    let holders_pattern = own("components.*.holders")?;
     let mut requests = space.subscribe(requests_pattern).await?;
     let mut params = space.subscribe(params_pattern).await?;
     let mut claims = space.subscribe(holders_pattern).await?;
