@@ -88,6 +88,16 @@ impl KeyPattern {
 
     /// Whether `key` matches the pattern.
     pub fn matches(&self, key: &Key) -> bool {
+        // A pattern that ends in a segment of its own matches only keys that end in it, and most
+        // keys a space tries against a PEIS's patterns (`components.*.reqState`, `*.params`) end
+        // otherwise: told from the end of the key, without walking it.
+        if let Some(Segment::Exact(last)) = self.segments.last() {
+            let key = key.as_str();
+            let key_last = key.rsplit_once('.').map_or(key, |(_, tail)| tail);
+            if **last != *key_last {
+                return false;
+            }
+        }
         match_segments(&self.segments, key.as_str())
     }
 }

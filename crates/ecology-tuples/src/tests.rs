@@ -135,6 +135,10 @@ fn patterns_match_segments() {
     check("a.**.z", "a.b.c.y", false);
     check("a.**.b.*", "a.x.b.y.b.z", true);
     check("**.**.x", "x", true);
+    check("x", "x", true);
+    check("b", "a.b", false);
+    check("components.*.reqState", "components.c1.holders", false);
+    check("components.*.reqState", "c1.reqState", false);
     assert_eq!(
         KeyPattern::new("a.**.**.b").expect("valid").to_string(),
         "a.**.b"
@@ -381,4 +385,28 @@ async fn try_next_takes_every_event_that_arrived_in_one_turn() {
     }
     assert_eq!(taken, 500);
     space.shutdown().await;
+}
+
+proptest::proptest! {
+    /// A pattern matches what walking its segments matches, whatever its last segment (the
+    /// pattern tells keys that end otherwise at once).
+    #[test]
+    fn a_pattern_matches_what_its_segments_match(
+        pattern in proptest::collection::vec(proptest::sample::select(vec!["a", "b", "*", "**"]), 1..5),
+        key_segments in proptest::collection::vec(proptest::sample::select(vec!["a", "b", "c"]), 1..6),
+    ) {
+        let p = KeyPattern::new(&pattern.join(".")).expect("valid pattern");
+        let k = key(&key_segments.join("."));
+        // Walking: each `**` any run of segments, each `*` one, anything else itself.
+        fn walk(p: &[&str], k: &[&str]) -> bool {
+            match (p.first(), k.first()) {
+                (None, None) => true,
+                (Some(&"**"), _) => walk(&p[1..], k) || (!k.is_empty() && walk(p, &k[1..])),
+                (Some(&"*"), Some(_)) => walk(&p[1..], &k[1..]),
+                (Some(s), Some(t)) => s == t && walk(&p[1..], &k[1..]),
+                _ => false,
+            }
+        }
+        proptest::prop_assert_eq!(p.matches(&k), walk(&pattern, &key_segments), "{} vs {}", pattern.join("."), k);
+    }
 }
