@@ -240,9 +240,10 @@ impl Home {
         );
     }
 
-    /// The paper's task by an executive connected to the first router.
+    /// The paper's task by an executive connected to the first router, in the building's domain
+    /// (its ceiling cameras see only the rooms they cover), as `generate home` writes it.
     fn task(&self, acquire: &str) -> Measured {
-        let domain = support::root().join("domains/peis-home.eco");
+        let domain = support::root().join("domains/peis-building.eco");
         let problem = support::root().join("domains/peis-home-task.problem");
         let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
         let task = [
