@@ -92,9 +92,11 @@ impl KeyPattern {
         // keys a space tries against a PEIS's patterns (`components.*.reqState`, `*.params`) end
         // otherwise: told from the end of the key, without walking it.
         if let Some(Segment::Exact(last)) = self.segments.last() {
-            let key = key.as_str();
-            let key_last = key.rsplit_once('.').map_or(key, |(_, tail)| tail);
-            if **last != *key_last {
+            let (key, last) = (key.as_str().as_bytes(), last.as_bytes());
+            let Some(head) = key.len().checked_sub(last.len()) else {
+                return false;
+            };
+            if &key[head..] != last || (head > 0 && key[head - 1] != b'.') {
                 return false;
             }
         }
