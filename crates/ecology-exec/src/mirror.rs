@@ -383,7 +383,7 @@ mod tests {
     use super::Mirror;
 
     /// A state with the given types leaves out the components of other types, and only them;
-    /// the rooms a component covers are facts of it.
+    /// the rooms a component covers are facts of it, and a field it does not know is none.
     #[test]
     fn a_state_for_some_types_has_only_their_components() {
         let mut mirror = Mirror::new();
@@ -392,6 +392,8 @@ mod tests {
             ("hsm", "components.ca1.cost", "20"),
             ("hsm", "ca1.status", "running"),
             ("hsm", "components.ca1.covers", " kitchen  living-room "),
+            // A key of the directory this reader does not know changes nothing: a later field.
+            ("hsm", "components.ca1.mounting", "ceiling"),
             ("app-7", "components.pl1.type", "player"),
             ("app-7", "components.pl1.covers", "kitchen"),
             ("app-7", "components.pl1.cost", "5"),
