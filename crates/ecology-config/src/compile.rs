@@ -455,6 +455,15 @@ pub(crate) struct Schema {
     multiplicity: Vec<std::sync::OnceLock<std::sync::Arc<[u64]>>>,
 }
 
+impl Schema {
+    /// Whether some precondition of the domain looks up facts of `predicate`.
+    pub(crate) fn reads(&self, predicate: &str) -> bool {
+        self.domain_syms
+            .get(predicate)
+            .is_some_and(|sym| self.indexed.contains(&sym))
+    }
+}
+
 /// A component held by another executive, from the fact
 /// `(held PEIS COMPONENT HOLDER FUNCTIONALITY ARG…)`: it may only be shared, running the same.
 #[derive(Debug, Clone)]

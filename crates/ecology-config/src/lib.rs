@@ -53,7 +53,7 @@ pub use model::{
     RequestError, Snapshot, Stats, Status,
 };
 pub use planner::{Progress, Search};
-pub use relevant::{component_types, facts_at_action};
+pub use relevant::component_types;
 
 use planner::{Prepared, plan_prepared};
 
@@ -142,6 +142,17 @@ impl Planner {
     /// The domain it plans with.
     pub fn domain(&self) -> &Domain {
         &self.domain
+    }
+
+    /// The world a configuration for `action` (an action of the domain written `(move astrid
+    /// living-room entrance)`) is planned in: the ground atoms of its precondition whose
+    /// predicates a functionality or method of the domain reads (the predicates the compiled
+    /// domain indexes). The action planner started the action where its precondition holds, so
+    /// they hold when it starts; a method can ask where the robot is (`(at ?r ?x)`). Empty for an
+    /// action the domain does not know, or written otherwise.
+    pub fn facts_at_action(&self, action: &str) -> Vec<ecology_domain::Fact> {
+        let schema = &self.prepared.schema;
+        relevant::facts_at_action(&self.domain, action, |p| schema.reads(p))
     }
 
     /// The domain compiled, when `domain` is this planner's own

@@ -1,5 +1,6 @@
 //! Which component types a goal can use: what an executive must acquire of
-//! the ecology to plan for it (the paper's Section V, "acquired on demand").
+//! the ecology to plan for it (the paper's Section V, "acquired on demand");
+//! and which facts of the world an action starts in its methods read.
 //!
 //! The ecology state facts that come from PEIS are `(pc P TYPE C)`, `(cost P C
 //! N on|off)` and `(status P C S)`. Every functionality and method the goal
@@ -75,12 +76,15 @@ fn types_of(precondition: &[Literal], types: &mut BTreeSet<String>) -> Option<()
     Some(())
 }
 
-/// The world a configuration for `action` (an action of `domain` written `(move astrid
-/// living-room entrance)`) is planned in: the ground atoms of its precondition whose predicates a
-/// functionality or method of `domain` reads. The action planner started the action where its
-/// precondition holds, so they hold when it starts; a method can ask where the robot is
-/// (`(at ?r ?x)`). Empty for an action `domain` does not know, or written otherwise.
-pub fn facts_at_action(domain: &Domain, action: &str) -> Vec<Fact> {
+/// The ground atoms of `action`'s precondition (an action of `domain` written `(move astrid
+/// living-room entrance)`) whose predicates `reads` says some functionality or method reads; see
+/// [`crate::Planner::facts_at_action`]. Empty for an action `domain` does not know, or written
+/// otherwise.
+pub(crate) fn facts_at_action(
+    domain: &Domain,
+    action: &str,
+    reads: impl Fn(&str) -> bool,
+) -> Vec<Fact> {
     let Ok(call) = ecology_domain::parse_goal(action) else {
         return Vec::new();
     };
@@ -97,22 +101,11 @@ pub fn facts_at_action(domain: &Domain, action: &str) -> Vec<Fact> {
         };
         bound.insert(&*param.name, value.clone());
     }
-    let read: BTreeSet<&str> = domain
-        .functionalities
-        .iter()
-        .map(|f| &f.precondition)
-        .chain(domain.methods.iter().map(|m| &m.precondition))
-        .flatten()
-        .filter_map(|literal| match literal {
-            Literal::Pos(atom) | Literal::Neg(atom) => Some(&*atom.predicate),
-            _ => None,
-        })
-        .collect();
     schema
         .precondition
         .iter()
         .filter_map(|literal| match literal {
-            Literal::Pos(atom) if read.contains(&*atom.predicate) => Some(atom),
+            Literal::Pos(atom) if reads(&atom.predicate) => Some(atom),
             _ => None,
         })
         .filter_map(|atom| {
@@ -191,8 +184,8 @@ mod tests {
 
     #[test]
     fn an_action_brings_the_atoms_of_its_precondition_that_methods_read() {
-        let d = domain(MOVE);
-        let facts = facts_at_action(&d, "(move astrid hall kitchen)");
+        let planner = crate::Planner::new(domain(MOVE));
+        let facts = planner.facts_at_action("(move astrid hall kitchen)");
         let shown: Vec<String> = facts
             .iter()
             .map(|f| format!("({} {})", f.predicate, f.args.join(" ")))
@@ -203,12 +196,24 @@ mod tests {
 
     #[test]
     fn an_action_the_domain_does_not_know_brings_nothing() {
-        let d = domain(MOVE);
-        assert!(facts_at_action(&d, "(fly astrid hall kitchen)").is_empty());
-        assert!(facts_at_action(&d, "(move astrid hall)").is_empty());
-        assert!(facts_at_action(&d, "move astrid hall kitchen").is_empty());
-        assert!(facts_at_action(&d, "(move astrid ?x kitchen)").is_empty());
-        assert!(facts_at_action(&d, "").is_empty());
+        let planner = crate::Planner::new(domain(MOVE));
+        assert!(
+            planner
+                .facts_at_action("(fly astrid hall kitchen)")
+                .is_empty()
+        );
+        assert!(planner.facts_at_action("(move astrid hall)").is_empty());
+        assert!(
+            planner
+                .facts_at_action("move astrid hall kitchen")
+                .is_empty()
+        );
+        assert!(
+            planner
+                .facts_at_action("(move astrid ?x kitchen)")
+                .is_empty()
+        );
+        assert!(planner.facts_at_action("").is_empty());
     }
 
     #[test]

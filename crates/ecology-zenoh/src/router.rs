@@ -143,20 +143,12 @@ pub async fn run_router(
     shutdown.await;
     // Given no time, it does not start a close it will not wait for (a close of one idle session
     // sometimes ended within Zenoh's zero timeout, and sometimes not).
-    let closed = match options.close_within.is_zero() {
-        true => Err(()),
-        false => session
-            .close()
-            .timeout(options.close_within)
-            .await
-            .map_err(|_| ()),
-    };
-    match closed {
-        Ok(()) => Ok(Closed::Cleanly),
-        Err(()) => {
-            // Its drop would wait for the close again: the process ends without it.
-            std::mem::forget(session);
-            Ok(Closed::CutShort)
-        }
+    let cleanly = !options.close_within.is_zero()
+        && session.close().timeout(options.close_within).await.is_ok();
+    if cleanly {
+        return Ok(Closed::Cleanly);
     }
+    // Its drop would wait for the close again: the process ends without it.
+    std::mem::forget(session);
+    Ok(Closed::CutShort)
 }

@@ -138,14 +138,13 @@ impl PlannerClock for Since<'_> {
 impl Executive {
     /// The state a configuration for `goal` is planned from: the components of the types the
     /// goal's methods can use, or all of them when they could use any, and the atoms of the
-    /// running action's precondition that the methods read ([`ecology_config::facts_at_action`]:
+    /// running action's precondition that the methods read ([`ecology_config::Planner::facts_at_action`]:
     /// where the robot is when it sets off, say).
     pub(super) fn planning_state(&self, goal: &Call) -> EcologyState {
-        let domain = self.planner.domain();
-        let types = ecology_config::component_types(domain, goal);
+        let types = ecology_config::component_types(self.planner.domain(), goal);
         let mut state = self.mirror.state(&self.world, types.as_ref());
         if let Some(run) = &self.run {
-            for fact in ecology_config::facts_at_action(domain, &self.plan[run.index].action) {
+            for fact in self.planner.facts_at_action(&self.plan[run.index].action) {
                 state.insert(fact);
             }
         }
