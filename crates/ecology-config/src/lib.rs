@@ -53,7 +53,7 @@ pub use model::{
     RequestError, Snapshot, Stats, Status,
 };
 pub use planner::{Progress, Search};
-pub use relevant::component_types;
+pub use relevant::{Scope, component_scope, component_types};
 
 use planner::{Prepared, plan_prepared};
 

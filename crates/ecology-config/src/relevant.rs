@@ -13,7 +13,7 @@
 
 use std::collections::{BTreeSet, HashMap};
 
-use ecology_domain::{Call, Domain, Fact, Literal, Term};
+use ecology_domain::{Call, Domain, Fact, Literal, Name, Term};
 
 /// The component types a configuration for `goal` can use, or `None` when
 /// the goal's methods and functionalities could use a component of any type
@@ -71,6 +71,207 @@ fn types_of(precondition: &[Literal], types: &mut BTreeSet<String>) -> Option<()
             if !bound {
                 return None;
             }
+        }
+    }
+    Some(())
+}
+
+/// The PEIS a configuration for a goal can use, when each is named or covers a given room.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Scope {
+    /// The PEIS the goal's methods name (Astrid, in `(navigate astrid entrance)`).
+    pub peis: BTreeSet<String>,
+    /// The rooms whose covering PEIS the methods can use (a camera with `(covers ?p ?c ?x)`,
+    /// where the robot is in room `?x`).
+    pub rooms: BTreeSet<String>,
+}
+
+impl Scope {
+    /// Adds what `other` holds.
+    pub fn extend(&mut self, other: Scope) {
+        self.peis.extend(other.peis);
+        self.rooms.extend(other.rooms);
+    }
+}
+
+/// The predicates of the ecology state whose first argument is a PEIS: the facts an executive
+/// acquires from each PEIS's tuples.
+const OF_A_PEIS: [&str; 6] = ["peis", "pc", "cost", "status", "held", "covers"];
+
+/// What one argument of a call is known to be while the goal's methods are walked.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+enum Known {
+    /// This constant.
+    Is(Name),
+    /// A PEIS that covers a room of the scope: one of those the executive finds by room.
+    Covering,
+    /// Anything.
+    Unknown,
+}
+
+/// The PEIS a configuration for `goal` can use, in a world where `facts` hold (the facts the
+/// action starts with, such as `(at astrid living-room)`), when every functionality and method
+/// the goal can reach reads the facts of PEIS that are either named (by the goal, or through the
+/// facts) or cover a room the facts name (`(covers ?p ?c ?x)` with `?x` known); `None` when some
+/// method could use any PEIS (the paper's *another robot's camera*, which names no room), or the
+/// goal is unknown. An executive then acquires the contract of those PEIS alone, whatever the
+/// size of the ecology.
+pub fn component_scope(domain: &Domain, goal: &Call, facts: &[Fact]) -> Option<Scope> {
+    let args = goal
+        .args
+        .iter()
+        .map(|t| match t {
+            Term::Const(c) => Known::Is(c.clone()),
+            Term::Var(_) => Known::Unknown,
+        })
+        .collect();
+    let mut scope = Scope::default();
+    let mut seen = BTreeSet::new();
+    let mut todo: Vec<(Name, Vec<Known>)> = vec![(goal.name.clone(), args)];
+    while let Some((name, args)) = todo.pop() {
+        if !seen.insert((name.clone(), args.clone())) {
+            continue;
+        }
+        if let Some(f) = domain.functionality(&name) {
+            let mut bound: HashMap<&str, Known> = HashMap::new();
+            for (param, arg) in f.params.iter().zip(&args) {
+                bound.insert(&param.name, arg.clone());
+            }
+            scope_of(&f.precondition, &mut bound, facts, &mut scope)?;
+            // The PEIS that implements it is one of those the precondition reads.
+            if matches!(bound.get(&*f.component.0), None | Some(Known::Unknown)) {
+                return None;
+            }
+        } else if domain.task(&name).is_some() {
+            for method in domain.methods_of(&name) {
+                let mut bound: HashMap<&str, Known> = HashMap::new();
+                let mut applies = true;
+                for (term, arg) in method.task.args.iter().zip(&args) {
+                    match (term, arg) {
+                        (Term::Var(v), _) => {
+                            let was = bound.insert(v, arg.clone());
+                            // The same variable twice, given two constants: never this method.
+                            if let (Some(Known::Is(a)), Known::Is(b)) = (was, arg) {
+                                applies &= a == *b;
+                            }
+                        }
+                        (Term::Const(c), Known::Is(a)) => applies &= c == a,
+                        (Term::Const(_), _) => {}
+                    }
+                }
+                if !applies {
+                    continue;
+                }
+                scope_of(&method.precondition, &mut bound, facts, &mut scope)?;
+                for subtask in &method.subtasks {
+                    let args = subtask
+                        .call
+                        .args
+                        .iter()
+                        .map(|t| match t {
+                            Term::Const(c) => Known::Is(c.clone()),
+                            Term::Var(v) => bound.get(&**v).cloned().unwrap_or(Known::Unknown),
+                        })
+                        .collect();
+                    todo.push((subtask.call.name.clone(), args));
+                }
+            }
+        } else {
+            return None;
+        }
+    }
+    Some(scope)
+}
+
+/// Adds to `scope` the PEIS and rooms `precondition` reads the facts of, given what `bound` knows
+/// of its variables (which it extends); `None` when it reads the facts of a PEIS it neither
+/// names nor finds by room.
+fn scope_of<'a>(
+    precondition: &'a [Literal],
+    bound: &mut HashMap<&'a str, Known>,
+    facts: &[Fact],
+    scope: &mut Scope,
+) -> Option<()> {
+    let is = |bound: &HashMap<&str, Known>, term: &Term| -> Option<Name> {
+        match term {
+            Term::Const(c) => Some(c.clone()),
+            Term::Var(v) => match bound.get(&**v) {
+                Some(Known::Is(c)) => Some(c.clone()),
+                _ => None,
+            },
+        }
+    };
+    // What the world's facts tell of the variables (`(at ?r ?x)` with `?r` known gives `?x`),
+    // until they tell nothing more; a variable that several facts give different values stays
+    // unknown.
+    let mut more = true;
+    while more {
+        more = false;
+        for literal in precondition {
+            let Literal::Pos(atom) = literal else {
+                continue;
+            };
+            if OF_A_PEIS.contains(&&*atom.predicate) {
+                continue;
+            }
+            let known: Vec<Option<Name>> = atom.args.iter().map(|t| is(bound, t)).collect();
+            let mut matching = facts.iter().filter(|f| {
+                f.predicate == atom.predicate
+                    && f.args.len() == known.len()
+                    && f.args
+                        .iter()
+                        .zip(&known)
+                        .all(|(a, k)| k.as_ref().is_none_or(|k| k == a))
+            });
+            let Some(first) = matching.next() else {
+                continue;
+            };
+            let rest: Vec<&Fact> = matching.collect();
+            for (i, term) in atom.args.iter().enumerate() {
+                let Term::Var(v) = term else { continue };
+                if known[i].is_some() || rest.iter().any(|f| f.args[i] != first.args[i]) {
+                    continue;
+                }
+                bound.insert(v, Known::Is(first.args[i].clone()));
+                more = true;
+            }
+        }
+    }
+    // A PEIS that covers a known room is found by asking who covers it.
+    for literal in precondition {
+        let Literal::Pos(atom) = literal else {
+            continue;
+        };
+        if &*atom.predicate != "covers" {
+            continue;
+        }
+        if let [Term::Var(p), _, room] = atom.args.as_slice()
+            && let Some(room) = is(bound, room)
+            && !matches!(bound.get(&**p), Some(Known::Is(_)))
+        {
+            scope.rooms.insert(room.to_string());
+            bound.insert(p, Known::Covering);
+        }
+    }
+    for literal in precondition {
+        let (Literal::Pos(atom) | Literal::Neg(atom)) = literal else {
+            continue;
+        };
+        if !OF_A_PEIS.contains(&&*atom.predicate) {
+            continue;
+        }
+        match atom.args.first() {
+            Some(Term::Const(p)) => {
+                scope.peis.insert(p.to_string());
+            }
+            Some(Term::Var(v)) => match bound.get(&**v) {
+                Some(Known::Is(p)) => {
+                    scope.peis.insert(p.to_string());
+                }
+                Some(Known::Covering) => {}
+                _ => return None,
+            },
+            None => return None,
         }
     }
     Some(())
@@ -225,5 +426,67 @@ mod tests {
             assert!(types.contains(ty), "{ty} missing from {types:?}");
         }
         assert!(!types.contains("player"), "{types:?}");
+    }
+
+    fn domain_file(name: &str) -> Domain {
+        let path = format!("{}/../../domains/{name}", env!("CARGO_MANIFEST_DIR"));
+        domain(&std::fs::read_to_string(path).expect("the domain file"))
+    }
+
+    fn scope(peis: &[&str], rooms: &[&str]) -> Scope {
+        Scope {
+            peis: peis.iter().map(|p| p.to_string()).collect(),
+            rooms: rooms.iter().map(|r| r.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn in_a_building_a_navigation_uses_the_robot_and_who_covers_its_room() {
+        let d = domain_file("peis-building.eco");
+        let at = [Fact::new("at", &["astrid", "living-room"])];
+        assert_eq!(
+            component_scope(&d, &goal("(navigate astrid entrance)"), &at),
+            Some(scope(&["astrid"], &["living-room"]))
+        );
+        // Grasping reads Astrid's gripper alone; where she is does not matter.
+        assert_eq!(
+            component_scope(&d, &goal("(grasp astrid newspaper)"), &at),
+            Some(scope(&["astrid"], &[]))
+        );
+        // Two facts that disagree on where she is name no room: any camera could serve.
+        let twice = [
+            Fact::new("at", &["astrid", "living-room"]),
+            Fact::new("at", &["astrid", "kitchen"]),
+        ];
+        assert_eq!(
+            component_scope(&d, &goal("(navigate astrid entrance)"), &twice),
+            None
+        );
+        // Not knowing where she is, neither.
+        assert_eq!(
+            component_scope(&d, &goal("(navigate astrid entrance)"), &[]),
+            None
+        );
+        // Another robot's whereabouts say nothing of hers.
+        let pippi = [Fact::new("at", &["pippi", "living-room"])];
+        assert_eq!(
+            component_scope(&d, &goal("(navigate astrid entrance)"), &pippi),
+            None
+        );
+        assert_eq!(component_scope(&d, &goal("(fly astrid)"), &at), None);
+    }
+
+    #[test]
+    fn in_the_papers_home_another_robot_could_be_any_peis() {
+        let d = domain_file("peis-home.eco");
+        let at = [Fact::new("at", &["astrid", "living-room"])];
+        assert_eq!(
+            component_scope(&d, &goal("(navigate astrid entrance)"), &at),
+            None
+        );
+        assert_eq!(
+            component_scope(&d, &goal("(grasp astrid newspaper)"), &at),
+            Some(scope(&["astrid"], &[]))
+        );
     }
 }

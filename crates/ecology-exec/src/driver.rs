@@ -294,6 +294,11 @@ pub async fn drive_until<S: TupleSpace>(
                 },
             };
         }
+        // A PEIS that now says it covers a room of the scope (a robot that entered it) is
+        // followed from now on.
+        if tuples.has_found() {
+            commands.extend(tuples.follow_found(exec, elapsed(&clock)).await?);
+        }
         for entry in &exec.log()[observed..] {
             observe(entry);
         }
@@ -365,22 +370,32 @@ impl Timers {
 /// stop, a due timer or a departure is never kept waiting long behind a stream of tuples.
 const TAKEN_AT_ONCE: usize = 256;
 
-/// The subscriptions that bring the executive its tuples: everything, or the
-/// component contract of every PEIS without the outputs (on demand).
+/// The subscriptions that bring the executive its tuples: everything, the component contract of
+/// every PEIS without the outputs, or that of the PEIS a scope names and of those that cover its
+/// rooms (on demand).
 ///
-/// On demand is two wildcard subscriptions whatever the number of PEIS: the
-/// directory (`*:components.**`) and each component's own fields (`*:*.*`:
-/// `C.status`, `.cause`, `.params`, `.observed` and the input pointers
-/// `C.mi-INFO`, but not the outputs `C.out.INFO`, which are three segments).
-/// The contract's keys do not name a component's type, so a key expression
-/// cannot select by type; selecting PEIS by type meant one subscription per
-/// PEIS of interest, each with its own round trips through a router, which
-/// made acquiring on demand slower than reading everything. What the data
-/// streams carry, the outputs and the world, is what on demand leaves out.
+/// The contract of every PEIS is two wildcard subscriptions whatever the number of PEIS: the
+/// directory (`*:components.**`) and each component's own fields (`*:*.*`: `C.status`, `.cause`,
+/// `.params`, `.observed` and the input pointers `C.mi-INFO`, but not the outputs `C.out.INFO`,
+/// which are three segments). The contract's keys do not name a component's type, so a key
+/// expression cannot select by type; selecting PEIS by type meant one subscription per PEIS of
+/// interest, each with its own round trips through a router, which made acquiring on demand
+/// slower than reading everything. What the data streams carry, the outputs and the world, is what
+/// on demand leaves out.
+///
+/// A scope ([`Interest::Scoped`]) is narrower: one wildcard subscription per room (`*:rooms.ROOM.*`,
+/// who covers it), and the two contract subscriptions of each PEIS it names and of each that
+/// answers, or later says it covers one of the rooms (a robot whose camera enters it).
 struct Follow<S: TupleSpace> {
     space: S,
     /// What is followed so far.
     followed: Followed,
+    /// Under a scope: the rooms whose covering PEIS are followed.
+    rooms: BTreeSet<String>,
+    /// Under a scope: the PEIS whose contract is followed.
+    peis: BTreeSet<PeisId>,
+    /// Under a scope: PEIS that said they cover a room and are not followed yet.
+    found: BTreeSet<PeisId>,
     subs: SelectAll<ecology_tuples::Subscription>,
 }
 
@@ -388,6 +403,8 @@ struct Follow<S: TupleSpace> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum Followed {
     Nothing,
+    /// The contract of the PEIS of a scope ([`Interest::Scoped`]).
+    Scope,
     /// The component contract of every PEIS ([`contract`]): what any type of interest needs.
     Contract,
     Everything,
@@ -398,6 +415,9 @@ impl<S: TupleSpace> Follow<S> {
         Follow {
             space,
             followed: Followed::Nothing,
+            rooms: BTreeSet::new(),
+            peis: BTreeSet::new(),
+            found: BTreeSet::new(),
             subs: SelectAll::new(),
         }
     }
@@ -414,35 +434,123 @@ impl<S: TupleSpace> Follow<S> {
             Interest::Everything => Followed::Everything,
             Interest::Types(types) if types.is_empty() => Followed::Nothing,
             Interest::Types(_) => Followed::Contract,
+            Interest::Scoped(_) => Followed::Scope,
         };
-        if wanted <= self.followed {
+        if wanted < self.followed || wanted == Followed::Nothing {
             return Ok(Vec::new());
         }
-        let patterns = match wanted {
-            Followed::Everything => vec![TuplePattern::everything()],
-            _ => contract(),
+        let patterns = match (wanted, more) {
+            (Followed::Scope, Interest::Scoped(scope)) => {
+                let mut patterns = Vec::new();
+                for room in &scope.rooms {
+                    if self.rooms.contains(room) {
+                        continue;
+                    }
+                    match ecology_tuples::contract::room_pattern(room) {
+                        Ok(pattern) => {
+                            self.rooms.insert(room.clone());
+                            patterns.push(pattern);
+                        }
+                        // A room no key can name is covered by nobody that says so.
+                        Err(_) => continue,
+                    }
+                }
+                for peis in &scope.peis {
+                    if let Ok(peis) = PeisId::new(peis) {
+                        patterns.extend(self.contract_of(peis));
+                    }
+                }
+                patterns
+            }
+            _ if wanted == self.followed => return Ok(Vec::new()),
+            (Followed::Everything, _) => vec![TuplePattern::everything()],
+            _ => contract(ecology_tuples::OwnerPattern::Any),
         };
-        if wanted == Followed::Everything {
-            // The new subscription brings all of it again; the mirror drops what it has.
+        if wanted > self.followed {
+            // What is followed now covers all that was: the new subscriptions bring it again,
+            // and the mirror drops what it has.
             self.subs = SelectAll::new();
         }
         self.followed = wanted;
         exec.note_everything(wanted == Followed::Everything);
+        let mut out = self.subscribe(exec, now, patterns).await?;
+        // Those that answered who covers a room are followed in turn.
+        out.extend(self.follow_found(exec, now).await?);
+        Ok(out)
+    }
+
+    /// The contract patterns of `peis`, when it is not followed yet (and now is).
+    fn contract_of(&mut self, peis: PeisId) -> Vec<TuplePattern> {
+        if !self.peis.insert(peis.clone()) {
+            return Vec::new();
+        }
+        contract(ecology_tuples::OwnerPattern::Exact(peis))
+    }
+
+    /// Follows the contract of the PEIS found covering a room since the last call; returns the
+    /// executive's commands.
+    async fn follow_found(
+        &mut self,
+        exec: &mut Executive,
+        now: Duration,
+    ) -> Result<Vec<Command>, TupleError> {
+        let mut out = Vec::new();
+        while !self.found.is_empty() {
+            let found = std::mem::take(&mut self.found);
+            let patterns: Vec<TuplePattern> = found
+                .into_iter()
+                .flat_map(|peis| self.contract_of(peis))
+                .collect();
+            out.extend(self.subscribe(exec, now, patterns).await?);
+        }
+        Ok(out)
+    }
+
+    /// Subscribes to `patterns`, handing the executive what is there now; returns its commands.
+    async fn subscribe(
+        &mut self,
+        exec: &mut Executive,
+        now: Duration,
+        patterns: Vec<TuplePattern>,
+    ) -> Result<Vec<Command>, TupleError> {
         // Subscribed together, so that the queries behind them go out at once, and each taken in
         // as soon as it and those before it are in, while the answers to the others are on their
         // way: at 1,000 PEIS over Zenoh, the directory's answer came several milliseconds before
         // the fields', and taking it in took as long.
-        let mut subscribed: FuturesOrdered<_> = patterns
-            .into_iter()
-            .map(|p| self.space.subscribe(p))
-            .collect();
+        let space = self.space.clone();
+        let mut subscribed: FuturesOrdered<_> =
+            patterns.into_iter().map(|p| space.subscribe(p)).collect();
         let mut out = Vec::new();
         while let Some(sub) = subscribed.next().await {
             let mut sub = sub?;
-            out.extend(take_in(exec, now, &mut sub));
+            while let Some(event) = sub.try_next() {
+                self.notice(&event);
+                if let TupleEvent::Changed(t) = event {
+                    out.extend(exec.handle(now, tuple_event(&t)));
+                }
+            }
             self.subs.push(sub);
         }
         Ok(out)
+    }
+
+    /// Notes a PEIS that says it covers a room of the scope, when it is not followed yet.
+    fn notice(&mut self, event: &TupleEvent) {
+        if self.followed != Followed::Scope {
+            return;
+        }
+        if let TupleEvent::Changed(t) = event
+            && ecology_tuples::contract::parse_room_key(t.key.as_str())
+                .is_some_and(|(room, _)| self.rooms.contains(room))
+            && !self.peis.contains(&t.owner)
+        {
+            self.found.insert(t.owner.clone());
+        }
+    }
+
+    /// Whether PEIS were found covering a room that are not followed yet.
+    fn has_found(&self) -> bool {
+        !self.found.is_empty()
     }
 
     /// The next tuple event of any subscription (only those woken are looked at).
@@ -450,39 +558,35 @@ impl<S: TupleSpace> Follow<S> {
         if self.subs.is_empty() {
             return std::future::pending().await;
         }
-        self.subs.next().await
+        let event = self.subs.next().await;
+        if let Some(event) = &event {
+            self.notice(event);
+        }
+        event
     }
 
     /// A tuple event that is already here, if any, without waiting.
     fn ready(&mut self) -> Option<TupleEvent> {
-        self.subs.next().now_or_never().flatten()
-    }
-}
-
-/// The component contract of every PEIS, without the outputs: the directory
-/// (the init component's `components.C.type`, `.cost`, `.currState`,
-/// `.reqState`, `.holders`) and each component's `C.status`, `.cause`,
-/// `.params`, `.observed` and input pointers `C.mi-INFO`.
-fn contract() -> Vec<TuplePattern> {
-    ["*:components.**", "*:*.*"]
-        .into_iter()
-        .map(|p| TuplePattern::parse(p).expect("a valid pattern"))
-        .collect()
-}
-
-/// Hands the executive every event `sub` holds now; returns its commands.
-fn take_in(
-    exec: &mut Executive,
-    now: Duration,
-    sub: &mut ecology_tuples::Subscription,
-) -> Vec<Command> {
-    let mut out = Vec::new();
-    while let Some(event) = sub.try_next() {
-        if let TupleEvent::Changed(t) = event {
-            out.extend(exec.handle(now, tuple_event(&t)));
+        let event = self.subs.next().now_or_never().flatten();
+        if let Some(event) = &event {
+            self.notice(event);
         }
+        event
     }
-    out
+}
+
+/// The component contract of the PEIS `owner` matches, without the outputs: the directory
+/// (the init component's `components.C.type`, `.cost`, `.currState`, `.reqState`, `.holders`,
+/// `.covers`) and each component's `C.status`, `.cause`, `.params`, `.observed` and input
+/// pointers `C.mi-INFO`.
+fn contract(owner: ecology_tuples::OwnerPattern) -> Vec<TuplePattern> {
+    ["components.**", "*.*"]
+        .into_iter()
+        .map(|key| TuplePattern {
+            owner: owner.clone(),
+            key: ecology_tuples::KeyPattern::new(key).expect("a valid pattern"),
+        })
+        .collect()
 }
 
 /// The executive's event for tuple `t` (a value that is not text reads as empty).

@@ -8,13 +8,18 @@
 //! the component contract, not the data the components stream: the driver
 //! follows every PEIS's directory and its components' own fields, and no
 //! outputs. A goal that could use a component of any type needs everything.
+//!
+//! Narrower still, a plan whose goals can use only the PEIS they name and those
+//! that cover the rooms its actions start in ([`component_scope`]: a building's
+//! cameras) needs the contract of those PEIS alone, found by asking who covers
+//! each room: what it acquires does not grow with the building.
 
 use std::collections::{BTreeSet, HashSet};
 use std::sync::Arc;
 use std::time::Duration;
 
-use ecology_config::component_types;
-use ecology_domain::Domain;
+use ecology_config::{Planner, Scope, component_scope, component_types};
+use ecology_domain::{EcologyState, Fact};
 
 use crate::plan::{Plan, PlanBranch, PlannedAction};
 
@@ -25,20 +30,40 @@ pub enum Interest {
     Everything,
     /// The contract tuples of the PEIS with a component of one of these types.
     Types(BTreeSet<String>),
+    /// The contract tuples of the PEIS the scope names and of those that cover its rooms
+    /// (`rooms.ROOM.C`).
+    Scoped(Scope),
 }
 
 impl Interest {
-    /// What the configuration goals of `steps` and of every branch after them can use.
-    pub fn of_plan(domain: &Domain, steps: &[PlannedAction], branches: &[PlanBranch]) -> Interest {
+    /// What the configuration goals of `steps` and of every branch after them can use, each
+    /// planned in the world its action starts in ([`Planner::facts_at_action`]) besides `world`.
+    pub fn of_plan(
+        planner: &Planner,
+        world: &EcologyState,
+        steps: &[PlannedAction],
+        branches: &[PlanBranch],
+    ) -> Interest {
+        let domain = planner.domain();
         let mut types = BTreeSet::new();
+        let mut scope = Some(Scope::default());
         let mut todo: Vec<(&[PlannedAction], &[PlanBranch])> = vec![(steps, branches)];
         // Branches that join share their plan: each is read once.
         let mut seen = HashSet::new();
         while let Some((steps, branches)) = todo.pop() {
-            for goal in steps.iter().filter_map(|a| a.goal.as_ref()) {
+            for step in steps {
+                let Some(goal) = &step.goal else { continue };
                 match component_types(domain, goal) {
                     Some(more) => types.extend(more),
                     None => return Interest::Everything,
+                }
+                if let Some(within) = &mut scope {
+                    let mut facts: Vec<Fact> = world.facts().to_vec();
+                    facts.extend(planner.facts_at_action(&step.action));
+                    match component_scope(domain, goal, &facts) {
+                        Some(more) => within.extend(more),
+                        None => scope = None,
+                    }
                 }
             }
             todo.extend(
@@ -48,12 +73,15 @@ impl Interest {
                     .map(|b| (b.plan.steps.as_slice(), b.plan.branches.as_slice())),
             );
         }
-        Interest::Types(types)
+        match scope {
+            Some(scope) if !types.is_empty() => Interest::Scoped(scope),
+            _ => Interest::Types(types),
+        }
     }
 
     /// [`Interest::of_plan`] of a whole plan.
-    pub fn of(domain: &Domain, plan: &Plan) -> Interest {
-        Interest::of_plan(domain, &plan.steps, &plan.branches)
+    pub fn of(planner: &Planner, world: &EcologyState, plan: &Plan) -> Interest {
+        Interest::of_plan(planner, world, &plan.steps, &plan.branches)
     }
 }
 

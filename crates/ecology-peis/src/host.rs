@@ -146,6 +146,35 @@ pub async fn run_host<S: TupleSpace>(
     run_host_with(space, clock, components, HostOptions::default(), shutdown).await
 }
 
+/// Says on `space` that `component` (of type `kind`) now covers the places `now` where it covered
+/// `was`: its `components.C.covers`, and a room key `rooms.ROOM.C` for each place (put for those it
+/// gains, deleted for those it loses), by which an executive finds who covers a room without
+/// reading every PEIS. A camera on a robot that moves says so each time it enters another room.
+pub async fn announce_covers<S: TupleSpace>(
+    space: &S,
+    component: &ComponentId,
+    kind: &str,
+    was: &[String],
+    now: &[String],
+) -> Result<(), TupleError> {
+    let room = |place: &String| {
+        ecology_tuples::contract::room_key(place, component).map_err(TupleError::Invalid)
+    };
+    for place in was.iter().filter(|p| !now.contains(p)) {
+        space.delete(room(place)?).await?;
+    }
+    space
+        .set(
+            ComponentField::Covers.key(component),
+            Value::text(now.join(" ")),
+        )
+        .await?;
+    for place in now.iter().filter(|p| !was.contains(p)) {
+        space.set(room(place)?, Value::text(kind)).await?;
+    }
+    Ok(())
+}
+
 /// Runs one PEIS with `components` on `space` until `shutdown` completes.
 pub async fn run_host_with<S: TupleSpace>(
     space: S,
@@ -161,17 +190,17 @@ pub async fn run_host_with<S: TupleSpace>(
         // The name checked once for its five keys.
         let id = ComponentId::new(&c).map_err(|_| HostError::InvalidName(c.clone()))?;
         let power = if spec.on { "on" } else { "off" };
-        let mut announced = vec![
+        let announced = [
             (ComponentField::Type, spec.kind.clone()),
             (ComponentField::Cost, spec.cost.to_string()),
             (ComponentField::CurrState, power.to_string()),
             (ComponentField::Status, "idle".to_string()),
         ];
-        if !spec.covers.is_empty() {
-            announced.push((ComponentField::Covers, spec.covers.join(" ")));
-        }
         for (field, value) in announced {
             space.set(field.key(&id), Value::text(value)).await?;
+        }
+        if !spec.covers.is_empty() {
+            announce_covers(&space, &id, &spec.kind, &[], &spec.covers).await?;
         }
         states.insert(
             c,

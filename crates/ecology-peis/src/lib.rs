@@ -10,4 +10,4 @@ mod host;
 mod tests;
 
 pub use component::{BoxFuture, Component, ComponentError, Context, Inputs};
-pub use host::{ComponentSpec, HostError, HostOptions, run_host, run_host_with};
+pub use host::{ComponentSpec, HostError, HostOptions, announce_covers, run_host, run_host_with};

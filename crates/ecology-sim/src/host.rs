@@ -10,9 +10,15 @@
 use std::future::Future;
 use std::sync::Arc;
 
-use ecology_peis::{ComponentSpec, HostError, HostOptions, run_host_with};
+use futures_util::StreamExt;
+use futures_util::stream::SelectAll;
+
+use ecology_peis::{ComponentSpec, HostError, HostOptions, announce_covers, run_host_with};
 use ecology_ros2::{Agent, Ros2Component, announce_topics};
-use ecology_tuples::{Clock, TupleError, TupleEvent, TuplePattern, TupleSpace};
+use ecology_tuples::world::{Map, Pose, WorldKey};
+use ecology_tuples::{
+    Clock, ComponentId, Subscription, TupleError, TupleEvent, TuplePattern, TupleSpace,
+};
 
 use crate::components::{FaultState, Faults, Simulated};
 use crate::scenario::PeisDef;
@@ -120,12 +126,14 @@ pub async fn host_peis<S: TupleSpace>(
             }
         }
     }
-    let host = run_host_with(space, clock, components, options, shutdown);
+    let mut rooms = RobotRoom::follow(&space, def).await?;
+    let host = run_host_with(space.clone(), clock, components, options, shutdown);
     tokio::pin!(host);
     loop {
         tokio::select! {
             biased;
             result = &mut host => return result,
+            Some(event) = rooms.next() => rooms.take(&space, event).await?,
             Some(event) = fault_tuples.next() => {
                 let TupleEvent::Changed(tuple) = event else { continue };
                 let Some(component) = tuple.key.as_str().strip_suffix(".fault") else { continue };
@@ -153,5 +161,76 @@ pub async fn host_peis<S: TupleSpace>(
                 }
             }
         }
+    }
+}
+
+/// The room a robot PEIS is in, said by its cameras (`cam`) that say nothing of what they cover:
+/// a robot's camera sees the room the robot is in (within its range), so each says it covers that
+/// room, as the world places the robot, and says so again each time the robot enters another.
+struct RobotRoom {
+    /// The cameras, with their types.
+    cameras: Vec<(ComponentId, String)>,
+    /// The world's map and this robot's pose; empty when the PEIS has no such camera.
+    subscriptions: SelectAll<Subscription>,
+    map: Option<Map>,
+    at: Option<(f64, f64)>,
+    /// The room the cameras last said they cover.
+    said: Vec<String>,
+}
+
+impl RobotRoom {
+    async fn follow<S: TupleSpace>(space: &S, def: &PeisDef) -> Result<RobotRoom, TupleError> {
+        let cameras: Vec<(ComponentId, String)> = def
+            .components
+            .iter()
+            .filter(|c| c.kind == "cam" && c.covers.is_empty() && c.ros2.is_none())
+            .filter_map(|c| Some((ComponentId::new(&c.id).ok()?, c.kind.clone())))
+            .collect();
+        let mut subscriptions = SelectAll::new();
+        if !cameras.is_empty() {
+            for key in [WorldKey::Map, WorldKey::RobotPose(&def.name)] {
+                subscriptions.push(space.subscribe(key.pattern()?).await?);
+            }
+        }
+        Ok(RobotRoom {
+            cameras,
+            subscriptions,
+            map: None,
+            at: None,
+            said: Vec::new(),
+        })
+    }
+
+    /// The next change of the map or the pose; never, without cameras.
+    async fn next(&mut self) -> Option<TupleEvent> {
+        if self.subscriptions.is_empty() {
+            return std::future::pending().await;
+        }
+        self.subscriptions.next().await
+    }
+
+    /// Takes in `event`, and has the cameras say the room the robot is now in if it changed.
+    async fn take<S: TupleSpace>(&mut self, space: &S, event: TupleEvent) -> Result<(), HostError> {
+        let TupleEvent::Changed(tuple) = event else {
+            return Ok(());
+        };
+        let text = tuple.text().unwrap_or("");
+        match WorldKey::parse(tuple.key.as_str()) {
+            Some(WorldKey::Map) => self.map = Map::parse(text).ok(),
+            Some(WorldKey::RobotPose(_)) => self.at = Pose::parse(text).ok().map(|p| (p.x, p.y)),
+            _ => return Ok(()),
+        }
+        let room = match (&self.map, self.at) {
+            (Some(map), Some((x, y))) => map.room_at(x, y).map(|r| r.name.clone()),
+            _ => None,
+        };
+        let now: Vec<String> = room.into_iter().collect();
+        if now != self.said {
+            for (camera, kind) in &self.cameras {
+                announce_covers(space, camera, kind, &self.said, &now).await?;
+            }
+            self.said = now;
+        }
+        Ok(())
     }
 }

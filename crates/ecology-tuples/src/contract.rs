@@ -133,6 +133,32 @@ pub fn input_key(
     }
 }
 
+/// The first segment of a room key ([`room_key`]).
+pub const ROOMS: &str = "rooms";
+
+/// The key `rooms.ROOM.C` by which a PEIS says that its `component` covers `room` (the same
+/// places as its `components.C.covers`, a key each): an executive asks who covers a room with one
+/// wildcard question (`*:rooms.ROOM.*`, [`room_pattern`]) instead of reading every PEIS's
+/// directory. Its value is the component's type.
+pub fn room_key(room: &str, component: &ComponentId) -> Result<Key, ValidationError> {
+    Key::new(&format!("{ROOMS}.{room}.{component}"))
+}
+
+/// The room and the component a room key `rooms.ROOM.C` names; `None` for any other key.
+pub fn parse_room_key(key: &str) -> Option<(&str, &str)> {
+    let (room, component) = key
+        .strip_prefix(ROOMS)?
+        .strip_prefix('.')?
+        .split_once('.')?;
+    (!room.is_empty() && !component.is_empty() && !component.contains('.'))
+        .then_some((room, component))
+}
+
+/// Every PEIS's room keys for `room` (`*:rooms.ROOM.*`): who covers it.
+pub fn room_pattern(room: &str) -> Result<crate::TuplePattern, ValidationError> {
+    crate::TuplePattern::parse(&format!("*:{ROOMS}.{room}.*"))
+}
+
 /// Whether the contract lets a remote set write `data` to `key`: `components.C.reqState` takes
 /// only `on` or `off` (white space around them aside); every other key any value. A PEIS refuses
 /// the request with the reason, so the asker learns at once, instead of a value that changes
@@ -211,6 +237,30 @@ mod tests {
         assert_eq!(parse_unreadable("unreadable"), None);
         assert_eq!(parse_unreadable("unreadables x: y"), None);
         assert_eq!(parse_unreadable("unreadable a b: c"), None);
+    }
+
+    #[test]
+    fn a_room_key_names_the_room_and_the_component() {
+        let ca1 = ComponentId::new("ca1").expect("a name");
+        let key = room_key("living-room", &ca1).expect("a key");
+        assert_eq!(key.as_str(), "rooms.living-room.ca1");
+        assert_eq!(parse_room_key(key.as_str()), Some(("living-room", "ca1")));
+        let pattern = room_pattern("living-room").expect("a pattern");
+        assert!(pattern.matches(&crate::PeisId::new("hsm").expect("a name"), &key));
+        let elsewhere = room_key("kitchen", &ca1).expect("a key");
+        assert!(!pattern.matches(&crate::PeisId::new("hsm").expect("a name"), &elsewhere));
+        for other in [
+            "rooms",
+            "rooms.kitchen",
+            "rooms..ca1",
+            "rooms.kitchen.",
+            "rooms.a.b.c",
+            "ca1.out.x",
+        ] {
+            assert_eq!(parse_room_key(other), None, "{other}");
+        }
+        assert!(room_key("no room", &ca1).is_err());
+        assert!(room_pattern("no room").is_err());
     }
 
     #[test]

@@ -58,6 +58,12 @@ impl<'a> WorldKey<'a> {
         Key::new(&self.to_string())
     }
 
+    /// The pattern of this one tuple of the world (`world:KEY`), when the name is a valid key
+    /// segment.
+    pub fn pattern(self) -> Result<TuplePattern, ValidationError> {
+        TuplePattern::parse(&format!("{WORLD}:{self}"))
+    }
+
     /// Which world key `key` is; `None` for any other key, or a name that is not one segment.
     pub fn parse(key: &'a str) -> Option<WorldKey<'a>> {
         if key == "map" {

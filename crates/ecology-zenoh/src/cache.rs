@@ -2,7 +2,8 @@
 //! all of them is one round trip to the router, not a query every PEIS answers.
 //!
 //! A router keeps the latest value of every tuple under the contract's two key expressions
-//! ([`HELD`]: each PEIS's directory, `components/C/…`, and each component's own fields, `C/FIELD`),
+//! ([`HELD`]: each PEIS's directory, `components/C/…`, each component's own fields, `C/FIELD`, and
+//! the rooms its components cover, `rooms/ROOM/C`),
 //! and answers queries on them as a *complete* queryable: Zenoh then sends a query these key
 //! expressions cover to the router alone, instead of to every PEIS. It never holds outputs
 //! (`C/out/INFO`), nor anything outside the contract.
@@ -31,8 +32,9 @@ use ecology_tuples::{Clock, PeisId, SystemClock};
 
 use crate::wire::{self, Metadata};
 
-/// The key expressions a router holds: each PEIS's directory and its components' own fields.
-pub const HELD: [&str; 2] = ["peis/*/components/**", "peis/*/*/*"];
+/// The key expressions a router holds: each PEIS's directory, its components' own fields, and
+/// the rooms its components cover (`rooms/ROOM/C`, asked for by room).
+pub const HELD: [&str; 3] = ["peis/*/components/**", "peis/*/*/*", "peis/*/rooms/*/*"];
 
 /// [`HELD`] as key expressions, made once: every sample a router takes in is sorted by them.
 pub(crate) fn held() -> &'static [KeyExpr<'static>] {
@@ -405,13 +407,15 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
                     ));
                 }
             }
-            // Present, and nothing held for it that the question covers: the querier, told so,
-            // asks it itself (as it would ask a PEIS present that no answer came from).
+            // Present, and nothing held for it at all: the querier, told so, asks it itself (as
+            // it would ask a PEIS present that no answer came from). One whose tuples are held
+            // and none of them asked for has nothing to say: most PEIS, asked who covers a room.
             let covered = || {
                 KeyExpr::try_from(format!("{}/{peis}/**", wire::ROOT))
                     .is_ok_and(|all| asked.intersects(&all))
             };
-            if bundle && !any && covered() {
+            let nothing_held = state.tuples.get(peis).is_none_or(HashMap::is_empty);
+            if bundle && !any && nothing_held && covered() {
                 bundled.silent(peis.as_str());
             }
         }

@@ -323,12 +323,12 @@ impl Executive {
 
     /// What of the ecology the rest of the plan (every branch included) needs.
     pub fn interest(&self) -> Interest {
-        Interest::of_plan(self.planner.domain(), &self.plan, &self.branches)
+        Interest::of_plan(&self.planner, &self.world, &self.plan, &self.branches)
     }
 
     /// What of the ecology [`Interest::of`] `plan` needs, in this executive's domain.
     pub fn interest_of(&self, plan: &Plan) -> Interest {
-        Interest::of(self.planner.domain(), plan)
+        Interest::of(&self.planner, &self.world, plan)
     }
 
     /// What the executive took in from the ecology so far.
