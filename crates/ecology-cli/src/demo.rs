@@ -342,10 +342,14 @@ fn prefixed(entry: &LogEntry, executive: &str) -> String {
 /// What `--timings` reports: the executive's intake, its state acquisition
 /// and planning by the wall clock, and the process's peak memory.
 pub(crate) fn timings(log: &[LogEntry], intake: &Intake) -> String {
-    let followed = if intake.everything {
-        "everything followed"
-    } else {
-        "the contract followed, no outputs"
+    let followed = match (intake.everything, intake.scope) {
+        (true, _) => "everything followed".to_string(),
+        (false, Some((peis, rooms))) => format!(
+            "the contract of {peis} PEIS followed, those the goals name and those covering {rooms} \
+             room{}, no outputs",
+            if rooms == 1 { "" } else { "s" }
+        ),
+        (false, None) => "the contract followed, no outputs".to_string(),
     };
     let mut out = format!(
         "executive: state acquired in {:.1} ms ({followed}); took in {} tuples, {} bytes\n",

@@ -471,11 +471,14 @@ impl<S: TupleSpace> Follow<S> {
             // and the mirror drops what it has.
             self.subs = SelectAll::new();
         }
+        if wanted > Followed::Scope {
+            self.found.clear();
+        }
         self.followed = wanted;
-        exec.note_everything(wanted == Followed::Everything);
         let mut out = self.subscribe(exec, now, patterns).await?;
         // Those that answered who covers a room are followed in turn.
         out.extend(self.follow_found(exec, now).await?);
+        self.note(exec);
         Ok(out)
     }
 
@@ -503,7 +506,16 @@ impl<S: TupleSpace> Follow<S> {
                 .collect();
             out.extend(self.subscribe(exec, now, patterns).await?);
         }
+        self.note(exec);
         Ok(out)
+    }
+
+    /// Tells the executive what is followed, for its intake.
+    fn note(&self, exec: &mut Executive) {
+        let count = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+        let scope = (self.followed == Followed::Scope)
+            .then(|| (count(self.peis.len()), count(self.rooms.len())));
+        exec.note_followed(self.followed == Followed::Everything, scope);
     }
 
     /// Subscribes to `patterns`, handing the executive what is there now; returns its commands.

@@ -95,6 +95,9 @@ pub struct Intake {
     /// Whether every tuple was followed; otherwise the component contract of
     /// every PEIS, without the outputs (on demand).
     pub everything: bool,
+    /// Under a scope ([`Interest::Scoped`]): the PEIS whose contract was followed, and the rooms
+    /// whose covering PEIS were asked for; `None` when the contract of every PEIS was.
+    pub scope: Option<(u32, u32)>,
     /// How long the driver took to acquire the state before the task
     /// started (its directory and the followed PEIS's tuples), by the wall clock.
     pub acquisition: Duration,

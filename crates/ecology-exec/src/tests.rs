@@ -15,6 +15,7 @@ use crate::driver::Timers;
 use crate::{Command, Event, ExecConfig, Executive, LogEvent, PlannedAction, RunStatus, Timer};
 
 const PEIS_HOME: &str = include_str!("../../../domains/peis-home.eco");
+const PEIS_BUILDING: &str = include_str!("../../../domains/peis-building.eco");
 const PEIS_HOME_FACTS: &str = include_str!("../../../domains/peis-home.facts");
 
 fn secs(s: f64) -> Duration {
@@ -1206,7 +1207,8 @@ mod on_the_tuple_space {
 
     use super::peis_home::Hosts;
     use super::{
-        PEIS_HOME, PEIS_HOME_FACTS, costs, executive, failures, names, peis, plan, secs, timeline,
+        PEIS_BUILDING, PEIS_HOME, PEIS_HOME_FACTS, costs, executive, failures, names, peis, plan,
+        secs, timeline,
     };
     use crate::{
         DriverConfig, ExecConfig, Executive, LogEntry, LogEvent, PlannedAction, RunStatus,
@@ -1655,6 +1657,47 @@ mod on_the_tuple_space {
         );
         assert!(text.contains("on mon:tr9"), "{text}");
         assert!(!exec.intake().everything, "the contract only, no outputs");
+    }
+
+    // In the building's domain, on demand follows Astrid and whoever covers the rooms her moves
+    // start in, not every PEIS. A monitor that joins during the task covering the entrance says so
+    // by its room key, is followed from then on, and tracks her when hsm's tracker fails there; a
+    // monitor that covers no room of the task is never read.
+    #[tokio::test(start_paused = true)]
+    async fn a_peis_that_comes_to_cover_a_room_of_the_task_is_followed_and_used() {
+        const HSM_COVERS: &str = "(covers hsm ca1 living-room) (covers hsm ca1 entrance) \
+                                  (covers hsm ca1 kitchen) (covers hsm ca1 bedroom)";
+        const MONITORS: &str = "(pc mon cams ca9) (cost mon ca9 5 on) (covers mon ca9 entrance) \
+                                (pc mon tr-sys tr9) (cost mon tr9 5 on) \
+                                (pc far cams ca8) (cost far ca8 1 on) (covers far ca8 attic) \
+                                (pc far tr-sys tr8) (cost far tr8 1 on)";
+        let domain = parse_domain(PEIS_BUILDING.as_bytes()).expect("domain");
+        let exec = Executive::new(domain, EcologyState::new(), plan(), ExecConfig::default());
+        let exec = Run {
+            facts: format!("{PEIS_HOME_FACTS} {HSM_COVERS}"),
+            fault: Some((2, Fault::Break("hsm", "tr1", "camera failure"))),
+            arrives: Some((2, MONITORS)),
+            ..Run::of(exec)
+        }
+        .done()
+        .await;
+        let text = timeline(&exec);
+        assert_eq!(
+            costs(&exec),
+            [
+                (80, false),
+                (100, false),
+                (80, false),
+                (50, true),
+                (20, false)
+            ],
+            "{text}"
+        );
+        assert!(text.contains("on mon:tr9"), "{text}");
+        // Astrid, hsm and mon; the living room and the entrance. Not Pippi, whose camera says no
+        // room it covers, nor `far`.
+        assert_eq!(exec.intake().scope, Some((3, 2)), "{text}");
+        assert!(exec.mirror().component("far", "ca8").is_none(), "{text}");
     }
 
     // The paper, Section VIII step 6: the tracking system fails while moving to the bedroom.

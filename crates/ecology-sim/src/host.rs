@@ -164,6 +164,24 @@ pub async fn host_peis<S: TupleSpace>(
     }
 }
 
+/// Runs `host` (PEIS `def`'s host on `space`) until it ends, with its robot cameras saying the
+/// room the robot is in ([`RobotRoom`]).
+pub(crate) async fn with_robot_room<S: TupleSpace>(
+    space: S,
+    def: &PeisDef,
+    host: impl Future<Output = Result<(), HostError>>,
+) -> Result<(), HostError> {
+    let mut rooms = RobotRoom::follow(&space, def).await?;
+    tokio::pin!(host);
+    loop {
+        tokio::select! {
+            biased;
+            result = &mut host => return result,
+            Some(event) = rooms.next() => rooms.take(&space, event).await?,
+        }
+    }
+}
+
 /// The room a robot PEIS is in, said by its cameras (`cam`) that say nothing of what they cover:
 /// a robot's camera sees the room the robot is in (within its range), so each says it covers that
 /// room, as the world places the robot, and says so again each time the robot enters another.

@@ -29,7 +29,7 @@ use tokio::task::{AbortHandle, JoinSet};
 
 use crate::components::Faults;
 use crate::conflicts::{Change, ConflictCheck};
-use crate::host::simulated_components;
+use crate::host::{simulated_components, with_robot_room};
 use crate::replan::WorldReplanner;
 use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, ScenarioTask, Trigger};
 use crate::world::World;
@@ -755,7 +755,11 @@ impl Simulation {
             simulated_components(def, &self.faults, self.seed),
             std::future::pending(),
         );
-        let task = hosts.tasks.spawn(async move { (name, host.await) });
+        let (space, def) = (handle.clone(), def.clone());
+        let task = hosts.tasks.spawn(async move {
+            let result = with_robot_room(space, &def, host).await;
+            (name, result)
+        });
         Ok(Hosted { handle, task })
     }
 

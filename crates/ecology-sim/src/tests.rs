@@ -624,14 +624,16 @@ fn bytes_of(text: &str) -> bytes::Bytes {
     bytes::Bytes::copy_from_slice(text.as_bytes())
 }
 
-/// The on-demand executive (the default) reads only the PEIS with a component its goals can
-/// use, and chooses exactly the configurations the executive reading everything chooses.
+/// The on-demand executive (the default) reads only the PEIS its goals name and those that cover
+/// the rooms its actions start in, and chooses exactly the configurations the executive reading
+/// everything chooses.
 #[tokio::test]
 async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
     let domain = scenario_path("../domains/peis-building.eco");
     let problem = scenario_path("../domains/peis-home-task.problem");
     let (domain, problem) = (domain.display().to_string(), problem.display().to_string());
     let mut reconfigured = 0;
+    let mut intakes = Vec::new();
     for (peis, seed) in [(40, 11), (150, 12)] {
         let text = crate::generate::home(peis, seed, &domain, &problem).expect("generated");
         let load = |text: &str| {
@@ -685,8 +687,16 @@ async fn acquired_on_demand_the_configurations_are_those_of_the_whole_state() {
             mine.tuples * 3 < all.tuples && mine.bytes * 3 < all.bytes,
             "{mine:?} against {all:?}"
         );
+        // In the building's domain every PEIS a configuration can use is Astrid or covers the
+        // room a move starts in: Astrid, hsm (the home's ceiling cameras) and Pippi (her camera
+        // sees the living room she stands in), whatever the size of the building.
+        assert_eq!(mine.scope, Some((3, 2)), "{mine:?}");
+        intakes.push(mine.tuples);
     }
     assert!(reconfigured > 0, "no fault changed a configuration");
+    // What on demand takes in does not grow with the building (it is not the same: each home
+    // has its own seed, and its faulted tracker fails at its own moment).
+    assert!(intakes[1] < intakes[0] * 2, "{intakes:?}");
 }
 
 // A generated building: the same seed gives the same file, it loads, and the paper's task is

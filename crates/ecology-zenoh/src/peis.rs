@@ -1381,9 +1381,14 @@ impl TupleSpace for ZenohPeis {
         // (and, asked beside it, delayed it as long). One that appears later is caught by the
         // watcher above. A subscription to one PEIS asks after that one only.
         let heard: BTreeSet<PeisId> = snapshot.iter().map(|t| t.owner.clone()).collect();
-        let unheard = match answer.silent.filter(|_| answer.in_full) {
-            Some(silent) => Ok(silent),
-            None => alive_matching(core, &alive).await,
+        let unheard = match (answer.silent.filter(|_| answer.in_full), &pattern.owner) {
+            (Some(silent), _) => Ok(silent),
+            // The one PEIS asked after answered: nobody is left to ask (an executive follows a
+            // building's PEIS one by one, and this saved a round trip for each).
+            (None, ecology_tuples::OwnerPattern::Exact(id)) if heard.contains(id) => {
+                Ok(BTreeSet::new())
+            }
+            (None, _) => alive_matching(core, &alive).await,
         };
         if let Ok(unheard) = unheard {
             for id in unheard {

@@ -906,6 +906,84 @@ fn a_process_of_many_peis_takes_a_longer_lease() {
     let _ = std::fs::remove_file(&file);
 }
 
+/// A generated building over Zenoh, behind a router that holds the contract: in the building's
+/// domain the executive asks who covers the room Astrid sets off from, and reads the contract of
+/// three PEIS of the sixty (Astrid, hsm and Pippi, whose camera covers the living room she stands
+/// in), not of every PEIS; the move is configured on hsm's cameras and done.
+#[test]
+fn a_building_behind_a_router_is_acquired_room_by_room() {
+    let _slot = process_slot();
+    let folder = std::env::temp_dir().join(format!("ecology-rooms-{}", std::process::id()));
+    std::fs::create_dir_all(&folder).expect("temp folder");
+    let file = folder.join("home.toml").display().to_string();
+    let plan = folder.join("plan.txt");
+    std::fs::write(
+        &plan,
+        "(move astrid living-room entrance)  ; configure (navigate astrid entrance)\n",
+    )
+    .expect("write plan");
+    let plan = plan.display().to_string();
+    let made = Proc::start(
+        "generate",
+        &[
+            "generate", "home", "--peis", "60", "--seed", "3", "--output", &file,
+        ],
+    )
+    .finish();
+    assert_eq!(made.0, Some(0), "{:?}", made.1);
+    let router_at = free_endpoint();
+    let _router = Proc::start("router", &["router", "--listen", &router_at]).ready();
+    let client = ["--connect", router_at.as_str(), "--client"];
+    let _world = Proc::start("world", &[&["world", file.as_str()][..], &client].concat()).ready();
+    let mut peis = Proc::start(
+        "peis",
+        &[&["peis", file.as_str(), "--all"][..], &client].concat(),
+    );
+    peis.wait_for("the building", |l| l == "59 PEIS ready");
+    let domain = root()
+        .join("domains/peis-building.eco")
+        .display()
+        .to_string();
+    let task = [
+        "task",
+        "--domain",
+        domain.as_str(),
+        "--plan",
+        plan.as_str(),
+        "--json",
+        "--timings",
+        "--wait-for",
+        "world,astrid,hsm,pippi",
+    ];
+    let (code, lines) =
+        Proc::start_with_stderr("executive", &[&task[..], &client].concat()).finish();
+    let text: Vec<&str> = lines.iter().map(|l| l.text.as_str()).collect();
+    assert_eq!(code, Some(0), "{text:#?}");
+    assert!(
+        text.iter().any(|l| l.contains(
+            "the contract of 3 PEIS followed, those the goals name and those covering 1 room,"
+        )),
+        "{text:#?}"
+    );
+    let all: Vec<Value> = text
+        .iter()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| event(l))
+        .collect();
+    let configured: Vec<&Value> = all
+        .iter()
+        .filter(|e| e["event"] == "configuration")
+        .collect();
+    assert_eq!(configured.len(), 1, "{all:#?}");
+    assert_eq!(configured[0]["cost"], 80, "{all:#?}");
+    assert_eq!(
+        all.last().map(|e| e["event"].clone()),
+        Some("task_done".into()),
+        "{all:#?}"
+    );
+    let _ = std::fs::remove_dir_all(&folder);
+}
+
 #[test]
 fn the_papers_experiment_as_separate_processes() {
     let _slot = process_slot();

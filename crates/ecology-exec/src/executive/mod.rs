@@ -342,9 +342,11 @@ impl Executive {
         self.intake.acquisition = took;
     }
 
-    /// The driver's part of the intake: whether it follows every tuple.
-    pub fn note_everything(&mut self, everything: bool) {
+    /// The driver's part of the intake: whether it follows every tuple, and under a scope how
+    /// many PEIS's contracts and how many rooms.
+    pub fn note_followed(&mut self, everything: bool, scope: Option<(u32, u32)>) {
         self.intake.everything = everything;
+        self.intake.scope = scope;
     }
 
     /// The configuration running now, if any.

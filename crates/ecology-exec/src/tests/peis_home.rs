@@ -29,7 +29,7 @@ struct Host {
 
 impl Hosts {
     /// Starts a host on `space` for every PEIS that has a component in
-    /// `facts`, with its components as their `pc` and `cost` facts say, each
+    /// `facts`, with its components as their `pc`, `cost` and `covers` facts say, each
     /// switching on in `startup`, running the body `bodies(P, C)` gives.
     pub fn start(
         space: &InProcessSpace,
@@ -56,6 +56,11 @@ impl Hosts {
                 let cost = facts
                     .component_cost(&peis, &c)
                     .ok_or_else(|| format!("no cost for {peis}:{c}"))?;
+                let covers = facts
+                    .with_predicate("covers")
+                    .filter(|f| *f.args[0] == *peis && *f.args[1] == *c)
+                    .map(|f| f.args[2].to_string())
+                    .collect();
                 specs.push(ComponentSpec {
                     body: bodies(&peis, &c),
                     name: c,
@@ -63,7 +68,7 @@ impl Hosts {
                     cost: cost.amount,
                     on: cost.power == Power::On,
                     startup,
-                    covers: Vec::new(),
+                    covers,
                 });
             }
             let (stop, stopped) = oneshot::channel::<()>();
