@@ -56,9 +56,66 @@ fn mask(is: impl Fn(&KeyExpr<'static>) -> bool) -> u8 {
         .fold(0, |mask, (i, _)| mask | 1 << i)
 }
 
-/// The liveliness tokens of the routers that hold the contract (`@ecology/holds-contract/ZID`):
-/// a PEIS asks for them to know whether to ask a router alone.
-pub const HOLDERS: &str = "@ecology/holds-contract/*";
+/// Where the routers that hold the contract say so, a liveliness token each
+/// (`@ecology/holds-contract/ZID`): a PEIS asks for them to know whether to ask a router alone.
+pub const HOLDS_CONTRACT: &str = "@ecology/holds-contract";
+
+/// The holders' tokens, and those that say a holder answers under [`HELD_ROUTE`]
+/// (`@ecology/holds-contract/ZID/routed`).
+pub const HOLDERS: &str = "@ecology/holds-contract/**";
+
+/// The last chunk of a holder's second token: it answers under [`HELD_ROUTE`].
+pub const ROUTED: &str = "routed";
+
+/// Where a question of every PEIS that the holders answer can be asked instead: `peis/*/rooms/
+/// kitchen/*` as `@ecology/held/peis/*/rooms/kitchen/*`. Zenoh finds who answers a key expression
+/// with a wildcard in place of the PEIS by weighing every PEIS's declarations (2–3 ms per question
+/// at a thousand PEIS); under this prefix there is only the holders' queryable to weigh.
+pub const HELD_ROUTE: &str = "@ecology/held";
+
+/// The question asked under [`HELD_ROUTE`], when the key expression is one.
+fn held_asked(key_expr: &str) -> Option<KeyExpr<'static>> {
+    let asked = key_expr.strip_prefix(HELD_ROUTE)?.strip_prefix('/')?;
+    KeyExpr::try_from(asked.to_string()).ok()
+}
+
+/// Which routers hold the contract, from the tokens [`HOLDERS`] gave: none; some, each answering
+/// under [`HELD_ROUTE`]; or some, of which one at least does not (a router built before it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Holders {
+    /// No router holds the contract: every PEIS answers for itself.
+    None,
+    /// Every holder answers under [`HELD_ROUTE`].
+    Routed,
+    /// A holder answers only where it holds (the key expressions of [`HELD`]).
+    Plain,
+}
+
+impl Holders {
+    /// The holders that `tokens` (their key expressions) name.
+    pub fn of<'a>(tokens: impl IntoIterator<Item = &'a str>) -> Holders {
+        let mut plain = HashSet::new();
+        let mut routed = HashSet::new();
+        for token in tokens {
+            let Some(rest) = token
+                .strip_prefix(HOLDS_CONTRACT)
+                .and_then(|r| r.strip_prefix('/'))
+            else {
+                continue;
+            };
+            match rest.split_once('/') {
+                Some((zid, ROUTED)) => routed.insert(zid.to_string()),
+                Some(_) => false,
+                None => plain.insert(rest.to_string()),
+            };
+        }
+        match (plain.is_empty(), plain.is_subset(&routed)) {
+            (true, _) => Holders::None,
+            (false, true) => Holders::Routed,
+            (false, false) => Holders::Plain,
+        }
+    }
+}
 
 /// The parameter of the questions a router asks the PEIS themselves: other routers' holdings
 /// leave them unanswered.
@@ -97,10 +154,64 @@ struct Held {
     expiry: Option<u64>,
 }
 
+/// One PEIS's tuples by key expression, apart under each of [`HELD`]: a question within one of
+/// them (who covers a room: `peis/*/rooms/kitchen/*`) looks at the tuples under it alone, not at
+/// every tuple of every PEIS. A key under several (a component named `components`) is kept apart
+/// too, and looked at by every question.
+#[derive(Default)]
+struct Holding([HashMap<String, Held>; HELD.len() + 1]);
+
+impl Holding {
+    /// Where tuples under `under` are kept.
+    fn slot(under: u8) -> usize {
+        match under.count_ones() {
+            1 => under.trailing_zeros() as usize,
+            _ => HELD.len(),
+        }
+    }
+
+    fn get(&self, key: &str) -> Option<&Held> {
+        self.0.iter().find_map(|tuples| tuples.get(key))
+    }
+
+    fn insert(&mut self, key: String, held: Held) {
+        self.0[Holding::slot(held.under)].insert(key, held);
+    }
+
+    fn remove(&mut self, key: &str) {
+        for tuples in &mut self.0 {
+            tuples.remove(key);
+        }
+    }
+
+    fn retain(&mut self, keep: impl Fn(&Held) -> bool) {
+        for tuples in &mut self.0 {
+            tuples.retain(|_, held| keep(held));
+        }
+    }
+
+    fn values(&self) -> impl Iterator<Item = &Held> {
+        self.0.iter().flat_map(HashMap::values)
+    }
+
+    fn is_empty(&self) -> bool {
+        self.0.iter().all(HashMap::is_empty)
+    }
+
+    /// The tuples that may be under one of the held key expressions `mask` has a bit of.
+    fn under(&self, mask: u8) -> impl Iterator<Item = &Held> {
+        self.0
+            .iter()
+            .enumerate()
+            .filter(move |(slot, _)| *slot == HELD.len() || mask & 1 << slot != 0)
+            .flat_map(|(_, tuples)| tuples.values())
+    }
+}
+
 #[derive(Default)]
 struct State {
-    /// Per PEIS, its tuples by key expression.
-    tuples: HashMap<PeisId, HashMap<String, Held>>,
+    /// Per PEIS, its tuples.
+    tuples: HashMap<PeisId, Holding>,
     /// PEIS present whose tuples were asked for and not yet received: a query that covers one of
     /// them is passed on to it.
     asking: HashSet<PeisId>,
@@ -122,24 +233,23 @@ fn owner_of(key_expr: &str) -> Option<PeisId> {
 }
 
 /// Takes in one sample of a held key.
-fn take(state: &Shared, sample: &Sample) {
+/// Takes in one sample of a held key; whether it was taken (not older than the value held).
+fn take(state: &Shared, sample: &Sample) -> bool {
     let Some(owner) = owner_of(sample.key_expr().as_str()) else {
-        return;
+        return false;
     };
     let key = sample.key_expr().as_str().to_owned();
     let mut state = lock(state);
     let tuples = state.tuples.entry(owner).or_default();
     match sample.kind() {
-        SampleKind::Delete => {
-            tuples.remove(&key);
-        }
+        SampleKind::Delete => tuples.remove(&key),
         SampleKind::Put => {
             let meta = sample
                 .attachment()
                 .and_then(|a| Metadata::decode(&a.to_bytes()).ok());
             let order = meta.as_ref().map_or((0, 0), |m| (m.epoch, m.seq));
             if tuples.get(&key).is_some_and(|held| held.order > order) {
-                return;
+                return false;
             }
             let key_expr = sample.key_expr().clone().into_owned();
             let under = mask(|held| held.intersects(&key_expr));
@@ -158,6 +268,7 @@ fn take(state: &Shared, sample: &Sample) {
             );
         }
     }
+    true
 }
 
 /// What the router holds for the contract; dropping it stops holding.
@@ -165,7 +276,10 @@ pub struct ContractCache {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     _tokens: zenoh::pubsub::Subscriber<()>,
-    _holder: zenoh::liveliness::LivelinessToken,
+    _holder: (
+        zenoh::liveliness::LivelinessToken,
+        zenoh::liveliness::LivelinessToken,
+    ),
 }
 
 impl Drop for ContractCache {
@@ -181,14 +295,51 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
     let state: Shared = Arc::default();
     let mut tasks = Vec::new();
     let mut subscribers = Vec::new();
+    // What is taken in goes out again under `@ecology/held/`, for the subscribers there (see
+    // [`HELD_ROUTE`]), in the order taken, by a task of its own: a callback runs inside Zenoh's
+    // routing.
+    let (taken, mut to_pass_on) = mpsc::unbounded_channel::<Sample>();
+    let passer = session.clone();
+    tasks.push(tokio::spawn(async move {
+        while let Some(sample) = to_pass_on.recv().await {
+            let key_expr = format!("{HELD_ROUTE}/{}", sample.key_expr());
+            let attachment = sample.attachment().cloned();
+            let _ = match sample.kind() {
+                SampleKind::Put => {
+                    let mut put = passer
+                        .put(key_expr, sample.payload().clone())
+                        .encoding(sample.encoding().clone())
+                        .allowed_destination(Locality::Remote);
+                    if let Some(attachment) = attachment {
+                        put = put.attachment(attachment);
+                    }
+                    put.await
+                }
+                SampleKind::Delete => {
+                    let mut delete = passer
+                        .delete(key_expr)
+                        .allowed_destination(Locality::Remote);
+                    if let Some(attachment) = attachment {
+                        delete = delete.attachment(attachment);
+                    }
+                    delete.await
+                }
+            };
+        }
+    }));
     for held in HELD {
         let into = state.clone();
+        let taken = taken.clone();
         // Taken in as the router routes it, before anything the owner sends after it (such as
         // its answer to the remote set that wrote it): a read that follows sees it.
         subscribers.push(
             session
                 .declare_subscriber(held)
-                .callback(move |sample| take(&into, &sample))
+                .callback(move |sample| {
+                    if take(&into, &sample) {
+                        let _ = taken.send(sample);
+                    }
+                })
                 .await?,
         );
     }
@@ -218,7 +369,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                     && let Some(tuples) = state.tuples.get_mut(&owner)
                 {
                     // What is left of an earlier run of the PEIS goes.
-                    tuples.retain(|_, held| held.order.0 >= epoch);
+                    tuples.retain(|held| held.order.0 >= epoch);
                 }
             })
             .await?,
@@ -285,7 +436,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                             Ok(sample)
                                 if owner_of(sample.key_expr().as_str()) == Some(peis.clone()) =>
                             {
-                                take(&state, sample)
+                                take(&state, sample);
                             }
                             Ok(_) => {}
                             Err(_) => answered = false,
@@ -297,7 +448,7 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                     // What is left of an earlier run of the PEIS (written while it was away) goes.
                     if let Some(tuples) = state.tuples.get_mut(&peis) {
                         let run = tuples.values().map(|h| h.order.0).max().unwrap_or(0);
-                        tuples.retain(|_, held| held.order.0 == run);
+                        tuples.retain(|held| held.order.0 == run);
                     }
                     if answered {
                         state.asking.remove(&peis);
@@ -312,23 +463,37 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
             });
         }
     }));
-    for held in HELD {
+    // Each held key expression, asked as it is; and all of them under `@ecology/held/`, where
+    // Zenoh finds this queryable without weighing every PEIS's (see [`HELD_ROUTE`]).
+    let routes = HELD
+        .iter()
+        .map(|held| (held.to_string(), false))
+        .chain([(format!("{HELD_ROUTE}/**"), true)]);
+    for (route, prefixed) in routes {
         let queryable = session
-            .declare_queryable(held)
+            .declare_queryable(route.as_str())
             .complete(true)
             .allowed_origin(Locality::Remote)
             .await?;
         let state = state.clone();
         let session = session.clone();
-        let held = KeyExpr::try_from(held)?;
         tasks.push(tokio::spawn(async move {
             let mut answering = tokio::task::JoinSet::new();
             while let Ok(query) = queryable.recv_async().await {
                 while answering.try_join_next().is_some() {}
+                let asked = if prefixed {
+                    match held_asked(query.key_expr().as_str()) {
+                        Some(asked) => asked,
+                        None => continue,
+                    }
+                } else {
+                    query.key_expr().clone().into_owned()
+                };
                 // Zenoh asks this queryable alone only for a question its key expression covers
                 // whole; one it merely meets (`peis/*/*/out/image` meets `peis/*/components/**`)
-                // also goes to every PEIS, which answer it.
-                if !held.includes(query.key_expr()) {
+                // also goes to every PEIS, which answer it. Under `@ecology/held/`, a question
+                // that lies within none of the held key expressions is not answered.
+                if !held().iter().any(|held| held.includes(&asked)) {
                     continue;
                 }
                 // Another router's holding asking a PEIS: the PEIS answers, not this one (two
@@ -338,34 +503,46 @@ pub async fn start(session: &Session) -> zenoh::Result<ContractCache> {
                 }
                 let state = state.clone();
                 let session = session.clone();
-                answering.spawn(async move { answer(&session, &state, query).await });
+                answering.spawn(async move { answer(&session, &state, query, asked).await });
             }
         }));
     }
-    // Declared last: whoever sees it can ask the queryables above.
+    // Declared last: whoever sees them can ask the queryables above. The second says that this
+    // router answers under `@ecology/held/` too (a router built before did not).
     let holder = session
         .liveliness()
-        .declare_token(format!("@ecology/holds-contract/{}", session.zid()))
+        .declare_token(format!("{HOLDS_CONTRACT}/{}", session.zid()))
+        .await?;
+    let holder_by_route = session
+        .liveliness()
+        .declare_token(format!("{HOLDS_CONTRACT}/{}/{ROUTED}", session.zid()))
         .await?;
     Ok(ContractCache {
         tasks,
-        _holder: holder,
+        _holder: (holder, holder_by_route),
         _subscribers: subscribers,
         _tokens: tokens,
     })
 }
 
-/// Answers `query` from what is held, and passes it on to the PEIS still being asked. What is
+/// Answers `query`, which asks for `asked` (its key expression, or what it names under
+/// [`HELD_ROUTE`]), from what is held, and passes it on to the PEIS still being asked. What is
 /// held goes in one reply, a bundle (`wire::encode_bundle`), when the querier asks for one
 /// (`wire::BUNDLE_PARAMETER`): a thousand PEIS's contract is some seven thousand tuples, and a
 /// reply each cost more than everything else of the question together.
-async fn answer(session: &Session, state: &Shared, query: Query) {
-    let asked = query.key_expr().clone().into_owned();
+async fn answer(session: &Session, state: &Shared, query: Query, asked: KeyExpr<'static>) {
     let bundle = query.parameters().contains_key(wire::BUNDLE_PARAMETER);
     let now = SystemClock.now().as_nanos();
     // The held key expressions the question covers whole, and those it lies within.
     let covers = mask(|held| asked.includes(held));
     let within = mask(|held| held.includes(&asked));
+    // Only the tuples under the held key expressions the question covers or lies within can be
+    // asked for (one within none is compared with every tuple).
+    let looked_at = if within == 0 {
+        u8::MAX
+    } else {
+        covers | within
+    };
     let mut first = None;
     let mut bundled = wire::BundleWriter::default();
     let mut replies = Vec::new();
@@ -383,7 +560,8 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
                 continue;
             }
             let mut any = false;
-            for held in state.tuples.get(peis).into_iter().flat_map(HashMap::values) {
+            let held_for = state.tuples.get(peis);
+            for held in held_for.into_iter().flat_map(|h| h.under(looked_at)) {
                 let asked_for = held.under & covers != 0
                     || (within & !held.under == 0 && asked.intersects(&held.key_expr));
                 if held.expiry.is_some_and(|at| at <= now) || !asked_for {
@@ -414,7 +592,7 @@ async fn answer(session: &Session, state: &Shared, query: Query) {
                 KeyExpr::try_from(format!("{}/{peis}/**", wire::ROOT))
                     .is_ok_and(|all| asked.intersects(&all))
             };
-            let nothing_held = state.tuples.get(peis).is_none_or(HashMap::is_empty);
+            let nothing_held = held_for.is_none_or(Holding::is_empty);
             if bundle && !any && nothing_held && covered() {
                 bundled.silent(peis.as_str());
             }
@@ -483,4 +661,56 @@ async fn ask_the_peis(
         .timeout(ASK_WITHIN)
         .with(flume::unbounded())
         .await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn holders_are_asked_under_the_held_route_only_when_every_one_answers_there() {
+        let of = |tokens: &[&str]| Holders::of(tokens.iter().copied());
+        assert_eq!(of(&[]), Holders::None);
+        assert_eq!(of(&["@ecology/holds-contract/a1/routed"]), Holders::None);
+        assert_eq!(
+            of(&[
+                "@ecology/holds-contract/a1",
+                "@ecology/holds-contract/a1/routed"
+            ]),
+            Holders::Routed
+        );
+        // A router built before the route, beside one of today: both are asked where both answer.
+        assert_eq!(
+            of(&[
+                "@ecology/holds-contract/a1",
+                "@ecology/holds-contract/a1/routed",
+                "@ecology/holds-contract/b2",
+            ]),
+            Holders::Plain
+        );
+        assert_eq!(
+            of(&["@ecology/holds-contract/a1", "@ecology/other/a1/routed"]),
+            Holders::Plain
+        );
+    }
+
+    #[test]
+    fn a_question_under_the_held_route_is_the_question_after_it() {
+        assert_eq!(
+            held_asked("@ecology/held/peis/*/rooms/kitchen/*").map(|k| k.to_string()),
+            Some("peis/*/rooms/kitchen/*".to_string())
+        );
+        assert_eq!(held_asked("@ecology/held"), None);
+        assert_eq!(held_asked("@ecology/heldpeis/*"), None);
+        assert_eq!(held_asked("peis/*/rooms/kitchen/*"), None);
+    }
+
+    #[test]
+    fn a_tuple_is_kept_apart_under_the_held_key_expression_it_falls_under() {
+        assert_eq!(Holding::slot(0b001), 0);
+        assert_eq!(Holding::slot(0b100), 2);
+        // Under two (a component named `components`): looked at by every question.
+        assert_eq!(Holding::slot(0b011), HELD.len());
+        assert_eq!(Holding::slot(0), HELD.len());
+    }
 }

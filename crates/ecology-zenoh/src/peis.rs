@@ -16,9 +16,10 @@ use zenoh::Wait;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
-use zenoh::query::{ConsolidationMode, Query, QueryTarget};
+use zenoh::query::{ConsolidationMode, Query, QueryTarget, ReplyKeyExpr};
 use zenoh::sample::{Locality, Sample, SampleKind};
 
+use crate::cache::{HELD_ROUTE, Holders};
 use crate::relink;
 use crate::wire::{self, Metadata, WireError};
 use crate::{Mode, Notices, ZenohError, ZenohOptions};
@@ -76,6 +77,8 @@ struct Core {
     contracts: Arc<Mutex<HashMap<PeisId, u8>>>,
     /// Keeps `contracts` current; declared at the first remote set to another PEIS.
     contract_watch: tokio::sync::OnceCell<ContractWatch>,
+    /// Which routers hold the contract, and when that was asked ([`held_for_all`]).
+    holders: Mutex<Option<(std::time::Instant, Holders)>>,
 }
 
 /// The subscriptions that keep [`Core::contracts`] current: an owner's announcement (put or
@@ -289,6 +292,7 @@ impl ZenohPeis {
             secured: matches!(options.security, crate::Security::Authenticated(_)),
             contracts: Arc::new(Mutex::new(HashMap::new())),
             contract_watch: tokio::sync::OnceCell::new(),
+            holders: Mutex::new(None),
         });
         // In the store before the service task answers its first get: whoever sees this PEIS
         // present and asks what it reads gets the answer.
@@ -463,16 +467,33 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     // A question of every PEIS that a router holds the answer to (the contract's keys) is asked of
     // the router alone; otherwise of every PEIS that matches, each answering for itself.
     // A router asked alone answers with what it holds in one bundle.
-    let (target, selector) = match pattern.owner {
-        ecology_tuples::OwnerPattern::Any if held_for_all(core, &key_expr).await => (
+    // Routers that all answer under `@ecology/held/` are asked there, where Zenoh need not weigh
+    // every PEIS's declarations to find them; their replies carry the tuples' own keys.
+    // A question about one PEIS goes there too: an executive in a building asks after a few PEIS
+    // one by one, and weighing a thousand PEIS's declarations cost each question as much as the
+    // answer.
+    let holders = held_for_all(core, &key_expr).await;
+    let (target, selector, replies_from) = match (holders, &pattern.owner) {
+        (Holders::Routed, _) => (
+            QueryTarget::AllComplete,
+            format!("{HELD_ROUTE}/{key_expr}?{}", wire::BUNDLE_PARAMETER),
+            ReplyKeyExpr::Any,
+        ),
+        (Holders::Plain, ecology_tuples::OwnerPattern::Any) => (
             QueryTarget::AllComplete,
             format!("{key_expr}?{}", wire::BUNDLE_PARAMETER),
+            ReplyKeyExpr::MatchingQuery,
         ),
-        _ => (QueryTarget::BestMatching, key_expr),
+        (Holders::Plain | Holders::None, _) => (
+            QueryTarget::BestMatching,
+            key_expr,
+            ReplyKeyExpr::MatchingQuery,
+        ),
     };
     let replies = core
         .session
         .get(selector)
+        .accept_replies(replies_from)
         .target(target)
         .consolidation(ConsolidationMode::None)
         .timeout(core.query_timeout)
@@ -547,25 +568,33 @@ async fn query_tuples_answered(core: &Core, pattern: &TuplePattern) -> Result<An
     })
 }
 
-/// Whether a router holds the component contract of every PEIS (see the module `cache`): then a
-/// question of every PEIS that the contract's key expressions cover is asked of it alone, as a
-/// query of complete queryables. Routers that hold it say so with a liveliness token, and a
+/// Whether routers hold the component contract of every PEIS (see the module `cache`), and
+/// whether each answers under `@ecology/held/`: then a question of every PEIS that the contract's
+/// key expressions cover is asked of them alone, as a query of complete queryables (under that
+/// prefix when all of them answer there). Routers that hold it say so with liveliness tokens, and a
 /// liveliness query has a definite end, so the answer is known in one round trip (a querier's
 /// matching status is not, right after it is declared). Without one (peers, routers started with
 /// `--no-contract-cache`, earlier routers), every PEIS is asked as before.
-async fn held_for_all(core: &Core, key_expr: &str) -> bool {
+async fn held_for_all(core: &Core, key_expr: &str) -> Holders {
     // Among peers there is no router to hold anything.
     if core.answers_lag_presence {
-        return false;
+        return Holders::None;
     }
     let Ok(asked) = KeyExpr::try_from(key_expr) else {
-        return false;
+        return Holders::None;
     };
     if !crate::cache::held()
         .iter()
         .any(|held| held.includes(&asked))
     {
-        return false;
+        return Holders::None;
+    }
+    // Asked once for the questions that go out together (an executive's acquisition asks a dozen
+    // within milliseconds).
+    if let Some((at, holders)) = *lock(&core.holders)
+        && at.elapsed() < HOLDERS_KNOWN_FOR
+    {
+        return holders;
     }
     let Ok(replies) = core
         .session
@@ -575,14 +604,21 @@ async fn held_for_all(core: &Core, key_expr: &str) -> bool {
         .with(flume::unbounded())
         .await
     else {
-        return false;
+        return Holders::None;
     };
-    let mut held = false;
+    let mut tokens = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
-        held |= reply.result().is_ok();
+        if let Ok(sample) = reply.result() {
+            tokens.push(sample.key_expr().as_str().to_owned());
+        }
     }
-    held
+    let holders = Holders::of(tokens.iter().map(String::as_str));
+    *lock(&core.holders) = Some((std::time::Instant::now(), holders));
+    holders
 }
+
+/// How long the answer to which routers hold the contract stands before it is asked again.
+const HOLDERS_KNOWN_FOR: Duration = Duration::from_millis(500);
 
 /// How each tuple this PEIS has published and not removed goes out: its first value by a plain
 /// put, every later one through a declared Zenoh publisher.
@@ -937,9 +973,17 @@ struct Recent {
     subject: Option<(PeisId, Key)>,
     mimetype: Option<Mimetype>,
     route_hints: Option<Arc<RouteHints>>,
+    /// Whether the sample being read arrived under `@ecology/held/`: its route is that key
+    /// expression's, not the tuple's.
+    routed: bool,
 }
 
 impl Recent {
+    /// Notes the key expression the sample being read arrived on.
+    fn arrived_on(&mut self, key_expr: &str) {
+        self.routed = key_expr.starts_with(HELD_ROUTE);
+    }
+
     fn subject(&mut self, key_expr: &str) -> Result<(PeisId, Key), WireError> {
         if let Some(subject) = self.subject.as_ref().filter(|_| self.key_expr == key_expr) {
             return Ok(subject.clone());
@@ -947,7 +991,11 @@ impl Recent {
         let known = self.subject.as_ref().map(|(owner, _)| owner);
         let subject = wire::parse_tuple_key_expr_reusing(key_expr, known)?;
         if let Some(hints) = &self.route_hints {
-            hints.request(key_expr);
+            if self.routed {
+                hints.request(&format!("{HELD_ROUTE}/{key_expr}"));
+            } else {
+                hints.request(key_expr);
+            }
         }
         key_expr.clone_into(&mut self.key_expr);
         self.subject = Some(subject.clone());
@@ -971,9 +1019,17 @@ fn decode_sample(
     recent: &mut Recent,
 ) -> Result<TupleEvent, WireError> {
     let attachment = sample.attachment().map(zenoh::bytes::ZBytes::to_bytes);
+    // A tuple passed on by the routers that hold the contract, under `@ecology/held/`, is the
+    // owner's as it sent it.
+    let arrived_on = sample.key_expr().as_str();
+    let key_expr = arrived_on
+        .strip_prefix(HELD_ROUTE)
+        .and_then(|rest| rest.strip_prefix('/'))
+        .unwrap_or(arrived_on);
+    recent.arrived_on(arrived_on);
     match sample.kind() {
         SampleKind::Put => decode_put(
-            sample.key_expr().as_str(),
+            key_expr,
             &sample.payload().to_bytes(),
             attachment.as_deref(),
             || sample.encoding().to_string(),
@@ -982,7 +1038,7 @@ fn decode_sample(
             recent,
         ),
         SampleKind::Delete => {
-            let (owner, key) = recent.subject(sample.key_expr().as_str())?;
+            let (owner, key) = recent.subject(key_expr)?;
             let meta = match attachment {
                 Some(att) => Some(recent.metadata(&att)?),
                 None => None,
@@ -1227,10 +1283,20 @@ impl TupleSpace for ZenohPeis {
         } else {
             Locality::Any
         };
+        // Through routers that hold the contract and pass it on under `@ecology/held/`, what they
+        // hold is followed there: Zenoh matches a subscriber there with no PEIS's declarations (a
+        // subscriber to `peis/*/rooms/kitchen/*` cost a router of a thousand PEIS milliseconds).
+        let key_expr = wire::pattern_key_expr(&pattern);
+        let key_expr =
+            if origin == Locality::Any && held_for_all(core, &key_expr).await == Holders::Routed {
+                format!("{HELD_ROUTE}/{key_expr}")
+            } else {
+                key_expr
+            };
         // Declare first, then ask for the current values: nothing set in between is missed.
         let subscriber = core
             .session
-            .declare_subscriber(wire::pattern_key_expr(&pattern))
+            .declare_subscriber(key_expr)
             .allowed_origin(origin)
             .callback(move |sample| {
                 let mut merge = lock(&live);

@@ -365,19 +365,22 @@ impl Roster {
             "liveliness_query",
         ];
         // `**` does not cover chunks that start with `@`, so the verbatim ones are listed.
-        // The routers that hold the contract say so at `@ecology/holds-contract/ZID`.
+        // The routers that hold the contract say so at `@ecology/holds-contract/ZID` (and
+        // `…/ZID/routed`), and answer questions asked under `@ecology/held/`.
         let everything = json!([
             "**",
             "peis/*/@set/**",
             "peis/*/@by/**",
             "peis/*/@alive",
-            "@ecology/holds-contract/*"
+            "@ecology/holds-contract/**",
+            "@ecology/held/**"
         ]);
         let mut rules = vec![
             json!({"id": "read", "messages": ["declare_subscriber", "query",
                     "declare_liveliness_subscriber", "liveliness_query"],
                    "flows": ["ingress"], "permission": "allow",
-                   "key_exprs": ["peis/**", "peis/*/@alive", "@ecology/holds-contract/*"]}),
+                   "key_exprs": ["peis/**", "peis/*/@alive", "@ecology/holds-contract/**",
+                                 "@ecology/held/**"]}),
             json!({"id": "send", "messages": ALL, "flows": ["egress"], "permission": "allow",
                    "key_exprs": everything}),
             json!({"id": "relay", "messages": ALL, "flows": ["ingress"], "permission": "allow",

@@ -1983,6 +1983,48 @@ async fn a_router_answers_for_the_contract_of_every_peis_until_it_goes() {
                 );
             }
         }
+        // The same question under `@ecology/held/`: the router alone answers, in one bundle of
+        // the tuples' own keys; outside what it holds, nothing.
+        for (selector, expected) in [
+            (
+                format!("@ecology/held/peis/*/*/*?{}", wire::BUNDLE_PARAMETER),
+                Some("peis/ghost/c1/status"),
+            ),
+            (
+                format!("@ecology/held/peis/*/*/out/*?{}", wire::BUNDLE_PARAMETER),
+                None,
+            ),
+        ] {
+            let replies = asker
+                .get(selector.as_str())
+                .accept_replies(zenoh::query::ReplyKeyExpr::Any)
+                .target(zenoh::query::QueryTarget::AllComplete)
+                .await
+                .expect("get");
+            let mut got = Vec::new();
+            while let Ok(reply) = replies.recv_async().await {
+                got.push(reply.result().expect("a reply").clone());
+            }
+            let keys: Vec<String> = got
+                .iter()
+                .flat_map(|sample| {
+                    let bytes = sample.payload().to_bytes();
+                    let bundle = wire::decode_bundle(&bytes).expect("a bundle");
+                    bundle
+                        .tuples
+                        .iter()
+                        .map(|t| t.key_expr.to_string())
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            match expected {
+                Some(key) => {
+                    assert_eq!(got.len(), 1, "{selector}: {got:?}");
+                    assert!(keys.iter().any(|k| k == key), "{selector}: {keys:?}");
+                }
+                None => assert!(got.is_empty(), "{selector}: {got:?}"),
+            }
+        }
         asker.close().await.expect("close");
         token.undeclare().await.expect("undeclare");
         let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
