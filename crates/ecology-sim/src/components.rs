@@ -220,7 +220,7 @@ impl Truth {
                     if let Ok(text) = t.text() {
                         let key = t.key.as_str();
                         match WorldKey::parse(key) {
-                            Some(WorldKey::Map) => self.map = Map::parse(text).ok().map(Arc::new),
+                            Some(WorldKey::Map) => self.map = Map::parse_shared(text).ok(),
                             Some(WorldKey::RobotPose(name)) => match Pose::parse(text) {
                                 Ok(pose) => {
                                     self.robots.insert(key.to_string(), (name.into(), pose));

@@ -185,23 +185,33 @@ pub(crate) async fn with_robot_room<S: TupleSpace>(
 /// The room a robot PEIS is in, said by its cameras (`cam`) that say nothing of what they cover:
 /// a robot's camera sees the room the robot is in (within its range), so each says it covers that
 /// room, as the world places the robot, and says so again each time the robot enters another.
-struct RobotRoom {
+pub(crate) struct RobotRoom {
     /// The cameras, with their types.
     cameras: Vec<(ComponentId, String)>,
     /// The world's map and this robot's pose; empty when the PEIS has no such camera.
     subscriptions: SelectAll<Subscription>,
-    map: Option<Map>,
+    map: Option<Arc<Map>>,
     at: Option<(f64, f64)>,
     /// The room the cameras last said they cover.
     said: Vec<String>,
 }
 
 impl RobotRoom {
-    async fn follow<S: TupleSpace>(space: &S, def: &PeisDef) -> Result<RobotRoom, TupleError> {
-        let cameras: Vec<(ComponentId, String)> = def
-            .components
+    /// The cameras of `def` that say the room their robot is in: simulated `cam`s that say
+    /// nothing of what they cover.
+    fn cameras(def: &PeisDef) -> impl Iterator<Item = &crate::scenario::ComponentDef> {
+        def.components
             .iter()
             .filter(|c| c.kind == "cam" && c.covers.is_empty() && c.ros2.is_none())
+    }
+
+    /// Whether PEIS `def` has such cameras.
+    pub(crate) fn needed(def: &PeisDef) -> bool {
+        RobotRoom::cameras(def).next().is_some()
+    }
+
+    async fn follow<S: TupleSpace>(space: &S, def: &PeisDef) -> Result<RobotRoom, TupleError> {
+        let cameras: Vec<(ComponentId, String)> = RobotRoom::cameras(def)
             .filter_map(|c| Some((ComponentId::new(&c.id).ok()?, c.kind.clone())))
             .collect();
         let mut subscriptions = SelectAll::new();
@@ -234,7 +244,7 @@ impl RobotRoom {
         };
         let text = tuple.text().unwrap_or("");
         match WorldKey::parse(tuple.key.as_str()) {
-            Some(WorldKey::Map) => self.map = Map::parse(text).ok(),
+            Some(WorldKey::Map) => self.map = Map::parse_shared(text).ok(),
             Some(WorldKey::RobotPose(_)) => self.at = Pose::parse(text).ok().map(|p| (p.x, p.y)),
             _ => return Ok(()),
         }

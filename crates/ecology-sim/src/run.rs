@@ -29,7 +29,7 @@ use tokio::task::{AbortHandle, JoinSet};
 
 use crate::components::Faults;
 use crate::conflicts::{Change, ConflictCheck};
-use crate::host::{simulated_components, with_robot_room};
+use crate::host::{RobotRoom, simulated_components, with_robot_room};
 use crate::replan::WorldReplanner;
 use crate::scenario::{FaultKind, FaultSpec, PeisDef, Scenario, ScenarioTask, Trigger};
 use crate::world::World;
@@ -755,11 +755,16 @@ impl Simulation {
             simulated_components(def, &self.faults, self.seed),
             std::future::pending(),
         );
-        let (space, def) = (handle.clone(), def.clone());
-        let task = hosts.tasks.spawn(async move {
-            let result = with_robot_room(space, &def, host).await;
-            (name, result)
-        });
+        // Only a robot's host follows its room: wrapped, every host's future (a thousand in a
+        // building, each spawned as a task) was four times the size.
+        let task = if RobotRoom::needed(def) {
+            let (space, def) = (handle.clone(), def.clone());
+            hosts
+                .tasks
+                .spawn(async move { (name, with_robot_room(space, &def, host).await) })
+        } else {
+            hosts.tasks.spawn(async move { (name, host.await) })
+        };
         Ok(Hosted { handle, task })
     }
 

@@ -76,55 +76,112 @@ impl Subscriber {
     }
 }
 
-/// The tuple subscriptions, those of one owner apart from those of any owner, so that a change
-/// is matched only against the subscriptions that can want it (a PEIS host subscribes to its own
-/// requests: with a thousand PEIS, nearly all subscriptions name one owner). Each list is in the
-/// order of subscribing, and a change reaches its subscribers in that order across both.
+/// The tuple subscriptions, those of one owner apart from those of any owner, and among those of
+/// one owner those of one key apart, so that a change is matched only against the subscriptions
+/// that can want it (a PEIS host subscribes to its own requests: with a thousand PEIS, nearly all
+/// subscriptions name one owner; and a robot's host follows its own pose among the world's
+/// tuples). Each list is in the order of subscribing, and a change reaches its subscribers in that
+/// order across all of them.
 #[derive(Debug, Default)]
 struct Subscribers {
-    by_owner: FxHashMap<PeisId, Vec<Subscriber>>,
+    by_owner: FxHashMap<PeisId, OwnerSubscribers>,
     any_owner: Vec<Subscriber>,
-    /// The owner each subscription names, if one.
-    owner_of: FxHashMap<u64, Option<PeisId>>,
+    /// Where each subscription is kept.
+    placed: FxHashMap<u64, Place>,
+}
+
+/// The subscriptions that name one owner.
+#[derive(Debug, Default)]
+struct OwnerSubscribers {
+    /// Those that name one key of it.
+    by_key: FxHashMap<Key, Vec<Subscriber>>,
+    /// The others.
+    patterns: Vec<Subscriber>,
+}
+
+/// Where a subscription is kept in [`Subscribers`].
+#[derive(Debug)]
+enum Place {
+    AnyOwner,
+    Owner(PeisId),
+    Key(PeisId, Key),
 }
 
 impl Subscribers {
     fn push(&mut self, subscriber: Subscriber) {
-        let owner = match subscriber.patterns.as_slice() {
-            [one] => match &one.owner {
-                OwnerPattern::Exact(id) => Some(id.clone()),
-                OwnerPattern::Any => None,
+        let id = subscriber.id;
+        let place = match subscriber.patterns.as_slice() {
+            [one] => match (&one.owner, one.key.as_exact()) {
+                (OwnerPattern::Exact(id), Some(key)) => Place::Key(id.clone(), key),
+                (OwnerPattern::Exact(id), None) => Place::Owner(id.clone()),
+                (OwnerPattern::Any, _) => Place::AnyOwner,
             },
-            _ => None,
+            _ => Place::AnyOwner,
         };
-        self.owner_of.insert(subscriber.id, owner.clone());
-        match owner {
-            Some(id) => self.by_owner.entry(id).or_default().push(subscriber),
-            None => self.any_owner.push(subscriber),
+        match &place {
+            Place::Key(owner, key) => self
+                .by_owner
+                .entry(owner.clone())
+                .or_default()
+                .by_key
+                .entry(key.clone())
+                .or_default()
+                .push(subscriber),
+            Place::Owner(owner) => self
+                .by_owner
+                .entry(owner.clone())
+                .or_default()
+                .patterns
+                .push(subscriber),
+            Place::AnyOwner => self.any_owner.push(subscriber),
         }
+        self.placed.insert(id, place);
     }
 
     fn remove(&mut self, id: u64) {
-        match self.owner_of.remove(&id) {
-            Some(Some(owner)) => {
-                if let Some(list) = self.by_owner.get_mut(&owner) {
-                    list.retain(|s| s.id != id);
-                    if list.is_empty() {
+        match self.placed.remove(&id) {
+            Some(Place::Key(owner, key)) => {
+                if let Some(of) = self.by_owner.get_mut(&owner) {
+                    if let Some(list) = of.by_key.get_mut(&key) {
+                        list.retain(|s| s.id != id);
+                        if list.is_empty() {
+                            of.by_key.remove(&key);
+                        }
+                    }
+                    if of.by_key.is_empty() && of.patterns.is_empty() {
                         self.by_owner.remove(&owner);
                     }
                 }
             }
-            Some(None) => self.any_owner.retain(|s| s.id != id),
+            Some(Place::Owner(owner)) => {
+                if let Some(of) = self.by_owner.get_mut(&owner) {
+                    of.patterns.retain(|s| s.id != id);
+                    if of.by_key.is_empty() && of.patterns.is_empty() {
+                        self.by_owner.remove(&owner);
+                    }
+                }
+            }
+            Some(Place::AnyOwner) => self.any_owner.retain(|s| s.id != id),
             None => {}
         }
     }
 
+    /// The subscriptions that can want tuple (`owner`, `key`): of that key, of that owner, of any
+    /// owner; each list in the order of subscribing.
+    fn candidates(&self, owner: &PeisId, key: &Key) -> [&[Subscriber]; 3] {
+        let of = self.by_owner.get(owner);
+        let by_key = of
+            .and_then(|of| of.by_key.get(key))
+            .map_or(&[][..], Vec::as_slice);
+        let patterns = of.map_or(&[][..], |of| of.patterns.as_slice());
+        [by_key, patterns, self.any_owner.as_slice()]
+    }
+
     /// Whether a live subscription matches tuple (`owner`, `key`).
     fn any_matching(&self, owner: &PeisId, key: &Key) -> bool {
-        let exact = self.by_owner.get(owner).map_or(&[][..], Vec::as_slice);
-        exact
+        self.candidates(owner, key)
             .iter()
-            .chain(&self.any_owner)
+            .flat_map(|list| list.iter())
             .any(|s| !s.events.is_closed() && s.matches(owner, key))
     }
 
@@ -132,18 +189,16 @@ impl Subscribers {
     /// whose receiver is gone.
     fn broadcast(&mut self, event: &TupleEvent) {
         let (owner, key) = event.subject();
-        let exact: &[Subscriber] = self.by_owner.get(owner).map_or(&[], Vec::as_slice);
-        let any = self.any_owner.as_slice();
-        let (mut i, mut j) = (0, 0);
+        let lists = self.candidates(owner, key);
+        let mut next = [0usize; 3];
         let mut closed = Vec::new();
-        while i < exact.len() || j < any.len() {
-            let s = if j == any.len() || (i < exact.len() && exact[i].id < any[j].id) {
-                i += 1;
-                &exact[i - 1]
-            } else {
-                j += 1;
-                &any[j - 1]
-            };
+        // The three lists merged by the order of subscribing.
+        while let Some(l) = (0..3)
+            .filter(|&l| next[l] < lists[l].len())
+            .min_by_key(|&l| lists[l][next[l]].id)
+        {
+            let s = &lists[l][next[l]];
+            next[l] += 1;
             if s.matches(owner, key) && !s.events.send(event.clone()) {
                 closed.push(s.id);
             }

@@ -387,6 +387,62 @@ async fn try_next_takes_every_event_that_arrived_in_one_turn() {
     space.shutdown().await;
 }
 
+// A subscription to one key of one owner (kept apart, so that a change of another key passes it
+// by) gets that key's changes and no other's, beside subscriptions to patterns of the same owner
+// and of any owner; once dropped it gets nothing, and the others still do.
+#[tokio::test]
+async fn a_subscription_to_one_key_gets_that_key_alone() {
+    let space = InProcessSpace::new(Arc::new(VirtualClock::default()));
+    let world = space
+        .join(peis("world"), PeisOptions::default())
+        .expect("join");
+    let robot = space
+        .join(peis("bot-1"), PeisOptions::default())
+        .expect("join");
+    let subscribe = |pattern: &str| {
+        let robot = robot.clone();
+        let pattern = TuplePattern::parse(pattern).expect("pattern");
+        async move { robot.subscribe(pattern).await.expect("subscribe") }
+    };
+    let mut anything = subscribe("*:**").await;
+    let mut mine = subscribe("world:robots.bot-1.pose").await;
+    let mut the_world = subscribe("world:robots.*.pose").await;
+    let mut again = subscribe("world:robots.bot-1.pose").await;
+    let set = |k: &'static str| {
+        let world = world.clone();
+        async move { world.set(key(k), Value::text("1 2 0")).await.expect("set") }
+    };
+    set("robots.bot-2.pose").await;
+    set("robots.bot-1.pose").await;
+    let keys = |sub: &mut crate::Subscription| {
+        let mut keys = Vec::new();
+        while let Some(TupleEvent::Changed(t)) = sub.try_next() {
+            keys.push(t.key.to_string());
+        }
+        keys
+    };
+    assert_eq!(keys(&mut mine), ["robots.bot-1.pose"]);
+    assert_eq!(keys(&mut again), ["robots.bot-1.pose"]);
+    assert_eq!(
+        keys(&mut the_world),
+        ["robots.bot-2.pose", "robots.bot-1.pose"]
+    );
+    assert_eq!(
+        keys(&mut anything),
+        ["robots.bot-2.pose", "robots.bot-1.pose"]
+    );
+    assert!(world.is_read(&key("robots.bot-1.pose")));
+    drop(mine);
+    drop(the_world);
+    drop(anything);
+    set("robots.bot-1.pose").await;
+    assert_eq!(keys(&mut again), ["robots.bot-1.pose"]);
+    drop(again);
+    set("robots.bot-1.pose").await;
+    assert!(!world.is_read(&key("robots.bot-1.pose")));
+    space.shutdown().await;
+}
+
 proptest::proptest! {
     /// A pattern matches what walking its segments matches, whatever its last segment (the
     /// pattern tells keys that end otherwise at once).

@@ -14,6 +14,7 @@
 //! parsers return an error, never panic, on any input.
 
 use std::fmt::{self, Write};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use crate::contract::quoted;
 use crate::name::{Key, ValidationError};
@@ -469,6 +470,22 @@ impl Map {
             .map(|(_, r)| r)
     }
 
+    /// [`Map::parse`], shared: the map the last call in this process read, when `text` is the
+    /// same (every robot's host and every camera of a simulated building reads the world's one
+    /// map, a thousand rooms' worth of numbers each time).
+    pub fn parse_shared(text: &str) -> Result<Arc<Map>, TextError> {
+        static LAST: Mutex<Option<(String, Arc<Map>)>> = Mutex::new(None);
+        let mut last = LAST.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some((read, map)) = last.as_ref()
+            && read == text
+        {
+            return Ok(map.clone());
+        }
+        let map = Arc::new(Map::parse(text)?);
+        *last = Some((text.to_string(), map.clone()));
+        Ok(map)
+    }
+
     /// Parses the map's text: every item (between `;`) a room or a door, every number finite.
     /// The empty text is the empty map.
     pub fn parse(text: &str) -> Result<Map, TextError> {
@@ -622,6 +639,15 @@ mod tests {
         let mixed = Map::parse("door a b 1 2; room a 0 0 1.5 1").expect("parses");
         assert_eq!(mixed.to_string(), "room a 0 0 1.5 1; door a b 1 2");
         assert_eq!(Map::parse(""), Ok(Map::default()));
+        // Shared: the same text gives the same map, read once; another text its own.
+        let shared = Map::parse_shared(PEIS_HOME).expect("parses");
+        assert_eq!(*shared, map);
+        assert!(Arc::ptr_eq(
+            &shared,
+            &Map::parse_shared(PEIS_HOME).expect("parses")
+        ));
+        assert_eq!(*Map::parse_shared("").expect("parses"), Map::default());
+        assert!(Map::parse_shared("room a 0 0 1").is_err());
         assert_eq!(Map::default().to_string(), "");
         for bad in [
             "room",
