@@ -202,6 +202,9 @@ async fn execute(
     // SIGUSR1 asks where the process stands: the driver adds the executive's part.
     let asked = Arc::new(tokio::sync::Notify::new());
     let _reporter = network::report_on_sigusr1("task", Some(asked.clone()));
+    // Which routers hold the contract, followed from now on: the first questions of the task
+    // then go out without asking it.
+    space.follow_holders().await;
     // Wait for the PEIS the task needs, saying which are missing.
     let waited = Instant::now();
     let mut told = false;

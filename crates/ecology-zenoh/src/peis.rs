@@ -79,6 +79,9 @@ struct Core {
     contract_watch: tokio::sync::OnceCell<ContractWatch>,
     /// Which routers hold the contract, and when that was asked ([`held_for_all`]).
     holders: Mutex<Option<(std::time::Instant, Holders)>>,
+    /// The holders' tokens as followed since [`ZenohPeis::follow_holders`] (`None` before).
+    holder_tokens: Arc<Mutex<Option<BTreeSet<String>>>>,
+    holders_watch: tokio::sync::OnceCell<zenoh::pubsub::Subscriber<()>>,
 }
 
 /// The subscriptions that keep [`Core::contracts`] current: an owner's announcement (put or
@@ -293,6 +296,8 @@ impl ZenohPeis {
             contracts: Arc::new(Mutex::new(HashMap::new())),
             contract_watch: tokio::sync::OnceCell::new(),
             holders: Mutex::new(None),
+            holder_tokens: Arc::new(Mutex::new(None)),
+            holders_watch: tokio::sync::OnceCell::new(),
         });
         // In the store before the service task answers its first get: whoever sees this PEIS
         // present and asks what it reads gets the answer.
@@ -319,6 +324,46 @@ impl ZenohPeis {
                 _relink: relinking,
             }),
         })
+    }
+
+    /// Follows which routers hold the component contract from now on, so that a question of it
+    /// need not first ask them (an executive does so before it starts its task: its first
+    /// questions then go out at once). Does nothing among peers, where no router holds anything,
+    /// or when Zenoh refuses the subscriber (the holders are then asked as before).
+    pub async fn follow_holders(&self) {
+        let core = &self.inner.core;
+        if core.answers_lag_presence {
+            return;
+        }
+        let tokens = core.holder_tokens.clone();
+        let watched = core
+            .holders_watch
+            .get_or_try_init(|| async {
+                core.session
+                    .liveliness()
+                    .declare_subscriber(crate::cache::HOLDERS)
+                    .history(true)
+                    .callback(move |sample| {
+                        let token = sample.key_expr().as_str().to_owned();
+                        let mut tokens = lock(&tokens);
+                        let tokens = tokens.get_or_insert_with(BTreeSet::new);
+                        match sample.kind() {
+                            SampleKind::Put => tokens.insert(token),
+                            SampleKind::Delete => tokens.remove(&token),
+                        };
+                    })
+                    .await
+            })
+            .await;
+        if watched.is_err() {
+            return;
+        }
+        // The history comes with no end: a liveliness query has one, and what it finds is there.
+        if let Ok(replies) = ask_alive_tokens(&core.session, core.query_timeout).await {
+            lock(&core.holder_tokens)
+                .get_or_insert_with(BTreeSet::new)
+                .extend(replies);
+        }
     }
 
     /// Leaves the ecology: stops the service task, withdraws the liveliness token and closes the session.
@@ -589,32 +634,42 @@ async fn held_for_all(core: &Core, key_expr: &str) -> Holders {
     {
         return Holders::None;
     }
-    // Asked once for the questions that go out together (an executive's acquisition asks a dozen
-    // within milliseconds).
+    // Followed (an executive's session), or asked once for the questions that go out together
+    // (an executive's acquisition asks a dozen within milliseconds).
+    if let Some(tokens) = lock(&core.holder_tokens).as_ref() {
+        return Holders::of(tokens.iter().map(String::as_str));
+    }
     if let Some((at, holders)) = *lock(&core.holders)
         && at.elapsed() < HOLDERS_KNOWN_FOR
     {
         return holders;
     }
-    let Ok(replies) = core
-        .session
-        .liveliness()
-        .get(crate::cache::HOLDERS)
-        .timeout(core.query_timeout)
-        .with(flume::unbounded())
-        .await
-    else {
+    let Ok(tokens) = ask_alive_tokens(&core.session, core.query_timeout).await else {
         return Holders::None;
     };
+    let holders = Holders::of(tokens.iter().map(String::as_str));
+    *lock(&core.holders) = Some((std::time::Instant::now(), holders));
+    holders
+}
+
+/// The holders' tokens present now ([`crate::cache::HOLDERS`]).
+async fn ask_alive_tokens(
+    session: &zenoh::Session,
+    timeout: Duration,
+) -> zenoh::Result<Vec<String>> {
+    let replies = session
+        .liveliness()
+        .get(crate::cache::HOLDERS)
+        .timeout(timeout)
+        .with(flume::unbounded())
+        .await?;
     let mut tokens = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
         if let Ok(sample) = reply.result() {
             tokens.push(sample.key_expr().as_str().to_owned());
         }
     }
-    let holders = Holders::of(tokens.iter().map(String::as_str));
-    *lock(&core.holders) = Some((std::time::Instant::now(), holders));
-    holders
+    Ok(tokens)
 }
 
 /// How long the answer to which routers hold the contract stands before it is asked again.
