@@ -1629,6 +1629,16 @@ mod on_the_tuple_space {
         exec
     }
 
+    /// The paper's costs with hsm's tracker failing on the way to the bedroom and a monitor that
+    /// joined meanwhile (costs of 5) taking over: 80, 100, 80, then 50, then 20.
+    const ONTO_THE_MONITOR: [(u64, bool); 5] = [
+        (80, false),
+        (100, false),
+        (80, false),
+        (50, true),
+        (20, false),
+    ];
+
     // Acquired on demand, the state still takes in a PEIS that joins during the task with a
     // component the goal can use: the next configuration may use it.
     #[tokio::test(start_paused = true)]
@@ -1646,13 +1656,7 @@ mod on_the_tuple_space {
         let text = timeline(&exec);
         assert_eq!(
             costs(&exec),
-            [
-                (80, false),
-                (100, false),
-                (80, false),
-                (50, true),
-                (20, false)
-            ],
+            ONTO_THE_MONITOR,
             "mon's own costs (5 each), not its functionalities' defaults: {text}"
         );
         assert!(text.contains("on mon:tr9"), "{text}");
@@ -1682,17 +1686,7 @@ mod on_the_tuple_space {
         .done()
         .await;
         let text = timeline(&exec);
-        assert_eq!(
-            costs(&exec),
-            [
-                (80, false),
-                (100, false),
-                (80, false),
-                (50, true),
-                (20, false)
-            ],
-            "{text}"
-        );
+        assert_eq!(costs(&exec), ONTO_THE_MONITOR, "{text}");
         assert!(text.contains("on mon:tr9"), "{text}");
         // Astrid, hsm and mon; the living room and the entrance. Not Pippi, whose camera says no
         // room it covers, nor `far`.
