@@ -476,9 +476,8 @@ impl<S: TupleSpace> Follow<S> {
         }
         self.followed = wanted;
         let mut out = self.subscribe(exec, now, patterns).await?;
-        // Those that answered who covers a room are followed in turn.
+        // Those that answered who covers a room are followed in turn (and the intake told).
         out.extend(self.follow_found(exec, now).await?);
-        self.note(exec);
         Ok(out)
     }
 

@@ -50,6 +50,9 @@ impl Interest {
         let mut todo: Vec<(&[PlannedAction], &[PlanBranch])> = vec![(steps, branches)];
         // Branches that join share their plan: each is read once.
         let mut seen = HashSet::new();
+        // The world's facts, and after them those of the action at hand.
+        let mut facts: Vec<Fact> = world.facts().to_vec();
+        let of_world = facts.len();
         while let Some((steps, branches)) = todo.pop() {
             for step in steps {
                 let Some(goal) = &step.goal else { continue };
@@ -58,7 +61,7 @@ impl Interest {
                     None => return Interest::Everything,
                 }
                 if let Some(within) = &mut scope {
-                    let mut facts: Vec<Fact> = world.facts().to_vec();
+                    facts.truncate(of_world);
                     facts.extend(planner.facts_at_action(&step.action));
                     match component_scope(domain, goal, &facts) {
                         Some(more) => within.extend(more),

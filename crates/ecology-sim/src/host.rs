@@ -126,14 +126,13 @@ pub async fn host_peis<S: TupleSpace>(
             }
         }
     }
-    let mut rooms = RobotRoom::follow(&space, def).await?;
     let host = run_host_with(space.clone(), clock, components, options, shutdown);
-    tokio::pin!(host);
-    loop {
-        tokio::select! {
+    let with_faults = async {
+        tokio::pin!(host);
+        loop {
+            tokio::select! {
             biased;
             result = &mut host => return result,
-            Some(event) = rooms.next() => rooms.take(&space, event).await?,
             Some(event) = fault_tuples.next() => {
                 let TupleEvent::Changed(tuple) = event else { continue };
                 let Some(component) = tuple.key.as_str().strip_suffix(".fault") else { continue };
@@ -160,8 +159,10 @@ pub async fn host_peis<S: TupleSpace>(
                     )),
                 }
             }
+            }
         }
-    }
+    };
+    with_robot_room(space, def, with_faults).await
 }
 
 /// Runs `host` (PEIS `def`'s host on `space`) until it ends, with its robot cameras saying the
